@@ -1,0 +1,395 @@
+//! Tasks: assignments from the station and status reports from vehicles.
+//!
+//! On the wire a [`TaskAssignment`] is one flat struct (a kind plus every parameter) because
+//! flat structs are what every DDS vendor's IDL tooling handles alike; [`Task`] is the typed
+//! view the rest of Shoal works with, and [`TaskAssignment::task`] checks the two agree.
+
+use serde::{Deserialize, Serialize};
+
+use crate::validate::{finite_in, identifier, optional_identifier, optional_in, text, timestamp};
+use crate::{
+    MAX_ID_LEN, MAX_TEXT_LEN, MAX_VEHICLE_ID_LEN, StateVector, UNKNOWN, Validate, ValidationError,
+};
+
+/// A WGS84 position on the surface, in degrees.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GeoPoint {
+    /// Latitude in degrees, [-90, 90].
+    pub latitude_deg: f64,
+    /// Longitude in degrees, [-180, 180].
+    pub longitude_deg: f64,
+}
+
+impl Validate for GeoPoint {
+    fn validate(&self) -> Result<(), ValidationError> {
+        let (lat, lon) = (StateVector::LATITUDE, StateVector::LONGITUDE);
+        finite_in("area.latitude_deg", self.latitude_deg, lat.0, lat.1)?;
+        finite_in("area.longitude_deg", self.longitude_deg, lon.0, lon.1)
+    }
+}
+
+/// The kind of a simple task; the IDL enum `shoal::TaskKind` in the same order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TaskKind {
+    /// Go to one waypoint.
+    GotoWaypoint,
+    /// Lawnmower survey over a polygon.
+    SurveyArea,
+    /// Hold position / loiter.
+    Hold,
+    /// Come to the surface.
+    Surface,
+    /// Return to the launch point.
+    ReturnHome,
+    /// Emergency surface / abort everything.
+    Abort,
+    /// Send a state vector now.
+    RequestState,
+    /// Change the state reporting rate.
+    SetReportingRate,
+}
+
+/// A simple task for one vehicle; DDS key `task_id`, reliable and transient-local.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TaskAssignment {
+    /// Task identifier: 1..=64 of `[A-Za-z0-9_.-]`.
+    pub task_id: String,
+    /// Mission the task belongs to, or empty.
+    pub mission_id: String,
+    /// Vehicle that must execute the task.
+    pub vehicle_id: String,
+    /// When the station issued the task, ms since the Unix epoch.
+    pub issued_ms: i64,
+    /// What to do; which parameters below apply depends on it.
+    pub kind: TaskKind,
+    /// `goto_waypoint`: exactly one point; `survey_area`: polygon of 3..=256 corners.
+    pub area: Vec<GeoPoint>,
+    /// Target depth in metres [0, 11000], or -1 to keep altitude instead.
+    pub depth_m: f64,
+    /// Target altitude above seabed in metres [0, 10000], or -1 to keep depth instead.
+    pub altitude_m: f64,
+    /// Speed in m/s, [0, 30]; 0 lets the vehicle choose.
+    pub speed_mps: f64,
+    /// `survey_area`: distance between survey lines in metres, [1, 10000].
+    pub line_spacing_m: f64,
+    /// `hold`: how long in seconds, [0, 86400]; 0 means until the next task.
+    pub duration_s: f64,
+    /// `set_reporting_rate`: state vectors per second, (0, 100].
+    pub rate_hz: f64,
+}
+
+/// The typed view of a [`TaskAssignment`]'s kind and parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Task {
+    /// Go to a waypoint at a depth (or altitude) and speed.
+    GotoWaypoint {
+        /// Where to go.
+        target: GeoPoint,
+        /// Depth in metres, or `None` to hold altitude.
+        depth_m: Option<f64>,
+        /// Altitude in metres, or `None` to hold depth.
+        altitude_m: Option<f64>,
+        /// Speed in m/s.
+        speed_mps: f64,
+    },
+    /// Lawnmower survey over a polygon.
+    SurveyArea {
+        /// Polygon corners, 3..=256.
+        polygon: Vec<GeoPoint>,
+        /// Distance between lines in metres.
+        line_spacing_m: f64,
+        /// Depth in metres, or `None` to hold altitude.
+        depth_m: Option<f64>,
+        /// Altitude in metres, or `None` to hold depth.
+        altitude_m: Option<f64>,
+        /// Speed in m/s.
+        speed_mps: f64,
+    },
+    /// Hold position for a duration (0 = until the next task).
+    Hold {
+        /// Seconds.
+        duration_s: f64,
+    },
+    /// Come to the surface.
+    Surface,
+    /// Return to the launch point.
+    ReturnHome,
+    /// Emergency surface.
+    Abort,
+    /// Report a state vector now.
+    RequestState,
+    /// Report state at this rate.
+    SetReportingRate {
+        /// State vectors per second.
+        rate_hz: f64,
+    },
+}
+
+fn some_unless_unknown(v: f64) -> Option<f64> {
+    if v == UNKNOWN { None } else { Some(v) }
+}
+
+impl TaskAssignment {
+    /// Most polygon corners a survey may have.
+    pub const MAX_AREA: usize = 256;
+
+    /// Builds the wire form of a typed task.
+    pub fn new(
+        task_id: impl Into<String>,
+        mission_id: impl Into<String>,
+        vehicle_id: impl Into<String>,
+        issued_ms: i64,
+        task: &Task,
+    ) -> Self {
+        let mut a = Self {
+            task_id: task_id.into(),
+            mission_id: mission_id.into(),
+            vehicle_id: vehicle_id.into(),
+            issued_ms,
+            kind: task.kind(),
+            area: Vec::new(),
+            depth_m: UNKNOWN,
+            altitude_m: UNKNOWN,
+            speed_mps: 0.0,
+            line_spacing_m: 0.0,
+            duration_s: 0.0,
+            rate_hz: 0.0,
+        };
+        match task {
+            Task::GotoWaypoint { target, depth_m, altitude_m, speed_mps } => {
+                a.area = vec![*target];
+                a.depth_m = depth_m.unwrap_or(UNKNOWN);
+                a.altitude_m = altitude_m.unwrap_or(UNKNOWN);
+                a.speed_mps = *speed_mps;
+            }
+            Task::SurveyArea { polygon, line_spacing_m, depth_m, altitude_m, speed_mps } => {
+                a.area.clone_from(polygon);
+                a.line_spacing_m = *line_spacing_m;
+                a.depth_m = depth_m.unwrap_or(UNKNOWN);
+                a.altitude_m = altitude_m.unwrap_or(UNKNOWN);
+                a.speed_mps = *speed_mps;
+            }
+            Task::Hold { duration_s } => a.duration_s = *duration_s,
+            Task::SetReportingRate { rate_hz } => a.rate_hz = *rate_hz,
+            Task::Surface | Task::ReturnHome | Task::Abort | Task::RequestState => {}
+        }
+        a
+    }
+
+    /// The typed task, after validating every field that its kind uses.
+    pub fn task(&self) -> Result<Task, ValidationError> {
+        self.validate()?;
+        Ok(match self.kind {
+            TaskKind::GotoWaypoint => Task::GotoWaypoint {
+                target: self.area[0],
+                depth_m: some_unless_unknown(self.depth_m),
+                altitude_m: some_unless_unknown(self.altitude_m),
+                speed_mps: self.speed_mps,
+            },
+            TaskKind::SurveyArea => Task::SurveyArea {
+                polygon: self.area.clone(),
+                line_spacing_m: self.line_spacing_m,
+                depth_m: some_unless_unknown(self.depth_m),
+                altitude_m: some_unless_unknown(self.altitude_m),
+                speed_mps: self.speed_mps,
+            },
+            TaskKind::Hold => Task::Hold { duration_s: self.duration_s },
+            TaskKind::Surface => Task::Surface,
+            TaskKind::ReturnHome => Task::ReturnHome,
+            TaskKind::Abort => Task::Abort,
+            TaskKind::RequestState => Task::RequestState,
+            TaskKind::SetReportingRate => Task::SetReportingRate { rate_hz: self.rate_hz },
+        })
+    }
+}
+
+impl Task {
+    /// The wire kind of this task.
+    pub fn kind(&self) -> TaskKind {
+        match self {
+            Self::GotoWaypoint { .. } => TaskKind::GotoWaypoint,
+            Self::SurveyArea { .. } => TaskKind::SurveyArea,
+            Self::Hold { .. } => TaskKind::Hold,
+            Self::Surface => TaskKind::Surface,
+            Self::ReturnHome => TaskKind::ReturnHome,
+            Self::Abort => TaskKind::Abort,
+            Self::RequestState => TaskKind::RequestState,
+            Self::SetReportingRate { .. } => TaskKind::SetReportingRate,
+        }
+    }
+}
+
+impl Validate for TaskAssignment {
+    fn validate(&self) -> Result<(), ValidationError> {
+        identifier("task_id", &self.task_id, MAX_ID_LEN)?;
+        optional_identifier("mission_id", &self.mission_id, MAX_ID_LEN)?;
+        identifier("vehicle_id", &self.vehicle_id, MAX_VEHICLE_ID_LEN)?;
+        timestamp("issued_ms", self.issued_ms)?;
+        if self.area.len() > Self::MAX_AREA {
+            return Err(ValidationError::Inconsistent { field: "area", rule: "at most 256 points" });
+        }
+        for p in &self.area {
+            p.validate()?;
+        }
+        optional_in("depth_m", self.depth_m, StateVector::DEPTH.0, StateVector::DEPTH.1)?;
+        optional_in("altitude_m", self.altitude_m, StateVector::ALTITUDE.0, StateVector::ALTITUDE.1)?;
+        finite_in("speed_mps", self.speed_mps, StateVector::SPEED.0, StateVector::SPEED.1)?;
+        finite_in("line_spacing_m", self.line_spacing_m, 0.0, 10_000.0)?;
+        finite_in("duration_s", self.duration_s, 0.0, 86_400.0)?;
+        finite_in("rate_hz", self.rate_hz, 0.0, 100.0)?;
+        let moves = matches!(self.kind, TaskKind::GotoWaypoint | TaskKind::SurveyArea);
+        if moves && (self.depth_m == UNKNOWN) == (self.altitude_m == UNKNOWN) {
+            return Err(ValidationError::Inconsistent {
+                field: "depth_m",
+                rule: "exactly one of depth_m and altitude_m must be set (the other -1)",
+            });
+        }
+        match self.kind {
+            TaskKind::GotoWaypoint if self.area.len() != 1 => Err(ValidationError::Inconsistent {
+                field: "area",
+                rule: "goto_waypoint needs exactly one point",
+            }),
+            TaskKind::SurveyArea if self.area.len() < 3 => Err(ValidationError::Inconsistent {
+                field: "area",
+                rule: "survey_area needs a polygon of at least 3 points",
+            }),
+            TaskKind::SurveyArea if self.line_spacing_m < 1.0 => Err(ValidationError::OutOfRange {
+                field: "line_spacing_m",
+                value: self.line_spacing_m,
+                min: 1.0,
+                max: 10_000.0,
+            }),
+            TaskKind::SetReportingRate if self.rate_hz <= 0.0 => Err(ValidationError::OutOfRange {
+                field: "rate_hz",
+                value: self.rate_hz,
+                min: f64::MIN_POSITIVE,
+                max: 100.0,
+            }),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// The life cycle of a task; the IDL enum `shoal::TaskState` in the same order.
+///
+/// `pending → sent → accepted → running → done | failed | aborted | expired`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TaskState {
+    /// Registered at the station, not yet sent.
+    Pending,
+    /// Handed to a link.
+    Sent,
+    /// The vehicle accepted it.
+    Accepted,
+    /// The vehicle is executing it.
+    Running,
+    /// Finished successfully.
+    Done,
+    /// The vehicle could not do it.
+    Failed,
+    /// Cancelled by an operator or superseded by an abort.
+    Aborted,
+    /// Not confirmed before its deadline.
+    Expired,
+}
+
+impl TaskState {
+    /// True for the states a task never leaves.
+    pub fn is_final(self) -> bool {
+        matches!(self, Self::Done | Self::Failed | Self::Aborted | Self::Expired)
+    }
+}
+
+/// A report on one task; DDS key `task_id`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TaskStatus {
+    /// Task reported on.
+    pub task_id: String,
+    /// Vehicle reporting.
+    pub vehicle_id: String,
+    /// Time of the report, ms since the Unix epoch.
+    pub timestamp_ms: i64,
+    /// New state.
+    pub state: TaskState,
+    /// Progress in percent, [0, 100].
+    pub progress_pct: f64,
+    /// Free text, at most 512 bytes (e.g. why it failed).
+    pub message: String,
+}
+
+impl Validate for TaskStatus {
+    fn validate(&self) -> Result<(), ValidationError> {
+        identifier("task_id", &self.task_id, MAX_ID_LEN)?;
+        identifier("vehicle_id", &self.vehicle_id, MAX_VEHICLE_ID_LEN)?;
+        timestamp("timestamp_ms", self.timestamp_ms)?;
+        finite_in("progress_pct", self.progress_pct, 0.0, 100.0)?;
+        text("message", &self.message, MAX_TEXT_LEN)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const T: i64 = 1_700_000_000_000;
+
+    fn p(lat: f64, lon: f64) -> GeoPoint {
+        GeoPoint { latitude_deg: lat, longitude_deg: lon }
+    }
+
+    #[test]
+    fn typed_tasks_round_trip_through_the_wire_form() {
+        let tasks = [
+            Task::GotoWaypoint { target: p(1.0, 2.0), depth_m: Some(10.0), altitude_m: None, speed_mps: 1.5 },
+            Task::SurveyArea {
+                polygon: vec![p(0.0, 0.0), p(0.0, 0.01), p(0.01, 0.01)],
+                line_spacing_m: 20.0,
+                depth_m: None,
+                altitude_m: Some(5.0),
+                speed_mps: 1.0,
+            },
+            Task::Hold { duration_s: 60.0 },
+            Task::Surface,
+            Task::ReturnHome,
+            Task::Abort,
+            Task::RequestState,
+            Task::SetReportingRate { rate_hz: 2.0 },
+        ];
+        for t in tasks {
+            let a = TaskAssignment::new("t1", "m1", "auv-1", T, &t);
+            assert_eq!(a.task(), Ok(t));
+        }
+    }
+
+    #[test]
+    fn goto_with_two_points_is_inconsistent() {
+        let mut a = TaskAssignment::new(
+            "t1",
+            "",
+            "auv-1",
+            T,
+            &Task::GotoWaypoint { target: p(1.0, 2.0), depth_m: Some(1.0), altitude_m: None, speed_mps: 1.0 },
+        );
+        a.area.push(p(1.0, 2.0));
+        assert_eq!(a.task().unwrap_err().reason().to_string(), "inconsistent:area");
+    }
+
+    #[test]
+    fn goto_with_both_depth_and_altitude_is_inconsistent() {
+        let a = TaskAssignment::new(
+            "t1",
+            "",
+            "auv-1",
+            T,
+            &Task::GotoWaypoint { target: p(1.0, 2.0), depth_m: Some(1.0), altitude_m: Some(2.0), speed_mps: 1.0 },
+        );
+        assert!(a.validate().is_err());
+    }
+
+    #[test]
+    fn final_states_are_final() {
+        assert!(TaskState::Done.is_final() && !TaskState::Running.is_final());
+    }
+}
