@@ -33,7 +33,11 @@ impl Validate for EnvironmentObservation {
         timestamp("timestamp_ms", self.timestamp_ms)?;
         finite_in("value", self.value, f64::MIN, f64::MAX)?;
         text("unit", &self.unit, 16)?;
-        let (lat, lon, depth) = (StateVector::LATITUDE, StateVector::LONGITUDE, StateVector::DEPTH);
+        let (lat, lon, depth) = (
+            StateVector::LATITUDE,
+            StateVector::LONGITUDE,
+            StateVector::DEPTH,
+        );
         finite_in("latitude_deg", self.latitude_deg, lat.0, lat.1)?;
         finite_in("longitude_deg", self.longitude_deg, lon.0, lon.1)?;
         finite_in("depth_m", self.depth_m, depth.0, depth.1)
@@ -56,6 +60,9 @@ mod tests {
             longitude_deg: 0.0,
             depth_m: 5.0,
         };
-        assert_eq!(o.validate().unwrap_err().reason().to_string(), "not_finite:value");
+        assert_eq!(
+            o.validate().unwrap_err().reason().to_string(),
+            "not_finite:value"
+        );
     }
 }

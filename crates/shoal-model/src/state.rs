@@ -57,10 +57,25 @@ impl Validate for StateVector {
     fn validate(&self) -> Result<(), ValidationError> {
         identifier("vehicle_id", &self.vehicle_id, MAX_VEHICLE_ID_LEN)?;
         timestamp("timestamp_ms", self.timestamp_ms)?;
-        finite_in("latitude_deg", self.latitude_deg, Self::LATITUDE.0, Self::LATITUDE.1)?;
-        finite_in("longitude_deg", self.longitude_deg, Self::LONGITUDE.0, Self::LONGITUDE.1)?;
+        finite_in(
+            "latitude_deg",
+            self.latitude_deg,
+            Self::LATITUDE.0,
+            Self::LATITUDE.1,
+        )?;
+        finite_in(
+            "longitude_deg",
+            self.longitude_deg,
+            Self::LONGITUDE.0,
+            Self::LONGITUDE.1,
+        )?;
         finite_in("depth_m", self.depth_m, Self::DEPTH.0, Self::DEPTH.1)?;
-        optional_in("altitude_m", self.altitude_m, Self::ALTITUDE.0, Self::ALTITUDE.1)?;
+        optional_in(
+            "altitude_m",
+            self.altitude_m,
+            Self::ALTITUDE.0,
+            Self::ALTITUDE.1,
+        )?;
         finite_in("speed_mps", self.speed_mps, Self::SPEED.0, Self::SPEED.1)?;
         finite_in("yaw_deg", self.yaw_deg, Self::YAW.0, Self::YAW.1)?;
         if self.yaw_deg >= 360.0 {
@@ -73,7 +88,12 @@ impl Validate for StateVector {
         }
         finite_in("pitch_deg", self.pitch_deg, Self::PITCH.0, Self::PITCH.1)?;
         finite_in("roll_deg", self.roll_deg, Self::ROLL.0, Self::ROLL.1)?;
-        finite_in("battery_pct", self.battery_pct, Self::BATTERY.0, Self::BATTERY.1)?;
+        finite_in(
+            "battery_pct",
+            self.battery_pct,
+            Self::BATTERY.0,
+            Self::BATTERY.1,
+        )?;
         Ok(())
     }
 }

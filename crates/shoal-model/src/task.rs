@@ -157,13 +157,24 @@ impl TaskAssignment {
             rate_hz: 0.0,
         };
         match task {
-            Task::GotoWaypoint { target, depth_m, altitude_m, speed_mps } => {
+            Task::GotoWaypoint {
+                target,
+                depth_m,
+                altitude_m,
+                speed_mps,
+            } => {
                 a.area = vec![*target];
                 a.depth_m = depth_m.unwrap_or(UNKNOWN);
                 a.altitude_m = altitude_m.unwrap_or(UNKNOWN);
                 a.speed_mps = *speed_mps;
             }
-            Task::SurveyArea { polygon, line_spacing_m, depth_m, altitude_m, speed_mps } => {
+            Task::SurveyArea {
+                polygon,
+                line_spacing_m,
+                depth_m,
+                altitude_m,
+                speed_mps,
+            } => {
                 a.area.clone_from(polygon);
                 a.line_spacing_m = *line_spacing_m;
                 a.depth_m = depth_m.unwrap_or(UNKNOWN);
@@ -194,12 +205,16 @@ impl TaskAssignment {
                 altitude_m: some_unless_unknown(self.altitude_m),
                 speed_mps: self.speed_mps,
             },
-            TaskKind::Hold => Task::Hold { duration_s: self.duration_s },
+            TaskKind::Hold => Task::Hold {
+                duration_s: self.duration_s,
+            },
             TaskKind::Surface => Task::Surface,
             TaskKind::ReturnHome => Task::ReturnHome,
             TaskKind::Abort => Task::Abort,
             TaskKind::RequestState => Task::RequestState,
-            TaskKind::SetReportingRate => Task::SetReportingRate { rate_hz: self.rate_hz },
+            TaskKind::SetReportingRate => Task::SetReportingRate {
+                rate_hz: self.rate_hz,
+            },
         })
     }
 }
@@ -227,14 +242,32 @@ impl Validate for TaskAssignment {
         identifier("vehicle_id", &self.vehicle_id, MAX_VEHICLE_ID_LEN)?;
         timestamp("issued_ms", self.issued_ms)?;
         if self.area.len() > Self::MAX_AREA {
-            return Err(ValidationError::Inconsistent { field: "area", rule: "at most 256 points" });
+            return Err(ValidationError::Inconsistent {
+                field: "area",
+                rule: "at most 256 points",
+            });
         }
         for p in &self.area {
             p.validate()?;
         }
-        optional_in("depth_m", self.depth_m, StateVector::DEPTH.0, StateVector::DEPTH.1)?;
-        optional_in("altitude_m", self.altitude_m, StateVector::ALTITUDE.0, StateVector::ALTITUDE.1)?;
-        finite_in("speed_mps", self.speed_mps, StateVector::SPEED.0, StateVector::SPEED.1)?;
+        optional_in(
+            "depth_m",
+            self.depth_m,
+            StateVector::DEPTH.0,
+            StateVector::DEPTH.1,
+        )?;
+        optional_in(
+            "altitude_m",
+            self.altitude_m,
+            StateVector::ALTITUDE.0,
+            StateVector::ALTITUDE.1,
+        )?;
+        finite_in(
+            "speed_mps",
+            self.speed_mps,
+            StateVector::SPEED.0,
+            StateVector::SPEED.1,
+        )?;
         finite_in("line_spacing_m", self.line_spacing_m, 0.0, 10_000.0)?;
         finite_in("duration_s", self.duration_s, 0.0, 86_400.0)?;
         finite_in("rate_hz", self.rate_hz, 0.0, 100.0)?;
@@ -298,7 +331,10 @@ pub enum TaskState {
 impl TaskState {
     /// True for the states a task never leaves.
     pub fn is_final(self) -> bool {
-        matches!(self, Self::Done | Self::Failed | Self::Aborted | Self::Expired)
+        matches!(
+            self,
+            Self::Done | Self::Failed | Self::Aborted | Self::Expired
+        )
     }
 }
 
@@ -336,13 +372,21 @@ mod tests {
     const T: i64 = 1_700_000_000_000;
 
     fn p(lat: f64, lon: f64) -> GeoPoint {
-        GeoPoint { latitude_deg: lat, longitude_deg: lon }
+        GeoPoint {
+            latitude_deg: lat,
+            longitude_deg: lon,
+        }
     }
 
     #[test]
     fn typed_tasks_round_trip_through_the_wire_form() {
         let tasks = [
-            Task::GotoWaypoint { target: p(1.0, 2.0), depth_m: Some(10.0), altitude_m: None, speed_mps: 1.5 },
+            Task::GotoWaypoint {
+                target: p(1.0, 2.0),
+                depth_m: Some(10.0),
+                altitude_m: None,
+                speed_mps: 1.5,
+            },
             Task::SurveyArea {
                 polygon: vec![p(0.0, 0.0), p(0.0, 0.01), p(0.01, 0.01)],
                 line_spacing_m: 20.0,
@@ -370,10 +414,18 @@ mod tests {
             "",
             "auv-1",
             T,
-            &Task::GotoWaypoint { target: p(1.0, 2.0), depth_m: Some(1.0), altitude_m: None, speed_mps: 1.0 },
+            &Task::GotoWaypoint {
+                target: p(1.0, 2.0),
+                depth_m: Some(1.0),
+                altitude_m: None,
+                speed_mps: 1.0,
+            },
         );
         a.area.push(p(1.0, 2.0));
-        assert_eq!(a.task().unwrap_err().reason().to_string(), "inconsistent:area");
+        assert_eq!(
+            a.task().unwrap_err().reason().to_string(),
+            "inconsistent:area"
+        );
     }
 
     #[test]
@@ -383,7 +435,12 @@ mod tests {
             "",
             "auv-1",
             T,
-            &Task::GotoWaypoint { target: p(1.0, 2.0), depth_m: Some(1.0), altitude_m: Some(2.0), speed_mps: 1.0 },
+            &Task::GotoWaypoint {
+                target: p(1.0, 2.0),
+                depth_m: Some(1.0),
+                altitude_m: Some(2.0),
+                speed_mps: 1.0,
+            },
         );
         assert!(a.validate().is_err());
     }

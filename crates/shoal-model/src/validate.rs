@@ -82,18 +82,33 @@ pub trait Validate {
     fn validate(&self) -> Result<(), ValidationError>;
 }
 
-pub(crate) fn finite_in(field: &'static str, value: f64, min: f64, max: f64) -> Result<(), ValidationError> {
+pub(crate) fn finite_in(
+    field: &'static str,
+    value: f64,
+    min: f64,
+    max: f64,
+) -> Result<(), ValidationError> {
     if !value.is_finite() {
         return Err(ValidationError::NotFinite { field });
     }
     if value < min || value > max {
-        return Err(ValidationError::OutOfRange { field, value, min, max });
+        return Err(ValidationError::OutOfRange {
+            field,
+            value,
+            min,
+            max,
+        });
     }
     Ok(())
 }
 
 /// Like [`finite_in`] but also accepts the documented "not known" sentinel `-1`.
-pub(crate) fn optional_in(field: &'static str, value: f64, min: f64, max: f64) -> Result<(), ValidationError> {
+pub(crate) fn optional_in(
+    field: &'static str,
+    value: f64,
+    min: f64,
+    max: f64,
+) -> Result<(), ValidationError> {
     if value == crate::UNKNOWN {
         return Ok(());
     }
@@ -102,14 +117,27 @@ pub(crate) fn optional_in(field: &'static str, value: f64, min: f64, max: f64) -
 
 /// Identifiers: 1..=`max` characters of `[A-Za-z0-9_.-]`, so they are safe in
 /// topic keys, SQL, IRIs and file names alike.
-pub(crate) fn identifier(field: &'static str, value: &str, max: usize) -> Result<(), ValidationError> {
+pub(crate) fn identifier(
+    field: &'static str,
+    value: &str,
+    max: usize,
+) -> Result<(), ValidationError> {
     if value.is_empty() {
-        return Err(ValidationError::BadText { field, rule: "must not be empty" });
+        return Err(ValidationError::BadText {
+            field,
+            rule: "must not be empty",
+        });
     }
     if value.len() > max {
-        return Err(ValidationError::BadText { field, rule: "too long" });
+        return Err(ValidationError::BadText {
+            field,
+            rule: "too long",
+        });
     }
-    if !value.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.')) {
+    if !value
+        .bytes()
+        .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
+    {
         return Err(ValidationError::BadText {
             field,
             rule: "only letters, digits, '_', '-' and '.' are allowed",
@@ -124,16 +152,26 @@ pub(crate) fn optional_identifier(
     value: &str,
     max: usize,
 ) -> Result<(), ValidationError> {
-    if value.is_empty() { Ok(()) } else { identifier(field, value, max) }
+    if value.is_empty() {
+        Ok(())
+    } else {
+        identifier(field, value, max)
+    }
 }
 
 /// Free text: bounded length, no control characters other than tab.
 pub(crate) fn text(field: &'static str, value: &str, max: usize) -> Result<(), ValidationError> {
     if value.len() > max {
-        return Err(ValidationError::BadText { field, rule: "too long" });
+        return Err(ValidationError::BadText {
+            field,
+            rule: "too long",
+        });
     }
     if value.chars().any(|c| c.is_control() && c != '\t') {
-        return Err(ValidationError::BadText { field, rule: "control characters are not allowed" });
+        return Err(ValidationError::BadText {
+            field,
+            rule: "control characters are not allowed",
+        });
     }
     Ok(())
 }

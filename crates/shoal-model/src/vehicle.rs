@@ -96,16 +96,25 @@ impl Validate for VehicleAnnouncement {
         identifier("vehicle_id", &self.vehicle_id, MAX_VEHICLE_ID_LEN)?;
         text("name", &self.name, MAX_NAME_LEN)?;
         text("vendor", &self.vendor, MAX_NAME_LEN)?;
-        for (field, list) in [("capabilities", &self.capabilities), ("sensors", &self.sensors)] {
+        for (field, list) in [
+            ("capabilities", &self.capabilities),
+            ("sensors", &self.sensors),
+        ] {
             if list.len() > Self::MAX_LIST {
-                return Err(ValidationError::BadText { field, rule: "at most 32 entries" });
+                return Err(ValidationError::BadText {
+                    field,
+                    rule: "at most 32 entries",
+                });
             }
             for item in list {
                 identifier(field, item, MAX_NAME_LEN)?;
             }
         }
         if self.links.len() > Self::MAX_LINKS {
-            return Err(ValidationError::BadText { field: "links", rule: "at most 8 entries" });
+            return Err(ValidationError::BadText {
+                field: "links",
+                rule: "at most 8 entries",
+            });
         }
         finite_in("max_speed_mps", self.max_speed_mps, 0.0, 30.0)?;
         if self.max_speed_mps == 0.0 {
@@ -157,6 +166,9 @@ mod tests {
 
     #[test]
     fn kinds_serialise_lowercase_in_json() {
-        assert_eq!(serde_json::to_string(&VehicleKind::Glider).unwrap(), "\"glider\"");
+        assert_eq!(
+            serde_json::to_string(&VehicleKind::Glider).unwrap(),
+            "\"glider\""
+        );
     }
 }

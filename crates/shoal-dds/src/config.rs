@@ -1,0 +1,43 @@
+//! Configuration of the Publish/Subscribe Manager.
+
+use std::net::{IpAddr, Ipv4Addr};
+
+use serde::{Deserialize, Serialize};
+
+/// The `[dds]` section of Shoal's configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DdsConfig {
+    /// DDS domain id (0..=232): separate swarms on one network use different domains.
+    pub domain_id: u16,
+    /// Local interface addresses DDS may use for discovery and data. The default,
+    /// `["127.0.0.1"]`, keeps everything on this host; list a radio or Ethernet
+    /// interface's address for a real deployment.
+    pub interfaces: Vec<IpAddr>,
+    /// Announce to and prefer loopback for participants on the same host.
+    pub same_host_loopback: bool,
+    /// Samples the participant's per-topic cache holds before it drops the oldest.
+    /// RustDDS keeps only 64 when this is not set, which loses data silently under load.
+    pub topic_cache_samples: i32,
+    /// Kernel receive buffer per UDP socket, bytes.
+    pub socket_receive_buffer: usize,
+}
+
+impl Default for DdsConfig {
+    fn default() -> Self {
+        Self {
+            domain_id: 0,
+            interfaces: vec![IpAddr::V4(Ipv4Addr::LOCALHOST)],
+            same_host_loopback: true,
+            topic_cache_samples: 8192,
+            socket_receive_buffer: 8 * 1024 * 1024,
+        }
+    }
+}
+
+impl DdsConfig {
+    /// True when every configured interface is a loopback address.
+    pub fn is_loopback_only(&self) -> bool {
+        !self.interfaces.is_empty() && self.interfaces.iter().all(IpAddr::is_loopback)
+    }
+}

@@ -1,0 +1,403 @@
+//! The Publish/Subscribe Manager: one DDS participant per process and typed endpoints.
+
+use std::collections::HashMap;
+use std::pin::Pin;
+use std::sync::Mutex;
+use std::task::{Context, Poll};
+
+use futures::Stream;
+use rustdds::with_key::{DataReaderStream, DataWriter, Sample};
+use rustdds::{
+    CDRDeserializerAdapter, CDRSerializerAdapter, DomainParticipant, DomainParticipantBuilder,
+    DomainParticipantStatusEvent, DomainParticipantStatusListener, Publisher, StatusEvented,
+    Subscriber, Topic, TopicKind,
+};
+use tracing::{debug, info, warn};
+
+use crate::config::DdsConfig;
+use crate::error::{CreateError, ReadError, WriteError};
+use crate::qos::WriterOptions;
+use crate::topics::{TopicType, Wire};
+
+fn dds_err(what: impl Into<String>, e: impl std::fmt::Display) -> CreateError {
+    CreateError::Dds {
+        what: what.into(),
+        detail: e.to_string(),
+    }
+}
+
+/// Owns the process's DDS participant, its publisher and subscriber, and the topics.
+pub struct PubSub {
+    participant: DomainParticipant,
+    publisher: Publisher,
+    subscriber: Subscriber,
+    topics: Mutex<HashMap<&'static str, Topic>>,
+    status: DomainParticipantStatusListener,
+    config: DdsConfig,
+}
+
+impl std::fmt::Debug for PubSub {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PubSub")
+            .field("domain_id", &self.config.domain_id)
+            .field("interfaces", &self.config.interfaces)
+            .finish_non_exhaustive()
+    }
+}
+
+impl PubSub {
+    /// Joins the configured DDS domain on the configured interfaces.
+    pub fn new(config: &DdsConfig) -> Result<Self, CreateError> {
+        if config.domain_id > 232 {
+            // RTPS 9.6.1.1: port numbers overflow 65535 above domain 232.
+            return Err(CreateError::Config(format!(
+                "dds.domain_id = {} is above 232, the highest domain RTPS ports allow",
+                config.domain_id
+            )));
+        }
+        if config.interfaces.is_empty() {
+            return Err(CreateError::Config(
+                "dds.interfaces must list at least one address".into(),
+            ));
+        }
+        if config.topic_cache_samples < 1 {
+            return Err(CreateError::Config(
+                "dds.topic_cache_samples must be at least 1".into(),
+            ));
+        }
+        let participant = DomainParticipantBuilder::new(config.domain_id)
+            .with_only_networks(config.interfaces.iter().copied())
+            .same_host_loopback(config.same_host_loopback)
+            .socket_receive_buffer_size(config.socket_receive_buffer)
+            .build()
+            .map_err(|e| dds_err("the domain participant", e))?;
+        let default_qos = rustdds::QosPolicyBuilder::new().build();
+        let publisher = participant
+            .create_publisher(&default_qos)
+            .map_err(|e| dds_err("the publisher", e))?;
+        let subscriber = participant
+            .create_subscriber(&default_qos)
+            .map_err(|e| dds_err("the subscriber", e))?;
+        let status = participant.status_listener();
+        info!(
+            domain = config.domain_id,
+            interfaces = ?config.interfaces,
+            guid = ?rustdds::RTPSEntity::guid(&participant),
+            "DDS participant joined"
+        );
+        Ok(Self {
+            participant,
+            publisher,
+            subscriber,
+            topics: Mutex::new(HashMap::new()),
+            status,
+            config: config.clone(),
+        })
+    }
+
+    /// The configuration this participant was created with.
+    pub fn config(&self) -> &DdsConfig {
+        &self.config
+    }
+
+    /// This participant's GUID prefix, as text, for logs and link metadata.
+    pub fn participant_id(&self) -> String {
+        format!("{:?}", rustdds::RTPSEntity::guid(&self.participant).prefix)
+    }
+
+    fn topic<T: TopicType>(&self) -> Result<Topic, CreateError> {
+        let mut topics = self
+            .topics
+            .lock()
+            .map_err(|_| CreateError::Config("topic table lock poisoned".into()))?;
+        if let Some(t) = topics.get(T::TOPIC) {
+            return Ok(t.clone());
+        }
+        let t = self
+            .participant
+            .create_topic(
+                T::TOPIC.to_string(),
+                T::TYPE_NAME.to_string(),
+                &T::PROFILE.topic_qos(self.config.topic_cache_samples),
+                TopicKind::WithKey,
+            )
+            .map_err(|e| dds_err(format!("topic {}", T::TOPIC), e))?;
+        topics.insert(T::TOPIC, t.clone());
+        Ok(t)
+    }
+
+    /// A writer for `T` in the given priority class. Each call creates a distinct DDS
+    /// writer, so traffic of one class never waits behind another class's history.
+    pub fn writer<T: TopicType>(&self, options: WriterOptions) -> Result<Writer<T>, CreateError> {
+        let topic = self.topic::<T>()?;
+        let qos = T::PROFILE.writer_qos(&options);
+        let inner = self
+            .publisher
+            .create_datawriter_cdr::<Wire<T>>(&topic, Some(qos))
+            .map_err(|e| dds_err(format!("a writer on {}", T::TOPIC), e))?;
+        debug!(
+            topic = T::TOPIC,
+            priority = options.priority.as_str(),
+            "writer created"
+        );
+        Ok(Writer {
+            inner,
+            options,
+            matched: Mutex::new(0),
+        })
+    }
+
+    /// A reader for `T` as an async stream of validated samples.
+    pub fn subscribe<T: TopicType>(&self) -> Result<Subscription<T>, CreateError> {
+        let topic = self.topic::<T>()?;
+        let qos = T::PROFILE.reader_qos(self.config.topic_cache_samples);
+        let reader = self
+            .subscriber
+            .create_datareader_cdr::<Wire<T>>(&topic, Some(qos))
+            .map_err(|e| dds_err(format!("a reader on {}", T::TOPIC), e))?;
+        Ok(Subscription {
+            inner: reader.async_sample_stream(),
+        })
+    }
+
+    /// Discovery events that happened since the last call (never blocks).
+    pub fn participant_events(&self) -> Vec<ParticipantEvent> {
+        let mut out = Vec::new();
+        while let Some(e) = self.status.try_recv_status() {
+            if let Some(ev) = ParticipantEvent::from_dds(e) {
+                out.push(ev);
+            }
+        }
+        out
+    }
+}
+
+/// What discovery saw, reduced to what the station needs.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum ParticipantEvent {
+    /// A remote participant appeared.
+    Discovered {
+        /// Its GUID prefix.
+        participant: String,
+        /// Its entity name, when it advertised one.
+        name: Option<String>,
+    },
+    /// A remote participant left or its lease expired.
+    Lost {
+        /// Its GUID prefix.
+        participant: String,
+        /// Why, as the library reports it.
+        reason: String,
+    },
+    /// A remote writer's QoS cannot serve one of our readers: it will never deliver.
+    IncompatibleWriter {
+        /// The remote writer's GUID.
+        writer: String,
+        /// The requested and offered QoS, for the operator.
+        detail: String,
+    },
+    /// A remote reader's QoS cannot be served by one of our writers.
+    IncompatibleReader {
+        /// The remote reader's GUID.
+        reader: String,
+        /// The requested and offered QoS, for the operator.
+        detail: String,
+    },
+}
+
+impl ParticipantEvent {
+    fn from_dds(e: DomainParticipantStatusEvent) -> Option<Self> {
+        match e {
+            DomainParticipantStatusEvent::ParticipantDiscovered { dpd } => Some(Self::Discovered {
+                participant: format!("{:?}", dpd.guid.prefix),
+                name: dpd.entity_name,
+            }),
+            DomainParticipantStatusEvent::ParticipantLost { id, reason } => Some(Self::Lost {
+                participant: format!("{id:?}"),
+                reason: format!("{reason:?}"),
+            }),
+            DomainParticipantStatusEvent::RemoteWriterQosIncompatible {
+                remote_writer,
+                requested_qos,
+                offered_qos,
+                ..
+            } => Some(Self::IncompatibleWriter {
+                writer: format!("{remote_writer:?}"),
+                detail: format!("requested {requested_qos:?}, offered {offered_qos:?}"),
+            }),
+            DomainParticipantStatusEvent::RemoteReaderQosIncompatible {
+                remote_reader,
+                requested_qos,
+                offered_qos,
+                ..
+            } => Some(Self::IncompatibleReader {
+                reader: format!("{remote_reader:?}"),
+                detail: format!("requested {requested_qos:?}, offered {offered_qos:?}"),
+            }),
+            _ => None,
+        }
+    }
+}
+
+/// A typed DDS writer in one priority class.
+pub struct Writer<T: TopicType> {
+    inner: DataWriter<Wire<T>, CDRSerializerAdapter<Wire<T>>>,
+    options: WriterOptions,
+    matched: Mutex<i32>,
+}
+
+impl<T: TopicType> std::fmt::Debug for Writer<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Writer")
+            .field("topic", &T::TOPIC)
+            .field("options", &self.options)
+            .finish()
+    }
+}
+
+impl<T: TopicType> Writer<T> {
+    fn check(sample: T) -> Result<T, WriteError<T>> {
+        match sample.validate() {
+            Ok(()) => Ok(sample),
+            Err(error) => Err(WriteError::Invalid { error, sample }),
+        }
+    }
+
+    fn map_err(e: rustdds::dds::result::WriteError<Wire<T>>, backup: T) -> WriteError<T> {
+        use rustdds::dds::result::WriteError as E;
+        match e {
+            E::Serialization { reason, data } | E::Poisoned { reason, data } => WriteError::Dds {
+                detail: reason,
+                sample: data.0,
+            },
+            E::WouldBlock { data } => WriteError::Dds {
+                detail: "reliable history full: readers are not acknowledging".into(),
+                sample: data.0,
+            },
+            other => WriteError::Dds {
+                detail: other.to_string(),
+                sample: backup,
+            },
+        }
+    }
+
+    /// Validates and publishes one sample; on failure the sample comes back in the error.
+    pub async fn write(&self, sample: T) -> Result<(), WriteError<T>> {
+        let sample = Self::check(sample)?;
+        let backup = sample.clone();
+        self.inner
+            .async_write(Wire(sample), None)
+            .await
+            .map_err(|e| Self::map_err(e, backup))
+    }
+
+    /// Like [`Writer::write`] but synchronous (blocks at most the writer's `max_blocking`).
+    pub fn write_blocking(&self, sample: T) -> Result<(), WriteError<T>> {
+        let sample = Self::check(sample)?;
+        let backup = sample.clone();
+        self.inner
+            .write(Wire(sample), None)
+            .map_err(|e| Self::map_err(e, backup))
+    }
+
+    /// How many remote readers are matched now, from the writer's status events (RustDDS's
+    /// `get_matched_subscriptions` is a placeholder that panics, so it is never called).
+    pub fn matched_readers(&self) -> i32 {
+        let Ok(mut matched) = self.matched.lock() else {
+            return 0;
+        };
+        while let Some(status) = self.inner.try_recv_status() {
+            if let rustdds::DataWriterStatus::PublicationMatched { current, .. } = status {
+                *matched = current.count();
+            }
+        }
+        *matched
+    }
+
+    /// The options this writer was created with.
+    pub fn options(&self) -> &WriterOptions {
+        &self.options
+    }
+}
+
+/// Metadata that comes with a received sample.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SampleMeta {
+    /// GUID of the writer that sent it.
+    pub writer: String,
+    /// The writer's source timestamp, ms since the Unix epoch, when it sent one.
+    pub source_timestamp_ms: Option<i64>,
+}
+
+/// A typed, validated stream of samples from one topic.
+pub struct Subscription<T: TopicType> {
+    inner: DataReaderStream<Wire<T>, CDRDeserializerAdapter<Wire<T>>>,
+}
+
+impl<T: TopicType> std::fmt::Debug for Subscription<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Subscription")
+            .field("topic", &T::TOPIC)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<T: TopicType> Stream for Subscription<T> {
+    /// A valid sample with its metadata, or why a received sample was unusable. The stream
+    /// goes on after an error: one bad sample never blocks the ones behind it.
+    type Item = Result<(T, SampleMeta), ReadError>;
+
+    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
+        loop {
+            let item = match Pin::new(&mut self.inner).poll_next(cx) {
+                Poll::Pending => return Poll::Pending,
+                Poll::Ready(None) => return Poll::Ready(None),
+                Poll::Ready(Some(item)) => item,
+            };
+            let sample = match item {
+                Ok(s) => s,
+                Err(rustdds::dds::result::ReadError::Deserialization { reason }) => {
+                    warn!(topic = T::TOPIC, %reason, "malformed sample dropped");
+                    return Poll::Ready(Some(Err(ReadError::Malformed {
+                        topic: T::TOPIC,
+                        detail: reason,
+                    })));
+                }
+                Err(rustdds::dds::result::ReadError::UnknownKey { .. }) => continue,
+                Err(e) => {
+                    return Poll::Ready(Some(Err(ReadError::Dds {
+                        topic: T::TOPIC,
+                        detail: e.to_string(),
+                    })));
+                }
+            };
+            let info = sample.sample_info();
+            let meta = SampleMeta {
+                writer: format!("{:?}", info.writer_guid()),
+                source_timestamp_ms: info.source_timestamp().map(timestamp_ms),
+            };
+            match sample.into_value() {
+                Sample::Value(Wire(value)) => {
+                    return Poll::Ready(Some(match value.validate() {
+                        Ok(()) => Ok((value, meta)),
+                        Err(error) => Err(ReadError::Invalid {
+                            topic: T::TOPIC,
+                            error,
+                        }),
+                    }));
+                }
+                // Disposals carry no data for Shoal: instances end by being superseded.
+                Sample::Dispose(_) => continue,
+            }
+        }
+    }
+}
+
+/// RTPS time (9.3.2): 32-bit seconds since 1970 and a 32-bit binary fraction.
+fn timestamp_ms(t: rustdds::Timestamp) -> i64 {
+    let ticks = t.to_ticks();
+    let seconds = i64::try_from(ticks >> 32).unwrap_or(0);
+    let fraction_ms = i64::try_from(((ticks & 0xFFFF_FFFF) * 1000) >> 32).unwrap_or(0);
+    seconds * 1000 + fraction_ms
+}

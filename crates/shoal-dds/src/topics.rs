@@ -1,0 +1,145 @@
+//! The six Shoal topics: names, type names, keys and QoS profiles.
+
+use rustdds::cdr_encoding_size::{CdrEncodingMaxSize, CdrEncodingSize};
+use serde::{Deserialize, Serialize, de::DeserializeOwned};
+use shoal_model::{
+    EnvironmentObservation, Event, StateVector, TaskAssignment, TaskStatus, Validate,
+    VehicleAnnouncement,
+};
+
+use crate::qos::{Priority, QosProfile};
+
+/// A model type that travels on a Shoal topic. Implemented for every type of `idl/shoal.idl`.
+pub trait TopicType:
+    Serialize + DeserializeOwned + Validate + Clone + Send + Sync + std::fmt::Debug + 'static
+{
+    /// DDS topic name.
+    const TOPIC: &'static str;
+    /// DDS type name, module-qualified as in the IDL.
+    const TYPE_NAME: &'static str;
+    /// QoS profile the topic uses.
+    const PROFILE: QosProfile;
+    /// Priority class used when the caller does not choose one.
+    const DEFAULT_PRIORITY: Priority;
+    /// The instance key type (the IDL's `@key` fields in order).
+    type Key: rustdds::Key + DeserializeOwned + Send + Sync + std::fmt::Debug;
+    /// The instance key of this sample.
+    fn key(&self) -> Self::Key;
+}
+
+impl TopicType for StateVector {
+    const TOPIC: &'static str = "shoal/state_vector";
+    const TYPE_NAME: &'static str = "shoal::StateVector";
+    const PROFILE: QosProfile = QosProfile::State;
+    const DEFAULT_PRIORITY: Priority = Priority::Telemetry;
+    type Key = String;
+    fn key(&self) -> String {
+        self.vehicle_id.clone()
+    }
+}
+
+impl TopicType for VehicleAnnouncement {
+    const TOPIC: &'static str = "shoal/vehicle_announcement";
+    const TYPE_NAME: &'static str = "shoal::VehicleAnnouncement";
+    const PROFILE: QosProfile = QosProfile::Announcements;
+    const DEFAULT_PRIORITY: Priority = Priority::Control;
+    type Key = String;
+    fn key(&self) -> String {
+        self.vehicle_id.clone()
+    }
+}
+
+impl TopicType for TaskAssignment {
+    const TOPIC: &'static str = "shoal/task_assignment";
+    const TYPE_NAME: &'static str = "shoal::TaskAssignment";
+    const PROFILE: QosProfile = QosProfile::Tasks;
+    const DEFAULT_PRIORITY: Priority = Priority::Control;
+    type Key = String;
+    fn key(&self) -> String {
+        self.task_id.clone()
+    }
+}
+
+impl TopicType for TaskStatus {
+    const TOPIC: &'static str = "shoal/task_status";
+    const TYPE_NAME: &'static str = "shoal::TaskStatus";
+    const PROFILE: QosProfile = QosProfile::TaskStatus;
+    const DEFAULT_PRIORITY: Priority = Priority::Control;
+    type Key = String;
+    fn key(&self) -> String {
+        self.task_id.clone()
+    }
+}
+
+impl TopicType for Event {
+    const TOPIC: &'static str = "shoal/event";
+    const TYPE_NAME: &'static str = "shoal::Event";
+    const PROFILE: QosProfile = QosProfile::Events;
+    const DEFAULT_PRIORITY: Priority = Priority::Control;
+    type Key = String;
+    fn key(&self) -> String {
+        self.event_id.clone()
+    }
+}
+
+/// Key of an environment observation: (`vehicle_id`, `property`), in IDL order.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+pub struct ObservationKey {
+    /// Vehicle that measured.
+    pub vehicle_id: String,
+    /// Property measured.
+    pub property: String,
+}
+
+impl CdrEncodingSize for ObservationKey {
+    fn cdr_encoding_max_size() -> CdrEncodingMaxSize {
+        // Strings are unbounded to RustDDS, which makes the key hash the MD5 digest that
+        // RTPS 9.6.3.8 prescribes for keys longer than 16 bytes: what other vendors compute
+        // for `string<32>` + `string<64>` too.
+        CdrEncodingMaxSize::Unbounded
+    }
+}
+
+impl rustdds::Key for ObservationKey {}
+
+impl TopicType for EnvironmentObservation {
+    const TOPIC: &'static str = "shoal/environment";
+    const TYPE_NAME: &'static str = "shoal::EnvironmentObservation";
+    const PROFILE: QosProfile = QosProfile::Environment;
+    const DEFAULT_PRIORITY: Priority = Priority::Bulk;
+    type Key = ObservationKey;
+    fn key(&self) -> ObservationKey {
+        ObservationKey {
+            vehicle_id: self.vehicle_id.clone(),
+            property: self.property.clone(),
+        }
+    }
+}
+
+/// The wire form of a topic sample: the model type itself, serialised field by field.
+///
+/// A newtype because the DDS library's `Keyed` trait and the model types live in other
+/// crates; `serde(transparent)` keeps the bytes exactly those of the model type.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(transparent)]
+pub(crate) struct Wire<T>(pub(crate) T);
+
+impl<T: TopicType> rustdds::Keyed for Wire<T> {
+    type K = T::Key;
+    fn key(&self) -> T::Key {
+        self.0.key()
+    }
+}
+
+/// Every topic's name and type name, for tools and documentation.
+pub const ALL_TOPICS: [(&str, &str); 6] = [
+    (StateVector::TOPIC, StateVector::TYPE_NAME),
+    (VehicleAnnouncement::TOPIC, VehicleAnnouncement::TYPE_NAME),
+    (TaskAssignment::TOPIC, TaskAssignment::TYPE_NAME),
+    (TaskStatus::TOPIC, TaskStatus::TYPE_NAME),
+    (Event::TOPIC, Event::TYPE_NAME),
+    (
+        EnvironmentObservation::TOPIC,
+        EnvironmentObservation::TYPE_NAME,
+    ),
+];
