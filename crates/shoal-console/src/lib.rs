@@ -1,0 +1,232 @@
+//! The back end of Shoal's Mission Management Tool: the station's HTTP API.
+//!
+//! - [`router`] builds the axum router over a [`StationHandle`]; tests drive it without
+//!   sockets.
+//! - [`serve`] runs it on a listener until shutdown.
+//! - [`ApiError`] is the one error type: client errors are explained in a JSON body,
+//!   internal ones are logged and hidden.
+//!
+//! Endpoints (JSON): `GET /api/health`, `GET /api/fleet`, `GET /api/vehicles/{id}`,
+//! `GET /api/vehicles/{id}/track?from_ms=&to_ms=&limit=`, `GET /api/stats`,
+//! `GET /api/events`, `GET /api/tasks`, `POST /api/tasks`, `GET /api/rejected?limit=`;
+//! `GET /` is a plain status page listing the fleet.
+
+use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
+
+use axum::extract::rejection::JsonRejection;
+use axum::extract::{Path, Query, State};
+use axum::http::StatusCode;
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::get;
+use axum::{Json, Router};
+use serde::{Deserialize, Serialize};
+use shoal_model::TaskAssignment;
+use shoal_station::{DispatchError, StationHandle};
+use tokio_util::sync::CancellationToken;
+use tracing::{error, info};
+
+/// The `[console]` section of Shoal's configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ConsoleConfig {
+    /// Address the HTTP API listens on; loopback by default.
+    pub listen: SocketAddr,
+}
+
+impl Default for ConsoleConfig {
+    fn default() -> Self {
+        Self {
+            listen: SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, 8640)),
+        }
+    }
+}
+
+/// The API's error: a status and a message for the client.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ApiError {
+    /// The request is wrong; the message says how.
+    #[error("{0}")]
+    BadRequest(String),
+    /// No such thing.
+    #[error("{0}")]
+    NotFound(String),
+    /// The station failed; details are logged, not shown.
+    #[error("internal error")]
+    Internal(String),
+}
+
+#[derive(Serialize)]
+struct ErrorBody<'a> {
+    error: &'a str,
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let status = match &self {
+            Self::BadRequest(_) => StatusCode::BAD_REQUEST,
+            Self::NotFound(_) => StatusCode::NOT_FOUND,
+            Self::Internal(detail) => {
+                error!(%detail, "API request failed");
+                StatusCode::INTERNAL_SERVER_ERROR
+            }
+        };
+        let msg = self.to_string();
+        (status, Json(ErrorBody { error: &msg })).into_response()
+    }
+}
+
+/// Builds the API router over a running station.
+pub fn router(station: StationHandle) -> Router {
+    Router::new()
+        .route("/", get(index))
+        .route("/api/health", get(health))
+        .route("/api/fleet", get(fleet))
+        .route("/api/vehicles/{id}", get(vehicle))
+        .route("/api/vehicles/{id}/track", get(track))
+        .route("/api/stats", get(stats))
+        .route("/api/events", get(events))
+        .route("/api/tasks", get(tasks).post(dispatch))
+        .route("/api/rejected", get(rejected))
+        .with_state(station)
+}
+
+/// Serves the API on `listener` until `shutdown` is cancelled.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    station: StationHandle,
+    shutdown: CancellationToken,
+) -> std::io::Result<()> {
+    if let Ok(addr) = listener.local_addr() {
+        info!(%addr, "HTTP API listening: http://{addr}/api/fleet");
+    }
+    axum::serve(listener, router(station))
+        .with_graceful_shutdown(shutdown.cancelled_owned())
+        .await
+}
+
+async fn index() -> Html<&'static str> {
+    Html(include_str!("status.html"))
+}
+
+#[derive(Serialize)]
+struct Health {
+    status: &'static str,
+    vehicles: usize,
+    history_committed: u64,
+}
+
+async fn health(State(s): State<StationHandle>) -> Json<Health> {
+    Json(Health {
+        status: "ok",
+        vehicles: s.fleet().len(),
+        history_committed: s.history_committed(),
+    })
+}
+
+async fn fleet(State(s): State<StationHandle>) -> impl IntoResponse {
+    Json(s.fleet())
+}
+
+async fn vehicle(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+) -> Result<impl IntoResponse, ApiError> {
+    s.vehicle(&id)
+        .map(Json)
+        .ok_or_else(|| ApiError::NotFound(format!("no vehicle {id:?}")))
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TrackQuery {
+    from_ms: Option<i64>,
+    to_ms: Option<i64>,
+    limit: Option<usize>,
+}
+
+/// Most rows one history query returns.
+const MAX_ROWS: usize = 10_000;
+
+async fn track(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+    q: Result<Query<TrackQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Query(q) = q.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    if s.vehicle(&id).is_none() {
+        return Err(ApiError::NotFound(format!("no vehicle {id:?}")));
+    }
+    let to = q.to_ms.unwrap_or(i64::MAX);
+    let from = q.from_ms.unwrap_or(0);
+    if from > to {
+        return Err(ApiError::BadRequest("from_ms is after to_ms".into()));
+    }
+    let limit = q.limit.unwrap_or(1000).min(MAX_ROWS);
+    let reader = s.history().clone();
+    let rows = tokio::task::spawn_blocking(move || reader.track(&id, from, to, limit))
+        .await
+        .map_err(|e| ApiError::Internal(e.to_string()))?
+        .map_err(|e| ApiError::Internal(e.to_string()))?;
+    Ok(Json(rows))
+}
+
+#[derive(Serialize)]
+struct Stats {
+    ingest: shoal_station::IngestStats,
+    history_committed: u64,
+}
+
+async fn stats(State(s): State<StationHandle>) -> Json<Stats> {
+    Json(Stats {
+        ingest: s.stats(),
+        history_committed: s.history_committed(),
+    })
+}
+
+async fn events(State(s): State<StationHandle>) -> impl IntoResponse {
+    Json(s.recent_events())
+}
+
+async fn tasks(State(s): State<StationHandle>) -> impl IntoResponse {
+    Json(s.tasks())
+}
+
+async fn dispatch(
+    State(s): State<StationHandle>,
+    body: Result<Json<TaskAssignment>, JsonRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Json(task) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    let id = task.task_id.clone();
+    match s.dispatch(task).await {
+        Ok(()) => Ok((
+            StatusCode::ACCEPTED,
+            Json(serde_json::json!({ "task_id": id, "state": "sent" })),
+        )),
+        Err(DispatchError::Invalid(e)) => Err(ApiError::BadRequest(format!("invalid task: {e}"))),
+        Err(DispatchError::UnknownVehicle(v)) => {
+            Err(ApiError::NotFound(format!("no vehicle {v:?}")))
+        }
+        Err(e) => Err(ApiError::Internal(e.to_string())),
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LimitQuery {
+    limit: Option<usize>,
+}
+
+async fn rejected(
+    State(s): State<StationHandle>,
+    q: Result<Query<LimitQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Query(q) = q.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    let limit = q.limit.unwrap_or(100).min(MAX_ROWS);
+    let reader = s.history().clone();
+    let rows = tokio::task::spawn_blocking(move || reader.rejected(limit))
+        .await
+        .map_err(|e| ApiError::Internal(e.to_string()))?
+        .map_err(|e| ApiError::Internal(e.to_string()))?;
+    Ok(Json(rows))
+}

@@ -1,0 +1,52 @@
+//! The raw-SQLite baseline the ingest benchmark compares the store against.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use shoal_model::StateVector;
+
+use crate::schema::{self, Location};
+use crate::{HistoryConfig, HistoryError, store};
+
+/// Inserts `rows` into a fresh database at `path` with plain prepared `INSERT`s, `batch` rows
+/// per transaction, in the calling thread: no queue, no writer thread, no acknowledgements.
+///
+/// It uses the same pragmas (WAL, `synchronous = normal`), schema and statement as the
+/// store, so the difference to the store's ingest rate is the cost of Shoal's own
+/// machinery. An existing database at `path` is deleted first. Returns the time from the
+/// first insert to the last commit.
+pub fn raw_insert_baseline(
+    path: &Path,
+    rows: &[StateVector],
+    batch: usize,
+) -> Result<Duration, HistoryError> {
+    let config = HistoryConfig {
+        path: path.to_path_buf(),
+        ..HistoryConfig::default()
+    };
+    config.check()?;
+    for suffix in ["", "-wal", "-shm"] {
+        let mut file = path.as_os_str().to_owned();
+        file.push(suffix);
+        match std::fs::remove_file(&file) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(source) => {
+                return Err(HistoryError::CreateDir {
+                    path: file.into(),
+                    source,
+                });
+            }
+        }
+    }
+    let mut conn = schema::open_writer(&Location::of(&config), &config)?;
+    let start = Instant::now();
+    for chunk in rows.chunks(batch.max(1)) {
+        let tx = conn.transaction()?;
+        for row in chunk {
+            store::insert_state(&tx, row)?;
+        }
+        tx.commit()?;
+    }
+    Ok(start.elapsed())
+}

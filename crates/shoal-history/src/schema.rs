@@ -1,0 +1,235 @@
+//! The database schema, its versioning, and how connections are opened.
+//!
+//! The schema version lives in `PRAGMA user_version`; [`MIGRATIONS`] holds one script per
+//! version and [`migrate`] applies the missing ones in one transaction, so a store written by
+//! an older Shoal is upgraded in place and one written by a newer Shoal is refused.
+//!
+//! Tables are `STRICT` so a value of the wrong type is an error rather than silently stored
+//! as text, and every column is `NOT NULL`: SQLite stores a NaN as NULL, so a NaN that slipped
+//! past validation fails its row (which is then quarantined) instead of being stored as a
+//! hole. The few `CHECK`s are sanity bounds, not a second validator: validation belongs to
+//! the pre-processor, the store only refuses what would make its queries lie.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use rusqlite::{Connection, OpenFlags};
+use tracing::{debug, warn};
+
+use crate::{HistoryConfig, HistoryError};
+
+/// How long a connection waits for a lock held by another connection before failing.
+const BUSY_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Schema scripts; `MIGRATIONS[i]` takes the database from version `i` to `i + 1`.
+///
+/// Duplicate keys are upserts (`INSERT OR REPLACE`, see `store.rs`), so every keyed table
+/// declares the key as its primary key. Time-series tables are `WITHOUT ROWID`: rows are
+/// stored in key order, which is exactly the order the track and window queries read them in,
+/// and no second b-tree is kept for a rowid.
+const MIGRATIONS: &[&str] = &[
+    // Version 1.
+    "
+    CREATE TABLE state_vector (
+        vehicle_id    TEXT    NOT NULL CHECK (length(vehicle_id) > 0),
+        timestamp_ms  INTEGER NOT NULL,
+        latitude_deg  REAL    NOT NULL CHECK (latitude_deg BETWEEN -90 AND 90),
+        longitude_deg REAL    NOT NULL CHECK (longitude_deg BETWEEN -180 AND 180),
+        depth_m       REAL    NOT NULL,
+        altitude_m    REAL    NOT NULL,
+        speed_mps     REAL    NOT NULL,
+        yaw_deg       REAL    NOT NULL,
+        pitch_deg     REAL    NOT NULL,
+        roll_deg      REAL    NOT NULL,
+        battery_pct   REAL    NOT NULL,
+        PRIMARY KEY (vehicle_id, timestamp_ms)
+    ) WITHOUT ROWID, STRICT;
+
+    CREATE TABLE vehicle (
+        vehicle_id    TEXT    NOT NULL PRIMARY KEY CHECK (length(vehicle_id) > 0),
+        name          TEXT    NOT NULL,
+        kind          TEXT    NOT NULL,
+        vendor        TEXT    NOT NULL,
+        capabilities  TEXT    NOT NULL, -- JSON array of strings
+        sensors       TEXT    NOT NULL, -- JSON array of strings
+        links         TEXT    NOT NULL, -- JSON array of link kinds
+        max_speed_mps REAL    NOT NULL,
+        first_seen_ms INTEGER NOT NULL, -- earliest announcement
+        last_seen_ms  INTEGER NOT NULL  -- newest announcement; the other fields are from it
+    ) STRICT;
+
+    CREATE TABLE task_assignment (
+        task_id        TEXT    NOT NULL PRIMARY KEY CHECK (length(task_id) > 0),
+        mission_id     TEXT    NOT NULL,
+        vehicle_id     TEXT    NOT NULL,
+        issued_ms      INTEGER NOT NULL,
+        kind           TEXT    NOT NULL,
+        area           TEXT    NOT NULL, -- JSON array of {latitude_deg, longitude_deg}
+        depth_m        REAL    NOT NULL,
+        altitude_m     REAL    NOT NULL,
+        speed_mps      REAL    NOT NULL,
+        line_spacing_m REAL    NOT NULL,
+        duration_s     REAL    NOT NULL,
+        rate_hz        REAL    NOT NULL
+    ) STRICT;
+    CREATE INDEX task_assignment_by_vehicle ON task_assignment (vehicle_id, issued_ms);
+
+    CREATE TABLE task_status (
+        task_id      TEXT    NOT NULL CHECK (length(task_id) > 0),
+        timestamp_ms INTEGER NOT NULL,
+        state        TEXT    NOT NULL,
+        progress_pct REAL    NOT NULL,
+        message      TEXT    NOT NULL,
+        vehicle_id   TEXT    NOT NULL,
+        PRIMARY KEY (task_id, timestamp_ms, state)
+    ) WITHOUT ROWID, STRICT;
+
+    CREATE TABLE event (
+        event_id     TEXT    NOT NULL PRIMARY KEY CHECK (length(event_id) > 0),
+        timestamp_ms INTEGER NOT NULL,
+        severity     TEXT    NOT NULL,
+        kind         TEXT    NOT NULL,
+        vehicle_id   TEXT    NOT NULL,
+        task_id      TEXT    NOT NULL,
+        text         TEXT    NOT NULL
+    ) STRICT;
+    CREATE INDEX event_by_time ON event (timestamp_ms);
+
+    CREATE TABLE observation (
+        vehicle_id    TEXT    NOT NULL CHECK (length(vehicle_id) > 0),
+        property      TEXT    NOT NULL CHECK (length(property) > 0),
+        timestamp_ms  INTEGER NOT NULL,
+        value         REAL    NOT NULL,
+        unit          TEXT    NOT NULL,
+        latitude_deg  REAL    NOT NULL,
+        longitude_deg REAL    NOT NULL,
+        depth_m       REAL    NOT NULL,
+        PRIMARY KEY (vehicle_id, property, timestamp_ms)
+    ) WITHOUT ROWID, STRICT;
+
+    -- Quarantine: data rejected by the station, or by this store, kept for inspection.
+    CREATE TABLE rejected (
+        id           INTEGER PRIMARY KEY,
+        received_ms  INTEGER NOT NULL,
+        topic        TEXT    NOT NULL,
+        reason       TEXT    NOT NULL,
+        payload_json TEXT    NOT NULL
+    ) STRICT;
+    ",
+];
+
+/// The schema version this build writes.
+pub(crate) const SCHEMA_VERSION: i64 = MIGRATIONS.len() as i64;
+
+/// Brings the schema to [`SCHEMA_VERSION`], refusing databases from a newer build.
+pub(crate) fn migrate(conn: &mut Connection) -> Result<(), HistoryError> {
+    let found: i64 = conn.pragma_query_value(None, "user_version", |r| r.get(0))?;
+    if found > SCHEMA_VERSION {
+        return Err(HistoryError::SchemaTooNew {
+            found,
+            supported: SCHEMA_VERSION,
+        });
+    }
+    if found == SCHEMA_VERSION {
+        return Ok(());
+    }
+    // All missing steps in one transaction: a crash half-way leaves the old version intact.
+    let tx = conn.transaction()?;
+    for (from, script) in MIGRATIONS
+        .iter()
+        .enumerate()
+        .skip(usize::try_from(found).unwrap_or(0))
+    {
+        debug!(from, "migrating the history schema");
+        tx.execute_batch(script)?;
+    }
+    tx.pragma_update(None, "user_version", SCHEMA_VERSION)?;
+    tx.commit()?;
+    Ok(())
+}
+
+/// Where a [`HistoryConfig`] points: a file, or a named in-memory database.
+#[derive(Debug, Clone)]
+pub(crate) enum Location {
+    /// A database file.
+    File(std::path::PathBuf),
+    /// A `memdb` URI. A plain `:memory:` database is private to one connection, but the
+    /// writer thread and the readers need the same one, so in-memory stores use SQLite's
+    /// `memdb` VFS under a process-unique name, which connections of one process share.
+    Memory(String),
+}
+
+impl Location {
+    /// The location a configuration selects; in-memory ones get a fresh name each time.
+    pub(crate) fn of(config: &HistoryConfig) -> Self {
+        static NEXT: AtomicU64 = AtomicU64::new(0);
+        if config.is_in_memory() {
+            let n = NEXT.fetch_add(1, Ordering::Relaxed);
+            Self::Memory(format!(
+                "file:/shoal-history-{}-{n}?vfs=memdb",
+                std::process::id()
+            ))
+        } else {
+            Self::File(config.path.clone())
+        }
+    }
+
+    fn open(&self, flags: OpenFlags) -> rusqlite::Result<Connection> {
+        match self {
+            Self::File(p) => Connection::open_with_flags(p, flags),
+            Self::Memory(uri) => Connection::open_with_flags(uri, flags),
+        }
+    }
+}
+
+/// Opens the writer's connection: WAL, the configured sync level, the schema migrated.
+pub(crate) fn open_writer(
+    location: &Location,
+    config: &HistoryConfig,
+) -> Result<Connection, HistoryError> {
+    if let Location::File(path) = location {
+        create_parent_dir(path)?;
+    }
+    let flags = OpenFlags::SQLITE_OPEN_READ_WRITE
+        | OpenFlags::SQLITE_OPEN_CREATE
+        | OpenFlags::SQLITE_OPEN_URI
+        | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+    let mut conn = location.open(flags)?;
+    conn.busy_timeout(BUSY_TIMEOUT)?;
+    // WAL: a commit appends to the log instead of rewriting pages, readers never block the
+    // writer, and a committed transaction survives a process crash (it is replayed from the
+    // log on the next open). That is what makes "committed" mean "acknowledged".
+    let mode: String = conn.query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0))?;
+    match location {
+        Location::File(path) if !mode.eq_ignore_ascii_case("wal") => {
+            warn!(path = %path.display(), mode, "history database is not in WAL mode");
+        }
+        _ => debug!(mode, "history journal mode"),
+    }
+    conn.pragma_update(None, "synchronous", config.synchronous.pragma())?;
+    migrate(&mut conn)?;
+    Ok(conn)
+}
+
+/// Opens a read-only connection for queries; call after [`open_writer`] created the schema.
+pub(crate) fn open_reader(location: &Location) -> Result<Connection, HistoryError> {
+    let flags = OpenFlags::SQLITE_OPEN_READ_ONLY
+        | OpenFlags::SQLITE_OPEN_URI
+        | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+    let conn = location.open(flags)?;
+    conn.busy_timeout(BUSY_TIMEOUT)?;
+    Ok(conn)
+}
+
+fn create_parent_dir(path: &Path) -> Result<(), HistoryError> {
+    match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => {
+            std::fs::create_dir_all(dir).map_err(|source| HistoryError::CreateDir {
+                path: dir.to_path_buf(),
+                source,
+            })
+        }
+        _ => Ok(()),
+    }
+}

@@ -1,0 +1,47 @@
+//! Configuration of the station core.
+
+use serde::{Deserialize, Serialize};
+
+/// The `[station]` section of Shoal's configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StationConfig {
+    /// Seconds without a state vector after which a vehicle is shown as stale.
+    pub stale_after_s: f64,
+    /// Seconds without a state vector after which a vehicle is lost (a CommLost alarm).
+    pub lost_after_s: f64,
+    /// Seconds between the one-line-per-vehicle summaries in the log (0 = never).
+    pub summary_interval_s: f64,
+    /// Accept state vectors only from vehicles that announced themselves first.
+    pub require_announcement: bool,
+    /// Most recent events kept in memory for the API (older ones are in the history).
+    pub recent_events: usize,
+}
+
+impl Default for StationConfig {
+    fn default() -> Self {
+        Self {
+            stale_after_s: 5.0,
+            lost_after_s: 30.0,
+            summary_interval_s: 10.0,
+            require_announcement: true,
+            recent_events: 500,
+        }
+    }
+}
+
+impl StationConfig {
+    /// Checks the values make sense together; the error names the key.
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.stale_after_s.is_finite() && self.stale_after_s > 0.0) {
+            return Err("station.stale_after_s must be a positive number of seconds".into());
+        }
+        if !(self.lost_after_s.is_finite() && self.lost_after_s >= self.stale_after_s) {
+            return Err("station.lost_after_s must be at least station.stale_after_s".into());
+        }
+        if !(self.summary_interval_s.is_finite() && self.summary_interval_s >= 0.0) {
+            return Err("station.summary_interval_s must be 0 or a positive number".into());
+        }
+        Ok(())
+    }
+}

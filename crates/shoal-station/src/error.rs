@@ -1,0 +1,36 @@
+//! Errors of the station core.
+
+use shoal_model::ValidationError;
+
+/// The station could not start or stop cleanly.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum StationError {
+    /// A configuration value is wrong; the message names the key.
+    #[error("{0}")]
+    Config(String),
+    /// DDS endpoints could not be created.
+    #[error(transparent)]
+    Dds(#[from] shoal_dds::CreateError),
+    /// The history store failed.
+    #[error("history store: {0}")]
+    History(#[source] shoal_history::HistoryError),
+    /// Shutdown did not complete.
+    #[error("shutdown: {0}")]
+    Shutdown(String),
+}
+
+/// A task could not be dispatched.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DispatchError {
+    /// The task is malformed.
+    #[error("invalid task: {0}")]
+    Invalid(#[source] ValidationError),
+    /// No vehicle with that id is registered.
+    #[error("unknown vehicle {0:?}")]
+    UnknownVehicle(String),
+    /// DDS refused the write.
+    #[error("could not publish the task: {0}")]
+    Dds(String),
+}

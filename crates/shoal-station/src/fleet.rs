@@ -1,0 +1,173 @@
+//! The Vehicle Register's live view: every known vehicle, its latest state and availability.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+use shoal_model::{LinkKind, StateVector, VehicleAnnouncement};
+
+/// Whether a vehicle is being heard from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Contact {
+    /// A state vector arrived recently.
+    Alive,
+    /// Nothing for longer than `stale_after_s`.
+    Stale,
+    /// Nothing for longer than `lost_after_s`.
+    Lost,
+    /// Announced but no state vector yet.
+    Silent,
+}
+
+/// One vehicle as the station knows it.
+#[derive(Debug, Clone, Serialize)]
+pub struct VehicleView {
+    /// Registration data.
+    pub announcement: VehicleAnnouncement,
+    /// Latest accepted state vector.
+    pub latest: Option<StateVector>,
+    /// Station clock when the latest state vector arrived, ms since the Unix epoch.
+    pub last_contact_ms: Option<i64>,
+    /// Link the latest data came over.
+    pub link: LinkKind,
+    /// Contact status now.
+    pub contact: Contact,
+    /// State vectors accepted from this vehicle since the station started.
+    pub states_accepted: u64,
+    /// State vectors rejected from this vehicle since the station started.
+    pub states_rejected: u64,
+}
+
+#[derive(Debug)]
+pub(crate) struct Entry {
+    pub(crate) announcement: VehicleAnnouncement,
+    pub(crate) latest: Option<StateVector>,
+    pub(crate) last_contact_ms: Option<i64>,
+    pub(crate) link: LinkKind,
+    pub(crate) states_accepted: u64,
+    pub(crate) states_rejected: u64,
+    pub(crate) contact: Contact,
+}
+
+/// All vehicles by id.
+#[derive(Debug, Default)]
+pub(crate) struct Fleet {
+    pub(crate) vehicles: BTreeMap<String, Entry>,
+}
+
+impl Fleet {
+    /// Registers or updates a vehicle; re-registration after a restart keeps its state.
+    /// Returns true when the vehicle is new.
+    pub(crate) fn register(&mut self, a: VehicleAnnouncement) -> bool {
+        match self.vehicles.get_mut(&a.vehicle_id) {
+            Some(e) => {
+                e.announcement = a;
+                false
+            }
+            None => {
+                self.vehicles.insert(
+                    a.vehicle_id.clone(),
+                    Entry {
+                        announcement: a,
+                        latest: None,
+                        last_contact_ms: None,
+                        link: LinkKind::Ip,
+                        states_accepted: 0,
+                        states_rejected: 0,
+                        contact: Contact::Silent,
+                    },
+                );
+                true
+            }
+        }
+    }
+
+    /// Re-evaluates contact status at `now_ms`; returns the vehicles whose status changed.
+    pub(crate) fn refresh_contact(
+        &mut self,
+        now_ms: i64,
+        stale_ms: i64,
+        lost_ms: i64,
+    ) -> Vec<(String, Contact, Contact)> {
+        let mut changed = Vec::new();
+        for (id, e) in &mut self.vehicles {
+            let new = match e.last_contact_ms {
+                None => Contact::Silent,
+                Some(t) if now_ms - t >= lost_ms => Contact::Lost,
+                Some(t) if now_ms - t >= stale_ms => Contact::Stale,
+                Some(_) => Contact::Alive,
+            };
+            if new != e.contact {
+                changed.push((id.clone(), e.contact, new));
+                e.contact = new;
+            }
+        }
+        changed
+    }
+
+    pub(crate) fn view(&self) -> Vec<VehicleView> {
+        self.vehicles.values().map(Entry::view).collect()
+    }
+}
+
+impl Entry {
+    pub(crate) fn view(&self) -> VehicleView {
+        VehicleView {
+            announcement: self.announcement.clone(),
+            latest: self.latest.clone(),
+            last_contact_ms: self.last_contact_ms,
+            link: self.link,
+            contact: self.contact,
+            states_accepted: self.states_accepted,
+            states_rejected: self.states_rejected,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shoal_model::VehicleKind;
+
+    fn ann(id: &str) -> VehicleAnnouncement {
+        VehicleAnnouncement {
+            vehicle_id: id.into(),
+            name: id.into(),
+            kind: VehicleKind::Auv,
+            vendor: "test".into(),
+            capabilities: vec![],
+            sensors: vec![],
+            links: vec![LinkKind::Ip],
+            max_speed_mps: 2.0,
+            timestamp_ms: 1_700_000_000_000,
+        }
+    }
+
+    #[test]
+    fn re_registration_is_idempotent_and_keeps_counters() {
+        let mut f = Fleet::default();
+        assert!(f.register(ann("a")));
+        if let Some(e) = f.vehicles.get_mut("a") {
+            e.states_accepted = 5;
+        }
+        assert!(!f.register(ann("a")));
+        assert_eq!(f.vehicles.len(), 1);
+        assert_eq!(f.vehicles["a"].states_accepted, 5);
+    }
+
+    #[test]
+    fn contact_goes_stale_then_lost() {
+        let mut f = Fleet::default();
+        f.register(ann("a"));
+        if let Some(e) = f.vehicles.get_mut("a") {
+            e.last_contact_ms = Some(0);
+        }
+        assert_eq!(
+            f.refresh_contact(1000, 5000, 30_000),
+            vec![("a".into(), Contact::Silent, Contact::Alive)]
+        );
+        assert_eq!(f.refresh_contact(6000, 5000, 30_000)[0].2, Contact::Stale);
+        assert_eq!(f.refresh_contact(31_000, 5000, 30_000)[0].2, Contact::Lost);
+        assert!(f.refresh_contact(32_000, 5000, 30_000).is_empty());
+    }
+}

@@ -1,0 +1,614 @@
+//! The station core: subscribes to every topic, validates, registers, stores, dispatches.
+
+use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use futures::StreamExt;
+use serde::Serialize;
+use shoal_dds::{
+    ParticipantEvent, Priority, PubSub, ReadError, SampleMeta, TopicType, Writer, WriterOptions,
+};
+use shoal_history::{History, HistoryReader, HistoryWriter, Record, SubmitError};
+use shoal_model::{
+    EnvironmentObservation, Event, EventKind, Severity, StateVector, TaskAssignment, TaskKind,
+    TaskStatus, Validate, VehicleAnnouncement, now_ms,
+};
+use tokio_util::sync::CancellationToken;
+use tracing::{debug, info, warn};
+
+use crate::config::StationConfig;
+use crate::error::{DispatchError, StationError};
+use crate::fleet::{Contact, Fleet, VehicleView};
+
+/// Counters of what the station received, by outcome; rejections by reason code.
+#[derive(Debug, Clone, Default, Serialize, PartialEq, Eq)]
+pub struct IngestStats {
+    /// State vectors accepted and stored.
+    pub states_accepted: u64,
+    /// Vehicle announcements accepted.
+    pub announcements: u64,
+    /// Task status reports accepted.
+    pub task_status: u64,
+    /// Events from vehicles accepted.
+    pub events: u64,
+    /// Environment observations accepted.
+    pub observations: u64,
+    /// Rejected data, by reason code (e.g. `out_of_range:latitude_deg`, `unknown_vehicle`).
+    pub rejected: BTreeMap<String, u64>,
+    /// Samples that could not even be decoded, by topic.
+    pub malformed: BTreeMap<String, u64>,
+    /// Tasks the station dispatched.
+    pub tasks_dispatched: u64,
+}
+
+impl IngestStats {
+    /// Every rejected or malformed datum, all reasons together.
+    pub fn total_rejected(&self) -> u64 {
+        self.rejected.values().sum::<u64>() + self.malformed.values().sum::<u64>()
+    }
+}
+
+/// A task as the station tracks it.
+#[derive(Debug, Clone, Serialize)]
+pub struct TaskView {
+    /// What was asked.
+    pub assignment: TaskAssignment,
+    /// The latest report from the vehicle, if any.
+    pub status: Option<TaskStatus>,
+}
+
+struct Shared {
+    config: StationConfig,
+    fleet: Mutex<Fleet>,
+    stats: Mutex<IngestStats>,
+    events: Mutex<VecDeque<Event>>,
+    tasks: Mutex<BTreeMap<String, TaskView>>,
+    history: HistoryWriter,
+    reader: HistoryReader,
+    task_writer: Writer<TaskAssignment>,
+    abort_writer: Writer<TaskAssignment>,
+    event_writer: Writer<Event>,
+    alarm_writer: Writer<Event>,
+    /// Last time a data-rejected event was raised per (vehicle, reason), to rate-limit them.
+    rejection_alerts: Mutex<HashMap<(String, String), i64>>,
+    event_seq: AtomicU64,
+    started_ms: i64,
+}
+
+/// Locks a mutex, recovering the data if a panicking thread poisoned it: the station's
+/// in-memory views stay usable, and the history store is the record of truth anyway.
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// A cheap, cloneable handle for the API and tools: read the fleet, dispatch tasks.
+#[derive(Clone)]
+pub struct StationHandle {
+    shared: Arc<Shared>,
+}
+
+impl std::fmt::Debug for StationHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StationHandle").finish_non_exhaustive()
+    }
+}
+
+/// The station core, ready to run.
+pub struct Station {
+    shared: Arc<Shared>,
+    dds: Arc<PubSub>,
+    history: History,
+}
+
+impl std::fmt::Debug for Station {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Station")
+            .field("dds", &self.dds)
+            .finish_non_exhaustive()
+    }
+}
+
+/// What the station did, returned when it stops.
+#[derive(Debug, Clone, Serialize)]
+pub struct StationReport {
+    /// Final counters.
+    pub stats: IngestStats,
+    /// Records committed to the history store over the run.
+    pub history_committed: u64,
+}
+
+impl Station {
+    /// Creates the station's DDS writers and loads the vehicles it knew before a restart.
+    pub fn new(
+        config: StationConfig,
+        dds: Arc<PubSub>,
+        history: History,
+    ) -> Result<Self, StationError> {
+        config.check().map_err(StationError::Config)?;
+        let control = WriterOptions::new(Priority::Control);
+        let emergency = WriterOptions::new(Priority::Emergency);
+        let mut fleet = Fleet::default();
+        let reader = history.reader();
+        // A restarted station knows its vehicles at once; DDS re-delivers announcements
+        // (transient-local) too, and re-registration is idempotent.
+        for a in reader.vehicles().map_err(StationError::History)? {
+            fleet.register(a);
+        }
+        for s in reader.latest_states().map_err(StationError::History)? {
+            if let Some(e) = fleet.vehicles.get_mut(&s.vehicle_id) {
+                e.latest = Some(s);
+            }
+        }
+        let shared = Arc::new(Shared {
+            fleet: Mutex::new(fleet),
+            stats: Mutex::new(IngestStats::default()),
+            events: Mutex::new(VecDeque::new()),
+            tasks: Mutex::new(BTreeMap::new()),
+            history: history.writer(),
+            reader,
+            task_writer: dds.writer(control)?,
+            abort_writer: dds.writer(emergency)?,
+            event_writer: dds.writer(control)?,
+            alarm_writer: dds.writer(emergency)?,
+            rejection_alerts: Mutex::new(HashMap::new()),
+            event_seq: AtomicU64::new(0),
+            started_ms: now_ms(),
+            config,
+        });
+        Ok(Self {
+            shared,
+            dds,
+            history,
+        })
+    }
+
+    /// A handle for the API; valid while the station runs.
+    pub fn handle(&self) -> StationHandle {
+        StationHandle {
+            shared: Arc::clone(&self.shared),
+        }
+    }
+
+    /// Runs until `shutdown` is cancelled, then drains and closes the history store.
+    pub async fn run(self, shutdown: CancellationToken) -> Result<StationReport, StationError> {
+        let states = self.dds.subscribe::<StateVector>()?;
+        let announcements = self.dds.subscribe::<VehicleAnnouncement>()?;
+        let statuses = self.dds.subscribe::<TaskStatus>()?;
+        let events = self.dds.subscribe::<Event>()?;
+        let observations = self.dds.subscribe::<EnvironmentObservation>()?;
+        let h = self.handle();
+        let mut tasks = tokio::task::JoinSet::new();
+        tasks.spawn(consume(
+            states,
+            h.clone(),
+            shutdown.clone(),
+            StationHandle::on_state,
+        ));
+        tasks.spawn(consume(
+            announcements,
+            h.clone(),
+            shutdown.clone(),
+            StationHandle::on_announcement,
+        ));
+        tasks.spawn(consume(
+            statuses,
+            h.clone(),
+            shutdown.clone(),
+            StationHandle::on_task_status,
+        ));
+        tasks.spawn(consume(
+            events,
+            h.clone(),
+            shutdown.clone(),
+            StationHandle::on_event,
+        ));
+        tasks.spawn(consume(
+            observations,
+            h.clone(),
+            shutdown.clone(),
+            StationHandle::on_observation,
+        ));
+        info!(participant = %self.dds.participant_id(), "station running");
+
+        let cfg = &self.shared.config;
+        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        let summary_every = Duration::from_secs_f64(cfg.summary_interval_s.max(0.0));
+        let mut last_summary = tokio::time::Instant::now();
+        loop {
+            tokio::select! {
+                () = shutdown.cancelled() => break,
+                _ = tick.tick() => {
+                    for ev in self.dds.participant_events() {
+                        log_participant_event(&ev);
+                    }
+                    h.refresh_contact().await;
+                    if !summary_every.is_zero() && last_summary.elapsed() >= summary_every {
+                        last_summary = tokio::time::Instant::now();
+                        h.log_summary();
+                    }
+                }
+            }
+        }
+        info!("station stopping: draining subscriptions and history");
+        while tasks.join_next().await.is_some() {}
+        let stats = h.stats();
+        drop(h);
+        let history = self.history;
+        let closed = tokio::task::spawn_blocking(move || history.close())
+            .await
+            .map_err(|e| StationError::Shutdown(e.to_string()))?
+            .map_err(StationError::History)?;
+        info!(committed = closed.committed_rows, "history closed");
+        Ok(StationReport {
+            stats,
+            history_committed: closed.committed_rows,
+        })
+    }
+}
+
+async fn consume<T, F>(
+    mut sub: shoal_dds::Subscription<T>,
+    h: StationHandle,
+    shutdown: CancellationToken,
+    on_sample: F,
+) where
+    T: TopicType,
+    F: Fn(&StationHandle, T, SampleMeta),
+{
+    loop {
+        let item = tokio::select! {
+            () = shutdown.cancelled() => return,
+            item = sub.next() => item,
+        };
+        match item {
+            None => return,
+            Some(Ok((sample, meta))) => on_sample(&h, sample, meta),
+            Some(Err(e)) => h.on_read_error::<T>(&e),
+        }
+    }
+}
+
+fn log_participant_event(ev: &ParticipantEvent) {
+    match ev {
+        ParticipantEvent::Discovered { participant, name } => {
+            info!(%participant, name = name.as_deref().unwrap_or("-"), "DDS participant discovered");
+        }
+        ParticipantEvent::Lost {
+            participant,
+            reason,
+        } => {
+            info!(%participant, %reason, "DDS participant lost");
+        }
+        ParticipantEvent::IncompatibleWriter { writer, detail } => {
+            warn!(%writer, %detail, "a remote writer's QoS cannot serve the station; it will not be heard");
+        }
+        ParticipantEvent::IncompatibleReader { reader, detail } => {
+            warn!(%reader, %detail, "a remote reader's QoS cannot be served by the station");
+        }
+        _ => {}
+    }
+}
+
+impl StationHandle {
+    fn store(&self, record: Record) {
+        match self.shared.history.submit(record) {
+            Ok(_) => {}
+            // Back-pressure instead of loss: wait for the writer thread to make room.
+            Err(SubmitError::Full(record)) => {
+                let w = self.shared.history.clone();
+                let r = tokio::task::block_in_place(move || w.submit_blocking(*record));
+                if let Err(e) = r {
+                    warn!(error = %e, "history store closed; record not stored");
+                }
+            }
+            Err(e) => warn!(error = %e, "history store closed; record not stored"),
+        }
+    }
+
+    fn reject(&self, topic: &str, vehicle_id: &str, reason: &str, payload: &impl Serialize) {
+        *lock(&self.shared.stats)
+            .rejected
+            .entry(reason.to_string())
+            .or_default() += 1;
+        if let Some(e) = lock(&self.shared.fleet).vehicles.get_mut(vehicle_id) {
+            e.states_rejected += 1;
+        }
+        warn!(topic, vehicle = vehicle_id, reason, "data rejected");
+        let json =
+            serde_json::to_string(payload).unwrap_or_else(|e| format!("\"unserialisable: {e}\""));
+        self.store(Record::rejected(topic, reason, json));
+        // One event per vehicle and reason per minute: enough for the operator, no flood.
+        let now = now_ms();
+        let key = (vehicle_id.to_string(), reason.to_string());
+        let raise = {
+            let mut alerts = lock(&self.shared.rejection_alerts);
+            let due = alerts.get(&key).is_none_or(|t| now - t >= 60_000);
+            if due {
+                alerts.insert(key, now);
+            }
+            due
+        };
+        if raise {
+            self.raise(
+                Severity::Warning,
+                EventKind::DataRejected,
+                vehicle_id,
+                "",
+                format!("{topic} rejected: {reason}"),
+            );
+        }
+    }
+
+    fn on_read_error<T: TopicType>(&self, e: &ReadError) {
+        match e {
+            ReadError::Invalid { error, .. } => {
+                let reason = error.reason().to_string();
+                *lock(&self.shared.stats)
+                    .rejected
+                    .entry(reason.clone())
+                    .or_default() += 1;
+                warn!(topic = T::TOPIC, %reason, "invalid sample rejected");
+                self.store(Record::rejected(T::TOPIC, reason, "null"));
+            }
+            ReadError::Malformed { detail, .. } => {
+                *lock(&self.shared.stats)
+                    .malformed
+                    .entry(T::TOPIC.to_string())
+                    .or_default() += 1;
+                self.store(Record::rejected(
+                    T::TOPIC,
+                    format!("malformed: {detail}"),
+                    "null",
+                ));
+            }
+            other => warn!(topic = T::TOPIC, error = %other, "read failed"),
+        }
+    }
+
+    fn on_state(&self, s: StateVector, _meta: SampleMeta) {
+        let now = now_ms();
+        {
+            let mut fleet = lock(&self.shared.fleet);
+            match fleet.vehicles.get_mut(&s.vehicle_id) {
+                Some(e) => {
+                    e.latest = Some(s.clone());
+                    e.last_contact_ms = Some(now);
+                    e.states_accepted += 1;
+                }
+                None if self.shared.config.require_announcement => {
+                    drop(fleet);
+                    let id = s.vehicle_id.clone();
+                    self.reject(StateVector::TOPIC, &id, "unknown_vehicle", &s);
+                    return;
+                }
+                None => {}
+            }
+        }
+        lock(&self.shared.stats).states_accepted += 1;
+        self.store(Record::State(s));
+    }
+
+    fn on_announcement(&self, a: VehicleAnnouncement, meta: SampleMeta) {
+        let new = lock(&self.shared.fleet).register(a.clone());
+        lock(&self.shared.stats).announcements += 1;
+        if new {
+            info!(vehicle = %a.vehicle_id, kind = %a.kind, vendor = %a.vendor, writer = %meta.writer, "vehicle registered");
+        } else {
+            debug!(vehicle = %a.vehicle_id, "vehicle re-announced");
+        }
+        self.store(Record::Vehicle(a));
+    }
+
+    fn on_task_status(&self, s: TaskStatus, _meta: SampleMeta) {
+        lock(&self.shared.stats).task_status += 1;
+        if let Some(t) = lock(&self.shared.tasks).get_mut(&s.task_id) {
+            t.status = Some(s.clone());
+        }
+        info!(task = %s.task_id, vehicle = %s.vehicle_id, state = ?s.state, progress = s.progress_pct, "task status");
+        self.store(Record::TaskStatus(s));
+    }
+
+    fn on_event(&self, e: Event, _meta: SampleMeta) {
+        // The station hears its own events too (same topic); they are already recorded.
+        if e.event_id.starts_with("station-") {
+            return;
+        }
+        lock(&self.shared.stats).events += 1;
+        self.remember_event(e.clone());
+        self.store(Record::Event(e));
+    }
+
+    fn on_observation(&self, o: EnvironmentObservation, _meta: SampleMeta) {
+        lock(&self.shared.stats).observations += 1;
+        self.store(Record::Observation(o));
+    }
+
+    fn remember_event(&self, e: Event) {
+        let mut events = lock(&self.shared.events);
+        events.push_back(e);
+        while events.len() > self.shared.config.recent_events {
+            events.pop_front();
+        }
+    }
+
+    /// Raises a station event: kept, stored, and published on DDS (alarms on the emergency class).
+    pub fn raise(
+        &self,
+        severity: Severity,
+        kind: EventKind,
+        vehicle_id: &str,
+        task_id: &str,
+        text: String,
+    ) {
+        let seq = self.shared.event_seq.fetch_add(1, Ordering::Relaxed);
+        let e = Event {
+            event_id: format!("station-{}-{seq}", self.shared.started_ms),
+            timestamp_ms: now_ms(),
+            severity,
+            kind,
+            vehicle_id: vehicle_id.to_string(),
+            task_id: task_id.to_string(),
+            text: text.chars().take(shoal_model::MAX_TEXT_LEN).collect(),
+        };
+        if let Err(err) = e.validate() {
+            warn!(error = %err, "station event not raised: invalid");
+            return;
+        }
+        self.remember_event(e.clone());
+        self.store(Record::Event(e.clone()));
+        let writer = if severity >= Severity::Alarm {
+            &self.shared.alarm_writer
+        } else {
+            &self.shared.event_writer
+        };
+        if let Err(err) = writer.write_blocking(e) {
+            warn!(error = %err, "event not published on DDS");
+        }
+    }
+
+    async fn refresh_contact(&self) {
+        let cfg = &self.shared.config;
+        #[allow(clippy::cast_possible_truncation)]
+        let (stale, lost) = (
+            (cfg.stale_after_s * 1000.0) as i64,
+            (cfg.lost_after_s * 1000.0) as i64,
+        );
+        let changed = lock(&self.shared.fleet).refresh_contact(now_ms(), stale, lost);
+        for (id, from, to) in changed {
+            match to {
+                Contact::Lost => self.raise(
+                    Severity::Alarm,
+                    EventKind::CommLost,
+                    &id,
+                    "",
+                    format!("no state vector from {id} for {:.0} s", cfg.lost_after_s),
+                ),
+                Contact::Alive if from == Contact::Lost => {
+                    self.raise(
+                        Severity::Info,
+                        EventKind::Other,
+                        &id,
+                        "",
+                        format!("contact with {id} regained"),
+                    );
+                }
+                _ => {}
+            }
+            info!(vehicle = %id, from = ?from, to = ?to, "contact changed");
+        }
+    }
+
+    fn log_summary(&self) {
+        let now = now_ms();
+        let fleet = lock(&self.shared.fleet);
+        if fleet.vehicles.is_empty() {
+            info!("no vehicles yet");
+        }
+        for (id, e) in &fleet.vehicles {
+            #[allow(clippy::cast_precision_loss)]
+            let ago = e.last_contact_ms.map_or_else(
+                || "never".to_string(),
+                |t| format!("{:.1}s ago", (now - t) as f64 / 1000.0),
+            );
+            match &e.latest {
+                Some(s) => info!(
+                    "{id:<10} {kind:<6} {contact:<6} lat {lat:>9.5} lon {lon:>10.5} depth {depth:>6.1} m speed {speed:>4.1} m/s heading {yaw:>5.1} battery {batt:>5.1}% last {ago} states {n}",
+                    kind = e.announcement.kind.as_str(),
+                    contact = format!("{:?}", e.contact).to_lowercase(),
+                    lat = s.latitude_deg,
+                    lon = s.longitude_deg,
+                    depth = s.depth_m,
+                    speed = s.speed_mps,
+                    yaw = s.yaw_deg,
+                    batt = s.battery_pct,
+                    n = e.states_accepted,
+                ),
+                None => info!(
+                    "{id:<10} {:<6} announced, no state yet",
+                    e.announcement.kind.as_str()
+                ),
+            }
+        }
+        drop(fleet);
+        let stats = self.stats();
+        info!(
+            accepted = stats.states_accepted,
+            rejected = stats.total_rejected(),
+            history_committed = self.shared.history.committed(),
+            "ingest"
+        );
+    }
+
+    /// Every known vehicle, sorted by id.
+    pub fn fleet(&self) -> Vec<VehicleView> {
+        lock(&self.shared.fleet).view()
+    }
+
+    /// One vehicle.
+    pub fn vehicle(&self, id: &str) -> Option<VehicleView> {
+        lock(&self.shared.fleet)
+            .vehicles
+            .get(id)
+            .map(crate::fleet::Entry::view)
+    }
+
+    /// Current counters.
+    pub fn stats(&self) -> IngestStats {
+        lock(&self.shared.stats).clone()
+    }
+
+    /// Records committed to the history store so far (acknowledged data).
+    pub fn history_committed(&self) -> u64 {
+        self.shared.history.committed()
+    }
+
+    /// Read access to the history store.
+    pub fn history(&self) -> &HistoryReader {
+        &self.shared.reader
+    }
+
+    /// Recent events, oldest first.
+    pub fn recent_events(&self) -> Vec<Event> {
+        lock(&self.shared.events).iter().cloned().collect()
+    }
+
+    /// Tasks dispatched since the station started, by id.
+    pub fn tasks(&self) -> Vec<TaskView> {
+        lock(&self.shared.tasks).values().cloned().collect()
+    }
+
+    /// Validates a task, checks its vehicle is registered, stores and publishes it.
+    /// Aborts go out on the emergency priority class.
+    pub async fn dispatch(&self, task: TaskAssignment) -> Result<(), DispatchError> {
+        task.task().map_err(DispatchError::Invalid)?;
+        if !lock(&self.shared.fleet)
+            .vehicles
+            .contains_key(&task.vehicle_id)
+        {
+            return Err(DispatchError::UnknownVehicle(task.vehicle_id));
+        }
+        let writer = if task.kind == TaskKind::Abort {
+            &self.shared.abort_writer
+        } else {
+            &self.shared.task_writer
+        };
+        writer
+            .write(task.clone())
+            .await
+            .map_err(|e| DispatchError::Dds(e.to_string()))?;
+        info!(task = %task.task_id, vehicle = %task.vehicle_id, kind = ?task.kind, "task dispatched");
+        lock(&self.shared.stats).tasks_dispatched += 1;
+        lock(&self.shared.tasks).insert(
+            task.task_id.clone(),
+            TaskView {
+                assignment: task.clone(),
+                status: None,
+            },
+        );
+        self.store(Record::Task(task));
+        Ok(())
+    }
+}

@@ -1,0 +1,197 @@
+//! Shoal's configuration: defaults → file (`--config` / `SHOAL_CONFIG`) → environment
+//! (`SHOAL_<SECTION>__<KEY>`) → command-line flags.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use serde::{Deserialize, Serialize};
+use shoal_console::ConsoleConfig;
+use shoal_dds::DdsConfig;
+use shoal_history::HistoryConfig;
+use shoal_model::VehicleKind;
+use shoal_proxy::sim::SimSpec;
+use shoal_station::StationConfig;
+
+/// The commented default configuration, kept in the repository; a test parses it so it
+/// cannot drift from the code.
+pub const DEFAULT_CONFIG: &str = include_str!("../../../config/shoal.toml");
+
+/// Every section of Shoal's configuration.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ShoalConfig {
+    /// DDS participant.
+    pub dds: DdsConfig,
+    /// Station core.
+    pub station: StationConfig,
+    /// History store.
+    pub history: HistoryConfig,
+    /// HTTP API.
+    pub console: ConsoleConfig,
+    /// The simulated fleet `shoal up` starts.
+    pub fleet: FleetConfig,
+}
+
+/// The `[fleet]` section: simulated vehicles for `shoal up`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FleetConfig {
+    /// One entry per vehicle.
+    pub vehicles: Vec<SimSpec>,
+}
+
+impl Default for FleetConfig {
+    fn default() -> Self {
+        // Off Trondheim, where the SWARMs project ran its Norwegian sea trials.
+        let v = |id: &str, kind, lat, lon| SimSpec {
+            id: id.into(),
+            kind,
+            latitude_deg: lat,
+            longitude_deg: lon,
+            rate_hz: 1.0,
+            battery_pct: 100.0,
+        };
+        Self {
+            vehicles: vec![
+                v("auv-1", VehicleKind::Auv, 63.4650, 10.3700),
+                v("auv-2", VehicleKind::Auv, 63.4660, 10.3750),
+                v("usv-1", VehicleKind::Usv, 63.4640, 10.3800),
+                v("rov-1", VehicleKind::Rov, 63.4630, 10.3650),
+            ],
+        }
+    }
+}
+
+/// Loads the configuration: `path` (or `SHOAL_CONFIG`) if given, then environment overrides.
+pub fn load(path: Option<&Path>) -> Result<ShoalConfig> {
+    let env_path = std::env::var_os("SHOAL_CONFIG").map(PathBuf::from);
+    let path = path.map(Path::to_path_buf).or(env_path);
+    let mut table = match &path {
+        Some(p) => {
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("cannot read config file {}", p.display()))?;
+            parse_table(&text).with_context(|| format!("config file {}", p.display()))?
+        }
+        None => toml::Table::new(),
+    };
+    apply_env(&mut table, std::env::vars())?;
+    from_table(table)
+}
+
+fn parse_table(text: &str) -> Result<toml::Table> {
+    text.parse::<toml::Table>().map_err(|e| {
+        // toml's message spans several lines with a source excerpt; keep one line.
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1)
+            .map_or_else(String::new, |l| format!("line {l}: "));
+        anyhow::anyhow!("{line}{}", e.message())
+    })
+}
+
+/// Applies `SHOAL_<SECTION>__<KEY>=value` overrides; values are TOML when they parse as
+/// TOML (numbers, booleans, arrays), strings otherwise.
+fn apply_env(table: &mut toml::Table, vars: impl Iterator<Item = (String, String)>) -> Result<()> {
+    for (name, raw) in vars {
+        let Some(rest) = name.strip_prefix("SHOAL_") else {
+            continue;
+        };
+        let Some((section, key)) = rest.split_once("__") else {
+            continue;
+        };
+        let (section, key) = (section.to_ascii_lowercase(), key.to_ascii_lowercase());
+        if section.is_empty() || key.is_empty() {
+            bail!("environment variable {name}: expected SHOAL_<SECTION>__<KEY>");
+        }
+        let value = format!("v = {raw}")
+            .parse::<toml::Table>()
+            .ok()
+            .and_then(|mut t| t.remove("v"))
+            .unwrap_or(toml::Value::String(raw));
+        let entry = table
+            .entry(section.clone())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        let Some(sec) = entry.as_table_mut() else {
+            bail!("environment variable {name}: [{section}] is not a section");
+        };
+        sec.insert(key, value);
+    }
+    Ok(())
+}
+
+fn from_table(table: toml::Table) -> Result<ShoalConfig> {
+    let config: ShoalConfig = serde_path_to_error::deserialize(toml::Value::Table(table))
+        .map_err(|e| anyhow::anyhow!("invalid configuration at `{}`: {}", e.path(), e.inner()))?;
+    config
+        .station
+        .check()
+        .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
+    config
+        .history
+        .check()
+        .map_err(|e| anyhow::anyhow!("invalid configuration in [history]: {e}"))?;
+    Ok(config)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    #[test]
+    fn the_shipped_default_config_parses_and_equals_the_built_in_defaults() {
+        let parsed = from_table(parse_table(DEFAULT_CONFIG).unwrap()).unwrap();
+        assert_eq!(parsed, ShoalConfig::default());
+    }
+
+    #[test]
+    fn environment_overrides_the_file() {
+        let mut t = parse_table("[dds]\ndomain_id = 3\n").unwrap();
+        let vars = [
+            ("SHOAL_DDS__DOMAIN_ID".to_string(), "7".to_string()),
+            (
+                "SHOAL_CONSOLE__LISTEN".to_string(),
+                "127.0.0.1:9999".to_string(),
+            ),
+            ("UNRELATED".to_string(), "x".to_string()),
+        ];
+        apply_env(&mut t, vars.into_iter()).unwrap();
+        let c = from_table(t).unwrap();
+        assert_eq!(c.dds.domain_id, 7);
+        assert_eq!(c.console.listen.port(), 9999);
+    }
+
+    #[test]
+    fn a_bad_value_gives_one_line_naming_the_key() {
+        let e = from_table(parse_table("[dds]\ndomain_id = \"seven\"\n").unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("dds.domain_id"), "{e}");
+        assert!(!e.contains('\n'), "{e}");
+    }
+
+    #[test]
+    fn an_unknown_key_is_named() {
+        let e = from_table(parse_table("[station]\nstale_after = 3\n").unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("stale_after"), "{e}");
+    }
+
+    #[test]
+    fn a_syntax_error_names_the_line() {
+        let e = parse_table("[dds]\ndomain_id = = 3\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("line 2"), "{e}");
+    }
+
+    #[test]
+    fn inconsistent_values_are_explained() {
+        let e =
+            from_table(parse_table("[station]\nstale_after_s = 10\nlost_after_s = 5\n").unwrap())
+                .unwrap_err()
+                .to_string();
+        assert!(e.contains("station.lost_after_s"), "{e}");
+    }
+}

@@ -1,0 +1,233 @@
+//! The long-running commands: `station`, `vehicle`, and `up` which starts them all.
+
+use std::path::Path;
+use std::process::Stdio;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use shoal_dds::PubSub;
+use shoal_history::History;
+use shoal_model::Validate;
+use shoal_proxy::sim::{SimSpec, SimVehicle};
+use shoal_station::Station;
+use tokio::io::AsyncReadExt;
+use tokio_util::sync::CancellationToken;
+use tracing::{info, warn};
+
+use crate::config::ShoalConfig;
+
+/// A token cancelled on Ctrl-C, SIGTERM, or (if asked) when standard input closes.
+pub fn shutdown_signal(exit_on_stdin_close: bool) -> CancellationToken {
+    let token = CancellationToken::new();
+    let t = token.clone();
+    tokio::spawn(async move {
+        let mut term =
+            match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+                Ok(s) => s,
+                Err(e) => {
+                    warn!(error = %e, "cannot watch SIGTERM; only Ctrl-C stops this process");
+                    let _ = tokio::signal::ctrl_c().await;
+                    t.cancel();
+                    return;
+                }
+            };
+        let stdin_closed = async {
+            if exit_on_stdin_close {
+                let mut stdin = tokio::io::stdin();
+                let mut buf = [0u8; 64];
+                while matches!(stdin.read(&mut buf).await, Ok(n) if n > 0) {}
+            } else {
+                std::future::pending::<()>().await;
+            }
+        };
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => info!("Ctrl-C: stopping"),
+            _ = term.recv() => info!("SIGTERM: stopping"),
+            () = stdin_closed => info!("parent went away: stopping"),
+        }
+        t.cancel();
+    });
+    token
+}
+
+fn dds(cfg: &ShoalConfig) -> Result<Arc<PubSub>> {
+    if !cfg.dds.is_loopback_only() {
+        info!(interfaces = ?cfg.dds.interfaces, "DDS uses non-loopback interfaces: traffic may leave this host");
+    }
+    Ok(Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?))
+}
+
+/// `shoal station`.
+pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> {
+    let shutdown = shutdown_signal(exit_on_stdin_close);
+    let listener = tokio::net::TcpListener::bind(cfg.console.listen)
+        .await
+        .with_context(|| format!("cannot listen on console.listen = {}", cfg.console.listen))?;
+    let history = History::open(&cfg.history).with_context(|| {
+        format!(
+            "cannot open the history store at {}",
+            cfg.history.path.display()
+        )
+    })?;
+    let dds = dds(&cfg)?;
+    let station =
+        Station::new(cfg.station.clone(), dds, history).context("cannot start the station")?;
+    let api = tokio::spawn(shoal_console::serve(
+        listener,
+        station.handle(),
+        shutdown.clone(),
+    ));
+    let report = station
+        .run(shutdown.clone())
+        .await
+        .context("station failed")?;
+    shutdown.cancel();
+    if let Ok(Err(e)) = api.await {
+        warn!(error = %e, "HTTP API stopped with an error");
+    }
+    info!(
+        accepted = report.stats.states_accepted,
+        rejected = report.stats.total_rejected(),
+        committed = report.history_committed,
+        "station stopped"
+    );
+    Ok(())
+}
+
+/// `shoal vehicle --sim ...`.
+pub async fn vehicle(cfg: &ShoalConfig, spec: SimSpec, exit_on_stdin_close: bool) -> Result<()> {
+    if !(spec.rate_hz > 0.0 && spec.rate_hz <= 100.0) {
+        bail!(
+            "--rate must be in (0, 100] state vectors per second, not {}",
+            spec.rate_hz
+        );
+    }
+    let probe = SimVehicle::new(&spec, shoal_model::now_ms());
+    probe
+        .announcement
+        .validate()
+        .with_context(|| format!("vehicle {:?} cannot be announced", spec.id))?;
+    probe
+        .state(shoal_model::now_ms())
+        .validate()
+        .context("start position is invalid")?;
+    let shutdown = shutdown_signal(exit_on_stdin_close);
+    shoal_proxy::run_sim(spec, dds(cfg)?, shutdown)
+        .await
+        .context("simulated vehicle failed")
+}
+
+struct Child {
+    name: String,
+    child: tokio::process::Child,
+}
+
+fn spawn(exe: &Path, config: Option<&Path>, name: &str, args: &[String]) -> Result<Child> {
+    let mut cmd = tokio::process::Command::new(exe);
+    if let Some(c) = config {
+        cmd.arg("--config").arg(c);
+    }
+    cmd.args(args)
+        .arg("--exit-on-stdin-close")
+        .stdin(Stdio::piped())
+        .kill_on_drop(true);
+    let child = cmd
+        .spawn()
+        .with_context(|| format!("cannot start {name}"))?;
+    Ok(Child {
+        name: name.to_string(),
+        child,
+    })
+}
+
+/// `shoal up`: a station and the configured fleet, each its own process (its own DDS
+/// participant, as on real vehicles), stopped together.
+pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, no_fleet: bool) -> Result<()> {
+    let exe = std::env::current_exe().context("cannot find the shoal executable")?;
+    let shutdown = shutdown_signal(false);
+    let mut children = vec![spawn(&exe, config, "station", &["station".to_string()])?];
+    // Vehicles start once the API answers, so the station hears their announcements live.
+    let addr = cfg.console.listen;
+    let ready = async {
+        loop {
+            if tokio::net::TcpStream::connect(addr).await.is_ok() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    };
+    tokio::select! {
+        () = shutdown.cancelled() => {}
+        r = tokio::time::timeout(Duration::from_secs(30), ready) => {
+            if r.is_err() {
+                bail!("the station did not open its API on {addr} within 30 s");
+            }
+        }
+    }
+    if !no_fleet {
+        for v in &cfg.fleet.vehicles {
+            let args = [
+                "vehicle".to_string(),
+                "--sim".into(),
+                v.kind.as_str().into(),
+                "--id".into(),
+                v.id.clone(),
+                "--lat".into(),
+                v.latitude_deg.to_string(),
+                "--lon".into(),
+                v.longitude_deg.to_string(),
+                "--rate".into(),
+                v.rate_hz.to_string(),
+            ];
+            children.push(spawn(&exe, config, &v.id, &args)?);
+        }
+    }
+    info!(
+        vehicles = children.len() - 1,
+        "Shoal is up. Status page: http://{addr}/  API: http://{addr}/api/fleet  Ctrl-C stops everything."
+    );
+    // Run until Ctrl-C, or until a child dies on its own (then stop the rest too).
+    let mut failed = None;
+    loop {
+        tokio::select! {
+            () = shutdown.cancelled() => break,
+            () = tokio::time::sleep(Duration::from_millis(500)) => {
+                for c in &mut children {
+                    if let Ok(Some(status)) = c.child.try_wait() {
+                        failed = Some(format!("{} exited ({status})", c.name));
+                    }
+                }
+                if failed.is_some() {
+                    break;
+                }
+            }
+        }
+    }
+    // Closing their stdin asks the children to stop cleanly; vehicles first, station last,
+    // so the station records everything the vehicles sent.
+    for c in children.iter_mut().rev() {
+        drop(c.child.stdin.take());
+        if c.name == "station" {
+            continue;
+        }
+    }
+    for mut c in children.into_iter().rev() {
+        match tokio::time::timeout(Duration::from_secs(10), c.child.wait()).await {
+            Ok(Ok(status)) if status.success() => {}
+            Ok(Ok(status)) => warn!(child = %c.name, %status, "stopped with an error"),
+            Ok(Err(e)) => warn!(child = %c.name, error = %e, "cannot wait for it"),
+            Err(_) => {
+                warn!(child = %c.name, "did not stop within 10 s; killing it");
+                let _ = c.child.kill().await;
+            }
+        }
+    }
+    match failed {
+        Some(f) => bail!("{f}; stopped the rest"),
+        None => {
+            info!("all stopped");
+            Ok(())
+        }
+    }
+}

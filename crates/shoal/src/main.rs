@@ -1,0 +1,213 @@
+//! `shoal`: the command line of the Shoal middleware. Thin glue over the library crates.
+
+mod bench;
+mod config;
+mod daemons;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use shoal_model::VehicleKind;
+
+/// Shoal: semantic publish/subscribe middleware for fleets of maritime robots.
+#[derive(Debug, Parser)]
+#[command(version, about, long_about = None)]
+struct Cli {
+    /// Configuration file (TOML); see config/shoal.toml for every key. Also SHOAL_CONFIG.
+    #[arg(long, global = true, value_name = "FILE")]
+    config: Option<PathBuf>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Start everything on this host: a station, the simulated fleet of [fleet] and the
+    /// HTTP API. Ctrl-C stops it all.
+    Up {
+        /// Start only the station, no simulated vehicles.
+        #[arg(long)]
+        no_fleet: bool,
+    },
+    /// Run the Command and Control Station: ingest, history, register, HTTP API.
+    Station {
+        /// Address of the HTTP API (overrides console.listen).
+        #[arg(long, value_name = "ADDR")]
+        listen: Option<std::net::SocketAddr>,
+        /// History database (overrides history.path); ":memory:" keeps it in RAM.
+        #[arg(long, value_name = "PATH")]
+        db: Option<PathBuf>,
+        /// Stop when standard input closes (used by `shoal up` to stop its children).
+        #[arg(long, hide = true)]
+        exit_on_stdin_close: bool,
+    },
+    /// Run one simulated vehicle on DDS.
+    Vehicle {
+        /// Kind of simulated vehicle.
+        #[arg(long, value_enum)]
+        sim: SimKind,
+        /// Vehicle id: letters, digits, '_', '-', '.', at most 32.
+        #[arg(long)]
+        id: String,
+        /// Start latitude, degrees.
+        #[arg(long, default_value_t = 63.465, allow_negative_numbers = true)]
+        lat: f64,
+        /// Start longitude, degrees.
+        #[arg(long, default_value_t = 10.37, allow_negative_numbers = true)]
+        lon: f64,
+        /// State vectors per second.
+        #[arg(long, default_value_t = 1.0)]
+        rate: f64,
+        /// Stop when standard input closes (used by `shoal up`).
+        #[arg(long, hide = true)]
+        exit_on_stdin_close: bool,
+    },
+    /// Measure: `bus` (round trip and throughput against Cyclone DDS's ddsperf), `ingest`
+    /// (station ingest rate from simulated vehicles), `soak` (memory over many writes).
+    Bench {
+        #[command(subcommand)]
+        which: bench::BenchCommand,
+    },
+    /// Print the effective configuration (defaults, file and environment merged) as TOML.
+    Config {
+        /// Print the commented default configuration file instead.
+        #[arg(long)]
+        default: bool,
+    },
+}
+
+/// Kinds of simulated vehicle.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum SimKind {
+    Auv,
+    Usv,
+    Asv,
+    Rov,
+    Glider,
+}
+
+impl From<SimKind> for VehicleKind {
+    fn from(k: SimKind) -> Self {
+        match k {
+            SimKind::Auv => Self::Auv,
+            SimKind::Usv => Self::Usv,
+            SimKind::Asv => Self::Asv,
+            SimKind::Rov => Self::Rov,
+            SimKind::Glider => Self::Glider,
+        }
+    }
+}
+
+/// Puts the process's role (`station`, a vehicle id) in front of every log line, so the
+/// interleaved output of `shoal up`'s processes stays readable.
+struct Labeled<F> {
+    label: String,
+    inner: F,
+}
+
+impl<S, N, F> tracing_subscriber::fmt::FormatEvent<S, N> for Labeled<F>
+where
+    S: tracing::Subscriber + for<'a> tracing_subscriber::registry::LookupSpan<'a>,
+    N: for<'a> tracing_subscriber::fmt::FormatFields<'a> + 'static,
+    F: tracing_subscriber::fmt::FormatEvent<S, N>,
+{
+    fn format_event(
+        &self,
+        ctx: &tracing_subscriber::fmt::FmtContext<'_, S, N>,
+        mut writer: tracing_subscriber::fmt::format::Writer<'_>,
+        event: &tracing::Event<'_>,
+    ) -> std::fmt::Result {
+        write!(writer, "{:<8} ", self.label)?;
+        self.inner.format_event(ctx, writer, event)
+    }
+}
+
+fn init_logging(label: &str) {
+    use std::io::IsTerminal;
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,rustdds=warn"));
+    let ansi = std::io::stderr().is_terminal();
+    let format = tracing_subscriber::fmt::format()
+        .with_target(false)
+        .with_ansi(ansi);
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(ansi)
+        .with_writer(std::io::stderr)
+        .event_format(Labeled {
+            label: label.to_string(),
+            inner: format,
+        })
+        .init();
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let label = match &cli.command {
+        Command::Up { .. } => "up".to_string(),
+        Command::Station { .. } => "station".to_string(),
+        Command::Vehicle { id, .. } => id.clone(),
+        Command::Bench { .. } => "bench".to_string(),
+        Command::Config { .. } => "config".to_string(),
+    };
+    init_logging(&label);
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            // One clear line: the context chain, outermost first.
+            eprintln!("shoal: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    let mut cfg = config::load(cli.config.as_deref())?;
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    match cli.command {
+        Command::Up { no_fleet } => rt.block_on(daemons::up(cli.config.as_deref(), &cfg, no_fleet)),
+        Command::Station {
+            listen,
+            db,
+            exit_on_stdin_close,
+        } => {
+            if let Some(l) = listen {
+                cfg.console.listen = l;
+            }
+            if let Some(db) = db {
+                cfg.history.path = db;
+            }
+            rt.block_on(daemons::station(cfg, exit_on_stdin_close))
+        }
+        Command::Vehicle {
+            sim,
+            id,
+            lat,
+            lon,
+            rate,
+            exit_on_stdin_close,
+        } => {
+            let spec = shoal_proxy::sim::SimSpec {
+                id,
+                kind: sim.into(),
+                latitude_deg: lat,
+                longitude_deg: lon,
+                rate_hz: rate,
+                battery_pct: 100.0,
+            };
+            rt.block_on(daemons::vehicle(&cfg, spec, exit_on_stdin_close))
+        }
+        Command::Bench { which } => rt.block_on(bench::run(which, &cfg)),
+        Command::Config { default } => {
+            if default {
+                print!("{}", config::DEFAULT_CONFIG);
+            } else {
+                print!("{}", toml::to_string(&cfg)?);
+            }
+            Ok(())
+        }
+    }
+}
