@@ -120,8 +120,13 @@ fn apply_env(table: &mut toml::Table, vars: impl Iterator<Item = (String, String
 }
 
 fn from_table(table: toml::Table) -> Result<ShoalConfig> {
-    let config: ShoalConfig = serde_path_to_error::deserialize(toml::Value::Table(table))
-        .map_err(|e| anyhow::anyhow!("invalid configuration at `{}`: {}", e.path(), e.inner()))?;
+    let config: ShoalConfig =
+        serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
+            // toml appends the key on a second line; the path is already in front.
+            let inner = e.inner().to_string();
+            let first = inner.lines().next().unwrap_or_default().to_string();
+            anyhow::anyhow!("invalid configuration at `{}`: {first}", e.path())
+        })?;
     config
         .station
         .check()

@@ -1,0 +1,127 @@
+//! The `shoal` binary: configuration errors and `shoal up`.
+
+use std::io::Read;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn shoal() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_shoal"))
+}
+
+#[test]
+fn an_invalid_config_file_gives_one_line_naming_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.toml");
+    std::fs::write(&path, "[dds]\ndomain_id = \"zero\"\n").unwrap();
+    let out = shoal()
+        .arg("--config")
+        .arg(&path)
+        .arg("config")
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    let lines: Vec<_> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].contains("dds.domain_id"), "{err}");
+}
+
+#[test]
+fn an_environment_override_with_a_bad_value_is_named() {
+    let out = shoal()
+        .arg("config")
+        .env("SHOAL_STATION__LOST_AFTER_S", "soon")
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("station.lost_after_s"));
+}
+
+#[test]
+fn config_prints_the_effective_configuration() {
+    let out = shoal()
+        .arg("config")
+        .env("SHOAL_DDS__DOMAIN_ID", "9")
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    assert!(String::from_utf8_lossy(&out.stdout).contains("domain_id = 9"));
+}
+
+/// `shoal up` on its own domain and port: vehicles appear on the API, SIGTERM stops all.
+#[test]
+fn up_starts_the_station_and_fleet_and_stops_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap().port()
+    };
+    let mut child = shoal()
+        .arg("up")
+        .current_dir(dir.path())
+        .env("SHOAL_DDS__DOMAIN_ID", "63")
+        .env("SHOAL_CONSOLE__LISTEN", format!("127.0.0.1:{port}"))
+        .env("SHOAL_STATION__SUMMARY_INTERVAL_S", "1")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(40);
+    let mut fleet = String::new();
+    while Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(500));
+        if let Ok(body) = http_get(port, "/api/fleet") {
+            if body.matches("\"contact\":\"alive\"").count() == 4 {
+                fleet = body;
+                break;
+            }
+        }
+    }
+    let pid = child.id().to_string();
+    let _ = Command::new("kill").args(["-TERM", &pid]).status();
+    let mut status = None;
+    for _ in 0..150 {
+        if let Some(s) = child.try_wait().unwrap() {
+            status = Some(s);
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let mut log = String::new();
+    if status.is_none() {
+        let _ = child.kill();
+    }
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut log)
+        .unwrap();
+    assert!(
+        !fleet.is_empty(),
+        "the four vehicles never showed as alive; log:\n{log}"
+    );
+    for id in ["auv-1", "auv-2", "usv-1", "rov-1"] {
+        assert!(fleet.contains(id), "{id} missing from {fleet}");
+    }
+    assert!(
+        status.is_some_and(|s| s.success()),
+        "shoal up did not stop cleanly; log:\n{log}"
+    );
+    assert!(log.contains("station stopped"), "{log}");
+    assert!(dir.path().join("shoal-data/history.db").exists());
+}
+
+/// A minimal HTTP/1.0 GET over a plain socket, to keep an HTTP client out of the test deps.
+fn http_get(port: u16, path: &str) -> std::io::Result<String> {
+    use std::io::Write;
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", port))?;
+    s.set_read_timeout(Some(Duration::from_secs(5)))?;
+    write!(s, "GET {path} HTTP/1.0\r\nHost: localhost\r\n\r\n")?;
+    let mut out = String::new();
+    s.read_to_string(&mut out)?;
+    Ok(out
+        .split_once("\r\n\r\n")
+        .map(|(_, b)| b.to_string())
+        .unwrap_or_default())
+}

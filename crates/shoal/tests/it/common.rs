@@ -1,0 +1,69 @@
+//! Helpers shared by the end-to-end tests.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use shoal_dds::{DdsConfig, PubSub};
+use shoal_history::{History, HistoryConfig};
+use shoal_station::{Station, StationConfig, StationHandle, StationReport};
+use tokio_util::sync::CancellationToken;
+
+/// A station running in this process on its own DDS domain, with a temporary history.
+pub struct TestStation {
+    pub handle: StationHandle,
+    pub shutdown: CancellationToken,
+    pub task: tokio::task::JoinHandle<StationReport>,
+    pub db: std::path::PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+pub fn dds(domain_id: u16) -> Arc<PubSub> {
+    Arc::new(
+        PubSub::new(&DdsConfig {
+            domain_id,
+            ..DdsConfig::default()
+        })
+        .unwrap(),
+    )
+}
+
+pub fn start_station(domain_id: u16) -> TestStation {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("history.db");
+    let history = History::open(&HistoryConfig {
+        path: db.clone(),
+        ..HistoryConfig::default()
+    })
+    .unwrap();
+    let config = StationConfig {
+        summary_interval_s: 0.0,
+        ..StationConfig::default()
+    };
+    let station = Station::new(config, dds(domain_id), history).unwrap();
+    let handle = station.handle();
+    let shutdown = CancellationToken::new();
+    let s = shutdown.clone();
+    let task = tokio::spawn(async move { station.run(s).await.unwrap() });
+    TestStation {
+        handle,
+        shutdown,
+        task,
+        db,
+        _dir: dir,
+    }
+}
+
+/// Polls `check` every 100 ms until it returns Some, for at most `secs` seconds.
+pub async fn eventually<T>(secs: u64, what: &str, mut check: impl FnMut() -> Option<T>) -> T {
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(secs);
+    loop {
+        if let Some(v) = check() {
+            return v;
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "timed out after {secs} s waiting for {what}"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}

@@ -1,0 +1,1 @@
+//! Foreign DDS implementations against the station (filled in below).

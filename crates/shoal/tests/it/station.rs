@@ -1,0 +1,209 @@
+//! Station and simulated vehicles over real DDS in one process; the HTTP API without sockets.
+
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::http::{Request, StatusCode};
+use http_body_util::BodyExt;
+use shoal_dds::{Priority, WriterOptions};
+use shoal_history::{History, HistoryConfig};
+use shoal_model::{GeoPoint, StateVector, Task, TaskAssignment, TaskState, VehicleKind, now_ms};
+use shoal_proxy::sim::SimSpec;
+use tokio_util::sync::CancellationToken;
+use tower::ServiceExt;
+
+use crate::common::{dds, eventually, start_station};
+
+async fn call(
+    router: &axum::Router,
+    method: &str,
+    uri: &str,
+    body: &str,
+) -> (StatusCode, serde_json::Value) {
+    let req = Request::builder()
+        .method(method)
+        .uri(uri)
+        .header("content-type", "application/json")
+        .body(Body::from(body.to_string()))
+        .unwrap();
+    let resp = router.clone().oneshot(req).await.unwrap();
+    let status = resp.status();
+    let bytes = resp.into_body().collect().await.unwrap().to_bytes();
+    let json = serde_json::from_slice(&bytes).unwrap_or(serde_json::Value::Null);
+    (status, json)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_simulated_vehicle_joins_reports_and_executes_a_task() {
+    let station = start_station(60);
+    let vehicle_stop = CancellationToken::new();
+    let spec = SimSpec {
+        id: "auv-9".into(),
+        kind: VehicleKind::Auv,
+        latitude_deg: 63.0,
+        longitude_deg: 10.0,
+        rate_hz: 5.0,
+        battery_pct: 90.0,
+    };
+    let v = tokio::spawn(shoal_proxy::run_sim(spec, dds(60), vehicle_stop.clone()));
+    let h = station.handle.clone();
+    eventually(20, "auv-9 to report state", || {
+        h.vehicle("auv-9").filter(|v| v.states_accepted >= 3)
+    })
+    .await;
+
+    // A goto 15 m north: accepted, running, done.
+    let target = GeoPoint {
+        latitude_deg: 63.000_135,
+        longitude_deg: 10.0,
+    };
+    let task = TaskAssignment::new(
+        "task-goto-1",
+        "m-1",
+        "auv-9",
+        now_ms(),
+        &Task::GotoWaypoint {
+            target,
+            depth_m: Some(5.0),
+            altitude_m: None,
+            speed_mps: 2.0,
+        },
+    );
+    h.dispatch(task).await.unwrap();
+    eventually(60, "the goto to be done", || {
+        h.tasks().into_iter().find(|t| {
+            t.assignment.task_id == "task-goto-1"
+                && t.status
+                    .as_ref()
+                    .is_some_and(|s| s.state == TaskState::Done)
+        })
+    })
+    .await;
+
+    // The API sees the same fleet.
+    let router = shoal_console::router(h.clone());
+    let (status, fleet) = call(&router, "GET", "/api/fleet", "").await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(fleet[0]["announcement"]["vehicle_id"], "auv-9");
+    let (status, track) = call(&router, "GET", "/api/vehicles/auv-9/track?limit=5", "").await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(track.as_array().map(Vec::len), Some(5));
+
+    vehicle_stop.cancel();
+    v.await.unwrap().unwrap();
+    station.shutdown.cancel();
+    let report = station.task.await.unwrap();
+    // Every accepted state vector was acknowledged by the history store and is there after
+    // a restart: nothing acknowledged is lost.
+    let reopened = History::open(&HistoryConfig {
+        path: station.db.clone(),
+        ..HistoryConfig::default()
+    })
+    .unwrap();
+    assert_eq!(
+        reopened.count_states(Some("auv-9")).unwrap(),
+        report.stats.states_accepted
+    );
+    assert!(reopened.task_history("task-goto-1").unwrap().statuses.len() >= 3);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn state_from_an_unknown_vehicle_is_rejected_counted_and_quarantined() {
+    let station = start_station(61);
+    let rogue = dds(61);
+    let w = rogue
+        .writer::<StateVector>(WriterOptions::new(Priority::Telemetry))
+        .unwrap();
+    let s = StateVector {
+        vehicle_id: "ghost-1".into(),
+        timestamp_ms: now_ms(),
+        latitude_deg: 1.0,
+        longitude_deg: 2.0,
+        depth_m: 3.0,
+        altitude_m: -1.0,
+        speed_mps: 0.5,
+        yaw_deg: 10.0,
+        pitch_deg: 0.0,
+        roll_deg: 0.0,
+        battery_pct: 50.0,
+    };
+    let h = station.handle.clone();
+    // Keep publishing until discovery has matched and the station has seen one.
+    let mut n = 0;
+    loop {
+        let mut sample = s.clone();
+        sample.timestamp_ms += n;
+        w.write(sample).await.unwrap();
+        n += 1;
+        if h.stats().rejected.get("unknown_vehicle").is_some() {
+            break;
+        }
+        assert!(n < 200, "the station never saw the rogue state vector");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert_eq!(h.stats().states_accepted, 0);
+    assert!(h.fleet().is_empty());
+    let quarantined = eventually(10, "the quarantine row", || {
+        h.history().rejected(10).ok().filter(|r| !r.is_empty())
+    })
+    .await;
+    assert_eq!(quarantined[0].reason, "unknown_vehicle");
+    assert!(quarantined[0].payload_json.contains("ghost-1"));
+    assert_eq!(h.history().count_states(None).unwrap(), 0);
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_api_explains_bad_requests_and_survives_them() {
+    let station = start_station(62);
+    let router = shoal_console::router(station.handle.clone());
+    let (status, body) = call(&router, "POST", "/api/tasks", "{not json").await;
+    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert!(body["error"].as_str().unwrap().len() > 5);
+
+    let (status, body) = call(&router, "POST", "/api/tasks", r#"{"task_id": 5}"#).await;
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
+
+    let task = TaskAssignment::new("t-x", "", "nobody", now_ms(), &Task::Surface);
+    let (status, body) = call(
+        &router,
+        "POST",
+        "/api/tasks",
+        &serde_json::to_string(&task).unwrap(),
+    )
+    .await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+    assert!(body["error"].as_str().unwrap().contains("nobody"));
+
+    let mut bad = TaskAssignment::new(
+        "t-y",
+        "",
+        "auv-1",
+        now_ms(),
+        &Task::Hold { duration_s: 10.0 },
+    );
+    bad.duration_s = -5.0;
+    let (status, body) = call(
+        &router,
+        "POST",
+        "/api/tasks",
+        &serde_json::to_string(&bad).unwrap(),
+    )
+    .await;
+    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert!(
+        body["error"].as_str().unwrap().contains("duration_s"),
+        "{body}"
+    );
+
+    let (status, _) = call(&router, "GET", "/api/vehicles/nobody", "").await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+    let (status, _) = call(&router, "GET", "/api/rejected?limit=abc", "").await;
+    assert_eq!(status, StatusCode::BAD_REQUEST);
+    let (status, health) = call(&router, "GET", "/api/health", "").await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(health["status"], "ok");
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+}
