@@ -580,6 +580,11 @@ impl StationHandle {
         lock(&self.shared.tasks).values().cloned().collect()
     }
 
+    /// Remote readers matched by the station's (control-class) task writer now.
+    pub fn task_readers(&self) -> i32 {
+        self.shared.task_writer.matched_readers()
+    }
+
     /// Validates a task, checks its vehicle is registered, stores and publishes it.
     /// Aborts go out on the emergency priority class.
     pub async fn dispatch(&self, task: TaskAssignment) -> Result<(), DispatchError> {
