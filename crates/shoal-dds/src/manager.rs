@@ -5,12 +5,15 @@ use std::pin::Pin;
 use std::sync::Mutex;
 use std::task::{Context, Poll};
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use futures::Stream;
-use rustdds::with_key::{DataReaderStream, DataWriter, Sample};
+use rustdds::with_key::{DataReader, DataWriter, Sample};
 use rustdds::{
     CDRDeserializerAdapter, CDRSerializerAdapter, DomainParticipant, DomainParticipantBuilder,
-    DomainParticipantStatusEvent, DomainParticipantStatusListener, Publisher, StatusEvented,
-    Subscriber, Topic, TopicKind,
+    DomainParticipantStatusEvent, DomainParticipantStatusListener, Publisher, ReadCondition,
+    StatusEvented, Subscriber, Topic, TopicKind,
 };
 use tracing::{debug, info, warn};
 
@@ -31,7 +34,7 @@ pub struct PubSub {
     participant: DomainParticipant,
     publisher: Publisher,
     subscriber: Subscriber,
-    topics: Mutex<HashMap<&'static str, Topic>>,
+    topics: Mutex<HashMap<String, Topic>>,
     status: DomainParticipantStatusListener,
     config: DdsConfig,
 }
@@ -105,31 +108,46 @@ impl PubSub {
         format!("{:?}", rustdds::RTPSEntity::guid(&self.participant).prefix)
     }
 
-    fn topic<T: TopicType>(&self) -> Result<Topic, CreateError> {
+    fn topic<T: TopicType>(&self, name: &str) -> Result<Topic, CreateError> {
         let mut topics = self
             .topics
             .lock()
             .map_err(|_| CreateError::Config("topic table lock poisoned".into()))?;
-        if let Some(t) = topics.get(T::TOPIC) {
+        if let Some(t) = topics.get(name) {
             return Ok(t.clone());
         }
         let t = self
             .participant
             .create_topic(
-                T::TOPIC.to_string(),
+                name.to_string(),
                 T::TYPE_NAME.to_string(),
                 &T::PROFILE.topic_qos(self.config.topic_cache_samples),
                 TopicKind::WithKey,
             )
-            .map_err(|e| dds_err(format!("topic {}", T::TOPIC), e))?;
-        topics.insert(T::TOPIC, t.clone());
+            .map_err(|e| dds_err(format!("topic {name}"), e))?;
+        topics.insert(name.to_string(), t.clone());
         Ok(t)
     }
 
     /// A writer for `T` in the given priority class. Each call creates a distinct DDS
     /// writer, so traffic of one class never waits behind another class's history.
     pub fn writer<T: TopicType>(&self, options: WriterOptions) -> Result<Writer<T>, CreateError> {
-        let topic = self.topic::<T>()?;
+        self.writer_on(T::TOPIC, options)
+    }
+
+    /// A reader for `T` as an async stream of validated samples.
+    pub fn subscribe<T: TopicType>(&self) -> Result<Subscription<T>, CreateError> {
+        self.subscribe_on(T::TOPIC)
+    }
+
+    /// Like [`PubSub::writer`] on another topic name with `T`'s type and QoS (benchmarks,
+    /// private channels).
+    pub fn writer_on<T: TopicType>(
+        &self,
+        topic_name: &str,
+        options: WriterOptions,
+    ) -> Result<Writer<T>, CreateError> {
+        let topic = self.topic::<T>(topic_name)?;
         let qos = T::PROFILE.writer_qos(&options);
         let inner = self
             .publisher
@@ -147,17 +165,18 @@ impl PubSub {
         })
     }
 
-    /// A reader for `T` as an async stream of validated samples.
-    pub fn subscribe<T: TopicType>(&self) -> Result<Subscription<T>, CreateError> {
-        let topic = self.topic::<T>()?;
+    /// Like [`PubSub::subscribe`] on another topic name with `T`'s type and QoS.
+    pub fn subscribe_on<T: TopicType>(
+        &self,
+        topic_name: &str,
+    ) -> Result<Subscription<T>, CreateError> {
+        let topic = self.topic::<T>(topic_name)?;
         let qos = T::PROFILE.reader_qos(self.config.topic_cache_samples);
         let reader = self
             .subscriber
             .create_datareader_cdr::<Wire<T>>(&topic, Some(qos))
-            .map_err(|e| dds_err(format!("a reader on {}", T::TOPIC), e))?;
-        Ok(Subscription {
-            inner: reader.async_sample_stream(),
-        })
+            .map_err(|e| dds_err(format!("a reader on {topic_name}"), e))?;
+        spawn_reader(reader, topic_name)
     }
 
     /// Discovery events that happened since the last call (never blocks).
@@ -331,8 +350,15 @@ pub struct SampleMeta {
 }
 
 /// A typed, validated stream of samples from one topic.
+///
+/// A dedicated thread per subscription waits on the DDS reader (mio readiness) and takes
+/// samples in batches: RustDDS's own async stream takes one sample per call and scans the
+/// reader's whole cache each time, which turns a backlog into quadratic work. Samples cross
+/// to async code through a bounded channel, so a slow consumer slows the reader instead of
+/// growing memory.
 pub struct Subscription<T: TopicType> {
-    inner: DataReaderStream<Wire<T>, CDRDeserializerAdapter<Wire<T>>>,
+    rx: tokio::sync::mpsc::Receiver<Result<(T, SampleMeta), ReadError>>,
+    stop: Arc<AtomicBool>,
 }
 
 impl<T: TopicType> std::fmt::Debug for Subscription<T> {
@@ -343,54 +369,127 @@ impl<T: TopicType> std::fmt::Debug for Subscription<T> {
     }
 }
 
+impl<T: TopicType> Drop for Subscription<T> {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
+}
+
 impl<T: TopicType> Stream for Subscription<T> {
     /// A valid sample with its metadata, or why a received sample was unusable. The stream
     /// goes on after an error: one bad sample never blocks the ones behind it.
     type Item = Result<(T, SampleMeta), ReadError>;
 
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
+        self.rx.poll_recv(cx)
+    }
+}
+
+/// Samples a reader thread takes per call.
+const BATCH: usize = 1024;
+/// Samples buffered between the reader thread and the async consumer.
+const CHANNEL: usize = 4096;
+
+type Tx<T> = tokio::sync::mpsc::Sender<Result<(T, SampleMeta), ReadError>>;
+
+fn spawn_reader<T: TopicType>(
+    reader: DataReader<Wire<T>, CDRDeserializerAdapter<Wire<T>>>,
+    topic_name: &str,
+) -> Result<Subscription<T>, CreateError> {
+    let (tx, rx) = tokio::sync::mpsc::channel(CHANNEL);
+    let stop = Arc::new(AtomicBool::new(false));
+    let thread_stop = Arc::clone(&stop);
+    let name = format!("dds-reader {topic_name}");
+    let topic: &'static str = T::TOPIC;
+    std::thread::Builder::new()
+        .name(name.chars().take(15).collect())
+        .spawn(move || {
+            if let Err(e) = reader_loop(reader, &tx, &thread_stop) {
+                warn!(topic, error = %e, "DDS reader thread stopped");
+            }
+        })
+        .map_err(|e| dds_err(name, e))?;
+    Ok(Subscription { rx, stop })
+}
+
+fn reader_loop<T: TopicType>(
+    mut reader: DataReader<Wire<T>, CDRDeserializerAdapter<Wire<T>>>,
+    tx: &Tx<T>,
+    stop: &AtomicBool,
+) -> std::io::Result<()> {
+    use rustdds::mio1::{Events, Interest, Poll as MioPoll, Token};
+    // mio 1 readiness: RustDDS drains this event source inside `take`, so an edge is never
+    // lost (its mio 0.6 channel is never drained by `take` and goes silent once full).
+    let mut poll = MioPoll::new()?;
+    poll.registry()
+        .register(&mut reader, Token(0), Interest::READABLE)?;
+    let mut events = Events::with_capacity(4);
+    loop {
+        // Edge-triggered: drain everything before waiting again.
         loop {
-            let item = match Pin::new(&mut self.inner).poll_next(cx) {
-                Poll::Pending => return Poll::Pending,
-                Poll::Ready(None) => return Poll::Ready(None),
-                Poll::Ready(Some(item)) => item,
-            };
-            let sample = match item {
-                Ok(s) => s,
+            if stop.load(Ordering::Relaxed) || tx.is_closed() {
+                return Ok(());
+            }
+            match reader.take(BATCH, ReadCondition::not_read()) {
+                Ok(batch) if batch.is_empty() => break,
+                Ok(batch) => {
+                    for sample in batch {
+                        if let Some(item) = convert(sample)
+                            && tx.blocking_send(item).is_err()
+                        {
+                            return Ok(());
+                        }
+                    }
+                }
+                // The reader has moved past the bad sample; report it and go on.
                 Err(rustdds::dds::result::ReadError::Deserialization { reason }) => {
                     warn!(topic = T::TOPIC, %reason, "malformed sample dropped");
-                    return Poll::Ready(Some(Err(ReadError::Malformed {
-                        topic: T::TOPIC,
-                        detail: reason,
-                    })));
+                    if tx
+                        .blocking_send(Err(ReadError::Malformed {
+                            topic: T::TOPIC,
+                            detail: reason,
+                        }))
+                        .is_err()
+                    {
+                        return Ok(());
+                    }
                 }
-                Err(rustdds::dds::result::ReadError::UnknownKey { .. }) => continue,
+                Err(rustdds::dds::result::ReadError::UnknownKey { .. }) => {}
                 Err(e) => {
-                    return Poll::Ready(Some(Err(ReadError::Dds {
+                    let item = Err(ReadError::Dds {
                         topic: T::TOPIC,
                         detail: e.to_string(),
-                    })));
+                    });
+                    if tx.blocking_send(item).is_err() {
+                        return Ok(());
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(100));
                 }
-            };
-            let info = sample.sample_info();
-            let meta = SampleMeta {
-                writer: format!("{:?}", info.writer_guid()),
-                source_timestamp_ms: info.source_timestamp().map(timestamp_ms),
-            };
-            match sample.into_value() {
-                Sample::Value(Wire(value)) => {
-                    return Poll::Ready(Some(match value.validate() {
-                        Ok(()) => Ok((value, meta)),
-                        Err(error) => Err(ReadError::Invalid {
-                            topic: T::TOPIC,
-                            error,
-                        }),
-                    }));
-                }
-                // Disposals carry no data for Shoal: instances end by being superseded.
-                Sample::Dispose(_) => continue,
             }
         }
+        // The timeout bounds how long a dropped subscription keeps its thread.
+        poll.poll(&mut events, Some(std::time::Duration::from_millis(200)))?;
+    }
+}
+
+fn convert<T: TopicType>(
+    sample: rustdds::with_key::DataSample<Wire<T>>,
+) -> Option<Result<(T, SampleMeta), ReadError>> {
+    let info = sample.sample_info();
+    let meta = SampleMeta {
+        writer: format!("{:?}", info.writer_guid()),
+        source_timestamp_ms: info.source_timestamp().map(timestamp_ms),
+    };
+    match sample.into_value() {
+        Sample::Value(Wire(value)) => Some(match value.validate() {
+            Ok(()) => Ok((value, meta)),
+            Err(error) => Err(ReadError::Invalid {
+                topic: T::TOPIC,
+                error,
+            }),
+        }),
+        // Disposals carry no data for Shoal: instances end by being superseded.
+        Sample::Dispose(_) => None,
     }
 }
 

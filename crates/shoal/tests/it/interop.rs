@@ -16,7 +16,9 @@ use std::process::Stdio;
 use std::time::Duration;
 
 use shoal_dds::{Priority, WriterOptions};
-use shoal_model::{GeoPoint, LinkKind, Task, TaskAssignment, VehicleAnnouncement, VehicleKind, now_ms};
+use shoal_model::{
+    GeoPoint, LinkKind, Task, TaskAssignment, VehicleAnnouncement, VehicleKind, now_ms,
+};
 use tokio::io::AsyncBufReadExt;
 
 use crate::common::{TestStation, dds, eventually, start_station};
@@ -38,18 +40,26 @@ impl Vendor {
         let root = repo();
         let python = root.join(".venv/bin/python");
         let (program, script) = match self {
-            Self::Cyclone => (python, Some(root.join("tests/interop/peers/cyclone_peer.py"))),
+            Self::Cyclone => (
+                python,
+                Some(root.join("tests/interop/peers/cyclone_peer.py")),
+            ),
             Self::Rti => (python, Some(root.join("tests/interop/peers/rti_peer.py"))),
             Self::FastDds => (root.join("tests/interop/build/fastdds_peer"), None),
         };
         if !program.exists() {
-            return Err(format!("{} not found: run scripts/install-test-deps.sh", program.display()));
+            return Err(format!(
+                "{} not found: run scripts/install-test-deps.sh",
+                program.display()
+            ));
         }
         let mut cmd = tokio::process::Command::new(program);
         if let Some(s) = script {
             cmd.arg(s);
         }
-        cmd.kill_on_drop(true).stdin(Stdio::null()).stderr(Stdio::inherit());
+        cmd.kill_on_drop(true)
+            .stdin(Stdio::null())
+            .stderr(Stdio::inherit());
         Ok(cmd)
     }
 
@@ -78,9 +88,15 @@ fn peer(vendor: Vendor) -> Option<tokio::process::Command> {
 }
 
 /// Registers `vehicle_id` at the station through a Shoal writer, as its proxy would.
-async fn register(station: &TestStation, domain: u16, vehicle_id: &str) -> std::sync::Arc<shoal_dds::PubSub> {
+async fn register(
+    station: &TestStation,
+    domain: u16,
+    vehicle_id: &str,
+) -> std::sync::Arc<shoal_dds::PubSub> {
     let p = dds(domain);
-    let w = p.writer::<VehicleAnnouncement>(WriterOptions::new(Priority::Control)).unwrap();
+    let w = p
+        .writer::<VehicleAnnouncement>(WriterOptions::new(Priority::Control))
+        .unwrap();
     w.write(VehicleAnnouncement {
         vehicle_id: vehicle_id.into(),
         name: "interop target".into(),
@@ -106,7 +122,10 @@ fn goto(task_id: &str, vehicle_id: &str) -> TaskAssignment {
         vehicle_id,
         now_ms(),
         &Task::GotoWaypoint {
-            target: GeoPoint { latitude_deg: 63.4412, longitude_deg: 10.4021 },
+            target: GeoPoint {
+                latitude_deg: 63.4412,
+                longitude_deg: 10.4021,
+            },
             depth_m: Some(12.5),
             altitude_m: None,
             speed_mps: 1.25,
@@ -123,7 +142,8 @@ async fn expect_task(child: &mut tokio::process::Child, task: &TaskAssignment) {
         .expect("the foreign subscriber printed nothing in 60 s")
         .unwrap()
         .expect("the foreign subscriber exited without printing the task");
-    let got: serde_json::Value = serde_json::from_str(&line).unwrap_or_else(|e| panic!("{e}: {line}"));
+    let got: serde_json::Value =
+        serde_json::from_str(&line).unwrap_or_else(|e| panic!("{e}: {line}"));
     assert_eq!(got["task_id"], task.task_id.as_str(), "{line}");
     assert_eq!(got["mission_id"], "interop-mission");
     assert_eq!(got["vehicle_id"], task.vehicle_id.as_str());
@@ -134,7 +154,10 @@ async fn expect_task(child: &mut tokio::process::Child, task: &TaskAssignment) {
     assert_eq!(got["depth_m"], 12.5);
     assert_eq!(got["altitude_m"], -1.0);
     assert_eq!(got["speed_mps"], 1.25);
-    let status = tokio::time::timeout(Duration::from_secs(20), child.wait()).await.unwrap().unwrap();
+    let status = tokio::time::timeout(Duration::from_secs(20), child.wait())
+        .await
+        .unwrap()
+        .unwrap();
     assert!(status.success());
 }
 
@@ -143,18 +166,33 @@ async fn foreign_state_reaches_station(vendor: Vendor, domain: u16) {
     let station = start_station(domain);
     let id = format!("{}-1", vendor.name().replace('-', ""));
     let mut child = cmd
-        .args(["publish-state", "--vehicle-id", &id, "--count", "20", "--rate", "20", "--domain"])
+        .args([
+            "publish-state",
+            "--vehicle-id",
+            &id,
+            "--count",
+            "20",
+            "--rate",
+            "20",
+            "--domain",
+        ])
         .arg(domain.to_string())
         .stdout(Stdio::piped())
         .spawn()
         .unwrap();
     let h = station.handle.clone();
-    let v = eventually(90, "20 foreign state vectors", || h.vehicle(&id).filter(|v| v.states_accepted >= 20)).await;
+    let v = eventually(90, "20 foreign state vectors", || {
+        h.vehicle(&id).filter(|v| v.states_accepted >= 20)
+    })
+    .await;
     assert_eq!(v.states_accepted, 20);
     assert_eq!(v.announcement.vendor, vendor.name(), "vendor field");
     assert_eq!(h.stats().total_rejected(), 0, "{:?}", h.stats());
     let latest = v.latest.unwrap();
-    assert!((latest.latitude_deg - 43.0).abs() < 0.01 && latest.depth_m == 10.0, "{latest:?}");
+    assert!(
+        (latest.latitude_deg - 43.0).abs() < 0.01 && latest.depth_m == 10.0,
+        "{latest:?}"
+    );
     let _ = tokio::time::timeout(Duration::from_secs(30), child.wait()).await;
     station.shutdown.cancel();
     station.task.await.unwrap();
@@ -165,10 +203,26 @@ async fn foreign_subscriber_gets_task(vendor: Vendor, domain: u16, late: bool) {
     let station = start_station(domain);
     let id = "target-1";
     let _proxy = register(&station, domain, id).await;
-    let task = goto(&format!("task-{}-{}", vendor.name(), if late { "late" } else { "live" }), id);
-    cmd.args(["subscribe-task", "--vehicle-id", id, "--expect", "1", "--timeout", "60", "--domain"])
-        .arg(domain.to_string())
-        .stdout(Stdio::piped());
+    let task = goto(
+        &format!(
+            "task-{}-{}",
+            vendor.name(),
+            if late { "late" } else { "live" }
+        ),
+        id,
+    );
+    cmd.args([
+        "subscribe-task",
+        "--vehicle-id",
+        id,
+        "--expect",
+        "1",
+        "--timeout",
+        "60",
+        "--domain",
+    ])
+    .arg(domain.to_string())
+    .stdout(Stdio::piped());
     let mut child = if late {
         // Published before the subscriber exists: only transient-local durability delivers it.
         station.handle.dispatch(task.clone()).await.unwrap();
@@ -177,7 +231,10 @@ async fn foreign_subscriber_gets_task(vendor: Vendor, domain: u16, late: bool) {
     } else {
         let child = cmd.spawn().unwrap();
         let h = station.handle.clone();
-        eventually(60, "the foreign reader to match the task writer", || (h.task_readers() > 0).then_some(())).await;
+        eventually(60, "the foreign reader to match the task writer", || {
+            (h.task_readers() > 0).then_some(())
+        })
+        .await;
         station.handle.dispatch(task.clone()).await.unwrap();
         child
     };

@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# Installs everything Shoal's DDS interop tests need on a Debian 12 machine:
+#   - apt: iproute2 (network namespaces), cyclonedds-tools (ddsperf),
+#     libfastrtps-dev + libfastcdr-dev (Fast DDS 2.9 / Fast CDR 1.0), g++, make,
+#     python3-venv
+#   - $REPO/.venv with PyPI cyclonedds and rticonnextdds-connector
+#   - the Fast DDS C++ peer, built into tests/interop/build/ (gitignored)
+# Idempotent: every step is skipped when already done, so a re-run is fast.
+# Run as root, non-interactively (CI=true, no stdin is fine).
+#
+# Environment overrides: PYTHON (interpreter for the venv, default python3),
+# SHOAL_PIP_CYCLONEDDS / SHOAL_PIP_RTI (pip requirement specs).
+set -euo pipefail
+
+REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$REPO/.venv"
+PYTHON="${PYTHON:-python3}"
+PIP_CYCLONEDDS="${SHOAL_PIP_CYCLONEDDS:-cyclonedds==11.0.1}"
+PIP_RTI="${SHOAL_PIP_RTI:-rticonnextdds-connector==1.2.4}"
+export DEBIAN_FRONTEND=noninteractive
+
+say() { echo "install-test-deps: $*"; }
+
+if [[ $(id -u) != 0 ]]; then
+    say "must run as root (apt-get, network namespaces)" >&2
+    exit 1
+fi
+
+# ---------------------------------------------------------------- apt
+APT_PKGS=(iproute2 cyclonedds-tools libfastrtps-dev libfastcdr-dev g++ make python3 python3-venv)
+missing=()
+for p in "${APT_PKGS[@]}"; do
+    if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+        missing+=("$p")
+    fi
+done
+if ((${#missing[@]})); then
+    say "apt-get install ${missing[*]}"
+    apt-get update -q
+    apt-get install -y -q --no-install-recommends "${missing[@]}" </dev/null
+else
+    say "apt packages present: ${APT_PKGS[*]}"
+fi
+
+# ---------------------------------------------------------------- venv
+venv_ok() {
+    [[ -x "$VENV/bin/python" ]] &&
+        "$VENV/bin/python" -c 'import cyclonedds.domain, rticonnextdds_connector' 2>/dev/null
+}
+if venv_ok; then
+    say "venv $VENV ready (cyclonedds, rticonnextdds-connector importable)"
+else
+    if [[ ! -x "$VENV/bin/python" ]]; then
+        say "creating venv $VENV with $(command -v "$PYTHON")"
+        "$PYTHON" -m venv "$VENV"
+    fi
+    say "pip install $PIP_CYCLONEDDS $PIP_RTI"
+    "$VENV/bin/python" -m pip install -q --disable-pip-version-check "$PIP_CYCLONEDDS" "$PIP_RTI"
+    venv_ok || { say "venv still cannot import cyclonedds / rticonnextdds_connector" >&2; exit 1; }
+fi
+
+# ---------------------------------------------------------------- Fast DDS peer
+# make rebuilds only when fastdds_peer.cpp or the Makefile changed.
+if make -q -C "$REPO/tests/interop/fastdds" BUILD="$REPO/tests/interop/build" >/dev/null 2>&1; then
+    say "Fast DDS peer up to date: tests/interop/build/fastdds_peer"
+else
+    say "building Fast DDS peer -> tests/interop/build/fastdds_peer"
+    make -C "$REPO/tests/interop/fastdds" BUILD="$REPO/tests/interop/build"
+fi
+
+say "done"
