@@ -1,0 +1,124 @@
+//! Keyframe + delta coding of State Vectors (issue 3, item 1).
+//!
+//! The sender codes each state against the last keyframe the receiver *acknowledged*, so a
+//! lost delta never corrupts later ones and a lost keyframe only costs keyframes until one
+//! gets through. Keyframes carry a 4-bit sequence number that deltas name.
+
+use std::collections::HashMap;
+
+use super::{DecodeError, EncodeError, Pdu, StateDelta, StateKeyframe};
+
+/// Sender side: chooses keyframe or delta for each state of one vehicle.
+#[derive(Debug, Clone)]
+pub struct DeltaEncoder {
+    acked: Option<StateKeyframe>,
+    pending: Vec<StateKeyframe>,
+    next_seq: u8,
+    refresh_after_s: u32,
+    last_was_keyframe: bool,
+}
+
+impl Default for DeltaEncoder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl DeltaEncoder {
+    /// Keyframes still awaiting an ack that are remembered (older ones are forgotten).
+    const MAX_PENDING: usize = 4;
+
+    /// An encoder with no acknowledged keyframe yet; refreshes the keyframe after 90 s.
+    pub fn new() -> Self {
+        Self {
+            acked: None,
+            pending: Vec::new(),
+            next_seq: 0,
+            refresh_after_s: 90,
+            last_was_keyframe: false,
+        }
+    }
+
+    /// Changes how old (seconds) the acknowledged keyframe may get before a fresh keyframe
+    /// is sent proactively (deltas reach at most 127 s).
+    pub fn with_refresh_after(mut self, seconds: u32) -> Self {
+        self.refresh_after_s = seconds;
+        self
+    }
+
+    /// The PDU to send for `state`: a delta when the last acknowledged keyframe is close
+    /// enough, a keyframe otherwise (or, every other message, when it is getting old).
+    pub fn encode(&mut self, state: &StateKeyframe) -> Result<Pdu, EncodeError> {
+        if let Some(key) = &self.acked
+            && let Some(d) = StateDelta::between(key, state)
+        {
+            let stale = d.dt_s >= self.refresh_after_s;
+            if !stale || self.last_was_keyframe {
+                self.last_was_keyframe = false;
+                return Ok(Pdu::StateDelta(d));
+            }
+        }
+        let mut k = state.quantised()?;
+        k.seq = self.next_seq;
+        self.next_seq = (self.next_seq + 1) % 16;
+        self.pending.push(k.clone());
+        if self.pending.len() > Self::MAX_PENDING {
+            self.pending.remove(0);
+        }
+        self.last_was_keyframe = true;
+        Ok(Pdu::StateKeyframe(k))
+    }
+
+    /// Records that the receiver got keyframe `seq`; returns false for an unknown seq.
+    pub fn acknowledge(&mut self, seq: u8) -> bool {
+        match self.pending.iter().position(|k| k.seq == seq) {
+            Some(i) => {
+                let k = self.pending.remove(i);
+                // Keyframes sent before the acknowledged one are now useless.
+                self.pending
+                    .retain(|p| p.seconds_of_day >= k.seconds_of_day);
+                self.acked = Some(k);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// The keyframe deltas are currently coded against, if any.
+    pub fn reference(&self) -> Option<&StateKeyframe> {
+        self.acked.as_ref()
+    }
+}
+
+/// Receiver side: remembers keyframes per vehicle and expands deltas.
+#[derive(Debug, Clone, Default)]
+pub struct DeltaDecoder {
+    keys: HashMap<(u8, u8), StateKeyframe>,
+}
+
+impl DeltaDecoder {
+    /// A decoder that has seen no keyframe.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The full state carried by a keyframe or delta PDU; `Ok(None)` for other PDUs.
+    pub fn decode(&mut self, pdu: &Pdu) -> Result<Option<StateKeyframe>, DecodeError> {
+        match pdu {
+            Pdu::StateKeyframe(k) => {
+                self.keys.insert((k.vehicle, k.seq), k.clone());
+                Ok(Some(k.clone()))
+            }
+            Pdu::StateDelta(d) => {
+                let key = self.keys.get(&(d.vehicle, d.keyframe_seq)).ok_or(
+                    DecodeError::UnknownKeyframe {
+                        vehicle: d.vehicle,
+                        seq: d.keyframe_seq,
+                    },
+                )?;
+                Ok(Some(d.apply(key)))
+            }
+            _ => Ok(None),
+        }
+    }
+}

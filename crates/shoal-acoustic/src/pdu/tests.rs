@@ -1,0 +1,417 @@
+//! PDU codec tests: sizes against the §3 budget, round trips, garbage, the delta track.
+
+use proptest::prelude::*;
+
+use super::*;
+
+fn sample(name: &str) -> Pdu {
+    samples()
+        .into_iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, p)| p)
+        .unwrap_or_else(|| panic!("no sample {name}"))
+}
+
+#[test]
+fn keyframe_is_158_bits_20_bytes_as_the_dccl_reference() {
+    let e = encode_sized(&sample("state_keyframe")).unwrap();
+    assert_eq!((e.bits, e.bytes.len()), (158, 20));
+}
+
+#[test]
+fn delta_is_at_most_10_bytes() {
+    let e = encode_sized(&sample("state_delta")).unwrap();
+    assert_eq!((e.bits, e.bytes.len()), (80, 10));
+}
+
+#[test]
+fn every_sample_round_trips_exactly_and_fits_a_frame() {
+    for (name, pdu) in samples() {
+        let bytes = encode(&pdu).unwrap();
+        assert!(bytes.len() <= MAX_FRAME, "{name}");
+        assert_eq!(decode(&bytes).unwrap(), pdu, "{name}");
+    }
+}
+
+#[test]
+fn size_table_lists_every_sample() {
+    let t = size_table();
+    for r in &t {
+        eprintln!("{:<24} {:>4} bits {:>3} bytes", r.message, r.bits, r.bytes);
+    }
+    assert_eq!(t.len(), samples().len());
+    assert!(t.iter().all(|r| r.bytes == r.bits.div_ceil(8)));
+}
+
+#[test]
+fn several_pdus_share_one_instant_message() {
+    let pdus = vec![
+        sample("state_delta"),
+        sample("task_status"),
+        sample("event"),
+        sample("ack"),
+        sample("state_keyframe"),
+    ];
+    let frame = pack_frame(&pdus).unwrap();
+    assert_eq!(frame.len(), 10 + 6 + 7 + 4 + 20);
+    assert_eq!(unpack_frame(&frame).unwrap(), pdus);
+    // Zero padding after the PDUs (a padded burst) is accepted.
+    let mut padded = frame;
+    padded.extend([0; 5]);
+    assert_eq!(unpack_frame(&padded).unwrap(), pdus);
+}
+
+#[test]
+fn an_overfull_frame_is_refused() {
+    let pdus = vec![sample("state_keyframe"); 4];
+    assert!(matches!(
+        pack_frame(&pdus),
+        Err(EncodeError::FrameTooLong { bytes: 80, max: 64 })
+    ));
+}
+
+#[test]
+fn truncated_input_is_an_error() {
+    let bytes = encode(&sample("state_keyframe")).unwrap();
+    for n in 0..bytes.len() {
+        assert!(decode(&bytes[..n]).is_err(), "prefix of {n} bytes decoded");
+    }
+}
+
+#[test]
+fn unknown_message_id_and_garbage_padding_are_errors() {
+    assert_eq!(
+        decode(&[0xff, 0, 0]),
+        Err(DecodeError::UnknownMessage { id: 0xff })
+    );
+    let mut bytes = encode(&sample("ack")).unwrap();
+    if let Some(last) = bytes.last_mut() {
+        *last |= 1; // a padding bit
+    }
+    assert_eq!(decode(&bytes), Err(DecodeError::BadPadding));
+}
+
+#[test]
+fn out_of_range_values_are_refused_by_the_encoder() {
+    let Pdu::StateKeyframe(mut k) = sample("state_keyframe") else {
+        panic!()
+    };
+    k.depth_m = 6000.1;
+    assert!(matches!(
+        encode(&Pdu::StateKeyframe(k.clone())),
+        Err(EncodeError::OutOfRange {
+            field: "depth_m",
+            ..
+        })
+    ));
+    k.depth_m = f64::NAN;
+    assert!(matches!(
+        encode(&Pdu::StateKeyframe(k)),
+        Err(EncodeError::NotFinite { field: "depth_m" })
+    ));
+}
+
+#[test]
+fn json_entry_points_round_trip() {
+    let json = r#"{"type":"ack","from":1,"msg_id":1,"ref_no":5}"#;
+    let e = encode_json(json).unwrap();
+    assert_eq!((e.bits, e.bytes.len()), (28, 4));
+    let back = decode_to_json(&e.bytes).unwrap();
+    assert!(back.contains("\"ref_no\": 5"), "{back}");
+    assert_eq!(from_hex(&to_hex(&e.bytes)).unwrap(), e.bytes);
+    let frame = encode_json(&format!("[{json},{json}]")).unwrap();
+    assert_eq!(frame.bytes.len(), 8);
+}
+
+/// A lawnmower survey at 1.5 m/s reported every 10 s for two hours, with a wavy depth
+/// and small attitude noise; the receiver acknowledges 70 % of keyframes.
+#[test]
+fn delta_coding_median_is_at_most_10_bytes_over_a_simulated_track() {
+    let mut enc = DeltaEncoder::new();
+    let mut dec = DeltaDecoder::new();
+    let mut rng = crate::rng::SplitMix64::new(7);
+    let (mut lat, mut lon) = (43.0_f64, 5.9_f64);
+    let mut sizes = Vec::new();
+    let m_per_deg = 111_320.0;
+    for i in 0..720u32 {
+        let t = 36_000 + i * 10;
+        // Legs of 400 m north/south joined by 50 m east.
+        let leg = (i / 30) % 2;
+        let yaw = if i % 30 == 29 {
+            lon += 50.0 / (m_per_deg * lat.to_radians().cos());
+            90.0
+        } else {
+            let d = 15.0 * if leg == 0 { 1.0 } else { -1.0 };
+            lat += d / m_per_deg;
+            if leg == 0 { 0.0 } else { 180.0 }
+        };
+        let f = f64::from(i);
+        let state = StateKeyframe {
+            vehicle: 3,
+            seq: 0,
+            seconds_of_day: t,
+            latitude_deg: lat,
+            longitude_deg: lon,
+            depth_m: 30.0 + 5.0 * (f / 20.0).sin(),
+            altitude_m: Some(20.0 - 5.0 * (f / 20.0).sin() + rng.next_f64()),
+            speed_mps: 1.5 + 0.1 * rng.next_f64(),
+            yaw_deg: yaw + 2.0 * rng.next_f64() - 1.0,
+            pitch_deg: 2.0 * rng.next_f64() - 1.0,
+            roll_deg: rng.next_f64(),
+            battery_pct: 90.0 - f / 72.0,
+        };
+        let pdu = enc.encode(&state).unwrap();
+        let bytes = encode(&pdu).unwrap();
+        sizes.push(bytes.len());
+        let decoded = dec.decode(&decode(&bytes).unwrap()).unwrap().unwrap();
+        // Keyframe quantisation plus half the delta's (coarser) resolution at most.
+        assert!(
+            (decoded.latitude_deg - state.latitude_deg).abs() <= 1.5e-5 + 1e-9,
+            "lat at {i}"
+        );
+        assert!(
+            (decoded.depth_m - state.depth_m).abs() <= 0.1 + 1e-9,
+            "depth at {i}"
+        );
+        if let Pdu::StateKeyframe(k) = &pdu
+            && rng.next_f64() < 0.7
+        {
+            assert!(enc.acknowledge(k.seq));
+        }
+    }
+    sizes.sort_unstable();
+    let median = sizes[sizes.len() / 2];
+    let keyframes = sizes.iter().filter(|&&s| s == 20).count();
+    eprintln!(
+        "delta track: median {median} bytes, {keyframes} keyframes of {}",
+        sizes.len()
+    );
+    assert!(
+        median <= 10,
+        "median {median} bytes, {keyframes} keyframes of {}",
+        sizes.len()
+    );
+}
+
+#[test]
+fn a_delta_against_an_unknown_keyframe_is_an_error() {
+    let mut dec = DeltaDecoder::new();
+    assert_eq!(
+        dec.decode(&sample("state_delta")),
+        Err(DecodeError::UnknownKeyframe { vehicle: 3, seq: 1 })
+    );
+}
+
+fn arb_keyframe() -> impl Strategy<Value = StateKeyframe> {
+    (
+        (
+            0u8..16,
+            0u8..16,
+            0u32..86_400,
+            -90.0..=90.0f64,
+            -180.0..=180.0f64,
+            0.0..=6000.0f64,
+        ),
+        (
+            prop::option::of(0.0..=1000.0f64),
+            0.0..=10.0f64,
+            0.0..360.0f64,
+            -90.0..=90.0f64,
+            -180.0..=180.0f64,
+            0.0..=100.0f64,
+        ),
+    )
+        .prop_map(
+            |((vehicle, seq, sod, lat, lon, depth), (alt, speed, yaw, pitch, roll, bat))| {
+                StateKeyframe {
+                    vehicle,
+                    seq,
+                    seconds_of_day: sod,
+                    latitude_deg: lat,
+                    longitude_deg: lon,
+                    depth_m: depth,
+                    altitude_m: alt,
+                    speed_mps: speed,
+                    yaw_deg: yaw,
+                    pitch_deg: pitch,
+                    roll_deg: roll,
+                    battery_pct: bat,
+                }
+            },
+        )
+}
+
+fn arb_point() -> impl Strategy<Value = Point> {
+    (-90.0..=90.0f64, -180.0..=180.0f64).prop_map(|(a, b)| Point {
+        latitude_deg: a,
+        longitude_deg: b,
+    })
+}
+
+fn arb_motion() -> impl Strategy<Value = Motion> {
+    (any::<bool>(), 0.0..=6000.0f64, 0.0..=10.0f64).prop_map(|(alt, z, speed)| Motion {
+        depth_m: (!alt).then_some(z),
+        altitude_m: alt.then_some(z),
+        speed_mps: speed,
+    })
+}
+
+fn arb_action() -> impl Strategy<Value = TaskAction> {
+    prop_oneof![
+        (arb_point(), arb_motion())
+            .prop_map(|(target, motion)| TaskAction::Goto { target, motion }),
+        (
+            prop::collection::vec(arb_point(), 3..=8),
+            1.0..=2048.0f64,
+            arb_motion()
+        )
+            .prop_map(|(polygon, line_spacing_m, motion)| TaskAction::Survey {
+                polygon,
+                line_spacing_m,
+                motion
+            }),
+        (0u32..=86_400).prop_map(|duration_s| TaskAction::Hold { duration_s }),
+        Just(TaskAction::Surface),
+        Just(TaskAction::ReturnHome),
+        Just(TaskAction::Abort),
+        Just(TaskAction::RequestState),
+        (0.0..=100.0f64).prop_map(|rate_hz| TaskAction::SetRate { rate_hz }),
+    ]
+}
+
+fn close(a: f64, b: f64, res: f64) -> bool {
+    (a - b).abs() <= res / 2.0 + 1e-9
+}
+
+fn close_angle(a: f64, b: f64, res: f64, period: f64) -> bool {
+    let d = (a - b).rem_euclid(period);
+    d.min(period - d) <= res / 2.0 + 1e-9
+}
+
+fn round_trip(p: &Pdu) -> Pdu {
+    let bytes = encode(p).unwrap();
+    decode(&bytes).unwrap()
+}
+
+proptest! {
+    #[test]
+    fn keyframe_round_trips_within_resolution(k in arb_keyframe()) {
+        let Pdu::StateKeyframe(b) = round_trip(&Pdu::StateKeyframe(k.clone())) else { panic!() };
+        prop_assert_eq!((b.vehicle, b.seq, b.seconds_of_day), (k.vehicle, k.seq, k.seconds_of_day));
+        prop_assert!(close(b.latitude_deg, k.latitude_deg, 1e-5));
+        prop_assert!(close(b.longitude_deg, k.longitude_deg, 1e-5));
+        prop_assert!(close(b.depth_m, k.depth_m, 0.1));
+        prop_assert_eq!(b.altitude_m.is_some(), k.altitude_m.is_some());
+        if let (Some(x), Some(y)) = (b.altitude_m, k.altitude_m) { prop_assert!(close(x, y, 0.1)); }
+        prop_assert!(close(b.speed_mps, k.speed_mps, 0.05));
+        prop_assert!(close_angle(b.yaw_deg, k.yaw_deg, 0.5, 360.0));
+        prop_assert!(close(b.pitch_deg, k.pitch_deg, 0.5));
+        prop_assert!(close(b.roll_deg, k.roll_deg, 0.5));
+        prop_assert!(close(b.battery_pct, k.battery_pct, 1.0));
+    }
+
+    #[test]
+    fn delta_round_trips_within_resolution(
+        key in arb_keyframe(),
+        dt in 0u32..=127, dlat in -0.005..0.005f64, dlon in -0.005..0.005f64, dd in -12.0..12.0f64,
+        speed in 0.0..=10.0f64, yaw in 0.0..360.0f64, pitch in -14.0..=14.0f64, roll in -14.0..=14.0f64,
+    ) {
+        let key = key.quantised().unwrap();
+        let mut s = key.clone();
+        s.seconds_of_day = (key.seconds_of_day + dt) % 86_400;
+        s.latitude_deg = (key.latitude_deg + dlat).clamp(-90.0, 90.0);
+        s.longitude_deg = (key.longitude_deg + dlon).clamp(-180.0, 180.0);
+        s.depth_m = (key.depth_m + dd).clamp(0.0, 6000.0);
+        s.speed_mps = speed;
+        s.yaw_deg = yaw;
+        s.pitch_deg = pitch;
+        s.roll_deg = roll;
+        let d = StateDelta::between(&key, &s).unwrap();
+        let Pdu::StateDelta(d) = round_trip(&Pdu::StateDelta(d)) else { panic!() };
+        let b = d.apply(&key);
+        prop_assert_eq!(b.seconds_of_day, s.seconds_of_day);
+        prop_assert!(close(b.latitude_deg, s.latitude_deg, 2e-5));
+        prop_assert!(close(b.longitude_deg, s.longitude_deg, 2e-5));
+        prop_assert!(close(b.depth_m, s.depth_m, 0.1));
+        prop_assert!(close(b.speed_mps, s.speed_mps, 0.25));
+        prop_assert!(close_angle(b.yaw_deg, s.yaw_deg, 3.0, 360.0));
+        prop_assert!(close(b.pitch_deg, s.pitch_deg, 2.0));
+    }
+
+    #[test]
+    fn task_round_trips_within_resolution(vehicle in 0u8..16, task_no in any::<u8>(), action in arb_action()) {
+        let t = CompactTask { vehicle, task_no, action };
+        let Pdu::Task(b) = round_trip(&Pdu::Task(t.clone())) else { panic!() };
+        prop_assert_eq!((b.vehicle, b.task_no), (t.vehicle, t.task_no));
+        let motion_close = |x: &Motion, y: &Motion| {
+            x.depth_m.is_some() == y.depth_m.is_some()
+                && close(x.depth_m.or(x.altitude_m).unwrap_or(0.0), y.depth_m.or(y.altitude_m).unwrap_or(0.0), 0.1)
+                && close(x.speed_mps, y.speed_mps, 0.05)
+        };
+        let pt_close = |x: &Point, y: &Point| close(x.latitude_deg, y.latitude_deg, 1e-5) && close(x.longitude_deg, y.longitude_deg, 1e-5);
+        match (&b.action, &t.action) {
+            (TaskAction::Goto { target: a, motion: m }, TaskAction::Goto { target: c, motion: n }) => {
+                prop_assert!(pt_close(a, c) && motion_close(m, n));
+            }
+            (TaskAction::Survey { polygon: a, line_spacing_m: s, motion: m }, TaskAction::Survey { polygon: c, line_spacing_m: u, motion: n }) => {
+                prop_assert_eq!(a.len(), c.len());
+                prop_assert!(a.iter().zip(c).all(|(x, y)| pt_close(x, y)));
+                prop_assert!(close(*s, *u, 1.0) && motion_close(m, n));
+            }
+            (TaskAction::SetRate { rate_hz: a }, TaskAction::SetRate { rate_hz: c }) => prop_assert!(close(*a, *c, 0.001)),
+            (a, c) => prop_assert_eq!(a, c),
+        }
+    }
+
+    #[test]
+    fn small_messages_round_trip_within_resolution(
+        vehicle in 0u8..16, no in any::<u8>(), state in 0u8..8, progress in 0.0..=100.0f64, sod in 0u32..86_400,
+        opt_vehicle in prop::option::of(0u8..16), opt_task in prop::option::of(any::<u8>()), sev in 0u8..4, kind in 0u8..9,
+        vkind in 0u8..5, links in 0u8..32, caps in any::<u8>(), sensors in any::<u8>(), max_speed in 0.0..=30.0f64,
+        prop_code in 0u8..10, frac in 0.0..=1.0f64, lat in -90.0..=90.0f64, lon in -180.0..=180.0f64, depth in 0.0..=6000.0f64,
+    ) {
+        let s = CompactTaskStatus { vehicle, task_no: no, state, progress_pct: progress, seconds_of_day: sod };
+        let Pdu::TaskStatus(b) = round_trip(&Pdu::TaskStatus(s.clone())) else { panic!() };
+        prop_assert!(close(b.progress_pct, s.progress_pct, 1.0));
+        prop_assert_eq!((b.vehicle, b.task_no, b.state, b.seconds_of_day), (vehicle, no, state, sod));
+
+        let e = CompactEvent { vehicle: opt_vehicle, event_no: no, severity: sev, kind, task_no: opt_task, seconds_of_day: sod };
+        prop_assert_eq!(round_trip(&Pdu::Event(e.clone())), Pdu::Event(e));
+
+        let a = CompactAnnouncement { vehicle, kind: vkind, links, capabilities: caps, sensors, max_speed_mps: max_speed, seconds_of_day: sod };
+        let Pdu::Announcement(b) = round_trip(&Pdu::Announcement(a.clone())) else { panic!() };
+        prop_assert!(close(b.max_speed_mps, a.max_speed_mps, 0.1));
+        prop_assert_eq!((b.capabilities, b.sensors, b.links, b.kind), (caps, sensors, links, vkind));
+
+        let p = ENVIRONMENT_PROPERTIES[usize::from(prop_code)];
+        let value = p.value.min + frac * (p.value.max - p.value.min);
+        let o = CompactEnvironment { vehicle, property: prop_code, seconds_of_day: sod, value, latitude_deg: lat, longitude_deg: lon, depth_m: depth };
+        let Pdu::Environment(b) = round_trip(&Pdu::Environment(o)) else { panic!() };
+        prop_assert!(close(b.value, value, p.value.resolution) || p.value.circular);
+        prop_assert!(close(b.depth_m, depth, 0.1));
+
+        let k = Ack { from: vehicle, msg_id: no, ref_no: state };
+        prop_assert_eq!(round_trip(&Pdu::Ack(k)), Pdu::Ack(k));
+    }
+
+    #[test]
+    fn arbitrary_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..80)) {
+        let _ = decode(&bytes);
+        let _ = unpack_frame(&bytes);
+        let _ = decode_to_json(&bytes);
+    }
+
+    #[test]
+    fn arbitrary_bytes_after_a_valid_id_never_panic(id in 1u8..=8, rest in prop::collection::vec(any::<u8>(), 0..70)) {
+        let mut bytes = vec![id];
+        bytes.extend(rest);
+        if let Ok(pdus) = unpack_frame(&bytes) {
+            // Whatever decodes re-encodes to the same bytes (no hidden state).
+            let mut again = Vec::new();
+            for p in &pdus {
+                again.extend(encode(p).unwrap());
+            }
+            prop_assert_eq!(&again[..], &bytes[..again.len()]);
+        }
+    }
+}
