@@ -3,7 +3,7 @@
 //! These open DDS participants: run them inside the test network namespace
 //! (`scripts/netns-run.sh`), as the README's test command does. Each test uses its own
 //! domain id so that tests running in parallel never see each other.
-#![allow(clippy::unwrap_used, clippy::expect_used)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use std::time::Duration;
 

@@ -444,7 +444,7 @@ pub fn distance_bearing(lat1: f64, lon1: f64, lat2: f64, lon2: f64) -> (f64, f64
 
 /// Lawnmower waypoints covering a polygon's bounding box, lines east-west, `spacing_m` apart.
 pub fn lawnmower(polygon: &[GeoPoint], spacing_m: f64) -> Vec<GeoPoint> {
-    if polygon.len() < 3 || !(spacing_m >= 1.0) {
+    if polygon.len() < 3 || spacing_m.is_nan() || spacing_m < 1.0 {
         return Vec::new();
     }
     let (mut s, mut n, mut w, mut e) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);

@@ -256,7 +256,7 @@ async fn consume<T, F>(
     on_sample: F,
 ) where
     T: TopicType,
-    F: Fn(&StationHandle, T, SampleMeta),
+    F: Fn(&StationHandle, T, &SampleMeta),
 {
     loop {
         let item = tokio::select! {
@@ -265,7 +265,7 @@ async fn consume<T, F>(
         };
         match item {
             None => return,
-            Some(Ok((sample, meta))) => on_sample(&h, sample, meta),
+            Some(Ok((sample, meta))) => on_sample(&h, sample, &meta),
             Some(Err(e)) => h.on_read_error::<T>(&e),
         }
     }
@@ -337,7 +337,7 @@ impl StationHandle {
                 EventKind::DataRejected,
                 vehicle_id,
                 "",
-                format!("{topic} rejected: {reason}"),
+                &format!("{topic} rejected: {reason}"),
             );
         }
     }
@@ -368,7 +368,7 @@ impl StationHandle {
         }
     }
 
-    fn on_state(&self, s: StateVector, _meta: SampleMeta) {
+    fn on_state(&self, s: StateVector, _meta: &SampleMeta) {
         let now = now_ms();
         {
             let mut fleet = lock(&self.shared.fleet);
@@ -391,7 +391,7 @@ impl StationHandle {
         self.store(Record::State(s));
     }
 
-    fn on_announcement(&self, a: VehicleAnnouncement, meta: SampleMeta) {
+    fn on_announcement(&self, a: VehicleAnnouncement, meta: &SampleMeta) {
         let new = lock(&self.shared.fleet).register(a.clone());
         lock(&self.shared.stats).announcements += 1;
         if new {
@@ -402,7 +402,7 @@ impl StationHandle {
         self.store(Record::Vehicle(a));
     }
 
-    fn on_task_status(&self, s: TaskStatus, _meta: SampleMeta) {
+    fn on_task_status(&self, s: TaskStatus, _meta: &SampleMeta) {
         lock(&self.shared.stats).task_status += 1;
         if let Some(t) = lock(&self.shared.tasks).get_mut(&s.task_id) {
             t.status = Some(s.clone());
@@ -411,7 +411,7 @@ impl StationHandle {
         self.store(Record::TaskStatus(s));
     }
 
-    fn on_event(&self, e: Event, _meta: SampleMeta) {
+    fn on_event(&self, e: Event, _meta: &SampleMeta) {
         // The station hears its own events too (same topic); they are already recorded.
         if e.event_id.starts_with("station-") {
             return;
@@ -421,7 +421,7 @@ impl StationHandle {
         self.store(Record::Event(e));
     }
 
-    fn on_observation(&self, o: EnvironmentObservation, _meta: SampleMeta) {
+    fn on_observation(&self, o: EnvironmentObservation, _meta: &SampleMeta) {
         lock(&self.shared.stats).observations += 1;
         self.store(Record::Observation(o));
     }
@@ -441,7 +441,7 @@ impl StationHandle {
         kind: EventKind,
         vehicle_id: &str,
         task_id: &str,
-        text: String,
+        text: &str,
     ) {
         let seq = self.shared.event_seq.fetch_add(1, Ordering::Relaxed);
         let e = Event {
@@ -484,7 +484,7 @@ impl StationHandle {
                     EventKind::CommLost,
                     &id,
                     "",
-                    format!("no state vector from {id} for {:.0} s", cfg.lost_after_s),
+                    &format!("no state vector from {id} for {:.0} s", cfg.lost_after_s),
                 ),
                 Contact::Alive if from == Contact::Lost => {
                     self.raise(
@@ -492,7 +492,7 @@ impl StationHandle {
                         EventKind::Other,
                         &id,
                         "",
-                        format!("contact with {id} regained"),
+                        &format!("contact with {id} regained"),
                     );
                 }
                 _ => {}

@@ -70,11 +70,11 @@ fn up_starts_the_station_and_fleet_and_stops_cleanly() {
     let mut fleet = String::new();
     while Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(500));
-        if let Ok(body) = http_get(port, "/api/fleet") {
-            if body.matches("\"contact\":\"alive\"").count() == 4 {
-                fleet = body;
-                break;
-            }
+        if let Ok(body) = http_get(port, "/api/fleet")
+            && body.matches("\"contact\":\"alive\"").count() == 4
+        {
+            fleet = body;
+            break;
         }
     }
     let pid = child.id().to_string();

@@ -135,7 +135,7 @@ async fn state_from_an_unknown_vehicle_is_rejected_counted_and_quarantined() {
         sample.timestamp_ms += n;
         w.write(sample).await.unwrap();
         n += 1;
-        if h.stats().rejected.get("unknown_vehicle").is_some() {
+        if h.stats().rejected.contains_key("unknown_vehicle") {
             break;
         }
         assert!(n < 200, "the station never saw the rogue state vector");

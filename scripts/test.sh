@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Runs every Shoal test on a fresh Debian 12 machine (as root), from the repository root:
+#   1. installs what the tests need (apt packages, the Python venv with the foreign DDS
+#      peers, the Fast DDS C++ peer, cargo-fuzz),
+#   2. checks formatting and clippy, builds every test binary OUTSIDE the namespace,
+#   3. runs the foreign-peer matrix and every Rust test INSIDE a private network
+#      namespace (loopback only, multicast routed to lo), so no DDS discovery traffic
+#      can leave the machine,
+#   4. runs each cargo-fuzz target for a short smoke run.
+# Environment: SHOAL_SKIP_FUZZ=1 skips step 4; SHOAL_NETNS names the namespace.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+NS="${SHOAL_NETNS:-shoal-test}"
+step() { printf '\n==> %s\n' "$*"; }
+
+step "installing test dependencies"
+scripts/install-test-deps.sh
+
+step "formatting and lints"
+cargo fmt --all --check
+cargo clippy --workspace --all-targets --locked -- -D warnings
+
+step "building tests (outside the namespace)"
+cargo test --workspace --locked --no-run
+
+step "RTI XML types agree with idl/shoal.idl"
+.venv/bin/python tests/interop/check_rti_xml.py
+
+step "foreign DDS peers against each other (Cyclone, RTI, Fast DDS)"
+tests/interop/peer_matrix.sh
+
+step "Rust tests inside network namespace $NS (interop peers required)"
+SHOAL_INTEROP_REQUIRED=1 scripts/netns-run.sh "$NS" -- cargo test --workspace --locked
+
+if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
+    step "fuzz smoke run (every cargo-fuzz target, 20 s each)"
+    if ! cargo +nightly fuzz --version >/dev/null 2>&1; then
+        cargo +nightly install cargo-fuzz --locked
+    fi
+    for target in $(cd fuzz && cargo +nightly fuzz list); do
+        (cd fuzz && cargo +nightly fuzz run "$target" -- -max_total_time=20 -print_final_stats=0)
+    done
+fi
+
+step "all tests passed"
