@@ -1,5 +1,6 @@
 //! `shoal`: the command line of the Shoal middleware. Thin glue over the library crates.
 
+mod acoustic;
 mod bench;
 mod config;
 mod daemons;
@@ -69,6 +70,14 @@ enum Command {
         #[command(subcommand)]
         which: bench::BenchCommand,
     },
+    /// Compact acoustic PDUs: encode JSON to hex, decode hex to JSON, print sizes.
+    Pdu {
+        #[command(subcommand)]
+        which: acoustic::PduCommand,
+    },
+    /// Emulated acoustic modems on 127.0.0.1 speaking EvoLogics AT and EviNS NL over TCP,
+    /// in one simulated sea (delay, loss, half duplex, collisions).
+    ModemEmu(acoustic::ModemEmuArgs),
     /// Print the effective configuration (defaults, file and environment merged) as TOML.
     Config {
         /// Print the commented default configuration file instead.
@@ -150,6 +159,8 @@ fn main() -> ExitCode {
         Command::Vehicle { id, .. } => id.clone(),
         Command::Bench { .. } => "bench".to_string(),
         Command::Config { .. } => "config".to_string(),
+        Command::Pdu { .. } => "pdu".to_string(),
+        Command::ModemEmu(_) => "modem-emu".to_string(),
     };
     init_logging(&label);
     match run(cli) {
@@ -201,6 +212,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             rt.block_on(daemons::vehicle(&cfg, spec, exit_on_stdin_close))
         }
         Command::Bench { which } => rt.block_on(bench::run(which, &cfg)),
+        Command::Pdu { which } => acoustic::pdu(which),
+        Command::ModemEmu(args) => rt.block_on(acoustic::modem_emu(args)),
         Command::Config { default } => {
             if default {
                 print!("{}", config::DEFAULT_CONFIG);

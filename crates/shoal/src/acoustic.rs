@@ -1,0 +1,239 @@
+//! Integrator tools for the acoustic link: `shoal pdu` and `shoal modem-emu`.
+
+use std::io::{IsTerminal, Read, Write};
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use clap::Subcommand;
+use shoal_acoustic::emulator::{Emulator, EmulatorConfig, ModemConfig};
+use shoal_acoustic::pdu;
+
+/// `shoal pdu` subcommands.
+#[derive(Debug, Subcommand)]
+pub enum PduCommand {
+    /// Encode a PDU (a JSON object) or a frame of PDUs (a JSON array) to hex; prints the size.
+    Encode {
+        /// The JSON, or `-` (the default) to read it from standard input.
+        #[arg(default_value = "-")]
+        json: String,
+    },
+    /// Decode a frame given in hex to JSON.
+    Decode {
+        /// Hex digits (whitespace allowed).
+        hex: String,
+    },
+    /// Print every message's size in bits and bytes, against the DCCL reference (20 B).
+    Sizes,
+}
+
+/// Runs `shoal pdu ...`.
+pub fn pdu(cmd: PduCommand) -> Result<()> {
+    match cmd {
+        PduCommand::Encode { json } => {
+            let text = if json == "-" {
+                let mut s = String::new();
+                std::io::stdin()
+                    .read_to_string(&mut s)
+                    .context("cannot read standard input")?;
+                s
+            } else {
+                json
+            };
+            let encoded = pdu::encode_json(&text).context("cannot encode")?;
+            println!("{}", pdu::to_hex(&encoded.bytes));
+            eprintln!("{} bits, {} bytes", encoded.bits, encoded.bytes.len());
+            Ok(())
+        }
+        PduCommand::Decode { hex } => {
+            let bytes = pdu::from_hex(&hex).context("not hex")?;
+            println!("{}", pdu::decode_to_json(&bytes).context("cannot decode")?);
+            Ok(())
+        }
+        PduCommand::Sizes => {
+            println!("{:<40} {:>6} {:>6}", "message", "bits", "bytes");
+            for row in pdu::size_table() {
+                println!("{:<40} {:>6} {:>6}", row.message, row.bits, row.bytes);
+            }
+            println!(
+                "reference: DCCL State Vector 20 B (158 bits); SWARMs ASCII State Vector 51 B"
+            );
+            Ok(())
+        }
+    }
+}
+
+/// Options of `shoal modem-emu`.
+#[derive(Debug, clap::Args)]
+pub struct ModemEmuArgs {
+    /// Emulator configuration (TOML: seed, time_scale, channel, fixed_per, modems...); when
+    /// given, the flags below that describe modems are ignored.
+    #[arg(long, value_name = "FILE")]
+    emu_config: Option<PathBuf>,
+    /// Number of modems (addresses 1..=N).
+    #[arg(long, default_value_t = 2)]
+    modems: u8,
+    /// AT port of modem 1 (modem i listens on port+i-1; 0 picks free ports).
+    #[arg(long, default_value_t = 9200)]
+    at_port: u16,
+    /// NL port of modem 1 (modem i listens on port+i-1; 0 picks free ports).
+    #[arg(long, default_value_t = 9300)]
+    nl_port: u16,
+    /// Distance between neighbouring modems, metres (placed on a line running east).
+    #[arg(long, default_value_t = 1000.0)]
+    spacing_m: f64,
+    /// Depth of every modem, metres.
+    #[arg(long, default_value_t = 20.0)]
+    depth_m: f64,
+    /// Use this packet error rate for every packet instead of the channel model.
+    #[arg(long)]
+    per: Option<f64>,
+    /// Random seed (same seed and traffic: same losses).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+fn emulator_config(a: &ModemEmuArgs) -> Result<EmulatorConfig> {
+    if let Some(path) = &a.emu_config {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        let de = toml::Deserializer::parse(&text)
+            .map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e.message()))?;
+        return serde_path_to_error::deserialize(de).map_err(|e| {
+            anyhow::anyhow!(
+                "{}: invalid `{}`: {}",
+                path.display(),
+                e.path(),
+                e.inner().message()
+            )
+        });
+    }
+    if a.modems == 0 || a.modems > 254 {
+        bail!("--modems must be 1..=254");
+    }
+    if let Some(p) = a.per
+        && !(0.0..=1.0).contains(&p)
+    {
+        bail!("--per must be a probability in [0, 1]");
+    }
+    let (lat0, lon0) = (63.465_f64, 10.37_f64);
+    let metres_per_deg_lon = 111_320.0 * lat0.to_radians().cos();
+    let modems = (1..=a.modems)
+        .map(|i| {
+            let offset = u16::from(i - 1);
+            let port = |base: u16| {
+                if base == 0 {
+                    Ok(0)
+                } else {
+                    base.checked_add(offset).context("port out of range")
+                }
+            };
+            Ok(ModemConfig {
+                address: i,
+                name: format!("modem-{i}"),
+                at_port: port(a.at_port)?,
+                nl_port: port(a.nl_port)?,
+                latitude_deg: lat0,
+                longitude_deg: lon0 + f64::from(offset) * a.spacing_m / metres_per_deg_lon,
+                depth_m: a.depth_m,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(EmulatorConfig {
+        seed: a.seed,
+        fixed_per: a.per,
+        modems,
+        ..EmulatorConfig::default()
+    })
+}
+
+/// Runs `shoal modem-emu` until Ctrl-C, with a live status line.
+pub async fn modem_emu(args: ModemEmuArgs) -> Result<()> {
+    let config = emulator_config(&args)?;
+    let shutdown = crate::daemons::shutdown_signal(false);
+    let stop = shutdown.clone();
+    let handle = Emulator::start(config, async move { stop.cancelled().await })
+        .await
+        .context("cannot start the modem emulator")?;
+    for m in handle.modems() {
+        eprintln!(
+            "modem {:>3} {:<10} EvoLogics AT on {}  EviNS NL on {}",
+            m.address, m.name, m.at, m.nl
+        );
+    }
+    eprintln!("Ctrl-C stops the emulator.");
+    let tty = std::io::stderr().is_terminal();
+    let mut tick = tokio::time::interval(Duration::from_secs(1));
+    let mut n = 0u64;
+    loop {
+        tokio::select! {
+            () = shutdown.cancelled() => break,
+            _ = tick.tick() => {
+                n += 1;
+                let stats = handle.stats();
+                let line = if stats.is_empty() {
+                    "no frames yet".to_string()
+                } else {
+                    stats.iter().map(|s| format!("{}→{}: {} frames {} ok {} lost {} coll",
+                        s.src, s.dst, s.frames, s.delivered, s.lost, s.collisions)).collect::<Vec<_>>().join(" | ")
+                };
+                // A live line on a terminal; a log line every 10 s otherwise.
+                if tty {
+                    eprint!("\r\x1b[2K{line}");
+                    let _ = std::io::stderr().flush();
+                } else if n % 10 == 0 {
+                    eprintln!("{line}");
+                }
+            }
+        }
+    }
+    if tty {
+        eprintln!();
+    }
+    handle.stopped().await;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args() -> ModemEmuArgs {
+        ModemEmuArgs {
+            emu_config: None,
+            modems: 3,
+            at_port: 9200,
+            nl_port: 0,
+            spacing_m: 500.0,
+            depth_m: 10.0,
+            per: None,
+            seed: 1,
+        }
+    }
+
+    #[test]
+    fn modems_are_laid_out_on_consecutive_ports_and_spaced() {
+        let c = emulator_config(&args()).unwrap();
+        assert_eq!(
+            c.modems.iter().map(|m| m.at_port).collect::<Vec<_>>(),
+            [9200, 9201, 9202]
+        );
+        assert!(c.modems.iter().all(|m| m.nl_port == 0));
+        let d = (c.modems[1].longitude_deg - c.modems[0].longitude_deg)
+            * 111_320.0
+            * 63.465f64.to_radians().cos();
+        assert!((d - 500.0).abs() < 1.0, "{d}");
+    }
+
+    #[test]
+    fn a_bad_packet_error_rate_is_refused() {
+        let mut a = args();
+        a.per = Some(1.5);
+        assert!(
+            emulator_config(&a)
+                .unwrap_err()
+                .to_string()
+                .contains("--per")
+        );
+    }
+}
