@@ -141,6 +141,19 @@ fn spawn(exe: &Path, config: Option<&Path>, name: &str, args: &[String]) -> Resu
     })
 }
 
+/// Waits for a child asked to stop; kills it after 10 s.
+async fn stop_child(mut c: Child) {
+    match tokio::time::timeout(Duration::from_secs(10), c.child.wait()).await {
+        Ok(Ok(status)) if status.success() => {}
+        Ok(Ok(status)) => warn!(child = %c.name, %status, "stopped with an error"),
+        Ok(Err(e)) => warn!(child = %c.name, error = %e, "cannot wait for it"),
+        Err(_) => {
+            warn!(child = %c.name, "did not stop within 10 s; killing it");
+            let _ = c.child.kill().await;
+        }
+    }
+}
+
 /// `shoal up`: a station and the configured fleet, each its own process (its own DDS
 /// participant, as on real vehicles), stopped together.
 pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, no_fleet: bool) -> Result<()> {
@@ -204,25 +217,18 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, no_fleet: bool) -> Res
             }
         }
     }
-    // Closing their stdin asks the children to stop cleanly; vehicles first, station last,
-    // so the station records everything the vehicles sent.
-    for c in children.iter_mut().rev() {
-        drop(c.child.stdin.take());
-        if c.name == "station" {
-            continue;
-        }
+    // Closing their stdin asks the children to stop cleanly: vehicles first, the station
+    // last, so the station records everything the vehicles sent before they left.
+    let station = children.remove(0);
+    for v in &mut children {
+        drop(v.child.stdin.take());
     }
-    for mut c in children.into_iter().rev() {
-        match tokio::time::timeout(Duration::from_secs(10), c.child.wait()).await {
-            Ok(Ok(status)) if status.success() => {}
-            Ok(Ok(status)) => warn!(child = %c.name, %status, "stopped with an error"),
-            Ok(Err(e)) => warn!(child = %c.name, error = %e, "cannot wait for it"),
-            Err(_) => {
-                warn!(child = %c.name, "did not stop within 10 s; killing it");
-                let _ = c.child.kill().await;
-            }
-        }
+    for v in children {
+        stop_child(v).await;
     }
+    let mut station = station;
+    drop(station.child.stdin.take());
+    stop_child(station).await;
     match failed {
         Some(f) => bail!("{f}; stopped the rest"),
         None => {
