@@ -70,6 +70,8 @@ pub enum ReadError {
         topic: &'static str,
         /// Why.
         error: ValidationError,
+        /// The sample as JSON (non-finite numbers become `null`), for the quarantine.
+        payload: String,
     },
     /// Any other reader failure reported by DDS.
     #[error("DDS read failed on {topic}: {detail}")]

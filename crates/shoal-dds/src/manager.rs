@@ -311,6 +311,16 @@ impl<T: TopicType> Writer<T> {
             .map_err(|e| Self::map_err(e, backup))
     }
 
+    /// Publishes a sample WITHOUT validating it: for fault-injection tests and tools that
+    /// must reproduce what a faulty foreign writer sends. Never use it for real data.
+    pub async fn write_unchecked(&self, sample: T) -> Result<(), WriteError<T>> {
+        let backup = sample.clone();
+        self.inner
+            .async_write(Wire(sample), None)
+            .await
+            .map_err(|e| Self::map_err(e, backup))
+    }
+
     /// Like [`Writer::write`] but synchronous (blocks at most the writer's `max_blocking`).
     pub fn write_blocking(&self, sample: T) -> Result<(), WriteError<T>> {
         let sample = Self::check(sample)?;
@@ -486,6 +496,7 @@ fn convert<T: TopicType>(
             Err(error) => Err(ReadError::Invalid {
                 topic: T::TOPIC,
                 error,
+                payload: serde_json::to_string(&value).unwrap_or_else(|e| format!("\"{e}\"")),
             }),
         }),
         // Disposals carry no data for Shoal: instances end by being superseded.

@@ -201,7 +201,8 @@ async fn malformed_foreign_samples_are_reported_and_do_not_block_good_ones() {
                 good_seen = true;
             }
             Err(ReadError::Malformed { .. }) => malformed += 1,
-            Err(ReadError::Invalid { error, .. }) => {
+            Err(ReadError::Invalid { error, payload, .. }) => {
+                assert!(payload.contains("nan-1"), "{payload}");
                 assert_eq!(error.reason().to_string(), "not_finite:depth_m");
                 invalid += 1;
             }

@@ -308,7 +308,7 @@ impl StationHandle {
         }
     }
 
-    fn reject(&self, topic: &str, vehicle_id: &str, reason: &str, payload: &impl Serialize) {
+    fn reject(&self, topic: &str, vehicle_id: &str, reason: &str, payload_json: String) {
         *lock(&self.shared.stats)
             .rejected
             .entry(reason.to_string())
@@ -317,9 +317,7 @@ impl StationHandle {
             e.states_rejected += 1;
         }
         warn!(topic, vehicle = vehicle_id, reason, "data rejected");
-        let json =
-            serde_json::to_string(payload).unwrap_or_else(|e| format!("\"unserialisable: {e}\""));
-        self.store(Record::rejected(topic, reason, json));
+        self.store(Record::rejected(topic, reason, payload_json));
         // One event per vehicle and reason per minute: enough for the operator, no flood.
         let now = now_ms();
         let key = (vehicle_id.to_string(), reason.to_string());
@@ -344,14 +342,29 @@ impl StationHandle {
 
     fn on_read_error<T: TopicType>(&self, e: &ReadError) {
         match e {
-            ReadError::Invalid { error, .. } => {
-                let reason = error.reason().to_string();
-                *lock(&self.shared.stats)
-                    .rejected
-                    .entry(reason.clone())
-                    .or_default() += 1;
-                warn!(topic = T::TOPIC, %reason, "invalid sample rejected");
-                self.store(Record::rejected(T::TOPIC, reason, "null"));
+            ReadError::Invalid { error, payload, .. } => {
+                // The vehicle id is only trusted if it is itself well-formed.
+                let vehicle = serde_json::from_str::<serde_json::Value>(payload)
+                    .ok()
+                    .and_then(|v| {
+                        v.get("vehicle_id")
+                            .and_then(|v| v.as_str())
+                            .map(str::to_string)
+                    })
+                    .filter(|id| {
+                        !id.is_empty()
+                            && id.len() <= shoal_model::MAX_VEHICLE_ID_LEN
+                            && id
+                                .bytes()
+                                .all(|b| b.is_ascii_alphanumeric() || b"_-.".contains(&b))
+                    })
+                    .unwrap_or_default();
+                self.reject(
+                    T::TOPIC,
+                    &vehicle,
+                    &error.reason().to_string(),
+                    payload.clone(),
+                );
             }
             ReadError::Malformed { detail, .. } => {
                 *lock(&self.shared.stats)
@@ -381,7 +394,8 @@ impl StationHandle {
                 None if self.shared.config.require_announcement => {
                     drop(fleet);
                     let id = s.vehicle_id.clone();
-                    self.reject(StateVector::TOPIC, &id, "unknown_vehicle", &s);
+                    let json = serde_json::to_string(&s).unwrap_or_default();
+                    self.reject(StateVector::TOPIC, &id, "unknown_vehicle", json);
                     return;
                 }
                 None => {}

@@ -207,3 +207,104 @@ async fn the_api_explains_bad_requests_and_survives_them() {
     station.shutdown.cancel();
     station.task.await.unwrap();
 }
+
+/// A registered vehicle sends NaN and out-of-range values: each is rejected with its
+/// reason, counted, quarantined with its payload, and never stored as valid; the good
+/// state vector sent after them is stored.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn nan_and_out_of_range_state_is_rejected_and_good_data_is_kept() {
+    use shoal_model::{LinkKind, VehicleAnnouncement};
+    let station = start_station(64);
+    let vehicle = dds(64);
+    let ann = vehicle
+        .writer::<VehicleAnnouncement>(WriterOptions::new(Priority::Control))
+        .unwrap();
+    ann.write(VehicleAnnouncement {
+        vehicle_id: "auv-bad".into(),
+        name: "faulty".into(),
+        kind: VehicleKind::Auv,
+        vendor: "test".into(),
+        capabilities: vec![],
+        sensors: vec![],
+        links: vec![LinkKind::Ip],
+        max_speed_mps: 2.0,
+        timestamp_ms: now_ms(),
+    })
+    .await
+    .unwrap();
+    let h = station.handle.clone();
+    eventually(20, "the registration", || h.vehicle("auv-bad")).await;
+    let w = vehicle
+        .writer::<StateVector>(WriterOptions::new(Priority::Telemetry))
+        .unwrap();
+    let good = StateVector {
+        vehicle_id: "auv-bad".into(),
+        timestamp_ms: now_ms(),
+        latitude_deg: 63.0,
+        longitude_deg: 10.0,
+        depth_m: 5.0,
+        altitude_m: -1.0,
+        speed_mps: 1.0,
+        yaw_deg: 0.0,
+        pitch_deg: 0.0,
+        roll_deg: 0.0,
+        battery_pct: 50.0,
+    };
+    let mut nan = good.clone();
+    nan.battery_pct = f64::NAN;
+    nan.timestamp_ms -= 2;
+    let mut far = good.clone();
+    far.latitude_deg = 123.0;
+    far.timestamp_ms -= 1;
+    // Discovery may still be settling: repeat the pair until both are seen.
+    let mut sent_good = false;
+    for _ in 0..100 {
+        w.write_unchecked(nan.clone()).await.unwrap();
+        w.write_unchecked(far.clone()).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let s = h.stats();
+        if s.rejected.contains_key("not_finite:battery_pct")
+            && s.rejected.contains_key("out_of_range:latitude_deg")
+        {
+            w.write(good.clone()).await.unwrap();
+            sent_good = true;
+            break;
+        }
+    }
+    assert!(
+        sent_good,
+        "the station never saw the bad samples: {:?}",
+        h.stats()
+    );
+    eventually(20, "the good sample", || {
+        (h.stats().states_accepted == 1).then_some(())
+    })
+    .await;
+    let quarantine = eventually(10, "quarantine rows", || {
+        h.history().rejected(1000).ok().filter(|r| r.len() >= 2)
+    })
+    .await;
+    assert!(
+        quarantine
+            .iter()
+            .any(|r| r.reason == "not_finite:battery_pct" && r.payload_json.contains("auv-bad"))
+    );
+    assert!(
+        quarantine
+            .iter()
+            .any(|r| r.reason == "out_of_range:latitude_deg" && r.payload_json.contains("123"))
+    );
+    let rejected_count = h.vehicle("auv-bad").unwrap().states_rejected;
+    assert!(rejected_count >= 2);
+    // Only the good one is in the history, and it is the latest state.
+    eventually(10, "the good one committed", || {
+        (h.history().count_states(Some("auv-bad")).unwrap() == 1).then_some(())
+    })
+    .await;
+    assert_eq!(
+        h.vehicle("auv-bad").unwrap().latest.unwrap().latitude_deg,
+        63.0
+    );
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+}
