@@ -11,6 +11,8 @@
 //! - [`TaskStatus`]: a vehicle's report on a task.
 //! - [`Event`]: alarms, detections and task events.
 //! - [`EnvironmentObservation`]: one measured environment property.
+//! - [`LinkStatus`]: which link (IP, acoustic via a CDT) a vehicle is heard on, carried
+//!   as a link-status [`Event`].
 //!
 //! Every type implements [`Validate`]; units and valid ranges are documented on each field
 //! and exported as constants so codecs and checks share one source of truth. The crate has
@@ -18,6 +20,7 @@
 
 mod environment;
 mod event;
+mod link;
 mod state;
 mod task;
 mod validate;
@@ -25,6 +28,7 @@ mod vehicle;
 
 pub use environment::EnvironmentObservation;
 pub use event::{Event, EventKind, Severity};
+pub use link::{EVENT_ID_PREFIX as LINK_EVENT_PREFIX, LinkStatus};
 pub use state::StateVector;
 pub use task::{GeoPoint, Task, TaskAssignment, TaskKind, TaskState, TaskStatus};
 pub use validate::{Reason, Validate, ValidationError};

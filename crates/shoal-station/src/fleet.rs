@@ -3,7 +3,7 @@
 use std::collections::BTreeMap;
 
 use serde::Serialize;
-use shoal_model::{LinkKind, StateVector, VehicleAnnouncement};
+use shoal_model::{LinkKind, LinkStatus, StateVector, VehicleAnnouncement};
 
 /// Whether a vehicle is being heard from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -28,8 +28,10 @@ pub struct VehicleView {
     pub latest: Option<StateVector>,
     /// Station clock when the latest state vector arrived, ms since the Unix epoch.
     pub last_contact_ms: Option<i64>,
-    /// Link the latest data came over.
+    /// Link the vehicle is heard on: `ip` unless a CDT reports it acoustic.
     pub link: LinkKind,
+    /// The latest link status a CDT reported (acoustic address, RSSI, integrity, relay).
+    pub link_status: Option<LinkStatus>,
     /// Contact status now.
     pub contact: Contact,
     /// State vectors accepted from this vehicle since the station started.
@@ -44,6 +46,7 @@ pub(crate) struct Entry {
     pub(crate) latest: Option<StateVector>,
     pub(crate) last_contact_ms: Option<i64>,
     pub(crate) link: LinkKind,
+    pub(crate) link_status: Option<LinkStatus>,
     pub(crate) states_accepted: u64,
     pub(crate) states_rejected: u64,
     pub(crate) contact: Contact,
@@ -72,6 +75,7 @@ impl Fleet {
                         latest: None,
                         last_contact_ms: None,
                         link: LinkKind::Ip,
+                        link_status: None,
                         states_accepted: 0,
                         states_rejected: 0,
                         contact: Contact::Silent,
@@ -117,6 +121,7 @@ impl Entry {
             latest: self.latest.clone(),
             last_contact_ms: self.last_contact_ms,
             link: self.link,
+            link_status: self.link_status.clone(),
             contact: self.contact,
             states_accepted: self.states_accepted,
             states_rejected: self.states_rejected,

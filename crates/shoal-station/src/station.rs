@@ -430,6 +430,20 @@ impl StationHandle {
         if e.event_id.starts_with("station-") {
             return;
         }
+        // A CDT's link table entry: link metadata for the vehicle, not an operator event.
+        if let Some(status) = shoal_model::LinkStatus::from_event(&e) {
+            let mut fleet = lock(&self.shared.fleet);
+            if let Some(v) = fleet.vehicles.get_mut(&status.vehicle_id) {
+                if v.link != status.link {
+                    info!(vehicle = %status.vehicle_id, link = ?status.link, "vehicle heard on a new link");
+                }
+                v.link = status.link;
+                v.link_status = Some(status);
+            }
+            drop(fleet);
+            self.store(Record::Event(e));
+            return;
+        }
         lock(&self.shared.stats).events += 1;
         self.remember_event(e.clone());
         self.store(Record::Event(e));

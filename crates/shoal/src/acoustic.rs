@@ -181,7 +181,7 @@ pub async fn modem_emu(args: ModemEmuArgs) -> Result<()> {
                 if tty {
                     eprint!("\r\x1b[2K{line}");
                     let _ = std::io::stderr().flush();
-                } else if n % 10 == 0 {
+                } else if n.is_multiple_of(10) {
                     eprintln!("{line}");
                 }
             }

@@ -36,7 +36,10 @@ pub struct ShoalConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FleetConfig {
-    /// One entry per vehicle.
+    /// Also start the acoustic demo: a submerged AUV (auv-ac1) heard only through an
+    /// emulated acoustic link, relayed by a CDT on the surface, as in the SWARMs sea trial.
+    pub acoustic_demo: bool,
+    /// One entry per vehicle on IP.
     pub vehicles: Vec<SimSpec>,
 }
 
@@ -52,6 +55,7 @@ impl Default for FleetConfig {
             battery_pct: 100.0,
         };
         Self {
+            acoustic_demo: true,
             vehicles: vec![
                 v("auv-1", VehicleKind::Auv, 63.4650, 10.3700),
                 v("auv-2", VehicleKind::Auv, 63.4660, 10.3750),

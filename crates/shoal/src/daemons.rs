@@ -141,6 +141,19 @@ fn spawn(exe: &Path, config: Option<&Path>, name: &str, args: &[String]) -> Resu
     })
 }
 
+/// `shoal acoustic-demo` (started by `shoal up`).
+pub async fn acoustic_demo(cfg: &ShoalConfig, exit_on_stdin_close: bool) -> Result<()> {
+    let shutdown = shutdown_signal(exit_on_stdin_close);
+    let demo = shoal_converter::relay::AcousticDemoConfig::default();
+    info!(
+        vehicles = demo.vehicles.len(),
+        "acoustic demo: submerged AUV -> emulated modem -> CDT on the relay -> station"
+    );
+    shoal_converter::relay::run_acoustic_demo(demo, &cfg.dds, shutdown)
+        .await
+        .context("acoustic demo failed")
+}
+
 /// Waits for a child asked to stop; kills it after 10 s.
 async fn stop_child(mut c: Child) {
     match tokio::time::timeout(Duration::from_secs(10), c.child.wait()).await {
@@ -195,6 +208,14 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, no_fleet: bool) -> Res
             ];
             children.push(spawn(&exe, config, &v.id, &args)?);
         }
+    }
+    if cfg.fleet.acoustic_demo && !no_fleet {
+        children.push(spawn(
+            &exe,
+            config,
+            "acoustic demo",
+            &["acoustic-demo".to_string()],
+        )?);
     }
     info!(
         vehicles = children.len() - 1,

@@ -64,6 +64,14 @@ enum Command {
         #[arg(long, hide = true)]
         exit_on_stdin_close: bool,
     },
+    /// (helper of `shoal up`) The acoustic demo: emulated modems, a simulated submerged AUV
+    /// with its VDT on a private DDS domain, and a CDT relaying it to the station's domain.
+    #[command(hide = true)]
+    AcousticDemo {
+        /// Stop when standard input closes.
+        #[arg(long)]
+        exit_on_stdin_close: bool,
+    },
     /// Measure: `bus` (round trip and throughput against Cyclone DDS's ddsperf), `ingest`
     /// (station ingest rate from simulated vehicles), `soak` (memory over many writes).
     Bench {
@@ -157,6 +165,7 @@ fn main() -> ExitCode {
         Command::Up { .. } => "up".to_string(),
         Command::Station { .. } => "station".to_string(),
         Command::Vehicle { id, .. } => id.clone(),
+        Command::AcousticDemo { .. } => "acoustic".to_string(),
         Command::Bench { .. } => "bench".to_string(),
         Command::Config { .. } => "config".to_string(),
         Command::Pdu { .. } => "pdu".to_string(),
@@ -212,6 +221,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             rt.block_on(daemons::vehicle(&cfg, spec, exit_on_stdin_close))
         }
         Command::Bench { which } => rt.block_on(bench::run(which, &cfg)),
+        Command::AcousticDemo {
+            exit_on_stdin_close,
+        } => rt.block_on(daemons::acoustic_demo(&cfg, exit_on_stdin_close)),
         Command::Pdu { which } => acoustic::pdu(which),
         Command::ModemEmu(args) => rt.block_on(acoustic::modem_emu(args)),
         Command::Config { default } => {

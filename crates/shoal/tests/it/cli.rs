@@ -48,7 +48,8 @@ fn config_prints_the_effective_configuration() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("domain_id = 9"));
 }
 
-/// `shoal up` on its own domain and port: vehicles appear on the API, SIGTERM stops all.
+/// `shoal up` on its own domain and port: the IP vehicles and the acoustic one appear on
+/// the API (the latter with an acoustic link), SIGTERM stops all.
 #[test]
 fn up_starts_the_station_and_fleet_and_stops_cleanly() {
     let dir = tempfile::tempdir().unwrap();
@@ -71,7 +72,8 @@ fn up_starts_the_station_and_fleet_and_stops_cleanly() {
     while Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(500));
         if let Ok(body) = http_get(port, "/api/fleet")
-            && body.matches("\"contact\":\"alive\"").count() == 4
+            && body.matches("\"contact\":\"alive\"").count() == 5
+            && body.contains("\"link\":\"acoustic\"")
         {
             fleet = body;
             break;
@@ -99,9 +101,10 @@ fn up_starts_the_station_and_fleet_and_stops_cleanly() {
         .unwrap();
     assert!(
         !fleet.is_empty(),
-        "the four vehicles never showed as alive; log:\n{log}"
+        "the five vehicles never showed as alive; log:\n{log}"
     );
-    for id in ["auv-1", "auv-2", "usv-1", "rov-1"] {
+    // Four vehicles on IP and the submerged one heard through the acoustic relay.
+    for id in ["auv-1", "auv-2", "usv-1", "rov-1", "auv-ac1"] {
         assert!(fleet.contains(id), "{id} missing from {fleet}");
     }
     assert!(

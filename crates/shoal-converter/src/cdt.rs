@@ -1,0 +1,458 @@
+//! The Control Data Terminal: the station's (or a relay USV's) side of the converter.
+//!
+//! Modem → DDS: frames from the vehicles' VDTs are unpacked, duplicates suppressed (the
+//! modem may deliver a message twice, §1), states expanded from keyframe or delta, and
+//! every datum republished with the **same types and topics as an IP vehicle's**: the
+//! station needs no acoustic code. Each keyframe is acknowledged to its VDT so it can
+//! code deltas against it. Alongside, a per-vehicle link-status event carries the link
+//! metadata ([`crate::link_status`]).
+//!
+//! DDS → modem: task assignments for the vehicles in the address book are given an 8-bit
+//! task number, sent as control (acknowledged, retransmitted with backoff until their TTL;
+//! aborts as emergency), and reported as `sent` on `shoal/task_status`, or `expired` if the
+//! link gives up. Status reports coming back name the task number; the CDT maps it to the
+//! station's task id.
+
+use std::collections::{HashMap, VecDeque};
+use std::sync::Arc;
+
+use shoal_acoustic::driver::ModemDriver;
+use shoal_acoustic::link::{Class, LinkEvent, LinkSender, MessageId, Outgoing};
+use shoal_acoustic::pdu::{
+    self, Ack, AddressBook, CompactTask, DecodeError, DeltaDecoder, Pdu, StateKeyframe,
+};
+use shoal_dds::{Priority, PubSub, Writer, WriterOptions};
+use shoal_model::{
+    EnvironmentObservation, Event, LinkKind, Severity, StateVector, TaskAssignment, TaskKind,
+    TaskState, TaskStatus, VehicleAnnouncement, now_ms,
+};
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+use tracing::{debug, info, warn};
+
+use crate::common::{Counter, encode, key, next_opt, start_link, supersede_key, wall};
+use crate::config::{CdtConfig, address_book};
+use crate::dedup::Dedup;
+use crate::error::ConverterError;
+use crate::link_status::LinkStatus;
+
+/// Task numbers remembered per CDT for mapping status back (oldest forgotten).
+const TASK_MEMORY: usize = 1024;
+
+/// Runs a CDT over `driver` and the station-side DDS participant `dds` until `shutdown`.
+///
+/// Give the CDT its own participant (not the station's), so its samples carry a writer
+/// GUID that the link-status events name. Build the driver with
+/// [`Modem::start(&config.modem, config.time_scale)`](crate::Modem::start) or pass any
+/// other [`ModemDriver`]. Returns `Ok(())` on shutdown.
+pub async fn run_cdt<D: ModemDriver + 'static>(
+    config: CdtConfig,
+    dds: Arc<PubSub>,
+    driver: D,
+    shutdown: CancellationToken,
+) -> Result<(), ConverterError> {
+    config.check()?;
+    let (link, mut events) = start_link(driver, &config.link, config.time_scale, &shutdown)?;
+    let mut tasks = Some(dds.subscribe::<TaskAssignment>()?);
+    let mut cdt = Cdt::new(config, &dds, link)?;
+    info!(address = cdt.cfg.address, participant = %cdt.participant, "CDT running");
+    loop {
+        tokio::select! {
+            () = shutdown.cancelled() => break,
+            Some(item) = next_opt(&mut tasks) => match item {
+                Ok((t, _)) => cdt.on_task(t).await?,
+                Err(e) => warn!(error = %e, "bad task sample ignored"),
+            },
+            ev = events.recv() => match ev {
+                Some(ev) => cdt.on_link_event(ev).await?,
+                None if shutdown.is_cancelled() => break,
+                None => return Err(ConverterError::LinkStopped),
+            },
+        }
+    }
+    info!("CDT stopped");
+    Ok(())
+}
+
+/// What the CDT knows of one vehicle's link.
+#[derive(Debug, Default)]
+struct Peer {
+    last_state_ms: Option<i64>,
+    rssi: Option<i32>,
+    integrity: Option<u32>,
+    heard_ms: i64,
+    status_published: Option<Instant>,
+}
+
+struct Writers {
+    state: Writer<StateVector>,
+    announcement: Writer<VehicleAnnouncement>,
+    status: Writer<TaskStatus>,
+    event: Writer<Event>,
+    alarm: Writer<Event>,
+    environment: Writer<EnvironmentObservation>,
+}
+
+struct Cdt {
+    cfg: CdtConfig,
+    book: AddressBook,
+    participant: String,
+    link: LinkSender,
+    w: Writers,
+    decoder: DeltaDecoder,
+    dedup: Dedup,
+    peers: HashMap<u8, Peer>,
+    /// (vehicle address, task number, station task id), newest last.
+    tasks: VecDeque<(u8, u8, String)>,
+    task_numbers: HashMap<u8, Counter>,
+    /// Task ids already forwarded (transient-local DDS re-delivers history).
+    forwarded: VecDeque<String>,
+    /// Link message id → (task id, vehicle id) of tasks in the link's hands.
+    in_flight: HashMap<MessageId, (String, String)>,
+    event_no: u64,
+}
+
+impl Cdt {
+    fn new(cfg: CdtConfig, dds: &PubSub, link: LinkSender) -> Result<Self, ConverterError> {
+        let book = address_book(&cfg.vehicles)?;
+        let control = WriterOptions::new(Priority::Control);
+        let w = Writers {
+            state: dds.writer(WriterOptions::new(Priority::Telemetry))?,
+            announcement: dds.writer(control)?,
+            status: dds.writer(control)?,
+            event: dds.writer(control)?,
+            alarm: dds.writer(WriterOptions::new(Priority::Emergency))?,
+            environment: dds.writer(WriterOptions::new(Priority::Bulk))?,
+        };
+        let ttl = cfg.link.ttl.control_s.max(cfg.link.ttl.emergency_s);
+        Ok(Self {
+            dedup: Dedup::new(wall(ttl, cfg.time_scale), 4096),
+            participant: dds.participant_id(),
+            cfg,
+            book,
+            link,
+            w,
+            decoder: DeltaDecoder::new(),
+            peers: HashMap::new(),
+            tasks: VecDeque::new(),
+            task_numbers: HashMap::new(),
+            forwarded: VecDeque::new(),
+            in_flight: HashMap::new(),
+            event_no: 0,
+        })
+    }
+
+    async fn publish_status(&self, task_id: &str, vehicle_id: &str, state: TaskState, msg: &str) {
+        let s = TaskStatus {
+            task_id: task_id.to_owned(),
+            vehicle_id: vehicle_id.to_owned(),
+            timestamp_ms: now_ms(),
+            state,
+            progress_pct: 0.0,
+            message: msg.to_owned(),
+        };
+        if let Err(e) = self.w.status.write(s).await {
+            warn!(task = task_id, error = %e, "task status not published");
+        }
+    }
+
+    async fn on_task(&mut self, t: TaskAssignment) -> Result<(), ConverterError> {
+        let Ok(addr) = self.book.addr(&t.vehicle_id) else {
+            return Ok(()); // Not an acoustic vehicle of this CDT: IP carries it.
+        };
+        if self.forwarded.contains(&t.task_id) {
+            return Ok(());
+        }
+        let ttl_ms = wall(self.cfg.link.ttl.control_s, self.cfg.time_scale).as_millis();
+        let age_ms = u128::try_from(now_ms().saturating_sub(t.issued_ms)).unwrap_or(0);
+        if age_ms > ttl_ms {
+            // Transient-local history from before this CDT started: long past its TTL.
+            debug!(task = %t.task_id, "stale task not forwarded");
+            return Ok(());
+        }
+        self.forwarded.push_back(t.task_id.clone());
+        while self.forwarded.len() > TASK_MEMORY {
+            self.forwarded.pop_front();
+        }
+        let task_no = self.task_numbers.entry(addr).or_default().next();
+        let compact = match CompactTask::from_model(&t, &self.book, task_no) {
+            Ok(c) => c,
+            Err(e) => {
+                warn!(task = %t.task_id, error = %e, "task cannot be sent acoustically");
+                let msg = format!("cannot be sent over the acoustic link: {e}");
+                self.publish_status(&t.task_id, &t.vehicle_id, TaskState::Failed, &msg)
+                    .await;
+                return Ok(());
+            }
+        };
+        let Some(bytes) = encode(&Pdu::Task(compact)) else {
+            return Ok(());
+        };
+        let class = if t.kind == TaskKind::Abort {
+            Class::Emergency
+        } else {
+            Class::Control
+        };
+        self.tasks.push_back((addr, task_no, t.task_id.clone()));
+        while self.tasks.len() > TASK_MEMORY {
+            self.tasks.pop_front();
+        }
+        let msg = Outgoing {
+            dst: addr,
+            class,
+            pdu: bytes,
+            supersede_key: None,
+        };
+        let id = self
+            .link
+            .send(msg)
+            .await
+            .map_err(|_| ConverterError::LinkStopped)?;
+        self.in_flight
+            .insert(id, (t.task_id.clone(), t.vehicle_id.clone()));
+        info!(task = %t.task_id, vehicle = %t.vehicle_id, task_no, ?class, "task queued on the acoustic link");
+        self.publish_status(
+            &t.task_id,
+            &t.vehicle_id,
+            TaskState::Sent,
+            "queued on the acoustic link",
+        )
+        .await;
+        Ok(())
+    }
+
+    async fn on_link_event(&mut self, ev: LinkEvent) -> Result<(), ConverterError> {
+        match ev {
+            LinkEvent::Received {
+                src,
+                frame,
+                rssi,
+                integrity,
+                ..
+            } => self.on_frame(src, &frame, rssi, integrity).await?,
+            LinkEvent::Delivered(id) => {
+                if let Some((task, _)) = self.in_flight.remove(&id) {
+                    debug!(task = %task, "task delivered to the vehicle's modem");
+                }
+            }
+            LinkEvent::Expired(id) | LinkEvent::Dropped(id) => {
+                if let Some((task, vehicle)) = self.in_flight.remove(&id) {
+                    warn!(task = %task, vehicle = %vehicle, "task not delivered within its TTL");
+                    self.publish_status(
+                        &task,
+                        &vehicle,
+                        TaskState::Expired,
+                        "not delivered over the acoustic link within its TTL",
+                    )
+                    .await;
+                }
+            }
+            other => debug!(event = ?other, "link event"),
+        }
+        Ok(())
+    }
+
+    async fn on_frame(
+        &mut self,
+        src: u8,
+        frame: &[u8],
+        rssi: Option<i32>,
+        integrity: Option<u32>,
+    ) -> Result<(), ConverterError> {
+        let Ok(vehicle_id) = self.book.vehicle_id(src).map(str::to_owned) else {
+            debug!(src, "frame from a modem not in the address book ignored");
+            return Ok(());
+        };
+        let pdus = match pdu::unpack_frame(frame) {
+            Ok(p) => p,
+            Err(e) => {
+                warn!(src, error = %e, "undecodable frame dropped");
+                return Ok(());
+            }
+        };
+        let now = now_ms();
+        let peer = self.peers.entry(src).or_default();
+        peer.rssi = rssi;
+        peer.integrity = integrity;
+        peer.heard_ms = now;
+        for p in pdus {
+            self.on_pdu(src, p, now).await?;
+        }
+        self.maybe_publish_link_status(src, &vehicle_id).await;
+        Ok(())
+    }
+
+    async fn on_pdu(&mut self, src: u8, p: Pdu, now: i64) -> Result<(), ConverterError> {
+        if let Pdu::StateKeyframe(k) = &p {
+            // Ack every copy: if an earlier ack was lost the VDT still waits for one.
+            self.ack_keyframe(src, k).await?;
+        }
+        let Some(bytes) = encode(&p) else {
+            return Ok(());
+        };
+        if !self.dedup.first(src, &bytes, Instant::now()) {
+            debug!(src, pdu = p.name(), "duplicate PDU suppressed");
+            return Ok(());
+        }
+        let book = &self.book;
+        match p {
+            Pdu::StateKeyframe(_) | Pdu::StateDelta(_) => match self.decoder.decode(&p) {
+                Ok(Some(k)) => self.on_state(&k, now).await,
+                Ok(None) => {}
+                Err(DecodeError::UnknownKeyframe { vehicle, seq }) => {
+                    // The VDT's keyframe refresh heals this within its refresh period.
+                    debug!(vehicle, seq, "delta against an unknown keyframe dropped");
+                }
+                Err(e) => warn!(error = %e, "state PDU unusable"),
+            },
+            Pdu::TaskStatus(s) => {
+                let task_id = self
+                    .tasks
+                    .iter()
+                    .rev()
+                    .find(|(a, n, _)| *a == s.vehicle && *n == s.task_no)
+                    .map(|(_, _, id)| id.clone());
+                let Some(task_id) = task_id else {
+                    debug!(
+                        vehicle = s.vehicle,
+                        task_no = s.task_no,
+                        "status of an unknown task number"
+                    );
+                    return Ok(());
+                };
+                match s.to_model(book, &task_id, now) {
+                    Ok(m) => {
+                        debug!(task = %task_id, state = ?m.state, "task status from the water");
+                        if let Err(e) = self.w.status.write(m).await {
+                            warn!(error = %e, "task status not published");
+                        }
+                    }
+                    Err(e) => warn!(task = %task_id, error = %e, "task status PDU unusable"),
+                }
+            }
+            Pdu::Event(e) => {
+                self.event_no += 1;
+                let vehicle = e
+                    .vehicle
+                    .and_then(|a| book.vehicle_id(a).ok())
+                    .unwrap_or("unknown");
+                // Unique across restarts of the CDT and across vehicles.
+                let event_id = format!("{vehicle}-ac-{now}-{}", self.event_no);
+                let task_id = e
+                    .task_no
+                    .and_then(|n| {
+                        self.tasks
+                            .iter()
+                            .rev()
+                            .find(|(a, t, _)| Some(*a) == e.vehicle && *t == n)
+                    })
+                    .map(|(_, _, id)| id.as_str())
+                    .unwrap_or_default();
+                match e.to_model(book, &event_id, task_id, now) {
+                    Ok(m) => {
+                        let w = if m.severity >= Severity::Alarm {
+                            &self.w.alarm
+                        } else {
+                            &self.w.event
+                        };
+                        if let Err(err) = w.write(m).await {
+                            warn!(error = %err, "event not published");
+                        }
+                    }
+                    Err(err) => warn!(error = %err, "event PDU unusable"),
+                }
+            }
+            Pdu::Announcement(a) => match a.to_model(book, now) {
+                Ok(m) => {
+                    if let Err(e) = self.w.announcement.write(m).await {
+                        warn!(error = %e, "announcement not published");
+                    }
+                }
+                Err(e) => warn!(error = %e, "announcement PDU unusable"),
+            },
+            Pdu::Environment(o) => match o.to_model(book, now) {
+                Ok(m) => {
+                    if let Err(e) = self.w.environment.write(m).await {
+                        warn!(error = %e, "observation not published");
+                    }
+                }
+                Err(e) => warn!(error = %e, "environment PDU unusable"),
+            },
+            other => debug!(pdu = other.name(), "PDU not meant for a CDT ignored"),
+        }
+        Ok(())
+    }
+
+    async fn ack_keyframe(&self, src: u8, k: &StateKeyframe) -> Result<(), ConverterError> {
+        let ack = Pdu::Ack(Ack {
+            from: self.cfg.address,
+            msg_id: pdu::id::STATE_KEYFRAME,
+            ref_no: k.seq,
+        });
+        let Some(bytes) = encode(&ack) else {
+            return Ok(());
+        };
+        // Telemetry class: a lost ack costs one more keyframe, not a retransmission; a
+        // newer ack replaces a queued older one.
+        let msg = Outgoing {
+            dst: src,
+            class: Class::Telemetry,
+            pdu: bytes,
+            supersede_key: Some(supersede_key(key::KEYFRAME_ACK, src, 0)),
+        };
+        self.link
+            .send(msg)
+            .await
+            .map(|_| ())
+            .map_err(|_| ConverterError::LinkStopped)
+    }
+
+    async fn on_state(&mut self, k: &StateKeyframe, now: i64) {
+        let sv = match k.to_model(&self.book, now) {
+            Ok(s) => s,
+            Err(e) => {
+                warn!(error = %e, "state PDU unusable");
+                return;
+            }
+        };
+        let peer = self.peers.entry(k.vehicle).or_default();
+        // Newest-first telemetry may deliver an older state after a newer one; the station
+        // would see time run backwards, so only newer states are republished.
+        if peer.last_state_ms.is_some_and(|t| t >= sv.timestamp_ms) {
+            debug!(vehicle = %sv.vehicle_id, "older state not republished");
+            return;
+        }
+        peer.last_state_ms = Some(sv.timestamp_ms);
+        if let Err(e) = self.w.state.write(sv).await {
+            warn!(error = %e, "state vector not published");
+        }
+    }
+
+    async fn maybe_publish_link_status(&mut self, src: u8, vehicle_id: &str) {
+        let interval = wall(self.cfg.link_status_interval_s, self.cfg.time_scale);
+        let now = Instant::now();
+        let Some(peer) = self.peers.get_mut(&src) else {
+            return;
+        };
+        if peer
+            .status_published
+            .is_some_and(|t| now.saturating_duration_since(t) < interval)
+        {
+            return;
+        }
+        peer.status_published = Some(now);
+        let status = LinkStatus {
+            vehicle_id: vehicle_id.to_owned(),
+            link: LinkKind::Acoustic,
+            cdt_address: self.cfg.address,
+            vehicle_address: src,
+            rssi_db: peer.rssi,
+            integrity: peer.integrity,
+            heard_ms: peer.heard_ms,
+            participant: self.participant.clone(),
+        };
+        if let Err(e) = self.w.event.write(status.to_event()).await {
+            warn!(error = %e, "link status not published");
+        }
+    }
+}

@@ -1,0 +1,420 @@
+//! Configuration of the VDT and the CDT: typed serde structs, `deny_unknown_fields`, with
+//! defaults for everything but the address book.
+//!
+//! Every duration is in **simulated (sea) seconds**: the wall-clock duration is the value
+//! times [`VdtConfig::time_scale`] / [`CdtConfig::time_scale`], which must match the modem
+//! emulator's `time_scale` (1.0 against a real modem).
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use shoal_acoustic::link::{LinkConfig, Mac};
+use shoal_acoustic::pdu::AddressBook;
+use shoal_acoustic::pdu::convert::MAX_ADDRESS;
+
+use crate::error::ConverterError;
+
+/// Which modem protocol the converter speaks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ModemKind {
+    /// EvoLogics S2C AT commands over TCP (ACOUSTIC.md §1); port 9200 on a real modem.
+    EvologicsAt,
+    /// The EviNS network-layer protocol over TCP (§2), as in the SWARMs sea trials.
+    EvinsNl,
+}
+
+/// Where and how to reach the modem.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModemSettings {
+    /// Protocol.
+    pub kind: ModemKind,
+    /// TCP address of the modem's AT or NL interface.
+    pub address: SocketAddr,
+    /// `evins_nl` only: whether the NL protocol reports `NL,delivered`/`NL,failed`
+    /// (`staticrack` and other `*ack` protocols do).
+    pub nl_delivery_reports: bool,
+}
+
+impl Default for ModemSettings {
+    fn default() -> Self {
+        Self {
+            kind: ModemKind::EvologicsAt,
+            address: SocketAddr::from(([127, 0, 0, 1], 9200)),
+            nl_delivery_reports: true,
+        }
+    }
+}
+
+/// One row of the address book: a vehicle id and the acoustic address of its modem.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AddressEntry {
+    /// Shoal vehicle id.
+    pub vehicle_id: String,
+    /// Acoustic address, 1..=15 (the compact PDUs name vehicles in 4 bits, §3).
+    pub address: u8,
+}
+
+/// Time to live per message class, seconds (simulated).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TtlConfig {
+    /// Alarms and aborts.
+    pub emergency_s: f64,
+    /// Tasks, task status, announcements, other events.
+    pub control_s: f64,
+    /// State vectors (stale state is dropped, not queued).
+    pub telemetry_s: f64,
+    /// Environment observations.
+    pub bulk_s: f64,
+}
+
+impl Default for TtlConfig {
+    fn default() -> Self {
+        let l = LinkConfig::default();
+        Self {
+            emergency_s: l.emergency.ttl.as_secs_f64(),
+            control_s: l.control.ttl.as_secs_f64(),
+            telemetry_s: l.telemetry.ttl.as_secs_f64(),
+            bulk_s: l.bulk.ttl.as_secs_f64(),
+        }
+    }
+}
+
+/// Link-layer settings the operator usually touches; the rest keep
+/// [`LinkConfig::default`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LinkSettings {
+    /// TTL per class.
+    pub ttl: TtlConfig,
+    /// Medium access: `{ kind = "free" }` or TDMA slots for several vehicles on one channel.
+    pub mac: Mac,
+    /// Largest frame, bytes (64 = one instant message).
+    pub max_frame: usize,
+    /// First retransmission delay of acknowledged classes, seconds; doubles per attempt.
+    pub backoff_initial_s: f64,
+    /// Longest retransmission delay, seconds.
+    pub backoff_max_s: f64,
+}
+
+impl Default for LinkSettings {
+    fn default() -> Self {
+        let l = LinkConfig::default();
+        Self {
+            ttl: TtlConfig::default(),
+            mac: l.mac,
+            max_frame: l.max_frame,
+            backoff_initial_s: l.backoff_initial.as_secs_f64(),
+            backoff_max_s: l.backoff_max.as_secs_f64(),
+        }
+    }
+}
+
+fn secs(field: &str, v: f64) -> Result<Duration, ConverterError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(Duration::from_secs_f64(v))
+    } else {
+        Err(ConverterError::Config(format!(
+            "{field} must be a positive number of seconds, not {v}"
+        )))
+    }
+}
+
+impl LinkSettings {
+    /// The link layer configuration in simulated time (not yet scaled).
+    pub fn link_config(&self) -> Result<LinkConfig, ConverterError> {
+        let mut l = LinkConfig::default();
+        l.emergency.ttl = secs("link.ttl.emergency_s", self.ttl.emergency_s)?;
+        l.control.ttl = secs("link.ttl.control_s", self.ttl.control_s)?;
+        l.telemetry.ttl = secs("link.ttl.telemetry_s", self.ttl.telemetry_s)?;
+        l.bulk.ttl = secs("link.ttl.bulk_s", self.ttl.bulk_s)?;
+        l.mac = self.mac;
+        if !(8..=shoal_acoustic::pdu::MAX_FRAME).contains(&self.max_frame) {
+            return Err(ConverterError::Config(format!(
+                "link.max_frame must be 8..={} bytes, not {}",
+                shoal_acoustic::pdu::MAX_FRAME,
+                self.max_frame
+            )));
+        }
+        l.max_frame = self.max_frame;
+        l.backoff_initial = secs("link.backoff_initial_s", self.backoff_initial_s)?;
+        l.backoff_max = secs("link.backoff_max_s", self.backoff_max_s)?;
+        Ok(l)
+    }
+}
+
+/// Which of the vehicle's topics the VDT sends acoustically.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+#[allow(clippy::struct_excessive_bools)]
+pub struct AcousticTopics {
+    /// `shoal/state_vector` (telemetry class, keyframe + delta).
+    pub state: bool,
+    /// `shoal/vehicle_announcement` (control class, repeated).
+    pub announcement: bool,
+    /// `shoal/task_status` (control class, only for tasks that came acoustically).
+    pub task_status: bool,
+    /// `shoal/event` (alarm and critical: emergency class; others: control class).
+    pub events: bool,
+    /// `shoal/environment` (bulk class, rate-limited per property).
+    pub environment: bool,
+}
+
+impl Default for AcousticTopics {
+    fn default() -> Self {
+        Self {
+            state: true,
+            announcement: true,
+            task_status: true,
+            events: true,
+            environment: false,
+        }
+    }
+}
+
+/// Configuration of a Vehicle Data Terminal.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VdtConfig {
+    /// The vehicle's modem.
+    pub modem: ModemSettings,
+    /// Acoustic address of the CDT's modem (where everything is sent), 1..=15.
+    pub cdt_address: u8,
+    /// Vehicle id ↔ acoustic address, for every vehicle this VDT serves.
+    pub vehicles: Vec<AddressEntry>,
+    /// Topics that go acoustic.
+    pub topics: AcousticTopics,
+    /// At most one state vector per vehicle per this many seconds (the freshest wins).
+    pub state_interval_s: f64,
+    /// The announcement is repeated this often, so a CDT or station that starts late
+    /// learns the vehicle (seconds).
+    pub announce_interval_s: f64,
+    /// At most one observation per vehicle and property per this many seconds.
+    pub environment_interval_s: f64,
+    /// Link layer settings.
+    pub link: LinkSettings,
+    /// Wall-clock seconds per simulated second (match the emulator's `time_scale`).
+    pub time_scale: f64,
+}
+
+impl Default for VdtConfig {
+    fn default() -> Self {
+        Self {
+            modem: ModemSettings::default(),
+            cdt_address: 1,
+            vehicles: Vec::new(),
+            topics: AcousticTopics::default(),
+            // A 10-byte delta takes ~0.18 s on air at 976 bit/s (§1): one every 2 s leaves
+            // the channel mostly free for tasks and the station's acks.
+            state_interval_s: 2.0,
+            announce_interval_s: 60.0,
+            environment_interval_s: 30.0,
+            link: LinkSettings::default(),
+            time_scale: 1.0,
+        }
+    }
+}
+
+/// Configuration of a Control Data Terminal.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CdtConfig {
+    /// The station's (or relay's) modem.
+    pub modem: ModemSettings,
+    /// This CDT's own acoustic address, 1..=15 (named in keyframe acks).
+    pub address: u8,
+    /// Vehicle id ↔ acoustic address of every vehicle this CDT serves.
+    pub vehicles: Vec<AddressEntry>,
+    /// A per-vehicle link-status event is republished at most this often (seconds).
+    pub link_status_interval_s: f64,
+    /// Link layer settings.
+    pub link: LinkSettings,
+    /// Wall-clock seconds per simulated second (match the emulator's `time_scale`).
+    pub time_scale: f64,
+}
+
+impl Default for CdtConfig {
+    fn default() -> Self {
+        Self {
+            modem: ModemSettings::default(),
+            address: 1,
+            vehicles: Vec::new(),
+            link_status_interval_s: 30.0,
+            link: LinkSettings::default(),
+            time_scale: 1.0,
+        }
+    }
+}
+
+/// Builds and checks the address book: ids valid, addresses 1..=15, no duplicates.
+pub(crate) fn address_book(entries: &[AddressEntry]) -> Result<AddressBook, ConverterError> {
+    if entries.is_empty() {
+        return Err(ConverterError::Config(
+            "vehicles: the address book lists no vehicle".into(),
+        ));
+    }
+    let mut book = AddressBook::new();
+    let mut seen_addr = std::collections::HashSet::new();
+    let mut seen_id = std::collections::HashSet::new();
+    for e in entries {
+        if e.address == 0 || e.address > MAX_ADDRESS {
+            return Err(ConverterError::Config(format!(
+                "vehicles: {} has address {}; acoustic addresses are 1..={MAX_ADDRESS}",
+                e.vehicle_id, e.address
+            )));
+        }
+        let id_ok = !e.vehicle_id.is_empty()
+            && e.vehicle_id.len() <= shoal_model::MAX_VEHICLE_ID_LEN
+            && e.vehicle_id
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b"_.-".contains(&b));
+        if !id_ok {
+            return Err(ConverterError::Config(format!(
+                "vehicles: {:?} is not a valid vehicle id",
+                e.vehicle_id
+            )));
+        }
+        if !seen_addr.insert(e.address) || !seen_id.insert(e.vehicle_id.as_str()) {
+            return Err(ConverterError::Config(format!(
+                "vehicles: {} / address {} listed twice",
+                e.vehicle_id, e.address
+            )));
+        }
+        book.insert(e.vehicle_id.clone(), e.address)
+            .map_err(|err| ConverterError::Config(format!("vehicles: {err}")))?;
+    }
+    Ok(book)
+}
+
+pub(crate) fn check_scale(time_scale: f64) -> Result<(), ConverterError> {
+    if time_scale.is_finite() && time_scale > 0.0 {
+        Ok(())
+    } else {
+        Err(ConverterError::Config(format!(
+            "time_scale must be > 0, not {time_scale}"
+        )))
+    }
+}
+
+pub(crate) fn check_address(field: &str, a: u8) -> Result<(), ConverterError> {
+    if a == 0 || a > MAX_ADDRESS {
+        return Err(ConverterError::Config(format!(
+            "{field} must be 1..={MAX_ADDRESS}, not {a}"
+        )));
+    }
+    Ok(())
+}
+
+impl VdtConfig {
+    /// Checks the configuration; the error names the key.
+    pub fn check(&self) -> Result<(), ConverterError> {
+        address_book(&self.vehicles)?;
+        check_address("cdt_address", self.cdt_address)?;
+        if self.vehicles.iter().any(|v| v.address == self.cdt_address) {
+            return Err(ConverterError::Config(
+                "cdt_address is also a vehicle's address".into(),
+            ));
+        }
+        check_scale(self.time_scale)?;
+        secs("state_interval_s", self.state_interval_s)?;
+        secs("announce_interval_s", self.announce_interval_s)?;
+        secs("environment_interval_s", self.environment_interval_s)?;
+        self.link.link_config().map(|_| ())
+    }
+}
+
+impl CdtConfig {
+    /// Checks the configuration; the error names the key.
+    pub fn check(&self) -> Result<(), ConverterError> {
+        address_book(&self.vehicles)?;
+        check_address("address", self.address)?;
+        if self.vehicles.iter().any(|v| v.address == self.address) {
+            return Err(ConverterError::Config(
+                "address is also a vehicle's address".into(),
+            ));
+        }
+        check_scale(self.time_scale)?;
+        secs("link_status_interval_s", self.link_status_interval_s)?;
+        self.link.link_config().map(|_| ())
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_minimal_vdt_config_parses_with_defaults() {
+        let c: VdtConfig = toml::from_str(
+            r#"
+            cdt_address = 1
+            vehicles = [{ vehicle_id = "auv-1", address = 2 }]
+            [modem]
+            kind = "evins_nl"
+            address = "127.0.0.1:9300"
+            "#,
+        )
+        .unwrap();
+        assert_eq!(c.modem.kind, ModemKind::EvinsNl);
+        assert!(c.topics.state && !c.topics.environment);
+        c.check().unwrap();
+    }
+
+    #[derive(Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Example {
+        vdt: VdtConfig,
+        cdt: CdtConfig,
+    }
+
+    #[test]
+    fn the_example_file_parses_checks_and_matches_the_defaults() {
+        let text = include_str!("../converter.example.toml");
+        let e: Example = toml::from_str(text).unwrap();
+        e.vdt.check().unwrap();
+        e.cdt.check().unwrap();
+        assert_eq!(e.vdt.link, LinkSettings::default());
+        assert_eq!(e.vdt.topics, AcousticTopics::default());
+        assert_eq!(e.cdt.link, LinkSettings::default());
+        let d = VdtConfig::default();
+        assert_eq!(
+            (e.vdt.state_interval_s, e.vdt.announce_interval_s),
+            (d.state_interval_s, d.announce_interval_s)
+        );
+    }
+
+    #[test]
+    fn unknown_keys_are_rejected() {
+        let r: Result<CdtConfig, _> = toml::from_str("adress = 1");
+        assert!(r.is_err());
+    }
+
+    #[test]
+    fn addresses_outside_the_4_bit_field_are_rejected() {
+        let c = CdtConfig {
+            vehicles: vec![AddressEntry {
+                vehicle_id: "auv-1".into(),
+                address: 16,
+            }],
+            ..CdtConfig::default()
+        };
+        assert!(c.check().unwrap_err().to_string().contains("1..=15"));
+    }
+
+    #[test]
+    fn ttls_reach_the_link_config() {
+        let mut s = LinkSettings::default();
+        s.ttl.control_s = 42.0;
+        assert_eq!(
+            s.link_config().unwrap().control.ttl,
+            Duration::from_secs(42)
+        );
+        s.ttl.bulk_s = -1.0;
+        assert!(s.link_config().is_err());
+    }
+}

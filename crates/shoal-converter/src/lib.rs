@@ -1,0 +1,44 @@
+//! Shoal's DDS-Acoustic Converter: the bridge between DDS topics and an acoustic modem.
+//!
+//! A submerged vehicle reaches the station only through an acoustic modem. As in SWARMs,
+//! a converter runs on each side of the water (ARCHITECTURE.md, "Links"):
+//!
+//! - [`vdt`]: the **Vehicle Data Terminal** on the vehicle. [`run_vdt`] subscribes the
+//!   vehicle's local DDS topics, encodes them as compact PDUs and sends them through the
+//!   acoustic link layer in the right class; task PDUs from the CDT become
+//!   `TaskAssignment`s on the vehicle's DDS, so its DDS Proxy runs them unmodified.
+//! - [`cdt`]: the **Control Data Terminal** at the station or on a relay USV. [`run_cdt`]
+//!   republishes what arrives with the same types and topics as an IP vehicle's, and
+//!   forwards tasks for its vehicles through the modem.
+//! - [`link_status`]: how the station tells acoustic data from IP data without new IDL
+//!   types (a per-vehicle link-status event plus the writer's participant).
+//! - [`config`]: [`VdtConfig`] and [`CdtConfig`] (serde, defaults, `deny_unknown_fields`).
+//! - [`Modem`]: the configured modem driver (EvoLogics AT or EviNS NL).
+//! - [`relay`]: the SWARMs sea-trial topology in one call, for `shoal up`:
+//!   simulated AUV on a private DDS domain → VDT → emulated sea → CDT on a relay → station.
+//! - [`bench`]: figures for `shoal bench acoustic` (PDU sizes, channel use, emergency
+//!   latency, control delivery under loss), measured on the modem emulator.
+//!
+//! The codec, the modem drivers, the link layer and the emulator live in `shoal-acoustic`;
+//! this crate is the glue between them and the Publish/Subscribe Manager (`shoal-dds`).
+
+pub mod bench;
+pub mod cdt;
+mod common;
+pub mod config;
+mod dedup;
+mod error;
+pub mod link_status;
+mod modem;
+pub mod relay;
+pub mod vdt;
+
+pub use cdt::run_cdt;
+pub use config::{
+    AcousticTopics, AddressEntry, CdtConfig, LinkSettings, ModemKind, ModemSettings, TtlConfig,
+    VdtConfig,
+};
+pub use error::ConverterError;
+pub use link_status::LinkStatus;
+pub use modem::Modem;
+pub use vdt::run_vdt;

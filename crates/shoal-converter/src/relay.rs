@@ -1,0 +1,307 @@
+//! The SWARMs sea-trial topology in one call: AUV →acoustic→ USV (CDT) →DDS over IP→
+//! station.
+//!
+//! [`run_acoustic_demo`] starts, in this process:
+//! - a modem emulator (`shoal-acoustic`) on 127.0.0.1 with one modem on the relay and one
+//!   per submerged vehicle; the vehicles' modems follow their live state;
+//! - per vehicle, a simulated vehicle ([`shoal_proxy::run_sim`]) on its **own private DDS
+//!   domain** (loopback only) and a VDT bridging that domain to the vehicle's modem. The
+//!   simulated vehicle never joins the station's domain: everything the station hears of
+//!   it crossed the emulated water;
+//! - a CDT on the relay's modem with its own DDS participant on the station's domain — the
+//!   relay USV's DDS node — which republishes the vehicles' data there and forwards tasks.
+//!
+//! How `shoal up` includes it (the station already runs on `dds`):
+//!
+//! ```no_run
+//! # async fn f(dds: shoal_dds::DdsConfig, shutdown: tokio_util::sync::CancellationToken) {
+//! use shoal_converter::relay::{AcousticDemoConfig, run_acoustic_demo};
+//! let demo = AcousticDemoConfig::default(); // one AUV "auv-ac1", private domain 100
+//! tokio::spawn(async move {
+//!     if let Err(e) = run_acoustic_demo(demo, &dds, shutdown).await {
+//!         tracing::error!(error = %e, "acoustic demo stopped");
+//!     }
+//! });
+//! # }
+//! ```
+
+use std::sync::Arc;
+
+use futures::StreamExt;
+use serde::{Deserialize, Serialize};
+use shoal_acoustic::emulator::{Emulator, EmulatorConfig, EmulatorHandle, ModemConfig};
+use shoal_dds::{DdsConfig, PubSub};
+use shoal_model::{StateVector, VehicleKind};
+use shoal_proxy::sim::SimSpec;
+use tokio::task::JoinSet;
+use tokio_util::sync::CancellationToken;
+use tracing::{debug, info, warn};
+
+use crate::config::{AddressEntry, CdtConfig, LinkSettings, ModemKind, ModemSettings, VdtConfig};
+use crate::error::ConverterError;
+use crate::modem::Modem;
+use crate::{run_cdt, run_vdt};
+
+/// One submerged vehicle of the demo.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DemoVehicle {
+    /// The simulated vehicle (id, kind, start position, state rate).
+    pub sim: SimSpec,
+    /// Its acoustic address, 1..=15, distinct from the relay's.
+    pub address: u8,
+    /// Its private DDS domain (vehicle side); must differ from the station's.
+    pub domain_id: u16,
+}
+
+/// Configuration of the acoustic demo.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AcousticDemoConfig {
+    /// The submerged vehicles.
+    pub vehicles: Vec<DemoVehicle>,
+    /// Acoustic address of the relay's modem (the CDT).
+    pub relay_address: u8,
+    /// Relay position, degrees.
+    pub relay_latitude_deg: f64,
+    /// Relay position, degrees.
+    pub relay_longitude_deg: f64,
+    /// Modem protocol the converters speak to the emulator.
+    pub modem_kind: ModemKind,
+    /// Wall-clock seconds per simulated second for the sea and the converters.
+    pub time_scale: f64,
+    /// Emulator PRNG seed.
+    pub seed: u64,
+    /// Fixed packet error rate instead of the channel model (`None`: physics).
+    pub fixed_per: Option<f64>,
+    /// VDT state interval, seconds.
+    pub state_interval_s: f64,
+    /// Link settings of both converters.
+    pub link: LinkSettings,
+    /// Move each vehicle's emulated modem to its live position.
+    pub follow_vehicles: bool,
+}
+
+impl Default for AcousticDemoConfig {
+    fn default() -> Self {
+        // Off Trondheim like the default fleet; the relay sits at usv-1's start position,
+        // about 520 m from the AUV.
+        Self {
+            vehicles: vec![DemoVehicle {
+                sim: SimSpec {
+                    id: "auv-ac1".into(),
+                    kind: VehicleKind::Auv,
+                    latitude_deg: 63.4670,
+                    longitude_deg: 10.3720,
+                    rate_hz: 1.0,
+                    battery_pct: 100.0,
+                },
+                address: 2,
+                domain_id: 100,
+            }],
+            relay_address: 1,
+            relay_latitude_deg: 63.4640,
+            relay_longitude_deg: 10.3800,
+            modem_kind: ModemKind::EvologicsAt,
+            time_scale: 1.0,
+            seed: 1,
+            fixed_per: None,
+            state_interval_s: 2.0,
+            link: LinkSettings::default(),
+            follow_vehicles: true,
+        }
+    }
+}
+
+impl AcousticDemoConfig {
+    /// Checks the demo against the station's DDS configuration.
+    pub fn check(&self, station: &DdsConfig) -> Result<(), ConverterError> {
+        let bad = |m: String| Err(ConverterError::Config(m));
+        if self.vehicles.is_empty() {
+            return bad("acoustic demo: no vehicles".into());
+        }
+        for v in &self.vehicles {
+            if v.domain_id == station.domain_id {
+                return bad(format!(
+                    "acoustic demo: {} must use a private DDS domain, not the station's {}",
+                    v.sim.id, station.domain_id
+                ));
+            }
+        }
+        self.cdt_config(std::net::SocketAddr::from(([127, 0, 0, 1], 0)))
+            .check()?;
+        Ok(())
+    }
+
+    fn book(&self) -> Vec<AddressEntry> {
+        self.vehicles
+            .iter()
+            .map(|v| AddressEntry {
+                vehicle_id: v.sim.id.clone(),
+                address: v.address,
+            })
+            .collect()
+    }
+
+    fn modem(&self, at: std::net::SocketAddr, nl: std::net::SocketAddr) -> ModemSettings {
+        ModemSettings {
+            kind: self.modem_kind,
+            address: match self.modem_kind {
+                ModemKind::EvologicsAt => at,
+                ModemKind::EvinsNl => nl,
+            },
+            nl_delivery_reports: true,
+        }
+    }
+
+    fn cdt_config(&self, modem: std::net::SocketAddr) -> CdtConfig {
+        CdtConfig {
+            modem: ModemSettings {
+                kind: self.modem_kind,
+                address: modem,
+                nl_delivery_reports: true,
+            },
+            address: self.relay_address,
+            vehicles: self.book(),
+            link: self.link.clone(),
+            time_scale: self.time_scale,
+            ..CdtConfig::default()
+        }
+    }
+
+    fn emulator_config(&self) -> EmulatorConfig {
+        let mut modems = vec![ModemConfig {
+            address: self.relay_address,
+            name: "relay".into(),
+            latitude_deg: self.relay_latitude_deg,
+            longitude_deg: self.relay_longitude_deg,
+            // A hull-mounted transducer.
+            depth_m: 2.0,
+            ..ModemConfig::default()
+        }];
+        modems.extend(self.vehicles.iter().map(|v| ModemConfig {
+            address: v.address,
+            name: v.sim.id.clone(),
+            latitude_deg: v.sim.latitude_deg,
+            longitude_deg: v.sim.longitude_deg,
+            depth_m: 1.0,
+            ..ModemConfig::default()
+        }));
+        EmulatorConfig {
+            seed: self.seed,
+            time_scale: self.time_scale,
+            fixed_per: self.fixed_per,
+            modems,
+            ..EmulatorConfig::default()
+        }
+    }
+}
+
+/// Runs the acoustic demo until `shutdown`; `station` is the station's DDS configuration
+/// (the CDT joins that domain with its own participant, as the relay USV would).
+///
+/// Returns an error if the configuration is invalid, a DDS participant or the emulator
+/// cannot start, or a converter stops on its own; everything it started is stopped.
+pub async fn run_acoustic_demo(
+    cfg: AcousticDemoConfig,
+    station: &DdsConfig,
+    shutdown: CancellationToken,
+) -> Result<(), ConverterError> {
+    cfg.check(station)?;
+    // A child token: a failing part stops the others without cancelling the caller.
+    let stop = shutdown.child_token();
+    let emu =
+        Arc::new(Emulator::start(cfg.emulator_config(), stop.clone().cancelled_owned()).await?);
+    let endpoint = |addr: u8| emu.modems().iter().find(|m| m.address == addr).cloned();
+    let mut tasks: JoinSet<Result<(), ConverterError>> = JoinSet::new();
+
+    let relay = endpoint(cfg.relay_address)
+        .ok_or_else(|| ConverterError::Config("relay modem missing".into()))?;
+    let cdt_cfg = cfg.cdt_config(cfg.modem(relay.at, relay.nl).address);
+    let cdt_dds = Arc::new(PubSub::new(station)?);
+    let driver = Modem::start(&cdt_cfg.modem, cfg.time_scale);
+    tasks.spawn(run_cdt(cdt_cfg, cdt_dds, driver, stop.clone()));
+
+    for v in &cfg.vehicles {
+        let ep = endpoint(v.address)
+            .ok_or_else(|| ConverterError::Config(format!("modem of {} missing", v.sim.id)))?;
+        // The vehicle's own network: loopback only, its own domain, never the station's.
+        let private = DdsConfig {
+            domain_id: v.domain_id,
+            ..DdsConfig::default()
+        };
+        let sim_dds = Arc::new(PubSub::new(&private)?);
+        let vdt_dds = Arc::new(PubSub::new(&private)?);
+        let vdt_cfg = VdtConfig {
+            modem: cfg.modem(ep.at, ep.nl),
+            cdt_address: cfg.relay_address,
+            vehicles: vec![AddressEntry {
+                vehicle_id: v.sim.id.clone(),
+                address: v.address,
+            }],
+            state_interval_s: cfg.state_interval_s,
+            link: cfg.link.clone(),
+            time_scale: cfg.time_scale,
+            ..VdtConfig::default()
+        };
+        if cfg.follow_vehicles {
+            let states = vdt_dds.subscribe::<StateVector>()?;
+            tasks.spawn(follow(emu.clone(), v.address, states, stop.clone()));
+        }
+        let spec = v.sim.clone();
+        let sim_stop = stop.clone();
+        tasks.spawn(async move {
+            shoal_proxy::run_sim(spec, sim_dds, sim_stop)
+                .await
+                .map_err(ConverterError::from)
+        });
+        let driver = Modem::start(&vdt_cfg.modem, cfg.time_scale);
+        tasks.spawn(run_vdt(vdt_cfg, vdt_dds, driver, stop.clone()));
+        info!(vehicle = %v.sim.id, address = v.address, domain = v.domain_id, "acoustic vehicle started");
+    }
+
+    let mut result = Ok(());
+    while let Some(done) = tasks.join_next().await {
+        let r = done.map_err(|e| ConverterError::Config(format!("demo task panicked: {e}")));
+        if let Err(e) = r.and_then(|r| r) {
+            if result.is_ok() && !shutdown.is_cancelled() {
+                warn!(error = %e, "acoustic demo part failed; stopping the demo");
+                result = Err(e);
+            }
+            stop.cancel();
+        } else if !stop.is_cancelled() {
+            // A part ended without being asked to: stop the rest too.
+            stop.cancel();
+        }
+    }
+    stop.cancel();
+    if let Ok(emu) = Arc::try_unwrap(emu) {
+        emu.stopped().await;
+    }
+    result
+}
+
+/// Keeps a vehicle's emulated modem at the vehicle's reported position.
+async fn follow(
+    emu: Arc<EmulatorHandle>,
+    address: u8,
+    mut states: shoal_dds::Subscription<StateVector>,
+    stop: CancellationToken,
+) -> Result<(), ConverterError> {
+    loop {
+        tokio::select! {
+            () = stop.cancelled() => return Ok(()),
+            item = states.next() => match item {
+                Some(Ok((s, _))) => {
+                    // The transducer is never above the surface.
+                    let depth = s.depth_m.max(0.5);
+                    if let Err(e) = emu.set_position(address, s.latitude_deg, s.longitude_deg, depth) {
+                        debug!(error = %e, "modem position not updated");
+                    }
+                }
+                Some(Err(e)) => debug!(error = %e, "bad state sample"),
+                None => return Ok(()),
+            },
+        }
+    }
+}

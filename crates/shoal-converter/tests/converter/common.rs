@@ -1,0 +1,173 @@
+//! Shared helpers: the emulator, DDS participants, converter configs, waiting.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use futures::{Stream, StreamExt};
+use shoal_acoustic::emulator::{Emulator, EmulatorConfig, EmulatorHandle, ModemConfig};
+use shoal_converter::{AddressEntry, CdtConfig, ModemKind, ModemSettings, VdtConfig};
+use shoal_dds::{DdsConfig, PubSub, ReadError, SampleMeta};
+use shoal_model::{GeoPoint, Task, TaskAssignment, VehicleKind, now_ms};
+use shoal_proxy::sim::SimSpec;
+
+/// Wall-clock seconds per simulated second in these tests.
+pub const SCALE: f64 = 0.1;
+/// The CDT's acoustic address.
+pub const CDT: u8 = 1;
+/// The AUV's acoustic address.
+pub const AUV: u8 = 2;
+/// Where the AUV starts.
+pub const LAT: f64 = 43.0;
+/// Where the AUV starts.
+pub const LON: f64 = 5.0;
+
+/// A modem `east_m` metres east of the AUV's start, 10 m deep.
+pub fn modem(address: u8, east_m: f64, at_port: u16, nl_port: u16) -> ModemConfig {
+    ModemConfig {
+        address,
+        name: format!("m{address}"),
+        at_port,
+        nl_port,
+        latitude_deg: LAT,
+        longitude_deg: LON + east_m / (111_194.93 * LAT.to_radians().cos()),
+        depth_m: 10.0,
+    }
+}
+
+/// An emulator with the CDT's modem and the AUV's 800 m apart, ten times faster than real
+/// time; `ports` fixes the (at, nl) ports of both modems (0 = any).
+pub async fn emulator(ports: [(u16, u16); 2]) -> EmulatorHandle {
+    let cfg = EmulatorConfig {
+        time_scale: SCALE,
+        seed: 7,
+        fixed_per: Some(0.0),
+        modems: vec![
+            modem(CDT, 800.0, ports[0].0, ports[0].1),
+            modem(AUV, 0.0, ports[1].0, ports[1].1),
+        ],
+        ..EmulatorConfig::default()
+    };
+    Emulator::start(cfg, std::future::pending()).await.unwrap()
+}
+
+/// A free TCP port on 127.0.0.1 (bound and released).
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// A loopback participant on `domain`.
+pub fn participant(domain: u16) -> Arc<PubSub> {
+    Arc::new(
+        PubSub::new(&DdsConfig {
+            domain_id: domain,
+            ..DdsConfig::default()
+        })
+        .unwrap(),
+    )
+}
+
+/// The simulated AUV.
+pub fn auv() -> SimSpec {
+    SimSpec {
+        id: "auv-1".into(),
+        kind: VehicleKind::Auv,
+        latitude_deg: LAT,
+        longitude_deg: LON,
+        rate_hz: 2.0,
+        battery_pct: 90.0,
+    }
+}
+
+fn book() -> Vec<AddressEntry> {
+    vec![AddressEntry {
+        vehicle_id: "auv-1".into(),
+        address: AUV,
+    }]
+}
+
+/// A VDT config for the AUV's modem at `addr` speaking `kind`.
+pub fn vdt_config(kind: ModemKind, addr: SocketAddr) -> VdtConfig {
+    VdtConfig {
+        modem: ModemSettings {
+            kind,
+            address: addr,
+            nl_delivery_reports: true,
+        },
+        cdt_address: CDT,
+        vehicles: book(),
+        state_interval_s: 2.0,
+        time_scale: SCALE,
+        ..VdtConfig::default()
+    }
+}
+
+/// A CDT config for the CDT's modem at `addr` speaking `kind`.
+pub fn cdt_config(kind: ModemKind, addr: SocketAddr) -> CdtConfig {
+    CdtConfig {
+        modem: ModemSettings {
+            kind,
+            address: addr,
+            nl_delivery_reports: true,
+        },
+        address: CDT,
+        vehicles: book(),
+        link_status_interval_s: 5.0,
+        time_scale: SCALE,
+        ..CdtConfig::default()
+    }
+}
+
+/// A go-to task for the AUV, issued now.
+pub fn goto_task(task_id: &str) -> TaskAssignment {
+    TaskAssignment::new(
+        task_id,
+        "m-1",
+        "auv-1",
+        now_ms(),
+        &Task::GotoWaypoint {
+            target: GeoPoint {
+                latitude_deg: LAT + 0.002,
+                longitude_deg: LON + 0.002,
+            },
+            depth_m: Some(10.0),
+            altitude_m: None,
+            speed_mps: 1.5,
+        },
+    )
+}
+
+/// The first valid sample that satisfies `pred`, within `secs` seconds.
+pub async fn wait_for<T, S>(
+    stream: &mut S,
+    secs: u64,
+    what: &str,
+    mut pred: impl FnMut(&T, &SampleMeta) -> bool,
+) -> (T, SampleMeta)
+where
+    S: Stream<Item = Result<(T, SampleMeta), ReadError>> + Unpin,
+{
+    let fut = async {
+        while let Some(item) = stream.next().await {
+            if let Ok((v, meta)) = item
+                && pred(&v, &meta)
+            {
+                return (v, meta);
+            }
+        }
+        panic!("stream ended while waiting for {what}");
+    };
+    within(secs, what, fut).await
+}
+
+/// Runs `fut`, failing the test after `secs` seconds.
+pub async fn within<F: Future>(secs: u64, what: &str, fut: F) -> F::Output {
+    tokio::time::timeout(Duration::from_secs(secs), fut)
+        .await
+        .unwrap_or_else(|_| panic!("timed out after {secs} s waiting for {what}"))
+}
