@@ -104,7 +104,7 @@ pub trait ModemDriver: Send + Sync {
 }
 
 /// Timing of a TCP driver.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DriverConfig {
     /// Modem address (AT or NL port).
     pub addr: SocketAddr,
@@ -116,6 +116,11 @@ pub struct DriverConfig {
     pub reply_timeout: Duration,
     /// Longest wait for a delivery report before the frame counts as failed.
     pub report_timeout: Duration,
+    /// Instant-message bit rate, bit/s (976 for the S2C, ACOUSTIC.md §1): with
+    /// `air_overhead`, how long an unacknowledged frame occupies the modem.
+    pub im_bit_rate: f64,
+    /// Fixed on-air overhead per frame (preamble, guard).
+    pub air_overhead: Duration,
 }
 
 impl DriverConfig {
@@ -128,7 +133,18 @@ impl DriverConfig {
             busy_retry: Duration::from_millis(500),
             reply_timeout: Duration::from_secs(5),
             report_timeout: Duration::from_secs(60),
+            im_bit_rate: 976.0,
+            air_overhead: Duration::from_millis(100),
         }
+    }
+
+    /// How long a frame of `len` bytes stays on air: an unacknowledged frame is reported
+    /// sent only then, because the modem cannot take another one before (it does not
+    /// queue, §1) and the link must still be free to choose what goes next.
+    pub fn air_time(&self, len: usize) -> Duration {
+        #[allow(clippy::cast_precision_loss)]
+        let bits = (len * 8) as f64;
+        self.air_overhead + Duration::from_secs_f64(bits / self.im_bit_rate.max(1.0))
     }
 
     /// Scales every duration (for emulators running faster than real time).
@@ -138,6 +154,8 @@ impl DriverConfig {
         self.busy_retry = s(self.busy_retry);
         self.reply_timeout = s(self.reply_timeout);
         self.report_timeout = s(self.report_timeout);
+        self.air_overhead = s(self.air_overhead);
+        self.im_bit_rate /= factor.max(1e-6);
         self
     }
 }
@@ -364,6 +382,8 @@ enum Phase {
     AwaitReport,
     /// The modem was busy; re-send at the deadline.
     BusyWait,
+    /// Accepted without acknowledgement; on air until the deadline, then reported sent.
+    OnAir,
 }
 
 /// The background task: connect, serve jobs one at a time, reconnect on failure. Ends when
@@ -457,6 +477,7 @@ async fn run<W: Wire + Default>(
                             break 'conn;
                         }
                         Some(Phase::AwaitReport) => finish(&mut current, Ok(Outcome::Failed)),
+                        Some(Phase::OnAir) => finish(&mut current, Ok(Outcome::Sent)),
                         Some(Phase::BusyWait) => {
                             if let Some(c) = current.as_mut() {
                                 c.1 = Phase::ToSend;
@@ -512,7 +533,16 @@ fn handle_reply<W: Wire>(
             *phase = Phase::AwaitReport;
             *deadline = Instant::now() + cfg.report_timeout;
         }
-        (WireEvent::Accepted, Phase::AwaitReply) => finish(current, Ok(Outcome::Sent)),
+        (WireEvent::Accepted, Phase::AwaitReply) => {
+            // Hand over one busy-poll interval before the frame ends, so the next frame is
+            // at the modem when it frees up (the channel would idle otherwise), and no
+            // earlier, so an alarm arriving meanwhile is not stuck behind another frame.
+            *phase = Phase::OnAir;
+            *deadline = Instant::now()
+                + cfg
+                    .air_time(frame.data.len())
+                    .saturating_sub(cfg.busy_retry);
+        }
         (WireEvent::Busy, Phase::AwaitReply) => {
             debug!(proto = W::NAME, "modem busy; will retry");
             *phase = Phase::BusyWait;

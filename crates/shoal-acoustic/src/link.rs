@@ -432,9 +432,20 @@ impl LinkCore {
         let head_idx = *pick_in(head_q, self.cfg.queue(first).newest_first, &|_| true).first()?;
         let dst = head_q.get(head_idx)?.msg.dst;
         // Fill the frame: classes in priority order, each in its own order, same destination.
+        // An emergency frame takes no telemetry or bulk filler: every byte lengthens its air
+        // time, and its latency is what the emergency class exists for.
         let mut chosen: Vec<(Class, usize)> = vec![(first, head_idx)];
         let mut size = head_q.get(head_idx)?.msg.pdu.len();
-        for &c in &order {
+        let fillers: Vec<Class> = if first == Class::Emergency {
+            order
+                .iter()
+                .copied()
+                .filter(|c| *c <= Class::Control)
+                .collect()
+        } else {
+            order.clone()
+        };
+        for &c in &fillers {
             let Some(q) = self.queues.get(c.index()) else {
                 continue;
             };

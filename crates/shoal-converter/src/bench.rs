@@ -10,12 +10,13 @@
 //! - [`control_delivery`]: control messages at a fixed packet error rate with no modem
 //!   retries, so the link layer's ack and retransmission do all the work.
 //!
-//! Emergency latency currently misses its goal (measured ~2.0–2.5 s against a 1.30 s bound
-//! at 1 km): with noack telemetry the AT driver reports `Sent` as soon as the modem says
-//! `OK`, so the link layer commits the *next* telemetry frame to the driver (which polls
-//! the busy modem) while the current one is still on air; an alarm then waits for the
-//! rest of the frame on air plus that whole committed frame, and its own frame is filled
-//! up to 64 bytes with telemetry. Both are link/driver behaviour in `shoal-acoustic`.
+//! Emergency latency has two bounds. The strict one is the issue's "one frame time plus
+//! propagation" (a 64-byte frame + d/c). A modem cannot abort a frame already on air (it
+//! answers BUSY), so an alarm that arrives as a full telemetry frame starts must wait for
+//! that frame, then needs its own (short) air time: the second bound,
+//! `bound_one_frame_wait_s`, adds the alarm frame's own air time. The link sends emergency
+//! frames without telemetry filler, and the driver reports an unacknowledged frame sent only
+//! when it is off air, so the link never commits a second telemetry frame ahead of an alarm.
 //!
 //! The measurements run the real emulator, AT drivers and link layer on 127.0.0.1 with
 //! `time_scale` < 1, and report **simulated** seconds (wall time divided by the scale).
@@ -163,6 +164,10 @@ pub struct EmergencyLatency {
     pub bound_s: f64,
     /// Trials within the bound.
     pub within_bound: usize,
+    /// One full frame's wait, plus the alarm frame's own air time, plus propagation, s.
+    pub bound_one_frame_wait_s: f64,
+    /// Trials within `bound_one_frame_wait_s`.
+    pub within_one_frame_wait: usize,
 }
 
 /// Control delivery under loss.
@@ -409,6 +414,20 @@ pub async fn channel_use(opts: &BenchOptions) -> Result<ChannelUse, ConverterErr
     })
 }
 
+/// Size of the alarm PDU the latency trials send.
+fn telemetry_alarm_len() -> Result<usize, ConverterError> {
+    pdu::encode(&Pdu::Event(CompactEvent {
+        vehicle: Some(1),
+        event_no: 0,
+        severity: 3,
+        kind: 3,
+        task_no: None,
+        seconds_of_day: 0,
+    }))
+    .map(|b| b.len())
+    .map_err(|e| ConverterError::Config(e.to_string()))
+}
+
 /// Latency of emergency messages while telemetry saturates the channel.
 pub async fn emergency_latency(opts: &BenchOptions) -> Result<EmergencyLatency, ConverterError> {
     let mut rig = Rig::start(opts, |_| {}, saturating_link(opts)).await?;
@@ -449,6 +468,8 @@ pub async fn emergency_latency(opts: &BenchOptions) -> Result<EmergencyLatency, 
     }
     let c = sound_speed_mackenzie(10.0, 35.0, 20.0);
     let bound_s = air_time_s(MAX_FRAME) + opts.distance_m / c;
+    let alarm_len = telemetry_alarm_len()?;
+    let bound_one_frame_wait_s = bound_s + air_time_s(alarm_len);
     let finite: Vec<f64> = latencies
         .iter()
         .copied()
@@ -462,6 +483,11 @@ pub async fn emergency_latency(opts: &BenchOptions) -> Result<EmergencyLatency, 
     };
     Ok(EmergencyLatency {
         within_bound: latencies.iter().filter(|l| **l <= bound_s).count(),
+        within_one_frame_wait: latencies
+            .iter()
+            .filter(|l| **l <= bound_one_frame_wait_s)
+            .count(),
+        bound_one_frame_wait_s,
         max_s: latencies.iter().copied().fold(0.0, f64::max),
         mean_s,
         bound_s,

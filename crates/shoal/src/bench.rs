@@ -71,6 +71,14 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 84)]
         domain: u16,
     },
+    /// The acoustic link against its goals: PDU sizes vs DCCL (20 B) and SWARMs (51 B),
+    /// channel use under saturation, emergency latency under load, control delivery at
+    /// 30 % packet loss. Emulated modems on 127.0.0.1; figures in simulated time.
+    Acoustic {
+        /// Wall-clock seconds per simulated second (smaller is faster).
+        #[arg(long, default_value_t = 0.05)]
+        time_scale: f64,
+    },
     /// (helper) Echo pings back as pongs.
     #[command(hide = true)]
     Pong {
@@ -116,6 +124,7 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             instances,
             domain,
         } => soak(cfg, domain, writes, instances).await,
+        BenchCommand::Acoustic { time_scale } => acoustic(time_scale).await,
         BenchCommand::Pong { domain } => pong(cfg, domain).await,
         BenchCommand::Sink { domain } => sink(cfg, domain).await,
         BenchCommand::Load {
@@ -542,6 +551,82 @@ async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: bool) -> Res
     println!("(ratio = Shoal / Cyclone: below 1 is better for latency, above 1 for throughput;");
     println!(
         " Cyclone throughput is ddsperf pub/sub with its own 96-byte type, keep-last, reliable)"
+    );
+    Ok(())
+}
+
+async fn acoustic(time_scale: f64) -> Result<()> {
+    if !(time_scale > 0.0 && time_scale <= 1.0) {
+        bail!("--time-scale must be in (0, 1]");
+    }
+    let opts = shoal_converter::bench::BenchOptions {
+        time_scale,
+        ..Default::default()
+    };
+    eprintln!("acoustic: running emulated modems at {time_scale}x wall time...");
+    let r = shoal_converter::bench::run(&opts)
+        .await
+        .context("acoustic benchmark failed")?;
+    println!("# shoal bench acoustic — {} — {}", machine(), date());
+    println!(
+        "PDU sizes (DCCL reference {} B, SWARMs ASCII {} B, naive binary {} B; auth tag {}):",
+        r.sizes.dccl_reference_bytes,
+        r.sizes.swarms_ascii_bytes,
+        r.sizes.naive_binary_bytes,
+        r.sizes
+            .auth_tag_bytes
+            .map_or_else(|| "none yet".to_string(), |b| format!("{b} B"))
+    );
+    println!(
+        "  {:<34} {:>5} {:>6} {:>10} {:>10}",
+        "message", "bits", "bytes", "vs 51 B", "per frame"
+    );
+    for row in &r.sizes.rows {
+        println!(
+            "  {:<34} {:>5} {:>6} {:>9.0}% {:>10}",
+            row.message,
+            row.bits,
+            row.bytes,
+            row.vs_swarms_ascii * 100.0,
+            row.per_frame
+        );
+    }
+    let c = &r.channel;
+    println!(
+        "channel use under saturation: {:.2} (goal >= 0.90: {}) — {} frames in {:.0} s, on air {:.2}, frames {:.1}% full",
+        c.channel_use,
+        if c.goal_met { "met" } else { "NOT met" },
+        c.frames,
+        c.seconds,
+        c.busy_share,
+        c.frame_fill * 100.0
+    );
+    let e = &r.emergency;
+    println!(
+        "emergency latency under saturating telemetry: mean {:.2} s, max {:.2} s",
+        e.mean_s, e.max_s
+    );
+    println!(
+        "  within one 64-byte frame time + propagation ({:.2} s): {}/{}",
+        e.bound_s,
+        e.within_bound,
+        e.latencies_s.len()
+    );
+    println!(
+        "  within one frame's wait + its own air time + propagation ({:.2} s): {}/{}",
+        e.bound_one_frame_wait_s,
+        e.within_one_frame_wait,
+        e.latencies_s.len()
+    );
+    let d = &r.control;
+    println!(
+        "control delivery at {:.0}% packet error rate: {}/{} within the {:.0} s TTL (last after {:.1} s, {} packets lost)",
+        d.per * 100.0,
+        d.delivered,
+        d.sent,
+        d.ttl_s,
+        d.all_delivered_after_s,
+        d.packets_lost
     );
     Ok(())
 }
