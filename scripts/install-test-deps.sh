@@ -3,7 +3,8 @@
 #   - apt: iproute2 (network namespaces), cyclonedds-tools (ddsperf),
 #     libfastrtps-dev + libfastcdr-dev (Fast DDS 2.9 / Fast CDR 1.0), g++, make,
 #     python3-venv
-#   - $REPO/.venv with PyPI cyclonedds and rticonnextdds-connector
+#   - $REPO/.venv with PyPI cyclonedds and rticonnextdds-connector (DDS peers) and
+#     rdflib (independent SPARQL engine for the semantic cross-check)
 #   - the Fast DDS C++ peer, built into tests/interop/build/ (gitignored)
 # Idempotent: every step is skipped when already done, so a re-run is fast.
 # Run as root, non-interactively (CI=true, no stdin is fine).
@@ -17,6 +18,7 @@ VENV="$REPO/.venv"
 PYTHON="${PYTHON:-python3}"
 PIP_CYCLONEDDS="${SHOAL_PIP_CYCLONEDDS:-cyclonedds==11.0.1}"
 PIP_RTI="${SHOAL_PIP_RTI:-rticonnextdds-connector==1.2.4}"
+PIP_RDFLIB="${SHOAL_PIP_RDFLIB:-rdflib==7.6.0}"
 export DEBIAN_FRONTEND=noninteractive
 
 say() { echo "install-test-deps: $*"; }
@@ -45,18 +47,18 @@ fi
 # ---------------------------------------------------------------- venv
 venv_ok() {
     [[ -x "$VENV/bin/python" ]] &&
-        "$VENV/bin/python" -c 'import cyclonedds.domain, rticonnextdds_connector' 2>/dev/null
+        "$VENV/bin/python" -c 'import cyclonedds.domain, rticonnextdds_connector, rdflib' 2>/dev/null
 }
 if venv_ok; then
-    say "venv $VENV ready (cyclonedds, rticonnextdds-connector importable)"
+    say "venv $VENV ready (cyclonedds, rticonnextdds-connector, rdflib importable)"
 else
     if [[ ! -x "$VENV/bin/python" ]]; then
         say "creating venv $VENV with $(command -v "$PYTHON")"
         "$PYTHON" -m venv "$VENV"
     fi
-    say "pip install $PIP_CYCLONEDDS $PIP_RTI"
-    "$VENV/bin/python" -m pip install -q --disable-pip-version-check "$PIP_CYCLONEDDS" "$PIP_RTI"
-    venv_ok || { say "venv still cannot import cyclonedds / rticonnextdds_connector" >&2; exit 1; }
+    say "pip install $PIP_CYCLONEDDS $PIP_RTI $PIP_RDFLIB"
+    "$VENV/bin/python" -m pip install -q --disable-pip-version-check "$PIP_CYCLONEDDS" "$PIP_RTI" "$PIP_RDFLIB"
+    venv_ok || { say "venv still cannot import cyclonedds / rticonnextdds_connector / rdflib" >&2; exit 1; }
 fi
 
 # ---------------------------------------------------------------- Fast DDS peer

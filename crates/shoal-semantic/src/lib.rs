@@ -1,0 +1,71 @@
+//! Shoal's semantic core: the Common Information Model of the swarm, kept live in RDF.
+//!
+//! - [`SemanticStore`]: an Oxigraph in-memory store holding the ontology (`ontology/`) and
+//!   the live model: vehicles ([`SemanticStore::upsert_vehicle`]), their latest state
+//!   ([`SemanticStore::update_state`] is cheap and typed; [`SemanticStore::flush_dirty`]
+//!   mirrors it into RDF at a bounded rate per vehicle), tasks
+//!   ([`SemanticStore::upsert_task`], [`SemanticStore::task_status`]), events and
+//!   environment observations. It compacts itself because Oxigraph's memory store never
+//!   frees removed quads ([`SemanticStore::compact`]).
+//! - Semantic Reasoner ([`reasoner::TBox`]): RDFS-lite closure and capability inference
+//!   from sensors, materialised per entity into graphs of derived facts when the model
+//!   changes, never per telemetry update.
+//! - Rules & Policies ([`RuleSpec`], [`Condition`]): user and built-in rules stored as
+//!   data, indexed by what they watch, evaluated on insert (native fast path for
+//!   thresholds and areas, SPARQL ASK/SELECT otherwise) and in [`SemanticStore::tick`]
+//!   for time-driven ones; every firing is a [`shoal_model::Event`] handed back to the
+//!   caller to publish and store.
+//! - Semantic Query ([`SemanticStore::query`]): read-only SPARQL with [`QueryLimits`];
+//!   [`QueryResult`] serialises as SPARQL JSON/CSV/TSV/XML.
+//! - Export ([`SemanticStore::export`]) as N-Quads/TriG/Turtle/N-Triples, and the five
+//!   standard queries ([`STANDARD_QUERIES`]) cross-checked against rdflib.
+//! - [`bench`]: figures for the standard queries at fleet scale.
+//!
+//! The crate is synchronous and runtime-free; the one thread it may start is the query
+//! watchdog that cancels queries at their timeout. It is not `Sync`-shared by itself: the
+//! station owns it behind its Data Access Manager (a `Mutex`/`RwLock` around it).
+
+pub mod bench;
+mod error;
+pub mod ontology;
+mod query;
+pub mod reasoner;
+mod rules;
+mod store;
+pub mod vocab;
+
+pub use error::{QueryError, RuleError, StoreError};
+pub use query::{QueryLimits, QueryResult, ResultFormat};
+pub use rules::{
+    Comparison, Condition, MAX_RULE_ID_LEN, RuleInfo, RuleSpec, StateField, Threshold, builtin,
+    outside,
+};
+pub use store::{
+    Availability, CompactionReport, ExportFormat, ExportOptions, SemanticStore, StoreConfig,
+    StoreStats,
+};
+
+/// The five standard queries (name, SPARQL), from `ontology/queries/`; the cross-check
+/// runs the same files with rdflib.
+pub const STANDARD_QUERIES: [(&str, &str); 5] = [
+    (
+        "q1_idle_low_battery",
+        include_str!("../../../ontology/queries/q1_idle_low_battery.rq"),
+    ),
+    (
+        "q2_vehicles_in_box",
+        include_str!("../../../ontology/queries/q2_vehicles_in_box.rq"),
+    ),
+    (
+        "q3_tasks_by_state",
+        include_str!("../../../ontology/queries/q3_tasks_by_state.rq"),
+    ),
+    (
+        "q4_sidescan_capable",
+        include_str!("../../../ontology/queries/q4_sidescan_capable.rq"),
+    ),
+    (
+        "q5_running_tasks_low_battery",
+        include_str!("../../../ontology/queries/q5_running_tasks_low_battery.rq"),
+    ),
+];

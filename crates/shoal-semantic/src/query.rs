@@ -1,0 +1,443 @@
+//! Semantic Query: read-only SPARQL 1.1 over the model, with limits.
+//!
+//! [`SemanticStore::query`] parses (refusing UPDATE and over-long text), evaluates over
+//! the union of all graphs (so derived facts are visible without `GRAPH` clauses), stops
+//! at the row limit and cancels evaluation at the timeout. [`QueryResult`] serialises as
+//! SPARQL 1.1 Query Results JSON, CSV, TSV or XML (Oxigraph's serialisers), and graph
+//! results (CONSTRUCT/DESCRIBE) as N-Triples or Turtle.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::io::Write;
+use std::sync::mpsc::{self, RecvTimeoutError, Sender};
+use std::sync::{Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+use oxigraph::io::{RdfFormat, RdfSerializer};
+use oxigraph::model::{Term, Triple};
+use oxigraph::sparql::results::{QueryResultsFormat, QueryResultsSerializer};
+use oxigraph::sparql::{CancellationToken, QueryEvaluationError, QueryResults, Variable};
+
+use crate::error::QueryError;
+use crate::rules::sparql_evaluator;
+use crate::store::SemanticStore;
+
+/// Limits applied to one query.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct QueryLimits {
+    /// Evaluation is cancelled after this long.
+    pub timeout: Duration,
+    /// At most this many solutions (or triples) are returned; more set `truncated`.
+    pub max_rows: usize,
+    /// Longest accepted query text, in bytes.
+    pub max_len: usize,
+}
+
+impl Default for QueryLimits {
+    /// 10 s, 10 000 rows, 64 KiB.
+    fn default() -> Self {
+        Self {
+            timeout: Duration::from_secs(10),
+            max_rows: 10_000,
+            max_len: 64 * 1024,
+        }
+    }
+}
+
+/// The answer to a query, fully materialised (bounded by [`QueryLimits::max_rows`]).
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum QueryResult {
+    /// ASK.
+    Boolean(bool),
+    /// SELECT.
+    Solutions {
+        /// Projected variables, in order.
+        variables: Vec<Variable>,
+        /// One row per solution, one cell per variable (None = unbound).
+        rows: Vec<Vec<Option<Term>>>,
+        /// True when rows were cut at `max_rows`.
+        truncated: bool,
+    },
+    /// CONSTRUCT or DESCRIBE.
+    Graph {
+        /// The triples.
+        triples: Vec<Triple>,
+        /// True when triples were cut at `max_rows`.
+        truncated: bool,
+    },
+}
+
+/// A serialisation of a [`QueryResult`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum ResultFormat {
+    /// SPARQL 1.1 Query Results JSON (`application/sparql-results+json`).
+    Json,
+    /// SPARQL 1.1 Query Results CSV (`text/csv`).
+    Csv,
+    /// SPARQL 1.1 Query Results TSV (`text/tab-separated-values`).
+    Tsv,
+    /// SPARQL Query Results XML (`application/sparql-results+xml`).
+    Xml,
+}
+
+impl ResultFormat {
+    /// The media type to send with it (graph results are sent as N-Triples or Turtle).
+    pub fn media_type(self) -> &'static str {
+        match self {
+            Self::Json => "application/sparql-results+json",
+            Self::Csv => "text/csv; charset=utf-8",
+            Self::Tsv => "text/tab-separated-values; charset=utf-8",
+            Self::Xml => "application/sparql-results+xml",
+        }
+    }
+}
+
+impl QueryResult {
+    /// Writes the result. Graph results are written as N-Triples for CSV/TSV and Turtle
+    /// otherwise, since the SPARQL results formats cannot carry triples.
+    pub fn write<W: Write>(&self, format: ResultFormat, writer: W) -> Result<W, QueryError> {
+        let ser = |e: std::io::Error| QueryError::Serialize(e.to_string());
+        let results_format = match format {
+            ResultFormat::Json => QueryResultsFormat::Json,
+            ResultFormat::Csv => QueryResultsFormat::Csv,
+            ResultFormat::Tsv => QueryResultsFormat::Tsv,
+            ResultFormat::Xml => QueryResultsFormat::Xml,
+        };
+        let serializer = QueryResultsSerializer::from_format(results_format);
+        match self {
+            Self::Boolean(b) => serializer
+                .serialize_boolean_to_writer(writer, *b)
+                .map_err(ser),
+            Self::Solutions {
+                variables, rows, ..
+            } => {
+                let mut out = serializer
+                    .serialize_solutions_to_writer(writer, variables.clone())
+                    .map_err(ser)?;
+                for row in rows {
+                    out.serialize(
+                        variables
+                            .iter()
+                            .zip(row)
+                            .filter_map(|(v, t)| Some((v, t.as_ref()?))),
+                    )
+                    .map_err(ser)?;
+                }
+                out.finish().map_err(ser)
+            }
+            Self::Graph { triples, .. } => {
+                let rdf = if matches!(format, ResultFormat::Csv | ResultFormat::Tsv) {
+                    RdfFormat::NTriples
+                } else {
+                    RdfFormat::Turtle
+                };
+                let mut out = RdfSerializer::from_format(rdf).for_writer(writer);
+                for t in triples {
+                    out.serialize_triple(t).map_err(ser)?;
+                }
+                out.finish().map_err(ser)
+            }
+        }
+    }
+
+    /// SPARQL 1.1 Query Results JSON as a string.
+    pub fn to_json(&self) -> Result<String, QueryError> {
+        self.to_string_in(ResultFormat::Json)
+    }
+
+    /// SPARQL 1.1 Query Results CSV as a string.
+    pub fn to_csv(&self) -> Result<String, QueryError> {
+        self.to_string_in(ResultFormat::Csv)
+    }
+
+    fn to_string_in(&self, format: ResultFormat) -> Result<String, QueryError> {
+        let bytes = self.write(format, Vec::new())?;
+        String::from_utf8(bytes).map_err(|e| QueryError::Serialize(e.to_string()))
+    }
+
+    /// Number of rows (solutions or triples; 1 for a boolean).
+    pub fn len(&self) -> usize {
+        match self {
+            Self::Boolean(_) => 1,
+            Self::Solutions { rows, .. } => rows.len(),
+            Self::Graph { triples, .. } => triples.len(),
+        }
+    }
+
+    /// True for a SELECT or CONSTRUCT with no results.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Cancels queries at their deadline from one background thread.
+///
+/// Oxigraph checks a `CancellationToken` each time it reads quads, so cancelling from a
+/// second thread stops even a query that would never yield a row (a huge aggregate). One
+/// lazily started thread serves every query of a store and ends with it.
+#[derive(Debug, Default)]
+pub(crate) struct Watchdog {
+    sender: OnceLock<Mutex<Sender<(Instant, CancellationToken)>>>,
+}
+
+impl Watchdog {
+    fn watch(&self, deadline: Instant, token: CancellationToken) {
+        let sender = self.sender.get_or_init(|| {
+            let (tx, rx) = mpsc::channel::<(Instant, CancellationToken)>();
+            let spawned = std::thread::Builder::new()
+                .name("shoal-query-watchdog".into())
+                .spawn(move || {
+                    let mut heap: BinaryHeap<Reverse<(Instant, u64)>> = BinaryHeap::new();
+                    let mut tokens = std::collections::HashMap::new();
+                    let mut seq = 0u64;
+                    loop {
+                        let now = Instant::now();
+                        while let Some(Reverse((d, k))) = heap.peek().copied() {
+                            if d > now {
+                                break;
+                            }
+                            heap.pop();
+                            if let Some(t) = tokens.remove(&k) {
+                                CancellationToken::cancel(&t);
+                            }
+                        }
+                        let next = match heap.peek() {
+                            Some(Reverse((d, _))) => {
+                                rx.recv_timeout(d.saturating_duration_since(now))
+                            }
+                            None => rx.recv().map_err(|_| RecvTimeoutError::Disconnected),
+                        };
+                        match next {
+                            Ok((d, t)) => {
+                                seq += 1;
+                                heap.push(Reverse((d, seq)));
+                                tokens.insert(seq, t);
+                            }
+                            Err(RecvTimeoutError::Timeout) => {}
+                            Err(RecvTimeoutError::Disconnected) => return,
+                        }
+                    }
+                });
+            if let Err(e) = spawned {
+                // Without the thread, timeouts are still checked between rows.
+                tracing::warn!(error = %e, "cannot start the query watchdog thread");
+            }
+            Mutex::new(tx)
+        });
+        if let Ok(tx) = sender.lock() {
+            // A send error means the thread is gone; the per-row deadline check remains.
+            let _ = tx.send((deadline, token));
+        }
+    }
+}
+
+impl SemanticStore {
+    /// Runs a read-only SPARQL 1.1 query (SELECT, ASK, CONSTRUCT, DESCRIBE) over the
+    /// union of all graphs, within `limits`.
+    ///
+    /// The prefixes of [`crate::vocab::PREFIXES`] (`shoal:`, `geo:`, `sosa:`, ...) may be
+    /// used without declaring them. UPDATE is refused: data changes only through the
+    /// store's typed methods.
+    pub fn query(&self, sparql: &str, limits: &QueryLimits) -> Result<QueryResult, QueryError> {
+        if sparql.len() > limits.max_len {
+            return Err(QueryError::TooLong {
+                len: sparql.len(),
+                max: limits.max_len,
+            });
+        }
+        let token = CancellationToken::new();
+        let mut prepared = match sparql_evaluator()
+            .with_cancellation_token(token.clone())
+            .parse_query(sparql)
+        {
+            Ok(p) => p,
+            Err(e) => {
+                if sparql_evaluator().parse_update(sparql).is_ok() {
+                    return Err(QueryError::UpdateNotAllowed);
+                }
+                return Err(QueryError::Syntax(e.to_string()));
+            }
+        };
+        if prepared.dataset().is_default_dataset() {
+            prepared.dataset_mut().set_default_graph_as_union();
+        }
+        let start = Instant::now();
+        let deadline = start + limits.timeout;
+        self.watchdog.watch(deadline, token);
+        let timeout = |e: QueryEvaluationError| match e {
+            QueryEvaluationError::Cancelled => QueryError::Timeout(limits.timeout),
+            e => QueryError::Evaluation(e.to_string()),
+        };
+        let check = || {
+            if Instant::now() > deadline {
+                Err(QueryError::Timeout(limits.timeout))
+            } else {
+                Ok(())
+            }
+        };
+        match prepared.on_store(&self.store).execute().map_err(timeout)? {
+            QueryResults::Boolean(b) => Ok(QueryResult::Boolean(b)),
+            QueryResults::Solutions(solutions) => {
+                let variables = solutions.variables().to_vec();
+                let mut rows = Vec::new();
+                let mut truncated = false;
+                for s in solutions {
+                    if rows.len() >= limits.max_rows {
+                        truncated = true;
+                        break;
+                    }
+                    let s = s.map_err(timeout)?;
+                    rows.push(s.values().to_vec());
+                    check()?;
+                }
+                Ok(QueryResult::Solutions {
+                    variables,
+                    rows,
+                    truncated,
+                })
+            }
+            QueryResults::Graph(triples) => {
+                let mut out = Vec::new();
+                let mut truncated = false;
+                for t in triples {
+                    if out.len() >= limits.max_rows {
+                        truncated = true;
+                        break;
+                    }
+                    out.push(t.map_err(timeout)?);
+                    check()?;
+                }
+                Ok(QueryResult::Graph {
+                    triples: out,
+                    truncated,
+                })
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::StoreConfig;
+
+    fn store() -> SemanticStore {
+        let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
+        crate::bench::populate_fleet(&mut s, 10, 3).unwrap();
+        s
+    }
+
+    #[test]
+    fn updates_are_refused_as_read_only() {
+        let s = store();
+        let e = s
+            .query("DELETE WHERE { ?s ?p ?o }", &QueryLimits::default())
+            .unwrap_err();
+        assert_eq!(e, QueryError::UpdateNotAllowed);
+        let e = s
+            .query(
+                "INSERT DATA { <http://a> <http://b> <http://c> }",
+                &QueryLimits::default(),
+            )
+            .unwrap_err();
+        assert_eq!(e, QueryError::UpdateNotAllowed);
+    }
+
+    #[test]
+    fn bad_sparql_carries_the_parser_message() {
+        let e = store()
+            .query("SELECT ?x WHERE { ?x ", &QueryLimits::default())
+            .unwrap_err();
+        let QueryError::Syntax(msg) = &e else {
+            panic!("{e:?}")
+        };
+        assert!(!msg.is_empty());
+        assert!(e.to_string().starts_with("SPARQL syntax error: "), "{e}");
+    }
+
+    #[test]
+    fn over_long_queries_are_refused_before_parsing() {
+        let limits = QueryLimits {
+            max_len: 20,
+            ..QueryLimits::default()
+        };
+        let e = store()
+            .query("SELECT * WHERE { ?s ?p ?o }", &limits)
+            .unwrap_err();
+        assert_eq!(e, QueryError::TooLong { len: 27, max: 20 });
+    }
+
+    #[test]
+    fn rows_are_cut_at_the_limit() {
+        let limits = QueryLimits {
+            max_rows: 7,
+            ..QueryLimits::default()
+        };
+        match store()
+            .query("SELECT * WHERE { ?s ?p ?o }", &limits)
+            .unwrap()
+        {
+            QueryResult::Solutions {
+                rows, truncated, ..
+            } => assert_eq!((rows.len(), truncated), (7, true)),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_runaway_query_is_cancelled_at_the_timeout() {
+        let s = store();
+        let limits = QueryLimits {
+            timeout: Duration::from_millis(100),
+            ..QueryLimits::default()
+        };
+        let start = Instant::now();
+        let e = s
+            .query(
+                "SELECT (COUNT(*) AS ?n) WHERE { ?a ?b ?c . ?d ?e ?f . ?g ?h ?i }",
+                &limits,
+            )
+            .unwrap_err();
+        assert_eq!(e, QueryError::Timeout(Duration::from_millis(100)));
+        assert!(
+            start.elapsed() < Duration::from_secs(5),
+            "{:?}",
+            start.elapsed()
+        );
+    }
+
+    #[test]
+    fn results_serialise_as_sparql_json_and_csv() {
+        let s = store();
+        let r = s
+            .query(
+                "SELECT ?v WHERE { ?v shoal:vehicleId \"v0003\" }",
+                &QueryLimits::default(),
+            )
+            .unwrap();
+        let json: serde_json::Value = serde_json::from_str(&r.to_json().unwrap()).unwrap();
+        assert_eq!(json["head"]["vars"][0], "v");
+        assert_eq!(
+            json["results"]["bindings"][0]["v"]["value"],
+            "https://example.invalid/shoal/id/vehicle/v0003"
+        );
+        assert_eq!(
+            r.to_csv().unwrap(),
+            "v\r\nhttps://example.invalid/shoal/id/vehicle/v0003\r\n"
+        );
+        let ask = s
+            .query("ASK { ?v a shoal:Glider }", &QueryLimits::default())
+            .unwrap();
+        assert_eq!(ask.to_json().unwrap(), r#"{"head":{},"boolean":true}"#);
+        let g = s
+            .query(
+                "CONSTRUCT { ?v a shoal:Vehicle } WHERE { ?v a shoal:Glider }",
+                &QueryLimits::default(),
+            )
+            .unwrap();
+        let ttl = String::from_utf8(g.write(ResultFormat::Json, Vec::new()).unwrap()).unwrap();
+        assert!(ttl.contains("vehicle/v0004"), "{ttl}");
+    }
+}
