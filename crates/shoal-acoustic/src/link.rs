@@ -99,7 +99,9 @@ pub enum Mac {
     /// Whenever the previous frame's outcome is known.
     Free,
     /// Fixed TDMA slots: `slots` slots of `slot` each, this node owns `own_slot`; a frame
-    /// only starts in the first `slot − guard` of the own slot.
+    /// only starts in the first `slot − guard` of the own slot. Cycles are counted from the
+    /// Unix epoch on the wall clock, so every node whose clock is synchronised (GPS at the
+    /// surface, before diving) agrees on the slots without exchanging anything.
     Tdma {
         /// Slot length.
         #[serde(with = "secs")]
@@ -574,6 +576,16 @@ impl LinkSender {
     }
 }
 
+/// The instant at which the TDMA cycle running at `now` began, with cycles counted from the
+/// Unix epoch (`since_unix` is the wall clock at `now`): nodes started at different times
+/// but with synchronised clocks get the same cycle boundaries.
+pub fn tdma_epoch(cycle: Duration, since_unix: Duration, now: Instant) -> Instant {
+    let cycle_ns = cycle.as_nanos().max(1);
+    let into_cycle = since_unix.as_nanos() % cycle_ns;
+    let into_cycle = Duration::from_nanos(u64::try_from(into_cycle).unwrap_or(0));
+    now.checked_sub(into_cycle).unwrap_or(now)
+}
+
 /// Runs a link over `driver` until `shutdown` completes; returns the sender and the
 /// event stream (received frames and message fates).
 pub fn start<D: ModemDriver + 'static>(
@@ -628,7 +640,17 @@ async fn run<D: ModemDriver>(
     events: mpsc::Sender<LinkEvent>,
     mut stop: watch::Receiver<bool>,
 ) {
-    let mut core = LinkCore::new(cfg, Instant::now());
+    let now = Instant::now();
+    let epoch = match &cfg.mac {
+        Mac::Tdma { slot, slots, .. } => {
+            let since_unix = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .unwrap_or_default();
+            tdma_epoch(*slot * (*slots).max(1), since_unix, now)
+        }
+        Mac::Free => now,
+    };
+    let mut core = LinkCore::new(cfg, epoch);
     let mut in_flight: Option<(FramePlan, TxFuture<'_>)> = None;
     let mut cmds_open = true;
     loop {
@@ -826,6 +848,22 @@ mod tests {
         assert!(p(Class::Telemetry, 60) > p(Class::Control, 60));
         assert!(p(Class::Control, 60) > p(Class::Control, 30));
         assert!(p(Class::Emergency, 0).is_infinite());
+    }
+
+    #[test]
+    fn tdma_cycles_agree_between_nodes_started_at_different_times() {
+        let cycle = Duration::from_secs(30);
+        let t0 = Instant::now();
+        let unix0 = Duration::from_secs(1_763_700_000) + Duration::from_millis(12_345);
+        let a = tdma_epoch(cycle, unix0, t0);
+        // Node B starts 7.3 s later on the same (synchronised) clock.
+        let late = Duration::from_millis(7_300);
+        let b = tdma_epoch(cycle, unix0 + late, t0 + late);
+        assert_eq!(a, b);
+        // And a node starting in the next cycle lands on a boundary one cycle on.
+        let next = Duration::from_secs(31);
+        let c = tdma_epoch(cycle, unix0 + next, t0 + next);
+        assert_eq!(c.duration_since(a), cycle);
     }
 
     #[test]
