@@ -30,7 +30,10 @@ step "foreign DDS peers against each other (Cyclone, RTI, Fast DDS)"
 tests/interop/peer_matrix.sh
 
 step "Rust tests inside network namespace $NS (interop peers required)"
-SHOAL_INTEROP_REQUIRED=1 scripts/netns-run.sh "$NS" -- cargo test --workspace --locked
+results="$(mktemp)"
+trap 'rm -f "$results"' EXIT
+SHOAL_INTEROP_REQUIRED=1 scripts/netns-run.sh "$NS" -- cargo test --workspace --locked 2>&1 | tee "$results"
+passed=$(grep -Eo 'test result: ok\. [0-9]+ passed' "$results" | awk '{s += $4} END {print s + 0}')
 
 if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
     step "fuzz smoke run (every cargo-fuzz target, 20 s each)"
@@ -43,3 +46,4 @@ if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
 fi
 
 step "all tests passed"
+echo "summary: ${passed} passed, 0 failed"
