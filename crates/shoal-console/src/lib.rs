@@ -9,7 +9,8 @@
 //! Endpoints (JSON): `GET /api/health`, `GET /api/fleet`, `GET /api/vehicles/{id}`,
 //! `GET /api/vehicles/{id}/track?from_ms=&to_ms=&limit=`, `GET /api/stats`,
 //! `GET /api/events`, `GET /api/tasks`, `POST /api/tasks`, `GET /api/rejected?limit=`;
-//! `GET /` is a plain status page listing the fleet.
+//! `GET|POST /api/sparql` is a read-only SPARQL 1.1 Protocol endpoint over the semantic
+//! model (results as SPARQL JSON or CSV); `GET /` is a plain status page listing the fleet.
 
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
 
@@ -51,6 +52,9 @@ pub enum ApiError {
     /// No such thing.
     #[error("{0}")]
     NotFound(String),
+    /// The request was right but could not be answered in time.
+    #[error("{0}")]
+    Unavailable(String),
     /// The station failed; details are logged, not shown.
     #[error("internal error")]
     Internal(String),
@@ -66,6 +70,7 @@ impl IntoResponse for ApiError {
         let status = match &self {
             Self::BadRequest(_) => StatusCode::BAD_REQUEST,
             Self::NotFound(_) => StatusCode::NOT_FOUND,
+            Self::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
             Self::Internal(detail) => {
                 error!(%detail, "API request failed");
                 StatusCode::INTERNAL_SERVER_ERROR
@@ -88,6 +93,7 @@ pub fn router(station: StationHandle) -> Router {
         .route("/api/events", get(events))
         .route("/api/tasks", get(tasks).post(dispatch))
         .route("/api/rejected", get(rejected))
+        .route("/api/sparql", get(sparql_get).post(sparql_post))
         .with_state(station)
 }
 
@@ -229,4 +235,133 @@ async fn rejected(
         .map_err(|e| ApiError::Internal(e.to_string()))?
         .map_err(|e| ApiError::Internal(e.to_string()))?;
     Ok(Json(rows))
+}
+
+/// The SPARQL 1.1 Protocol's query parameters (query operation).
+#[derive(Debug, Deserialize)]
+struct SparqlParams {
+    query: Option<String>,
+    /// Shortcut for the `Accept` header: `json` or `csv`.
+    format: Option<String>,
+    #[serde(rename = "default-graph-uri")]
+    default_graph_uri: Option<String>,
+    #[serde(rename = "named-graph-uri")]
+    named_graph_uri: Option<String>,
+}
+
+fn result_format(
+    params_format: Option<&str>,
+    headers: &axum::http::HeaderMap,
+) -> Result<shoal_semantic::ResultFormat, ApiError> {
+    use shoal_semantic::ResultFormat;
+    if let Some(f) = params_format {
+        return match f {
+            "json" => Ok(ResultFormat::Json),
+            "csv" => Ok(ResultFormat::Csv),
+            "tsv" => Ok(ResultFormat::Tsv),
+            "xml" => Ok(ResultFormat::Xml),
+            other => Err(ApiError::BadRequest(format!(
+                "unknown format {other:?}: use json, csv, tsv or xml"
+            ))),
+        };
+    }
+    let accept = headers
+        .get(axum::http::header::ACCEPT)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("");
+    Ok(if accept.contains("text/csv") {
+        ResultFormat::Csv
+    } else if accept.contains("text/tab-separated-values") {
+        ResultFormat::Tsv
+    } else if accept.contains("application/sparql-results+xml") {
+        ResultFormat::Xml
+    } else {
+        ResultFormat::Json
+    })
+}
+
+async fn run_sparql(
+    s: StationHandle,
+    query: String,
+    format: shoal_semantic::ResultFormat,
+) -> Result<Response, ApiError> {
+    use shoal_semantic::QueryError;
+    let snapshot = s.semantic_snapshot();
+    let out = tokio::task::spawn_blocking(move || {
+        let result = snapshot.query(&query, &shoal_semantic::QueryLimits::default())?;
+        result.write(format, Vec::new())
+    })
+    .await
+    .map_err(|e| ApiError::Internal(e.to_string()))?;
+    match out {
+        Ok(bytes) => Ok((
+            [(axum::http::header::CONTENT_TYPE, format.media_type())],
+            bytes,
+        )
+            .into_response()),
+        Err(e @ QueryError::Timeout(_)) => Err(ApiError::Unavailable(e.to_string())),
+        Err(e @ (QueryError::Evaluation(_) | QueryError::Serialize(_))) => {
+            Err(ApiError::Internal(e.to_string()))
+        }
+        Err(e) => Err(ApiError::BadRequest(e.to_string())),
+    }
+}
+
+fn check_dataset(p: &SparqlParams) -> Result<(), ApiError> {
+    if p.default_graph_uri.is_some() || p.named_graph_uri.is_some() {
+        return Err(ApiError::BadRequest(
+            "default-graph-uri and named-graph-uri are not supported: queries run over the whole model".into(),
+        ));
+    }
+    Ok(())
+}
+
+async fn sparql_get(
+    State(s): State<StationHandle>,
+    headers: axum::http::HeaderMap,
+    q: Result<Query<SparqlParams>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, ApiError> {
+    let Query(p) = q.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    check_dataset(&p)?;
+    let format = result_format(p.format.as_deref(), &headers)?;
+    let query = p
+        .query
+        .ok_or_else(|| ApiError::BadRequest("missing the `query` parameter".into()))?;
+    run_sparql(s, query, format).await
+}
+
+/// POST: `application/sparql-query` (the query is the body) or
+/// `application/x-www-form-urlencoded` (`query=...`), as in the SPARQL 1.1 Protocol.
+async fn sparql_post(
+    State(s): State<StationHandle>,
+    headers: axum::http::HeaderMap,
+    q: Result<Query<SparqlParams>, axum::extract::rejection::QueryRejection>,
+    body: String,
+) -> Result<Response, ApiError> {
+    let Query(url) = q.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    let content_type = headers
+        .get(axum::http::header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let (query, form_format) = if content_type.starts_with("application/sparql-query") {
+        (body, None)
+    } else if content_type.starts_with("application/x-www-form-urlencoded") {
+        let p: SparqlParams =
+            serde_urlencoded::from_str(&body).map_err(|e| ApiError::BadRequest(e.to_string()))?;
+        check_dataset(&p)?;
+        (
+            p.query
+                .ok_or_else(|| ApiError::BadRequest("missing the `query` field".into()))?,
+            p.format,
+        )
+    } else {
+        return Err(ApiError::BadRequest(
+            "send the query as application/sparql-query or application/x-www-form-urlencoded"
+                .into(),
+        ));
+    };
+    check_dataset(&url)?;
+    let format = result_format(form_format.as_deref().or(url.format.as_deref()), &headers)?;
+    run_sparql(s, query, format).await
 }

@@ -35,7 +35,7 @@ mod store;
 pub mod vocab;
 
 pub use error::{QueryError, RuleError, StoreError};
-pub use query::{QueryLimits, QueryResult, ResultFormat};
+pub use query::{QueryLimits, QueryResult, QuerySnapshot, ResultFormat};
 pub use rules::{
     Comparison, Condition, MAX_RULE_ID_LEN, RuleInfo, RuleSpec, StateField, Threshold, builtin,
     outside,

@@ -241,6 +241,47 @@ impl SemanticStore {
     /// used without declaring them. UPDATE is refused: data changes only through the
     /// store's typed methods.
     pub fn query(&self, sparql: &str, limits: &QueryLimits) -> Result<QueryResult, QueryError> {
+        run_query(&self.store, &self.watchdog, sparql, limits)
+    }
+
+    /// A read-only view of the model as it is now, for queries that must not hold the
+    /// caller's lock on the store while they run (Oxigraph snapshots are cheap: the
+    /// view shares the data and sees no later change).
+    pub fn snapshot(&self) -> QuerySnapshot {
+        QuerySnapshot {
+            store: self.store.clone(),
+            watchdog: std::sync::Arc::clone(&self.watchdog),
+        }
+    }
+}
+
+/// A read-only view of the semantic model taken by [`SemanticStore::snapshot`].
+#[derive(Clone)]
+pub struct QuerySnapshot {
+    store: oxigraph::store::Store,
+    watchdog: std::sync::Arc<Watchdog>,
+}
+
+impl std::fmt::Debug for QuerySnapshot {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("QuerySnapshot").finish_non_exhaustive()
+    }
+}
+
+impl QuerySnapshot {
+    /// Same as [`SemanticStore::query`], on this view.
+    pub fn query(&self, sparql: &str, limits: &QueryLimits) -> Result<QueryResult, QueryError> {
+        run_query(&self.store, &self.watchdog, sparql, limits)
+    }
+}
+
+fn run_query(
+    store: &oxigraph::store::Store,
+    watchdog: &Watchdog,
+    sparql: &str,
+    limits: &QueryLimits,
+) -> Result<QueryResult, QueryError> {
+    {
         if sparql.len() > limits.max_len {
             return Err(QueryError::TooLong {
                 len: sparql.len(),
@@ -265,7 +306,7 @@ impl SemanticStore {
         }
         let start = Instant::now();
         let deadline = start + limits.timeout;
-        self.watchdog.watch(deadline, token);
+        watchdog.watch(deadline, token);
         let timeout = |e: QueryEvaluationError| match e {
             QueryEvaluationError::Cancelled => QueryError::Timeout(limits.timeout),
             e => QueryError::Evaluation(e.to_string()),
@@ -277,7 +318,7 @@ impl SemanticStore {
                 Ok(())
             }
         };
-        match prepared.on_store(&self.store).execute().map_err(timeout)? {
+        match prepared.on_store(store).execute().map_err(timeout)? {
             QueryResults::Boolean(b) => Ok(QueryResult::Boolean(b)),
             QueryResults::Solutions(solutions) => {
                 let variables = solutions.variables().to_vec();

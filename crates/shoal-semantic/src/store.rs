@@ -294,7 +294,7 @@ pub struct SemanticStore {
     contributions: HashMap<(EntityKind, String), Contribution>,
     garbage: u64,
     stats: StoreStats,
-    pub(crate) watchdog: crate::query::Watchdog,
+    pub(crate) watchdog: Arc<crate::query::Watchdog>,
 }
 
 impl std::fmt::Debug for SemanticStore {
@@ -334,7 +334,7 @@ impl SemanticStore {
             contributions: HashMap::new(),
             garbage: 0,
             stats: StoreStats::default(),
-            watchdog: crate::query::Watchdog::default(),
+            watchdog: Arc::default(),
         };
         // The ontology's own closure (transitive sub-class edges, typed individuals).
         let triples: Vec<Triple> = quads.into_iter().map(Triple::from).collect();

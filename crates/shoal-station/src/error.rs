@@ -15,6 +15,9 @@ pub enum StationError {
     /// The history store failed.
     #[error("history store: {0}")]
     History(#[source] shoal_history::HistoryError),
+    /// The semantic model could not be built.
+    #[error("semantic model: {0}")]
+    Semantic(String),
     /// Shutdown did not complete.
     #[error("shutdown: {0}")]
     Shutdown(String),

@@ -15,6 +15,7 @@ use shoal_model::{
     EnvironmentObservation, Event, EventKind, Severity, StateVector, TaskAssignment, TaskKind,
     TaskStatus, Validate, VehicleAnnouncement, now_ms,
 };
+use shoal_semantic::{QueryLimits, QueryResult, QuerySnapshot, SemanticStore, StoreConfig};
 use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
 
@@ -41,6 +42,8 @@ pub struct IngestStats {
     pub malformed: BTreeMap<String, u64>,
     /// Tasks the station dispatched.
     pub tasks_dispatched: u64,
+    /// Events raised by rules as data arrived.
+    pub rule_firings: u64,
 }
 
 impl IngestStats {
@@ -65,6 +68,9 @@ struct Shared {
     stats: Mutex<IngestStats>,
     events: Mutex<VecDeque<Event>>,
     tasks: Mutex<BTreeMap<String, TaskView>>,
+    /// The semantic model (ontology + live swarm), updated in the same step as the history
+    /// (the Data Access Manager's job); rules fire as data arrives.
+    semantic: Mutex<SemanticStore>,
     history: HistoryWriter,
     reader: HistoryReader,
     task_writer: Writer<TaskAssignment>,
@@ -136,7 +142,22 @@ impl Station {
         for a in reader.vehicles().map_err(StationError::History)? {
             fleet.register(a);
         }
+        let mut semantic = SemanticStore::new(StoreConfig::default())
+            .map_err(|e| StationError::Semantic(e.to_string()))?;
+        // Contact loss is the station's own alarm (it also covers acoustic vehicles heard
+        // through a CDT); the semantic rule would raise it a second time.
+        semantic
+            .set_rule_enabled(shoal_semantic::builtin::LOST_CONTACT, false)
+            .map_err(|e| StationError::Semantic(e.to_string()))?;
+        for e in fleet.vehicles.values() {
+            if let Err(err) = semantic.upsert_vehicle(&e.announcement) {
+                warn!(vehicle = %e.announcement.vehicle_id, error = %err, "not in the semantic model");
+            }
+        }
         for s in reader.latest_states().map_err(StationError::History)? {
+            if let Err(err) = semantic.update_state(&s) {
+                warn!(vehicle = %s.vehicle_id, error = %err, "state not in the semantic model");
+            }
             if let Some(e) = fleet.vehicles.get_mut(&s.vehicle_id) {
                 e.latest = Some(s);
             }
@@ -146,6 +167,7 @@ impl Station {
             stats: Mutex::new(IngestStats::default()),
             events: Mutex::new(VecDeque::new()),
             tasks: Mutex::new(BTreeMap::new()),
+            semantic: Mutex::new(semantic),
             history: history.writer(),
             reader,
             task_writer: dds.writer(control)?,
@@ -225,6 +247,7 @@ impl Station {
                         log_participant_event(&ev);
                     }
                     h.refresh_contact().await;
+                    h.semantic_tick();
                     if !summary_every.is_zero() && last_summary.elapsed() >= summary_every {
                         last_summary = tokio::time::Instant::now();
                         h.log_summary();
@@ -402,12 +425,17 @@ impl StationHandle {
             }
         }
         lock(&self.shared.stats).states_accepted += 1;
+        // Typed and cheap: the RDF mirror is written coalesced, once a second per vehicle.
+        let fired = lock(&self.shared.semantic).update_state(&s);
+        self.emit_fired(fired);
         self.store(Record::State(s));
     }
 
     fn on_announcement(&self, a: VehicleAnnouncement, meta: &SampleMeta) {
         let new = lock(&self.shared.fleet).register(a.clone());
         lock(&self.shared.stats).announcements += 1;
+        let fired = lock(&self.shared.semantic).upsert_vehicle(&a);
+        self.emit_fired(fired);
         if new {
             info!(vehicle = %a.vehicle_id, kind = %a.kind, vendor = %a.vendor, writer = %meta.writer, "vehicle registered");
         } else {
@@ -418,6 +446,8 @@ impl StationHandle {
 
     fn on_task_status(&self, s: TaskStatus, _meta: &SampleMeta) {
         lock(&self.shared.stats).task_status += 1;
+        let fired = lock(&self.shared.semantic).task_status(&s);
+        self.emit_fired(fired);
         if let Some(t) = lock(&self.shared.tasks).get_mut(&s.task_id) {
             t.status = Some(s.clone());
         }
@@ -445,12 +475,16 @@ impl StationHandle {
             return;
         }
         lock(&self.shared.stats).events += 1;
+        let fired = lock(&self.shared.semantic).add_event(&e);
+        self.emit_fired(fired);
         self.remember_event(e.clone());
         self.store(Record::Event(e));
     }
 
     fn on_observation(&self, o: EnvironmentObservation, _meta: &SampleMeta) {
         lock(&self.shared.stats).observations += 1;
+        let fired = lock(&self.shared.semantic).add_observation(&o);
+        self.emit_fired(fired);
         self.store(Record::Observation(o));
     }
 
@@ -481,10 +515,23 @@ impl StationHandle {
             task_id: task_id.to_string(),
             text: text.chars().take(shoal_model::MAX_TEXT_LEN).collect(),
         };
+        self.emit(e);
+    }
+
+    /// Records, stores and publishes an event the station produced (its own or a rule's).
+    fn emit(&self, e: Event) {
         if let Err(err) = e.validate() {
             warn!(error = %err, "station event not raised: invalid");
             return;
         }
+        info!(kind = ?e.kind, severity = ?e.severity, vehicle = %e.vehicle_id, text = %e.text, "event");
+        // Rule firings enter the model too, so rules and queries can see them.
+        if !e.event_id.starts_with("station-")
+            && let Err(err) = lock(&self.shared.semantic).add_event(&e)
+        {
+            warn!(error = %err, "event not in the semantic model");
+        }
+        let severity = e.severity;
         self.remember_event(e.clone());
         self.store(Record::Event(e.clone()));
         let writer = if severity >= Severity::Alarm {
@@ -495,6 +542,47 @@ impl StationHandle {
         if let Err(err) = writer.write_blocking(e) {
             warn!(error = %err, "event not published on DDS");
         }
+    }
+
+    /// Emits the events rules fired; a failed model update is logged, never fatal.
+    fn emit_fired(&self, fired: Result<Vec<Event>, shoal_semantic::StoreError>) {
+        match fired {
+            Ok(events) => {
+                for e in events {
+                    lock(&self.shared.stats).rule_firings += 1;
+                    self.emit(e);
+                }
+            }
+            Err(e) => warn!(error = %e, "semantic model update failed"),
+        }
+    }
+
+    /// Once a second: mirror dirty states into RDF (coalesced) and run time-based rules.
+    fn semantic_tick(&self) {
+        let now = now_ms();
+        let fired = {
+            let mut sem = lock(&self.shared.semantic);
+            sem.flush_dirty(now).and_then(|mut a| {
+                a.extend(sem.tick(now)?);
+                Ok(a)
+            })
+        };
+        self.emit_fired(fired);
+    }
+
+    /// A read-only view of the semantic model for SPARQL queries, taken without holding
+    /// the model's lock while the query runs.
+    pub fn semantic_snapshot(&self) -> QuerySnapshot {
+        lock(&self.shared.semantic).snapshot()
+    }
+
+    /// Runs a read-only SPARQL query over the semantic model, within `limits`.
+    pub fn sparql(
+        &self,
+        query: &str,
+        limits: &QueryLimits,
+    ) -> Result<QueryResult, shoal_semantic::QueryError> {
+        self.semantic_snapshot().query(query, limits)
     }
 
     async fn refresh_contact(&self) {
@@ -634,6 +722,8 @@ impl StationHandle {
             .map_err(|e| DispatchError::Dds(e.to_string()))?;
         info!(task = %task.task_id, vehicle = %task.vehicle_id, kind = ?task.kind, "task dispatched");
         lock(&self.shared.stats).tasks_dispatched += 1;
+        let fired = lock(&self.shared.semantic).upsert_task(&task);
+        self.emit_fired(fired);
         lock(&self.shared.tasks).insert(
             task.task_id.clone(),
             TaskView {

@@ -4,6 +4,7 @@ mod acoustic;
 mod bench;
 mod config;
 mod daemons;
+mod query;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -77,6 +78,18 @@ enum Command {
     Bench {
         #[command(subcommand)]
         which: bench::BenchCommand,
+    },
+    /// Run a read-only SPARQL query against a running station's semantic model.
+    Query {
+        /// The SPARQL query; `-` reads it from standard input. The prefixes shoal:, geo:,
+        /// sosa:, ... may be used without declaring them.
+        sparql: String,
+        /// Result format.
+        #[arg(long, value_parser = ["csv", "json", "tsv", "xml"], default_value = "csv")]
+        format: String,
+        /// Station API address (default: console.listen).
+        #[arg(long, value_name = "ADDR")]
+        station: Option<std::net::SocketAddr>,
     },
     /// Compact acoustic PDUs: encode JSON to hex, decode hex to JSON, print sizes.
     Pdu {
@@ -169,6 +182,7 @@ fn main() -> ExitCode {
         Command::Bench { .. } => "bench".to_string(),
         Command::Config { .. } => "config".to_string(),
         Command::Pdu { .. } => "pdu".to_string(),
+        Command::Query { .. } => "query".to_string(),
         Command::ModemEmu(_) => "modem-emu".to_string(),
     };
     init_logging(&label);
@@ -225,6 +239,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             exit_on_stdin_close,
         } => rt.block_on(daemons::acoustic_demo(&cfg, exit_on_stdin_close)),
         Command::Pdu { which } => acoustic::pdu(which),
+        Command::Query {
+            sparql,
+            format,
+            station,
+        } => rt.block_on(query::run(
+            &sparql,
+            &format,
+            station.unwrap_or(cfg.console.listen),
+        )),
         Command::ModemEmu(args) => rt.block_on(acoustic::modem_emu(args)),
         Command::Config { default } => {
             if default {
