@@ -177,7 +177,9 @@ async fn simultaneous_arrivals_collide_and_a_transmitting_modem_is_deaf() {
         vec![modem(1, 0.0), modem(2, 1000.0), modem(3, 2000.0)],
         |c| {
             c.fixed_per = Some(0.0);
-            c.time_scale = 0.05;
+            // Slow enough that "simultaneous" survives a loaded machine: the two packets
+            // overlap if their commands land within 0.62 s simulated = 124 ms wall.
+            c.time_scale = 0.2;
         },
     )
     .await;
@@ -195,12 +197,17 @@ async fn simultaneous_arrivals_collide_and_a_transmitting_modem_is_deaf() {
     let (m1, m3) = (im(1), im(3));
     let (ra, rc) = tokio::join!(a.command(&m1), c.command(&m3));
     assert_eq!((ra.as_str(), rc.as_str()), ("AT*SENDIM:OK", "AT*SENDIM:OK"));
-    tokio::time::sleep(Duration::from_millis(200)).await;
+    tokio::time::sleep(Duration::from_millis(600)).await;
     let s = emu.stats();
     let col: u64 = s.iter().filter(|l| l.dst == 2).map(|l| l.collisions).sum();
     assert_eq!(col, 2, "{s:?}");
 
-    // Half duplex: 2 transmits a long burst while 1's packet arrives.
+    // Half duplex: 2 transmits a long burst while 1's packet arrives. Move 2 to 10 m from
+    // 1 first, so 1's packet reaches 2 within milliseconds and the overlap does not depend
+    // on how fast this (possibly loaded) machine runs the two commands.
+    let near = modem(2, 10.0);
+    emu.set_position(2, near.latitude_deg, near.longitude_deg, near.depth_m)
+        .unwrap();
     let mut b = AtClient::connect(emu.modems()[1].at).await;
     let burst = AtCommand::SendBurst {
         dst: 3,
@@ -209,7 +216,7 @@ async fn simultaneous_arrivals_collide_and_a_transmitting_modem_is_deaf() {
     .to_bytes(); // ~0.68 s
     assert_eq!(b.command(&burst).await, "AT*SEND:OK");
     assert_eq!(a.command(&im(9)).await, "AT*SENDIM:OK");
-    tokio::time::sleep(Duration::from_millis(200)).await;
+    tokio::time::sleep(Duration::from_millis(600)).await;
     let deaf: u64 = emu
         .stats()
         .iter()
