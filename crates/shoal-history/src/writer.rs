@@ -198,11 +198,12 @@ impl Shared {
         lock(&self.queue).closing
     }
 
-    /// Publishes that every record up to `seq` is committed.
+    /// Publishes that every record up to `seq` is committed. The watch channel is updated
+    /// first: whoever returns from a blocking wait must also find it updated.
     fn acknowledge(&self, seq: u64) {
+        self.ack_tx.send_replace(seq);
         lock(&self.ack).committed = seq;
         self.acked.notify_all();
-        self.ack_tx.send_replace(seq);
     }
 
     /// Counts what a committed batch did and acknowledges it.
