@@ -57,17 +57,27 @@ pub async fn run_cdt<D: ModemDriver + 'static>(
     let mut cdt = Cdt::new(config, &dds, link)?;
     info!(address = cdt.cfg.address, participant = %cdt.participant, "CDT running");
     loop {
-        tokio::select! {
+        let step: Result<(), ConverterError> = tokio::select! {
             () = shutdown.cancelled() => break,
             Some(item) = next_opt(&mut tasks) => match item {
-                Ok((t, _)) => cdt.on_task(t).await?,
-                Err(e) => warn!(error = %e, "bad task sample ignored"),
+                Ok((t, _)) => cdt.on_task(t).await,
+                Err(e) => {
+                    warn!(error = %e, "bad task sample ignored");
+                    Ok(())
+                }
             },
             ev = events.recv() => match ev {
-                Some(ev) => cdt.on_link_event(ev).await?,
-                None if shutdown.is_cancelled() => break,
-                None => return Err(ConverterError::LinkStopped),
+                Some(ev) => cdt.on_link_event(ev).await,
+                None => Err(ConverterError::LinkStopped),
             },
+        };
+        // The link stops with the same shutdown signal: a send that races the stop is
+        // part of stopping, not a failure.
+        if let Err(e) = step {
+            if shutdown.is_cancelled() {
+                break;
+            }
+            return Err(e);
         }
     }
     info!("CDT stopped");

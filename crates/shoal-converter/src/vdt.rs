@@ -104,40 +104,44 @@ pub async fn run_vdt<D: ModemDriver + 'static>(
         "VDT running"
     );
     loop {
-        tokio::select! {
+        let step: Result<(), ConverterError> = tokio::select! {
             () = shutdown.cancelled() => break,
             Some(item) = next_opt(&mut states) => {
                 if let Some(s) = sample(item) {
                     vdt.on_state(s);
                 }
+                Ok(())
             }
-            Some(item) = next_opt(&mut announcements) => {
-                if let Some(a) = sample(item) {
-                    vdt.on_announcement(a).await?;
-                }
-            }
-            Some(item) = next_opt(&mut statuses) => {
-                if let Some(s) = sample(item) {
-                    vdt.on_task_status(&s).await?;
-                }
-            }
-            Some(item) = next_opt(&mut vehicle_events) => {
-                if let Some(e) = sample(item) {
-                    vdt.on_event(&e).await?;
-                }
-            }
-            Some(item) = next_opt(&mut observations) => {
-                if let Some(o) = sample(item) {
-                    vdt.on_observation(&o).await?;
-                }
-            }
-            ev = events.recv() => match ev {
-                Some(ev) => vdt.on_link_event(ev).await?,
-                None if shutdown.is_cancelled() => break,
-                None => return Err(ConverterError::LinkStopped),
+            Some(item) = next_opt(&mut announcements) => match sample(item) {
+                Some(a) => vdt.on_announcement(a).await,
+                None => Ok(()),
             },
-            _ = state_tick.tick() => vdt.flush_states().await?,
-            _ = announce_tick.tick() => vdt.reannounce().await?,
+            Some(item) = next_opt(&mut statuses) => match sample(item) {
+                Some(s) => vdt.on_task_status(&s).await,
+                None => Ok(()),
+            },
+            Some(item) = next_opt(&mut vehicle_events) => match sample(item) {
+                Some(e) => vdt.on_event(&e).await,
+                None => Ok(()),
+            },
+            Some(item) = next_opt(&mut observations) => match sample(item) {
+                Some(o) => vdt.on_observation(&o).await,
+                None => Ok(()),
+            },
+            ev = events.recv() => match ev {
+                Some(ev) => vdt.on_link_event(ev).await,
+                None => Err(ConverterError::LinkStopped),
+            },
+            _ = state_tick.tick() => vdt.flush_states().await,
+            _ = announce_tick.tick() => vdt.reannounce().await,
+        };
+        // The link stops with the same shutdown signal: a send that races the stop is
+        // part of stopping, not a failure.
+        if let Err(e) = step {
+            if shutdown.is_cancelled() {
+                break;
+            }
+            return Err(e);
         }
     }
     info!("VDT stopped");
