@@ -420,3 +420,46 @@ fn urlencode(s: &str) -> String {
         })
         .collect()
 }
+
+/// Malformed SPARQL protocol requests get a 400 that says what is wrong; the endpoint
+/// keeps answering good requests afterwards.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_sparql_endpoint_explains_malformed_requests() {
+    let station = start_station(66);
+    let router = shoal_console::router(station.handle.clone());
+    let (status, body) = call(&router, "GET", "/api/sparql", "").await;
+    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert!(body["error"].as_str().unwrap().contains("query"), "{body}");
+    let (status, body) = call(
+        &router,
+        "GET",
+        "/api/sparql?query=ASK%7B%7D&format=yaml",
+        "",
+    )
+    .await;
+    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert!(body["error"].as_str().unwrap().contains("yaml"), "{body}");
+    // `call` sends application/json, which the SPARQL protocol does not accept.
+    let (status, body) = call(&router, "POST", "/api/sparql", "ASK {}").await;
+    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert!(
+        body["error"]
+            .as_str()
+            .unwrap()
+            .contains("application/sparql-query"),
+        "{body}"
+    );
+    let (status, body) = call(
+        &router,
+        "GET",
+        "/api/sparql?query=ASK%7B%7D&default-graph-uri=urn%3Ax",
+        "",
+    )
+    .await;
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
+    let (status, body) = call(&router, "GET", "/api/sparql?query=ASK%7B%7D", "").await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(body["boolean"], true);
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+}
