@@ -20,6 +20,7 @@
 
 mod environment;
 mod event;
+pub mod geo;
 mod link;
 mod state;
 mod task;
@@ -31,7 +32,7 @@ pub use event::{Event, EventKind, Severity};
 pub use link::{EVENT_ID_PREFIX as LINK_EVENT_PREFIX, LinkStatus};
 pub use state::StateVector;
 pub use task::{GeoPoint, Task, TaskAssignment, TaskKind, TaskState, TaskStatus};
-pub use validate::{Reason, Validate, ValidationError};
+pub use validate::{Reason, Validate, ValidationError, is_identifier};
 pub use vehicle::{LinkKind, VehicleAnnouncement, VehicleKind};
 
 /// Sentinel for an optional measurement that is not available (e.g. altitude at the surface).

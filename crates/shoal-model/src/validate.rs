@@ -146,6 +146,12 @@ pub(crate) fn identifier(
     Ok(())
 }
 
+/// True when `value` is a well-formed identifier of at most `max` bytes (the rule of
+/// every `*_id` field), e.g. to decide whether a rejected datum's id can be trusted.
+pub fn is_identifier(value: &str, max: usize) -> bool {
+    identifier("id", value, max).is_ok()
+}
+
 /// Like [`identifier`] but the empty string ("none") is allowed.
 pub(crate) fn optional_identifier(
     field: &'static str,

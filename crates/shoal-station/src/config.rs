@@ -2,6 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::preprocess::PlausibilityConfig;
+
 /// The `[station]` section of Shoal's configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -16,6 +18,8 @@ pub struct StationConfig {
     pub require_announcement: bool,
     /// Most recent events kept in memory for the API (older ones are in the history).
     pub recent_events: usize,
+    /// The Data Pre-Processor's plausibility checks against each vehicle's history.
+    pub plausibility: PlausibilityConfig,
 }
 
 impl Default for StationConfig {
@@ -26,6 +30,7 @@ impl Default for StationConfig {
             summary_interval_s: 10.0,
             require_announcement: true,
             recent_events: 500,
+            plausibility: PlausibilityConfig::default(),
         }
     }
 }
@@ -42,6 +47,6 @@ impl StationConfig {
         if !(self.summary_interval_s.is_finite() && self.summary_interval_s >= 0.0) {
             return Err("station.summary_interval_s must be 0 or a positive number".into());
         }
-        Ok(())
+        self.plausibility.check()
     }
 }

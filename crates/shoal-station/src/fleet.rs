@@ -5,6 +5,8 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 use shoal_model::{LinkKind, LinkStatus, StateVector, VehicleAnnouncement};
 
+use crate::preprocess::Suspects;
+
 /// Whether a vehicle is being heard from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -50,6 +52,8 @@ pub(crate) struct Entry {
     pub(crate) states_accepted: u64,
     pub(crate) states_rejected: u64,
     pub(crate) contact: Contact,
+    /// Rejected state vectors in a row that may yet re-anchor the vehicle.
+    pub(crate) suspects: Suspects,
 }
 
 /// All vehicles by id.
@@ -79,6 +83,7 @@ impl Fleet {
                         states_accepted: 0,
                         states_rejected: 0,
                         contact: Contact::Silent,
+                        suspects: Suspects::default(),
                     },
                 );
                 true

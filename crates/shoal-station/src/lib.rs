@@ -12,9 +12,11 @@
 mod config;
 mod error;
 mod fleet;
+mod preprocess;
 mod station;
 
 pub use config::StationConfig;
 pub use error::{DispatchError, StationError};
 pub use fleet::{Contact, VehicleView};
+pub use preprocess::{Implausible, PlausibilityConfig};
 pub use station::{IngestStats, Station, StationHandle, StationReport, TaskView};

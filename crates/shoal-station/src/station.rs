@@ -22,6 +22,12 @@ use tracing::{debug, info, warn};
 use crate::config::StationConfig;
 use crate::error::{DispatchError, StationError};
 use crate::fleet::{Contact, Fleet, VehicleView};
+use crate::preprocess::{self, Verdict};
+
+/// A datum as JSON for the quarantine table.
+fn payload<T: Serialize>(value: &T) -> String {
+    serde_json::to_string(value).unwrap_or_else(|e| format!("{{\"unencodable\":\"{e}\"}}"))
+}
 
 /// Counters of what the station received, by outcome; rejections by reason code.
 #[derive(Debug, Clone, Default, Serialize, PartialEq, Eq)]
@@ -331,7 +337,14 @@ impl StationHandle {
         }
     }
 
-    fn reject(&self, topic: &str, vehicle_id: &str, reason: &str, payload_json: String) {
+    fn reject(
+        &self,
+        topic: &str,
+        vehicle_id: &str,
+        reason: &str,
+        detail: &str,
+        payload_json: String,
+    ) {
         *lock(&self.shared.stats)
             .rejected
             .entry(reason.to_string())
@@ -339,7 +352,7 @@ impl StationHandle {
         if let Some(e) = lock(&self.shared.fleet).vehicles.get_mut(vehicle_id) {
             e.states_rejected += 1;
         }
-        warn!(topic, vehicle = vehicle_id, reason, "data rejected");
+        warn!(topic, vehicle = vehicle_id, reason, detail, "data rejected");
         self.store(Record::rejected(topic, reason, payload_json));
         // One event per vehicle and reason per minute: enough for the operator, no flood.
         let now = now_ms();
@@ -358,7 +371,7 @@ impl StationHandle {
                 EventKind::DataRejected,
                 vehicle_id,
                 "",
-                &format!("{topic} rejected: {reason}"),
+                &format!("{topic} rejected: {reason}: {detail}"),
             );
         }
     }
@@ -374,18 +387,13 @@ impl StationHandle {
                             .and_then(|v| v.as_str())
                             .map(str::to_string)
                     })
-                    .filter(|id| {
-                        !id.is_empty()
-                            && id.len() <= shoal_model::MAX_VEHICLE_ID_LEN
-                            && id
-                                .bytes()
-                                .all(|b| b.is_ascii_alphanumeric() || b"_-.".contains(&b))
-                    })
+                    .filter(|id| shoal_model::is_identifier(id, shoal_model::MAX_VEHICLE_ID_LEN))
                     .unwrap_or_default();
                 self.reject(
                     T::TOPIC,
                     &vehicle,
                     &error.reason().to_string(),
+                    &error.to_string(),
                     payload.clone(),
                 );
             }
@@ -405,39 +413,148 @@ impl StationHandle {
     }
 
     fn on_state(&self, s: StateVector, _meta: &SampleMeta) {
+        // Rejections are counted, quarantined and reported inside.
+        let _ = self.ingest_state(s);
+    }
+
+    /// Takes one state vector through the Data Access Manager in one step: validation and
+    /// plausibility (the Data Pre-Processor), the vehicle's latest state, the semantic
+    /// model and its rules, the history store. A rejected state vector is counted by
+    /// reason, quarantined with its payload and reported as an event; the reason code is
+    /// returned.
+    pub fn ingest_state(&self, s: StateVector) -> Result<(), String> {
+        if let Err(e) = s.validate() {
+            let reason = e.reason().to_string();
+            let id = if shoal_model::is_identifier(&s.vehicle_id, shoal_model::MAX_VEHICLE_ID_LEN) {
+                s.vehicle_id.clone()
+            } else {
+                String::new()
+            };
+            self.reject(
+                StateVector::TOPIC,
+                &id,
+                &reason,
+                &e.to_string(),
+                payload(&s),
+            );
+            return Err(reason);
+        }
         let now = now_ms();
-        {
-            let mut fleet = lock(&self.shared.fleet);
-            match fleet.vehicles.get_mut(&s.vehicle_id) {
-                Some(e) => {
-                    e.latest = Some(s.clone());
-                    e.last_contact_ms = Some(now);
+        let mut fleet = lock(&self.shared.fleet);
+        let (verdict, newer) = match fleet.vehicles.get_mut(&s.vehicle_id) {
+            Some(e) => {
+                let verdict = preprocess::judge(
+                    &self.shared.config.plausibility,
+                    e.latest.as_ref(),
+                    &mut e.suspects,
+                    &s,
+                    e.announcement.max_speed_mps,
+                    now,
+                );
+                // Even a rejected sample proves the vehicle is heard: a bad clock must not
+                // also look like a lost vehicle.
+                e.last_contact_ms = Some(now);
+                let newer = e
+                    .latest
+                    .as_ref()
+                    .is_none_or(|l| l.timestamp_ms < s.timestamp_ms);
+                if !matches!(verdict, Verdict::Reject(_)) {
+                    // A late sample (acoustic store-and-forward) goes to the history only.
+                    if newer {
+                        e.latest = Some(s.clone());
+                    }
                     e.states_accepted += 1;
                 }
-                None if self.shared.config.require_announcement => {
-                    drop(fleet);
-                    let id = s.vehicle_id.clone();
-                    let json = serde_json::to_string(&s).unwrap_or_default();
-                    self.reject(StateVector::TOPIC, &id, "unknown_vehicle", json);
-                    return;
-                }
-                None => {}
+                (verdict, newer)
+            }
+            None if self.shared.config.require_announcement => {
+                drop(fleet);
+                let id = s.vehicle_id.clone();
+                let reason = "unknown_vehicle";
+                let detail = format!("{id} never announced itself");
+                self.reject(StateVector::TOPIC, &id, reason, &detail, payload(&s));
+                return Err(reason.into());
+            }
+            None => (Verdict::Accept, true),
+        };
+        drop(fleet);
+        match verdict {
+            Verdict::Accept => {}
+            Verdict::Reject(why) => {
+                let id = s.vehicle_id.clone();
+                self.reject(
+                    StateVector::TOPIC,
+                    &id,
+                    why.reason(),
+                    &why.to_string(),
+                    payload(&s),
+                );
+                return Err(why.reason().into());
+            }
+            Verdict::Reanchor(why) => {
+                let text = format!(
+                    "{} re-anchored after consistent data that looked implausible ({why})",
+                    s.vehicle_id
+                );
+                warn!(vehicle = %s.vehicle_id, %why, "vehicle re-anchored");
+                self.raise(
+                    Severity::Warning,
+                    EventKind::Other,
+                    &s.vehicle_id,
+                    "",
+                    &text,
+                );
             }
         }
         lock(&self.shared.stats).states_accepted += 1;
-        // Typed and cheap: the RDF mirror is written coalesced, once a second per vehicle.
-        let fired = lock(&self.shared.semantic).update_state(&s);
-        self.emit_fired(fired);
+        if newer {
+            // Typed and cheap: the RDF mirror is written coalesced, once a second per vehicle.
+            let fired = lock(&self.shared.semantic).update_state(&s);
+            self.emit_fired(fired);
+        }
         self.store(Record::State(s));
+        Ok(())
+    }
+
+    /// The timestamp checks for data other than state vectors; true when accepted.
+    fn timely(
+        &self,
+        topic: &str,
+        vehicle_id: &str,
+        timestamp_ms: i64,
+        json: impl FnOnce() -> String,
+    ) -> bool {
+        match preprocess::check_time(&self.shared.config.plausibility, timestamp_ms, now_ms()) {
+            None => true,
+            Some(why) => {
+                self.reject(topic, vehicle_id, why.reason(), &why.to_string(), json());
+                false
+            }
+        }
     }
 
     fn on_announcement(&self, a: VehicleAnnouncement, meta: &SampleMeta) {
+        self.register(a, &meta.writer.to_string());
+    }
+
+    /// Registers (or re-registers) a vehicle as if it had announced itself, e.g. from the
+    /// operator's tool; the announcement is validated first.
+    pub fn register_vehicle(
+        &self,
+        a: VehicleAnnouncement,
+    ) -> Result<(), shoal_model::ValidationError> {
+        a.validate()?;
+        self.register(a, "operator");
+        Ok(())
+    }
+
+    fn register(&self, a: VehicleAnnouncement, source: &str) {
         let new = lock(&self.shared.fleet).register(a.clone());
         lock(&self.shared.stats).announcements += 1;
         let fired = lock(&self.shared.semantic).upsert_vehicle(&a);
         self.emit_fired(fired);
         if new {
-            info!(vehicle = %a.vehicle_id, kind = %a.kind, vendor = %a.vendor, writer = %meta.writer, "vehicle registered");
+            info!(vehicle = %a.vehicle_id, kind = %a.kind, vendor = %a.vendor, source, "vehicle registered");
         } else {
             debug!(vehicle = %a.vehicle_id, "vehicle re-announced");
         }
@@ -445,6 +562,11 @@ impl StationHandle {
     }
 
     fn on_task_status(&self, s: TaskStatus, _meta: &SampleMeta) {
+        if !self.timely(TaskStatus::TOPIC, &s.vehicle_id, s.timestamp_ms, || {
+            payload(&s)
+        }) {
+            return;
+        }
         lock(&self.shared.stats).task_status += 1;
         let fired = lock(&self.shared.semantic).task_status(&s);
         self.emit_fired(fired);
@@ -458,6 +580,9 @@ impl StationHandle {
     fn on_event(&self, e: Event, _meta: &SampleMeta) {
         // The station hears its own events too (same topic); they are already recorded.
         if e.event_id.starts_with("station-") {
+            return;
+        }
+        if !self.timely(Event::TOPIC, &e.vehicle_id, e.timestamp_ms, || payload(&e)) {
             return;
         }
         // A CDT's link table entry: link metadata for the vehicle, not an operator event.
@@ -482,6 +607,14 @@ impl StationHandle {
     }
 
     fn on_observation(&self, o: EnvironmentObservation, _meta: &SampleMeta) {
+        if !self.timely(
+            EnvironmentObservation::TOPIC,
+            &o.vehicle_id,
+            o.timestamp_ms,
+            || payload(&o),
+        ) {
+            return;
+        }
         lock(&self.shared.stats).observations += 1;
         let fired = lock(&self.shared.semantic).add_observation(&o);
         self.emit_fired(fired);

@@ -463,3 +463,121 @@ async fn the_sparql_endpoint_explains_malformed_requests() {
     station.shutdown.cancel();
     station.task.await.unwrap();
 }
+
+/// The Data Pre-Processor against history: a position jump beyond the vehicle's maximum
+/// speed, a battery that rises while diving, and timestamps far ahead or behind are each
+/// rejected with their reason, counted, quarantined and reported; good data around them
+/// is stored, and a consistent run after a real relocation re-anchors the vehicle.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn implausible_state_is_rejected_by_reason_and_good_data_is_kept() {
+    let station = start_station(67);
+    let h = station.handle.clone();
+    h.register_vehicle(shoal_model::VehicleAnnouncement {
+        vehicle_id: "auv-p".into(),
+        name: "plausibility".into(),
+        kind: VehicleKind::Auv,
+        vendor: "test".into(),
+        capabilities: vec![],
+        sensors: vec![],
+        links: vec![shoal_model::LinkKind::Ip],
+        max_speed_mps: 2.0,
+        timestamp_ms: now_ms(),
+    })
+    .unwrap();
+    let t0 = now_ms() - 60_000;
+    let at = |dt_s: i64, lat: f64, battery: f64| StateVector {
+        vehicle_id: "auv-p".into(),
+        timestamp_ms: t0 + dt_s * 1000,
+        latitude_deg: lat,
+        longitude_deg: 10.0,
+        depth_m: 30.0,
+        altitude_m: -1.0,
+        speed_mps: 1.5,
+        yaw_deg: 0.0,
+        pitch_deg: 0.0,
+        roll_deg: 0.0,
+        battery_pct: battery,
+    };
+    assert_eq!(h.ingest_state(at(0, 63.0, 80.0)), Ok(()));
+    assert_eq!(h.ingest_state(at(1, 63.000_01, 80.0)), Ok(()));
+    // 1.1 km in one second from a 2 m/s vehicle.
+    assert_eq!(
+        h.ingest_state(at(2, 63.01, 80.0)),
+        Err("implausible:position_jump".into())
+    );
+    // Battery up 15 points while diving.
+    assert_eq!(
+        h.ingest_state(at(3, 63.000_02, 95.0)),
+        Err("implausible:battery_rising".into())
+    );
+    let mut future = at(4, 63.000_03, 80.0);
+    future.timestamp_ms = now_ms() + 3_600_000;
+    assert_eq!(
+        h.ingest_state(future),
+        Err("implausible:timestamp_future".into())
+    );
+    let mut past = at(4, 63.000_03, 80.0);
+    past.timestamp_ms = now_ms() - 86_400_000;
+    assert_eq!(
+        h.ingest_state(past),
+        Err("implausible:timestamp_past".into())
+    );
+    assert_eq!(h.ingest_state(at(5, 63.000_03, 79.9)), Ok(()));
+    // A late sample (older than the latest) is stored but does not become the latest.
+    assert_eq!(h.ingest_state(at(2, 63.000_015, 80.0)), Ok(()));
+    assert_eq!(
+        h.vehicle("auv-p").unwrap().latest.unwrap().timestamp_ms,
+        t0 + 5000
+    );
+    // Surfacing with a GPS fix 2 km away: three consistent fixes re-anchor the vehicle.
+    for (i, expect_ok) in [(6, false), (7, false), (8, true)] {
+        let r = h.ingest_state(at(i, 63.02 + 1e-6 * i as f64, 79.9));
+        assert_eq!(r.is_ok(), expect_ok, "fix {i}: {r:?}");
+    }
+
+    let stats = h.stats();
+    for (reason, n) in [
+        ("implausible:position_jump", 3),
+        ("implausible:battery_rising", 1),
+        ("implausible:timestamp_future", 1),
+        ("implausible:timestamp_past", 1),
+    ] {
+        assert_eq!(stats.rejected.get(reason), Some(&n), "{reason}: {stats:?}");
+    }
+    assert_eq!(stats.states_accepted, 5);
+    let v = h.vehicle("auv-p").unwrap();
+    assert_eq!((v.states_accepted, v.states_rejected), (5, 6));
+    // Quarantined with payload, never stored as valid.
+    let rejected = eventually(10, "the quarantine to hold 6 rows", || {
+        h.history().rejected(100).ok().filter(|r| r.len() >= 6)
+    })
+    .await;
+    assert!(rejected.iter().all(|r| r.topic == "shoal/state_vector"));
+    assert!(
+        rejected
+            .iter()
+            .any(|r| r.reason == "implausible:position_jump" && r.payload_json.contains("63.01"))
+    );
+    eventually(10, "5 states in the history", || {
+        (h.history().count_states(Some("auv-p")).ok()? == 5).then_some(())
+    })
+    .await;
+    // Reported to the operator as events, one per reason, and the re-anchoring too.
+    let events = h.recent_events();
+    for reason in [
+        "position_jump",
+        "battery_rising",
+        "timestamp_future",
+        "timestamp_past",
+    ] {
+        assert!(
+            events
+                .iter()
+                .any(|e| e.kind == shoal_model::EventKind::DataRejected && e.text.contains(reason)),
+            "no event for {reason}: {events:?}"
+        );
+    }
+    assert!(events.iter().any(|e| e.text.contains("re-anchored")));
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+}
