@@ -9,6 +9,8 @@
 //! Endpoints (JSON): `GET /api/health`, `GET /api/fleet`, `GET /api/vehicles/{id}`,
 //! `GET /api/vehicles/{id}/track?from_ms=&to_ms=&limit=`, `GET /api/stats`,
 //! `GET /api/events`, `GET /api/tasks`, `POST /api/tasks`, `GET /api/rejected?limit=`;
+//! rules: `GET|POST /api/rules`, `GET|PATCH|DELETE /api/rules/{id}` (PATCH takes
+//! `{"enabled": bool}`);
 //! `GET|POST /api/sparql` is a read-only SPARQL 1.1 Protocol endpoint over the semantic
 //! model (results as SPARQL JSON or CSV); `GET /` is a plain status page listing the fleet.
 
@@ -22,7 +24,7 @@ use axum::routing::get;
 use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
 use shoal_model::TaskAssignment;
-use shoal_station::{DispatchError, StationHandle};
+use shoal_station::{DispatchError, RuleChangeError, RuleDoc, StationHandle};
 use tokio_util::sync::CancellationToken;
 use tracing::{error, info};
 
@@ -52,6 +54,9 @@ pub enum ApiError {
     /// No such thing.
     #[error("{0}")]
     NotFound(String),
+    /// The request conflicts with what exists (a duplicate id, deleting a built-in).
+    #[error("{0}")]
+    Conflict(String),
     /// The request was right but could not be answered in time.
     #[error("{0}")]
     Unavailable(String),
@@ -70,6 +75,7 @@ impl IntoResponse for ApiError {
         let status = match &self {
             Self::BadRequest(_) => StatusCode::BAD_REQUEST,
             Self::NotFound(_) => StatusCode::NOT_FOUND,
+            Self::Conflict(_) => StatusCode::CONFLICT,
             Self::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
             Self::Internal(detail) => {
                 error!(%detail, "API request failed");
@@ -93,6 +99,11 @@ pub fn router(station: StationHandle) -> Router {
         .route("/api/events", get(events))
         .route("/api/tasks", get(tasks).post(dispatch))
         .route("/api/rejected", get(rejected))
+        .route("/api/rules", get(rules).post(create_rule))
+        .route(
+            "/api/rules/{id}",
+            get(rule).patch(patch_rule).delete(delete_rule),
+        )
         .route("/api/sparql", get(sparql_get).post(sparql_post))
         .with_state(station)
 }
@@ -364,4 +375,66 @@ async fn sparql_post(
     check_dataset(&url)?;
     let format = result_format(form_format.as_deref().or(url.format.as_deref()), &headers)?;
     run_sparql(s, query, format).await
+}
+
+impl From<RuleChangeError> for ApiError {
+    fn from(e: RuleChangeError) -> Self {
+        use shoal_semantic::RuleError;
+        match e {
+            RuleChangeError::Rule(RuleError::NotFound(id)) => {
+                Self::NotFound(format!("no rule {id:?}"))
+            }
+            RuleChangeError::Rule(e @ (RuleError::Exists(_) | RuleError::BuiltIn(_))) => {
+                Self::Conflict(e.to_string())
+            }
+            RuleChangeError::Rule(e) => Self::BadRequest(e.to_string()),
+            e @ RuleChangeError::Save(_) => Self::Internal(e.to_string()),
+            e => Self::Internal(e.to_string()),
+        }
+    }
+}
+
+async fn rules(State(s): State<StationHandle>) -> impl IntoResponse {
+    Json(s.rules())
+}
+
+async fn rule(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+) -> Result<impl IntoResponse, ApiError> {
+    s.rule(&id)
+        .map(Json)
+        .ok_or_else(|| ApiError::NotFound(format!("no rule {id:?}")))
+}
+
+async fn create_rule(
+    State(s): State<StationHandle>,
+    body: Result<Json<RuleDoc>, JsonRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Json(doc) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    let created = s.create_rule(&doc)?;
+    Ok((StatusCode::CREATED, Json(created)))
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RulePatch {
+    enabled: bool,
+}
+
+async fn patch_rule(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+    body: Result<Json<RulePatch>, JsonRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Json(patch) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    Ok(Json(s.set_rule_enabled(&id, patch.enabled)?))
+}
+
+async fn delete_rule(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    s.delete_rule(&id)?;
+    Ok(StatusCode::NO_CONTENT)
 }

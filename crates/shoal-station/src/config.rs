@@ -1,5 +1,7 @@
 //! Configuration of the station core.
 
+use std::path::PathBuf;
+
 use serde::{Deserialize, Serialize};
 
 use crate::preprocess::PlausibilityConfig;
@@ -20,6 +22,8 @@ pub struct StationConfig {
     pub recent_events: usize,
     /// The Data Pre-Processor's plausibility checks against each vehicle's history.
     pub plausibility: PlausibilityConfig,
+    /// Where user rules (and the enabled state of built-in ones) are kept across restarts.
+    pub rules_path: PathBuf,
 }
 
 impl Default for StationConfig {
@@ -31,6 +35,7 @@ impl Default for StationConfig {
             require_announcement: true,
             recent_events: 500,
             plausibility: PlausibilityConfig::default(),
+            rules_path: PathBuf::from("shoal-data/rules.json"),
         }
     }
 }

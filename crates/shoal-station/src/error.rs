@@ -37,3 +37,15 @@ pub enum DispatchError {
     #[error("could not publish the task: {0}")]
     Dds(String),
 }
+
+/// A rule could not be created, switched or deleted.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RuleChangeError {
+    /// The semantic store refused the change; the message says why.
+    #[error(transparent)]
+    Rule(#[from] shoal_semantic::RuleError),
+    /// The change is in force but could not be saved for the next start.
+    #[error("the rule change is in force but was not saved: {0}")]
+    Save(#[from] crate::rules::RulesFileError),
+}

@@ -13,10 +13,12 @@ mod config;
 mod error;
 mod fleet;
 mod preprocess;
+mod rules;
 mod station;
 
 pub use config::StationConfig;
-pub use error::{DispatchError, StationError};
+pub use error::{DispatchError, RuleChangeError, StationError};
 pub use fleet::{Contact, VehicleView};
 pub use preprocess::{Implausible, PlausibilityConfig};
+pub use rules::{ConditionDoc, RuleDoc, RulesFileError};
 pub use station::{IngestStats, Station, StationHandle, StationReport, TaskView};

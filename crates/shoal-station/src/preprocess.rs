@@ -376,7 +376,7 @@ mod tests {
             Verdict::Accept
         );
         // Still at the surface: on a charger.
-        let (mut a2, mut b2) = (a.clone(), b.clone());
+        let (mut a2, mut b2) = (a.clone(), b);
         for s in [&mut a2, &mut b2] {
             s.depth_m = 0.0;
             s.speed_mps = 0.0;

@@ -20,9 +20,39 @@ use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
 
 use crate::config::StationConfig;
-use crate::error::{DispatchError, StationError};
+use crate::error::{DispatchError, RuleChangeError, StationError};
 use crate::fleet::{Contact, Fleet, VehicleView};
 use crate::preprocess::{self, Verdict};
+use crate::rules::{RuleDoc, RulesFile};
+
+/// Applies the rules file: creates its user rules and switches built-in ones as saved.
+fn apply_rules_file(
+    semantic: &mut SemanticStore,
+    path: &std::path::Path,
+) -> Result<(), StationError> {
+    let file = RulesFile::load(path).map_err(|e| StationError::Config(e.to_string()))?;
+    let bad = |id: &str, e: &dyn std::fmt::Display| {
+        StationError::Config(format!("rules file {}: rule {id}: {e}", path.display()))
+    };
+    for doc in &file.rules {
+        if !doc.built_in {
+            let spec = doc.to_spec().map_err(|e| bad(&doc.id, &e))?;
+            semantic.create_rule(spec).map_err(|e| bad(&doc.id, &e))?;
+        }
+        match semantic.set_rule_enabled(&doc.id, doc.enabled) {
+            Ok(()) => {}
+            // A built-in rule this version no longer has: nothing to switch.
+            Err(e) if doc.built_in => {
+                warn!(path = %path.display(), rule = %doc.id, error = %e, "saved built-in rule ignored");
+            }
+            Err(e) => return Err(bad(&doc.id, &e)),
+        }
+    }
+    if !file.rules.is_empty() {
+        info!(path = %path.display(), rules = file.rules.len(), "rules loaded");
+    }
+    Ok(())
+}
 
 /// A datum as JSON for the quarantine table.
 fn payload<T: Serialize>(value: &T) -> String {
@@ -83,6 +113,8 @@ struct Shared {
     abort_writer: Writer<TaskAssignment>,
     event_writer: Writer<Event>,
     alarm_writer: Writer<Event>,
+    /// Held while a rule change is applied and saved, so saves happen in change order.
+    rules_file: Mutex<()>,
     /// Last time a data-rejected event was raised per (vehicle, reason), to rate-limit them.
     rejection_alerts: Mutex<HashMap<(String, String), i64>>,
     event_seq: AtomicU64,
@@ -155,6 +187,7 @@ impl Station {
         semantic
             .set_rule_enabled(shoal_semantic::builtin::LOST_CONTACT, false)
             .map_err(|e| StationError::Semantic(e.to_string()))?;
+        apply_rules_file(&mut semantic, &config.rules_path)?;
         for e in fleet.vehicles.values() {
             if let Err(err) = semantic.upsert_vehicle(&e.announcement) {
                 warn!(vehicle = %e.announcement.vehicle_id, error = %err, "not in the semantic model");
@@ -180,6 +213,7 @@ impl Station {
             abort_writer: dds.writer(emergency)?,
             event_writer: dds.writer(control)?,
             alarm_writer: dds.writer(emergency)?,
+            rules_file: Mutex::new(()),
             rejection_alerts: Mutex::new(HashMap::new()),
             event_seq: AtomicU64::new(0),
             started_ms: now_ms(),
@@ -534,7 +568,7 @@ impl StationHandle {
     }
 
     fn on_announcement(&self, a: VehicleAnnouncement, meta: &SampleMeta) {
-        self.register(a, &meta.writer.to_string());
+        self.register(a, &meta.writer);
     }
 
     /// Registers (or re-registers) a vehicle as if it had announced itself, e.g. from the
@@ -832,6 +866,78 @@ impl StationHandle {
     /// Remote readers matched by the station's (control-class) task writer now.
     pub fn task_readers(&self) -> i32 {
         self.shared.task_writer.matched_readers()
+    }
+
+    /// Every rule, built-in ones included, ordered by identifier.
+    pub fn rules(&self) -> Vec<RuleDoc> {
+        lock(&self.shared.semantic)
+            .rules()
+            .iter()
+            .map(RuleDoc::from_info)
+            .collect()
+    }
+
+    /// One rule.
+    pub fn rule(&self, id: &str) -> Option<RuleDoc> {
+        self.rules().into_iter().find(|r| r.id == id)
+    }
+
+    /// Creates a user rule (checked and, for SPARQL, parsed now); it is saved for restarts.
+    pub fn create_rule(&self, doc: &RuleDoc) -> Result<RuleDoc, RuleChangeError> {
+        self.change_rules(&doc.id, |sem| {
+            sem.create_rule(doc.to_spec()?)?;
+            if !doc.enabled {
+                sem.set_rule_enabled(&doc.id, false)?;
+            }
+            Ok(())
+        })
+    }
+
+    /// Enables or disables a rule, built-in ones included.
+    pub fn set_rule_enabled(&self, id: &str, enabled: bool) -> Result<RuleDoc, RuleChangeError> {
+        self.change_rules(id, |sem| sem.set_rule_enabled(id, enabled))
+    }
+
+    /// Deletes a user rule (built-in rules can only be disabled).
+    pub fn delete_rule(&self, id: &str) -> Result<(), RuleChangeError> {
+        let _file = lock(&self.shared.rules_file);
+        let docs = {
+            let mut sem = lock(&self.shared.semantic);
+            sem.delete_rule(id)?;
+            sem.rules().iter().map(RuleDoc::from_info).collect()
+        };
+        info!(rule = id, "rule deleted");
+        self.save_rules(docs)
+    }
+
+    fn change_rules(
+        &self,
+        id: &str,
+        change: impl FnOnce(&mut SemanticStore) -> Result<(), shoal_semantic::RuleError>,
+    ) -> Result<RuleDoc, RuleChangeError> {
+        let _file = lock(&self.shared.rules_file);
+        let docs: Vec<RuleDoc> = {
+            let mut sem = lock(&self.shared.semantic);
+            change(&mut sem)?;
+            sem.rules().iter().map(RuleDoc::from_info).collect()
+        };
+        let doc = docs
+            .iter()
+            .find(|d| d.id == id)
+            .cloned()
+            .ok_or_else(|| shoal_semantic::RuleError::NotFound(id.to_owned()))?;
+        info!(rule = id, enabled = doc.enabled, condition = ?doc.condition, "rule changed");
+        self.save_rules(docs)?;
+        Ok(doc)
+    }
+
+    fn save_rules(&self, rules: Vec<RuleDoc>) -> Result<(), RuleChangeError> {
+        RulesFile { rules }
+            .save(&self.shared.config.rules_path)
+            .map_err(|e| {
+                warn!(error = %e, "rules not saved");
+                RuleChangeError::Save(e)
+            })
     }
 
     /// Validates a task, checks its vehicle is registered, stores and publishes it.

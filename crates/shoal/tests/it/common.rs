@@ -14,7 +14,7 @@ pub struct TestStation {
     pub shutdown: CancellationToken,
     pub task: tokio::task::JoinHandle<StationReport>,
     pub db: std::path::PathBuf,
-    _dir: tempfile::TempDir,
+    pub dir: tempfile::TempDir,
 }
 
 pub fn dds(domain_id: u16) -> Arc<PubSub> {
@@ -28,7 +28,11 @@ pub fn dds(domain_id: u16) -> Arc<PubSub> {
 }
 
 pub fn start_station(domain_id: u16) -> TestStation {
-    let dir = tempfile::tempdir().unwrap();
+    start_station_in(domain_id, tempfile::tempdir().unwrap())
+}
+
+/// Like [`start_station`], with the history and rules files in `dir` (to restart on them).
+pub fn start_station_in(domain_id: u16, dir: tempfile::TempDir) -> TestStation {
     let db = dir.path().join("history.db");
     let history = History::open(&HistoryConfig {
         path: db.clone(),
@@ -37,6 +41,7 @@ pub fn start_station(domain_id: u16) -> TestStation {
     .unwrap();
     let config = StationConfig {
         summary_interval_s: 0.0,
+        rules_path: dir.path().join("rules.json"),
         ..StationConfig::default()
     };
     let station = Station::new(config, dds(domain_id), history).unwrap();
@@ -49,7 +54,7 @@ pub fn start_station(domain_id: u16) -> TestStation {
         shutdown,
         task,
         db,
-        _dir: dir,
+        dir,
     }
 }
 

@@ -581,3 +581,115 @@ async fn implausible_state_is_rejected_by_reason_and_good_data_is_kept() {
     station.shutdown.cancel();
     station.task.await.unwrap();
 }
+
+/// Rules & Policies through the API: a threshold rule is created, fires on insert, is
+/// disabled (and stops firing), survives a restart of the station, and is deleted; bad
+/// rules and forbidden changes are explained with the right status.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rules_are_managed_through_the_api_and_survive_a_restart() {
+    use shoal_model::EventKind;
+    let station = start_station(68);
+    let h = station.handle.clone();
+    h.register_vehicle(shoal_model::VehicleAnnouncement {
+        vehicle_id: "auv-r".into(),
+        name: "rules".into(),
+        kind: VehicleKind::Auv,
+        vendor: "test".into(),
+        capabilities: vec![],
+        sensors: vec![],
+        links: vec![shoal_model::LinkKind::Ip],
+        max_speed_mps: 2.0,
+        timestamp_ms: now_ms(),
+    })
+    .unwrap();
+    let t0 = now_ms() - 30_000;
+    let at = |i: i64, depth: f64| StateVector {
+        vehicle_id: "auv-r".into(),
+        timestamp_ms: t0 + i * 1000,
+        latitude_deg: 63.0,
+        longitude_deg: 10.0,
+        depth_m: depth,
+        altitude_m: -1.0,
+        speed_mps: 0.5,
+        yaw_deg: 0.0,
+        pitch_deg: 0.0,
+        roll_deg: 0.0,
+        battery_pct: 80.0,
+    };
+    let router = shoal_console::router(h.clone());
+    let rule = r#"{"id":"deep","description":"deeper than 100 m","severity":"alarm",
+        "condition":{"type":"threshold","expr":"depth_m > 100"}}"#;
+    let (status, created) = call(&router, "POST", "/api/rules", rule).await;
+    assert_eq!(status, StatusCode::CREATED, "{created}");
+    assert_eq!(created["enabled"], true);
+    assert_eq!(created["condition"]["expr"], "depth_m > 100");
+
+    // Bad rules are explained; the station keeps running.
+    let (status, body) = call(&router, "POST", "/api/rules", rule).await;
+    assert_eq!(status, StatusCode::CONFLICT, "{body}");
+    let bad_expr = r#"{"id":"x1","condition":{"type":"threshold","expr":"depth_m ~ 3"}}"#;
+    let (status, body) = call(&router, "POST", "/api/rules", bad_expr).await;
+    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert!(body["error"].as_str().unwrap().contains("parse"), "{body}");
+    let bad_sparql = r#"{"id":"x2","condition":{"type":"sparql","query":"ASK { ?this shoal:x","watches":["shoal:batteryLevel"]}}"#;
+    let (status, body) = call(&router, "POST", "/api/rules", bad_sparql).await;
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
+    let unknown_field =
+        r#"{"id":"x3","colour":"red","condition":{"type":"threshold","expr":"depth_m > 3"}}"#;
+    let (status, body) = call(&router, "POST", "/api/rules", unknown_field).await;
+    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert!(body["error"].as_str().unwrap().contains("colour"), "{body}");
+
+    // Evaluated on insert.
+    h.ingest_state(at(0, 50.0)).unwrap();
+    h.ingest_state(at(1, 150.0)).unwrap();
+    let fired = |h: &shoal_station::StationHandle| {
+        h.recent_events()
+            .into_iter()
+            .filter(|e| e.kind == EventKind::Rule && e.vehicle_id == "auv-r")
+            .count()
+    };
+    assert_eq!(fired(&h), 1, "{:?}", h.recent_events());
+
+    // Disabled: no more firings.
+    let (status, patched) = call(&router, "PATCH", "/api/rules/deep", r#"{"enabled":false}"#).await;
+    assert_eq!(status, StatusCode::OK, "{patched}");
+    assert_eq!(patched["enabled"], false);
+    h.ingest_state(at(2, 50.0)).unwrap();
+    h.ingest_state(at(3, 150.0)).unwrap();
+    assert_eq!(fired(&h), 1);
+    let (status, body) = call(&router, "PATCH", "/api/rules/nope", r#"{"enabled":false}"#).await;
+    assert_eq!(status, StatusCode::NOT_FOUND, "{body}");
+
+    // Listed with the built-in rules; built-in ones cannot be deleted.
+    let (status, list) = call(&router, "GET", "/api/rules", "").await;
+    assert_eq!(status, StatusCode::OK);
+    let ids: Vec<&str> = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|r| r["id"].as_str())
+        .collect();
+    assert!(
+        ids.contains(&"deep") && ids.contains(&"builtin.low_battery"),
+        "{ids:?}"
+    );
+    let (status, _) = call(&router, "DELETE", "/api/rules/builtin.low_battery", "").await;
+    assert_eq!(status, StatusCode::CONFLICT);
+
+    // A restarted station has the rule, still disabled.
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+    let station = crate::common::start_station_in(68, station.dir);
+    let router = shoal_console::router(station.handle.clone());
+    let (status, rule) = call(&router, "GET", "/api/rules/deep", "").await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(rule["enabled"], false);
+    assert_eq!(rule["severity"], "alarm");
+    let (status, _) = call(&router, "DELETE", "/api/rules/deep", "").await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let (status, _) = call(&router, "GET", "/api/rules/deep", "").await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+}
