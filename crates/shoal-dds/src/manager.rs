@@ -355,6 +355,9 @@ impl<T: TopicType> Writer<T> {
 pub struct SampleMeta {
     /// GUID of the writer that sent it.
     pub writer: String,
+    /// GUID prefix of the writer's participant, comparable with [`PubSub::participant_id`]
+    /// (e.g. to recognise one's own samples coming back).
+    pub participant: String,
     /// The writer's source timestamp, ms since the Unix epoch, when it sent one.
     pub source_timestamp_ms: Option<i64>,
 }
@@ -488,6 +491,7 @@ fn convert<T: TopicType>(
     let info = sample.sample_info();
     let meta = SampleMeta {
         writer: format!("{:?}", info.writer_guid()),
+        participant: format!("{:?}", info.writer_guid().prefix),
         source_timestamp_ms: info.source_timestamp().map(timestamp_ms),
     };
     match sample.into_value() {

@@ -1,119 +1,99 @@
 //! Shoal's vehicle side: DDS Proxies that join a vehicle to the swarm.
 //!
-//! A DDS Proxy translates between a vehicle's own software and Shoal's topics. This crate
-//! holds the proxies Shoal ships; the first is the simulator:
+//! A DDS Proxy translates between a vehicle's own software and Shoal's topics. It is
+//! split in two, so that each new kind of vehicle only writes the part that differs:
 //!
-//! - [`sim::SimVehicle`] is a simulated AUV, USV, ROV or glider (kinematics, battery, task
-//!   execution) with no I/O, so it is tested without a network.
-//! - [`run_sim`] joins one simulated vehicle to DDS: it announces the vehicle, publishes
-//!   its state at the requested rate, executes the tasks addressed to it and reports their
-//!   status.
+//! - [`VehicleAdapter`] is what a proxy needs from one vehicle interface: its
+//!   announcement, its latest state, its reports (task progress, events, environment
+//!   observations) and the decision to accept or refuse a task. The simulator
+//!   ([`sim::SimAdapter`]) is the first adapter; MAVLink, IMC and ROS 2 adapters implement
+//!   the same trait.
+//! - [`run_proxy`] does all the DDS work once, for every adapter: it announces the vehicle
+//!   (and again periodically), publishes state at the reporting rate, takes the tasks
+//!   addressed to this vehicle (dropping duplicates and stale replays), reports their
+//!   status and publishes events and observations.
+//!
+//! [`run_sim`] is [`run_proxy`] with a simulated vehicle, as `shoal vehicle --sim` runs it.
+//! [`sim::SimVehicle`] is the simulation itself, with no I/O, so it is tested step by step.
 
+pub mod adapter;
+mod proxy;
 pub mod sim;
 
 use std::sync::Arc;
-use std::time::Duration;
 
-use futures::StreamExt;
-use shoal_dds::{CreateError, Priority, PubSub, WriterOptions};
-use shoal_model::{StateVector, TaskAssignment, TaskStatus, VehicleAnnouncement, now_ms};
+use shoal_dds::{CreateError, PubSub};
+use shoal_model::{TaskAssignment, Validate, now_ms};
 use tokio_util::sync::CancellationToken;
-use tracing::{info, warn};
+use tracing::info;
 
-use crate::sim::{Report, SimSpec, SimVehicle};
+pub use adapter::{
+    Acceptance, Refusal, TaskOrder, TaskUpdate, VehicleAdapter, VehicleEvent, VehicleOutput,
+};
+pub use proxy::{PROXY_CAPABILITIES, ProxyError, ProxyOptions};
 
-/// Fastest simulation step; state is published at the vehicle's own rate.
-const STEP: Duration = Duration::from_millis(100);
+use crate::proxy::DdsOutbox;
+use crate::sim::{SimAdapter, SimSettings, SimSpec};
 
-/// Runs one simulated vehicle on DDS until `shutdown` is cancelled.
+/// Runs a DDS Proxy for one vehicle until `shutdown` is cancelled.
+///
+/// - Announces the vehicle on joining and every `options.announce_interval` (an unchanged
+///   announcement is idempotent for the station), with the time of sending and with
+///   [`PROXY_CAPABILITIES`] added, since the proxy serves those tasks itself.
+/// - Publishes the adapter's state every `1 / state_rate_hz` seconds; a `request_state`
+///   task publishes one at once, a `set_reporting_rate` task changes the rate.
+/// - Takes the task assignments whose `vehicle_id` is this vehicle's; ignores the others,
+///   any task id it has already seen (transient-local replays) and tasks older than
+///   `options.max_task_age`. Accepted tasks are reported `accepted`; refused ones `failed`
+///   with the message `refused: <reason>`; later states come from the adapter.
+/// - Publishes the adapter's events (with unique ids; alarms on the emergency priority)
+///   and environment observations.
+pub async fn run_proxy<A: VehicleAdapter>(
+    adapter: A,
+    dds: Arc<PubSub>,
+    options: ProxyOptions,
+    shutdown: CancellationToken,
+) -> Result<(), ProxyError<A::Error>> {
+    let mut announcement = adapter.announcement();
+    announcement.timestamp_ms = now_ms();
+    announcement.validate().map_err(ProxyError::Announcement)?;
+    let id = announcement.vehicle_id;
+    let mut outbox = DdsOutbox::new(&dds, &id, &options)?;
+    let tasks = dds.subscribe::<TaskAssignment>()?;
+    info!(vehicle = %id, kind = %announcement.kind, vendor = %announcement.vendor, "vehicle joined");
+    let result = proxy::serve(adapter, &mut outbox, tasks, options, shutdown).await;
+    info!(vehicle = %id, "vehicle leaving");
+    result.map_err(ProxyError::Adapter)
+}
+
+/// Runs one simulated vehicle (default [`SimSettings`]) on DDS until `shutdown` is cancelled.
 pub async fn run_sim(
     spec: SimSpec,
     dds: Arc<PubSub>,
     shutdown: CancellationToken,
 ) -> Result<(), CreateError> {
-    let mut vehicle = SimVehicle::new(&spec, now_ms());
-    let id = spec.id.clone();
-    let announce = dds.writer::<VehicleAnnouncement>(WriterOptions::new(Priority::Control))?;
-    let mut state_opts = WriterOptions::new(Priority::Telemetry);
-    // Promise three reporting periods, so a reader asking for a deadline learns of silence.
-    state_opts.deadline = Some(Duration::from_secs_f64(3.0 / spec.rate_hz.max(0.01)));
-    let state = dds.writer::<StateVector>(state_opts)?;
-    let status = dds.writer::<TaskStatus>(WriterOptions::new(Priority::Control))?;
-    let mut tasks = dds.subscribe::<TaskAssignment>()?;
-
-    if let Err(e) = announce.write(vehicle.announcement.clone()).await {
-        warn!(vehicle = %id, error = %e, "announcement not sent");
-    }
-    info!(vehicle = %id, kind = %spec.kind, "simulated vehicle joined");
-
-    let mut step = tokio::time::interval(STEP);
-    step.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut since_report = Duration::MAX;
-    let mut seen_tasks = std::collections::HashSet::new();
-    loop {
-        tokio::select! {
-            () = shutdown.cancelled() => break,
-            item = tasks.next() => {
-                match item {
-                    None => break,
-                    Some(Ok((task, _))) if task.vehicle_id == id => {
-                        // Transient-local re-delivery after a reconnect must not restart a task.
-                        if !seen_tasks.insert(task.task_id.clone()) {
-                            continue;
-                        }
-                        let reports = match task.task() {
-                            Ok(t) => {
-                                info!(vehicle = %id, task = %task.task_id, kind = ?task.kind, "task received");
-                                vehicle.start(&task.task_id, &t)
-                            }
-                            Err(e) => vec![Report {
-                                task_id: task.task_id.clone(),
-                                state: shoal_model::TaskState::Failed,
-                                progress_pct: 0.0,
-                                message: format!("invalid task: {e}"),
-                            }],
-                        };
-                        send_reports(&status, &id, reports).await;
-                    }
-                    Some(Ok(_)) => {}
-                    Some(Err(e)) => warn!(vehicle = %id, error = %e, "bad task sample ignored"),
-                }
-            }
-            _ = step.tick() => {
-                let reports = vehicle.step(STEP.as_secs_f64());
-                send_reports(&status, &id, reports).await;
-                since_report = since_report.saturating_add(STEP);
-                let period = Duration::from_secs_f64(1.0 / vehicle.rate_hz.max(0.01));
-                if since_report >= period || vehicle.state_requested {
-                    since_report = Duration::ZERO;
-                    vehicle.state_requested = false;
-                    if let Err(e) = state.write(vehicle.state(now_ms())).await {
-                        warn!(vehicle = %id, error = %e, "state vector not sent");
-                    }
-                }
-            }
-        }
-    }
-    info!(vehicle = %id, "simulated vehicle leaving");
-    Ok(())
+    run_sim_with(spec, SimSettings::default(), dds, shutdown).await
 }
 
-async fn send_reports(
-    writer: &shoal_dds::Writer<TaskStatus>,
-    vehicle_id: &str,
-    reports: Vec<Report>,
-) {
-    for r in reports {
-        let s = TaskStatus {
-            task_id: r.task_id,
-            vehicle_id: vehicle_id.to_string(),
-            timestamp_ms: now_ms(),
-            state: r.state,
-            progress_pct: r.progress_pct.clamp(0.0, 100.0),
-            message: r.message,
-        };
-        if let Err(e) = writer.write(s).await {
-            warn!(vehicle = vehicle_id, error = %e, "task status not sent");
-        }
+/// Runs one simulated vehicle with the given settings on DDS until `shutdown` is cancelled.
+pub async fn run_sim_with(
+    spec: SimSpec,
+    settings: SimSettings,
+    dds: Arc<PubSub>,
+    shutdown: CancellationToken,
+) -> Result<(), CreateError> {
+    let options = ProxyOptions {
+        state_rate_hz: spec.rate_hz,
+        ..ProxyOptions::default()
+    };
+    let adapter = SimAdapter::new(&spec, &settings);
+    match run_proxy(adapter, dds, options, shutdown).await {
+        Ok(()) => Ok(()),
+        Err(ProxyError::Dds(e)) => Err(e),
+        Err(ProxyError::Announcement(e)) => Err(CreateError::Config(format!(
+            "simulated vehicle {:?} cannot be announced: {e}",
+            spec.id
+        ))),
+        Err(ProxyError::Adapter(never)) => match never {},
     }
 }

@@ -119,6 +119,8 @@ struct Shared {
     rejection_alerts: Mutex<HashMap<(String, String), i64>>,
     event_seq: AtomicU64,
     started_ms: i64,
+    /// This station's DDS participant, to recognise its own events coming back.
+    participant: String,
 }
 
 /// Locks a mutex, recovering the data if a panicking thread poisoned it: the station's
@@ -217,6 +219,7 @@ impl Station {
             rejection_alerts: Mutex::new(HashMap::new()),
             event_seq: AtomicU64::new(0),
             started_ms: now_ms(),
+            participant: dds.participant_id(),
             config,
         });
         Ok(Self {
@@ -611,9 +614,10 @@ impl StationHandle {
         self.store(Record::TaskStatus(s));
     }
 
-    fn on_event(&self, e: Event, _meta: &SampleMeta) {
-        // The station hears its own events too (same topic); they are already recorded.
-        if e.event_id.starts_with("station-") {
+    fn on_event(&self, e: Event, meta: &SampleMeta) {
+        // The station hears its own events (its alarms, rule firings) too, on the same
+        // topic; they are already recorded.
+        if meta.participant == self.shared.participant {
             return;
         }
         if !self.timely(Event::TOPIC, &e.vehicle_id, e.timestamp_ms, || payload(&e)) {
@@ -846,6 +850,11 @@ impl StationHandle {
     /// Records committed to the history store so far (acknowledged data).
     pub fn history_committed(&self) -> u64 {
         self.shared.history.committed()
+    }
+
+    /// Waits until everything submitted to the history store so far is committed.
+    pub fn flush_history(&self, timeout: Duration) -> Result<(), shoal_history::WaitError> {
+        self.shared.history.flush(timeout)
     }
 
     /// Read access to the history store.
