@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Runs every Shoal test on a fresh Debian 12 machine (as root), from the repository root:
 #   1. installs what the tests need (apt packages, the Python venv with the foreign DDS
-#      peers, the Fast DDS C++ peer, cargo-fuzz),
+#      peers, the Fast DDS C++ peer, cargo-fuzz) and starts a private PostgreSQL inside
+#      the namespace (the history tests run against SQLite and PostgreSQL),
 #   2. checks formatting and clippy, builds every test binary OUTSIDE the namespace,
 #   3. runs the foreign-peer matrix and every Rust test INSIDE a private network
 #      namespace (loopback only, multicast routed to lo), so no DDS discovery traffic
@@ -15,6 +16,11 @@ step() { printf '\n==> %s\n' "$*"; }
 
 step "installing test dependencies"
 scripts/install-test-deps.sh
+
+step "PostgreSQL inside network namespace $NS (the history store's second backend)"
+scripts/netns-run.sh --setup "$NS"
+pg_url="$(scripts/postgres.sh start --netns "$NS")"
+echo "PostgreSQL: $pg_url"
 
 step "formatting and lints"
 cargo fmt --all --check
@@ -31,8 +37,9 @@ tests/interop/peer_matrix.sh
 
 step "Rust tests inside network namespace $NS (interop peers required)"
 results="$(mktemp)"
-trap 'rm -f "$results"' EXIT
-SHOAL_INTEROP_REQUIRED=1 scripts/netns-run.sh "$NS" -- cargo test --workspace --locked 2>&1 | tee "$results"
+trap 'rm -f "$results"; scripts/postgres.sh stop >/dev/null 2>&1 || true' EXIT
+SHOAL_INTEROP_REQUIRED=1 SHOAL_TEST_POSTGRES_URL="$pg_url" SHOAL_TEST_POSTGRES_REQUIRED=1 \
+    scripts/netns-run.sh "$NS" -- cargo test --workspace --locked 2>&1 | tee "$results"
 passed=$(grep -Eo 'test result: ok\. [0-9]+ passed' "$results" | awk '{s += $4} END {print s + 0}')
 
 if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then

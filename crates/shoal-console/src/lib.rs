@@ -24,9 +24,13 @@ use axum::routing::get;
 use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
 use shoal_model::TaskAssignment;
-use shoal_station::{DispatchError, RuleChangeError, RuleDoc, StationHandle};
+use shoal_station::{
+    DispatchError, EnvSubscriptionSpec, MissionSpec, RuleChangeError, RuleDoc, StationHandle,
+};
 use tokio_util::sync::CancellationToken;
 use tracing::{error, info};
+
+mod live;
 
 /// The `[console]` section of Shoal's configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -89,6 +93,8 @@ impl IntoResponse for ApiError {
 
 /// Builds the API router over a running station.
 pub fn router(station: StationHandle) -> Router {
+    // Every request body is small JSON; anything beyond this is refused before parsing.
+    const MAX_BODY: usize = 1 << 20;
     Router::new()
         .route("/", get(index))
         .route("/api/health", get(health))
@@ -98,6 +104,30 @@ pub fn router(station: StationHandle) -> Router {
         .route("/api/stats", get(stats))
         .route("/api/events", get(events))
         .route("/api/tasks", get(tasks).post(dispatch))
+        .route("/api/tasks/{id}", get(task))
+        .route("/api/vehicles", get(fleet).post(register_vehicle))
+        .route("/api/missions", get(missions).post(plan_mission))
+        .route("/api/missions/{id}", get(mission))
+        .route(
+            "/api/missions/{id}/start",
+            axum::routing::post(start_mission),
+        )
+        .route(
+            "/api/missions/{id}/abort",
+            axum::routing::post(abort_mission),
+        )
+        .route("/api/abort-all", axum::routing::post(abort_all))
+        .route("/api/events/{id}/ack", axum::routing::post(ack_event))
+        .route(
+            "/api/environment/subscriptions",
+            get(env_subscriptions).post(env_subscribe),
+        )
+        .route(
+            "/api/environment/subscriptions/{id}",
+            get(env_observations).delete(env_unsubscribe),
+        )
+        .route("/api/ws", get(live::ws))
+        .route("/api/openapi.json", get(openapi))
         .route("/api/rejected", get(rejected))
         .route("/api/rules", get(rules).post(create_rule))
         .route(
@@ -105,6 +135,7 @@ pub fn router(station: StationHandle) -> Router {
             get(rule).patch(patch_rule).delete(delete_rule),
         )
         .route("/api/sparql", get(sparql_get).post(sparql_post))
+        .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY))
         .with_state(station)
 }
 
@@ -202,7 +233,7 @@ async fn stats(State(s): State<StationHandle>) -> Json<Stats> {
 }
 
 async fn events(State(s): State<StationHandle>) -> impl IntoResponse {
-    Json(s.recent_events())
+    Json(s.event_views())
 }
 
 async fn tasks(State(s): State<StationHandle>) -> impl IntoResponse {
@@ -215,17 +246,11 @@ async fn dispatch(
 ) -> Result<impl IntoResponse, ApiError> {
     let Json(task) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let id = task.task_id.clone();
-    match s.dispatch(task).await {
-        Ok(()) => Ok((
-            StatusCode::ACCEPTED,
-            Json(serde_json::json!({ "task_id": id, "state": "sent" })),
-        )),
-        Err(DispatchError::Invalid(e)) => Err(ApiError::BadRequest(format!("invalid task: {e}"))),
-        Err(DispatchError::UnknownVehicle(v)) => {
-            Err(ApiError::NotFound(format!("no vehicle {v:?}")))
-        }
-        Err(e) => Err(ApiError::Internal(e.to_string())),
-    }
+    s.dispatch(task).await?;
+    Ok((
+        StatusCode::ACCEPTED,
+        Json(serde_json::json!({ "task_id": id, "state": "sent" })),
+    ))
 }
 
 #[derive(Debug, Deserialize)]
@@ -437,4 +462,226 @@ async fn delete_rule(
 ) -> Result<StatusCode, ApiError> {
     s.delete_rule(&id)?;
     Ok(StatusCode::NO_CONTENT)
+}
+
+impl From<DispatchError> for ApiError {
+    fn from(e: DispatchError) -> Self {
+        match e {
+            DispatchError::UnknownVehicle(_) | DispatchError::UnknownMission(_) => {
+                Self::NotFound(e.to_string())
+            }
+            DispatchError::VehicleLost(_)
+            | DispatchError::Incapable { .. }
+            | DispatchError::LowBattery { .. } => Self::Conflict(e.to_string()),
+            DispatchError::Dds(_) => Self::Internal(e.to_string()),
+            DispatchError::InMission { ref error, .. }
+                if matches!(
+                    **error,
+                    DispatchError::UnknownVehicle(_)
+                        | DispatchError::VehicleLost(_)
+                        | DispatchError::Incapable { .. }
+                        | DispatchError::LowBattery { .. }
+                ) =>
+            {
+                Self::Conflict(e.to_string())
+            }
+            _ => Self::BadRequest(e.to_string()),
+        }
+    }
+}
+
+async fn task(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+) -> Result<impl IntoResponse, ApiError> {
+    s.task(&id)
+        .map(Json)
+        .ok_or_else(|| ApiError::NotFound(format!("no task {id:?}")))
+}
+
+async fn register_vehicle(
+    State(s): State<StationHandle>,
+    body: Result<Json<shoal_model::VehicleAnnouncement>, JsonRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Json(a) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    let id = a.vehicle_id.clone();
+    s.register_vehicle(a)
+        .map_err(|e| ApiError::BadRequest(format!("invalid vehicle: {e}")))?;
+    s.vehicle(&id)
+        .map(|v| (StatusCode::CREATED, Json(v)))
+        .ok_or_else(|| ApiError::Internal("registered vehicle not found".into()))
+}
+
+async fn missions(State(s): State<StationHandle>) -> impl IntoResponse {
+    Json(s.missions())
+}
+
+async fn mission(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+) -> Result<impl IntoResponse, ApiError> {
+    s.mission(&id)
+        .map(Json)
+        .ok_or_else(|| ApiError::NotFound(format!("no mission {id:?}")))
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PlanQuery {
+    /// Start the mission at once.
+    #[serde(default)]
+    start: bool,
+}
+
+async fn plan_mission(
+    State(s): State<StationHandle>,
+    q: Result<Query<PlanQuery>, axum::extract::rejection::QueryRejection>,
+    body: Result<Json<MissionSpec>, JsonRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Query(q) = q.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    let Json(spec) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    let mut view = s.plan_mission(spec)?;
+    if q.start {
+        view = s.start_mission(&view.mission_id)?;
+    }
+    Ok((StatusCode::CREATED, Json(view)))
+}
+
+async fn start_mission(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+) -> Result<impl IntoResponse, ApiError> {
+    Ok(Json(s.start_mission(&id)?))
+}
+
+async fn abort_mission(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+) -> Result<impl IntoResponse, ApiError> {
+    Ok(Json(s.abort_mission(&id)?))
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Confirm {
+    confirm: bool,
+}
+
+async fn abort_all(
+    State(s): State<StationHandle>,
+    body: Result<Json<Confirm>, JsonRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Json(c) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    if !c.confirm {
+        return Err(ApiError::BadRequest(
+            "confirm: send {\"confirm\": true} to abort every vehicle".into(),
+        ));
+    }
+    let vehicles = s.abort_all();
+    Ok(Json(serde_json::json!({ "aborted_vehicles": vehicles })))
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AckBody {
+    /// Operator name (until the console has logins).
+    #[serde(default)]
+    by: Option<String>,
+}
+
+async fn ack_event(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+    body: Option<Json<AckBody>>,
+) -> Result<impl IntoResponse, ApiError> {
+    let by = body
+        .and_then(|Json(b)| b.by)
+        .filter(|b| !b.trim().is_empty())
+        .unwrap_or_else(|| "operator".into());
+    s.acknowledge(&id, &by)
+        .map(Json)
+        .ok_or_else(|| ApiError::NotFound(format!("no recent event {id:?}")))
+}
+
+async fn env_subscriptions(State(s): State<StationHandle>) -> impl IntoResponse {
+    Json(s.environment_subscriptions())
+}
+
+async fn env_subscribe(
+    State(s): State<StationHandle>,
+    body: Result<Json<EnvSubscriptionSpec>, JsonRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Json(spec) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    let sub = s
+        .subscribe_environment(spec)
+        .map_err(ApiError::BadRequest)?;
+    Ok((StatusCode::CREATED, Json(sub)))
+}
+
+async fn env_observations(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+) -> Result<impl IntoResponse, ApiError> {
+    s.environment_observations(&id)
+        .map(Json)
+        .ok_or_else(|| ApiError::NotFound(format!("no subscription {id:?}")))
+}
+
+async fn env_unsubscribe(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    if s.unsubscribe_environment(&id) {
+        Ok(StatusCode::NO_CONTENT)
+    } else {
+        Err(ApiError::NotFound(format!("no subscription {id:?}")))
+    }
+}
+
+/// The OpenAPI 3.1 description of this API.
+pub const OPENAPI: &str = include_str!("openapi.json");
+
+async fn openapi() -> impl IntoResponse {
+    (
+        [(axum::http::header::CONTENT_TYPE, "application/json")],
+        OPENAPI,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every route the router serves is in the OpenAPI document, and nothing else: the
+    /// document is written by hand, so this keeps it honest.
+    #[test]
+    fn the_openapi_document_lists_exactly_the_served_paths() {
+        let doc: serde_json::Value = serde_json::from_str(OPENAPI).unwrap();
+        assert_eq!(doc["openapi"], "3.1.0");
+        let mut documented: Vec<&str> = doc["paths"]
+            .as_object()
+            .unwrap()
+            .keys()
+            .map(String::as_str)
+            .collect();
+        documented.sort_unstable();
+        let source = include_str!("lib.rs");
+        let mut served: Vec<&str> = source
+            .lines()
+            .filter_map(|l| l.trim().strip_prefix(".route(\""))
+            .chain(
+                // Routes split over lines by rustfmt: the path is on the next line.
+                source
+                    .lines()
+                    .map(str::trim)
+                    .filter(|l| l.starts_with("\"/api/") && l.ends_with("\","))
+                    .map(|l| &l[1..]),
+            )
+            .filter_map(|l| l.split('"').next())
+            .filter(|p| p.starts_with("/api/"))
+            .collect();
+        served.sort_unstable();
+        served.dedup();
+        assert_eq!(served, documented);
+    }
 }

@@ -23,10 +23,29 @@ pub enum HistoryError {
     /// SQLite reported an error (opening, schema, query, or decoding a stored row).
     #[error("history database error: {0}")]
     Sqlite(#[from] rusqlite::Error),
+    /// PostgreSQL (or the connection to it) reported an error.
+    #[error("history database error (PostgreSQL): {}", pg_text(.0))]
+    Postgres(#[from] tokio_postgres::Error),
+    /// A stored JSON or enum-name column holds text this build cannot decode.
+    #[error("cannot decode stored column {column}: {source}")]
+    Decode {
+        /// Zero-based column index in the query.
+        column: usize,
+        /// The decoding error.
+        #[source]
+        source: serde_json::Error,
+    },
+    /// The private runtime that drives the PostgreSQL connections could not be built.
+    #[error("cannot start the PostgreSQL client runtime: {0}")]
+    Runtime(#[source] std::io::Error),
+    /// The thread that runs PostgreSQL queries for the reader is gone (a bug).
+    #[error("the history query thread stopped")]
+    ReaderStopped,
     /// The database was written by a newer Shoal with a schema this build does not know.
     #[error("the history database has schema version {found}; this build knows up to {supported}")]
     SchemaTooNew {
-        /// `PRAGMA user_version` found in the file.
+        /// `PRAGMA user_version` found in the file (SQLite) or the version in
+        /// `shoal_schema_version` (PostgreSQL).
         found: i64,
         /// The newest version this build can use.
         supported: i64,
@@ -44,6 +63,23 @@ pub enum HistoryError {
         /// How many records were given up.
         records: u64,
     },
+}
+
+/// A PostgreSQL error with what the server said: `tokio_postgres::Error`'s own `Display` is
+/// only the kind ("db error"), which would leave logs and quarantine reasons without the
+/// actual message, constraint and SQLSTATE.
+pub(crate) fn pg_text(e: &tokio_postgres::Error) -> String {
+    if let Some(db) = e.as_db_error() {
+        return format!("{db} (SQLSTATE {})", db.code().code());
+    }
+    let mut text = e.to_string();
+    let mut source = std::error::Error::source(e);
+    while let Some(s) = source {
+        text.push_str(": ");
+        text.push_str(&s.to_string());
+        source = s.source();
+    }
+    text
 }
 
 /// Why a record was not queued; the record is handed back so the caller can retry,

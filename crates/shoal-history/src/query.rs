@@ -1,14 +1,20 @@
-//! Reading the history back, on a read-only connection of its own.
+//! Reading the history back, on a connection of its own: SQLite's read-only connection, or
+//! PostgreSQL's query thread.
+//!
+//! Each query is written once, in SQL both databases accept, with SQLite's `?N`
+//! placeholders; rows are decoded by one function per type through [`Fields`], which both
+//! backends' rows implement.
 
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, PoisonError};
 
-use rusqlite::types::Type;
-use rusqlite::{Connection, OptionalExtension, Row, params};
+use rusqlite::Connection;
+use rusqlite::types::ToSqlOutput;
 use serde::de::DeserializeOwned;
 use shoal_model::{
     EnvironmentObservation, Event, StateVector, TaskAssignment, TaskStatus, VehicleAnnouncement,
 };
 
+use crate::pg::reader::PgReader;
 use crate::{HistoryError, RejectedRecord, TaskHistory};
 
 const STATE_COLUMNS: &str = "vehicle_id, timestamp_ms, latitude_deg, longitude_deg, depth_m, \
@@ -16,140 +22,263 @@ const STATE_COLUMNS: &str = "vehicle_id, timestamp_ms, latitude_deg, longitude_d
 
 /// Queries on the history; cheap to clone and usable from any thread.
 ///
-/// One read-only connection behind a mutex: queries are occasional (console, warm-up after a
-/// restart) and short, so they take turns. In WAL mode they never block the writer, and
-/// they see only committed data.
+/// One read connection, taking turns: queries are occasional (console, warm-up after a
+/// restart) and short. On SQLite it is a read-only connection behind a mutex, which in WAL
+/// mode never blocks the writer; on PostgreSQL it is a connection owned by a query thread.
+/// Either way queries see only committed data.
 #[derive(Debug, Clone)]
 pub struct HistoryReader {
-    conn: Arc<Mutex<Connection>>,
+    conn: Arc<ReadConn>,
 }
 
-/// A `usize` limit as SQLite's integer; anything beyond `i64::MAX` means "no limit" anyway.
-fn sql_limit(limit: usize) -> i64 {
-    i64::try_from(limit).unwrap_or(i64::MAX)
+/// The reader's connection, by backend.
+#[derive(Debug)]
+enum ReadConn {
+    Sqlite(Mutex<Connection>),
+    Postgres(PgReader),
+}
+
+/// A query parameter; owned, so that it can travel to PostgreSQL's query thread.
+#[derive(Debug, Clone)]
+pub(crate) enum Param {
+    /// A text value.
+    Text(String),
+    /// An integer value (`INTEGER` / `BIGINT`).
+    Int(i64),
+}
+
+impl Param {
+    /// The value as a PostgreSQL parameter.
+    pub(crate) fn as_pg(&self) -> &(dyn tokio_postgres::types::ToSql + Sync) {
+        match self {
+            Self::Text(s) => s,
+            Self::Int(i) => i,
+        }
+    }
+}
+
+impl From<&str> for Param {
+    fn from(s: &str) -> Self {
+        Self::Text(s.to_owned())
+    }
+}
+
+impl From<i64> for Param {
+    fn from(i: i64) -> Self {
+        Self::Int(i)
+    }
+}
+
+impl rusqlite::ToSql for Param {
+    fn to_sql(&self) -> rusqlite::Result<ToSqlOutput<'_>> {
+        match self {
+            Self::Text(s) => s.to_sql(),
+            Self::Int(i) => i.to_sql(),
+        }
+    }
+}
+
+/// The columns of a result row, whichever backend it came from.
+pub(crate) trait Fields {
+    /// A text column.
+    fn text(&self, idx: usize) -> Result<String, HistoryError>;
+    /// An integer column.
+    fn int(&self, idx: usize) -> Result<i64, HistoryError>;
+    /// A floating-point column.
+    fn real(&self, idx: usize) -> Result<f64, HistoryError>;
+}
+
+impl Fields for rusqlite::Row<'_> {
+    fn text(&self, idx: usize) -> Result<String, HistoryError> {
+        Ok(self.get(idx)?)
+    }
+    fn int(&self, idx: usize) -> Result<i64, HistoryError> {
+        Ok(self.get(idx)?)
+    }
+    fn real(&self, idx: usize) -> Result<f64, HistoryError> {
+        Ok(self.get(idx)?)
+    }
+}
+
+impl Fields for tokio_postgres::Row {
+    fn text(&self, idx: usize) -> Result<String, HistoryError> {
+        Ok(self.try_get(idx)?)
+    }
+    fn int(&self, idx: usize) -> Result<i64, HistoryError> {
+        Ok(self.try_get(idx)?)
+    }
+    fn real(&self, idx: usize) -> Result<f64, HistoryError> {
+        Ok(self.try_get(idx)?)
+    }
+}
+
+/// Decodes one row into a value.
+type Decode<T> = fn(&dyn Fields) -> Result<T, HistoryError>;
+
+/// A `usize` limit as SQL's integer; anything beyond `i64::MAX` means "no limit" anyway.
+fn sql_limit(limit: usize) -> Param {
+    Param::Int(i64::try_from(limit).unwrap_or(i64::MAX))
 }
 
 /// Decodes a text column holding a serde enum name or a JSON document.
 fn json_column<T: DeserializeOwned>(
-    row: &Row<'_>,
+    row: &dyn Fields,
     idx: usize,
     is_name: bool,
-) -> rusqlite::Result<T> {
-    let text: String = row.get(idx)?;
+) -> Result<T, HistoryError> {
+    let text = row.text(idx)?;
     let decoded = if is_name {
         serde_json::from_value(serde_json::Value::String(text))
     } else {
         serde_json::from_str(&text)
     };
-    decoded.map_err(|e| rusqlite::Error::FromSqlConversionFailure(idx, Type::Text, Box::new(e)))
-}
-
-fn state_row(r: &Row<'_>) -> rusqlite::Result<StateVector> {
-    Ok(StateVector {
-        vehicle_id: r.get(0)?,
-        timestamp_ms: r.get(1)?,
-        latitude_deg: r.get(2)?,
-        longitude_deg: r.get(3)?,
-        depth_m: r.get(4)?,
-        altitude_m: r.get(5)?,
-        speed_mps: r.get(6)?,
-        yaw_deg: r.get(7)?,
-        pitch_deg: r.get(8)?,
-        roll_deg: r.get(9)?,
-        battery_pct: r.get(10)?,
+    decoded.map_err(|source| HistoryError::Decode {
+        column: idx,
+        source,
     })
 }
 
-fn vehicle_row(r: &Row<'_>) -> rusqlite::Result<VehicleAnnouncement> {
+fn state_row(r: &dyn Fields) -> Result<StateVector, HistoryError> {
+    Ok(StateVector {
+        vehicle_id: r.text(0)?,
+        timestamp_ms: r.int(1)?,
+        latitude_deg: r.real(2)?,
+        longitude_deg: r.real(3)?,
+        depth_m: r.real(4)?,
+        altitude_m: r.real(5)?,
+        speed_mps: r.real(6)?,
+        yaw_deg: r.real(7)?,
+        pitch_deg: r.real(8)?,
+        roll_deg: r.real(9)?,
+        battery_pct: r.real(10)?,
+    })
+}
+
+fn vehicle_row(r: &dyn Fields) -> Result<VehicleAnnouncement, HistoryError> {
     Ok(VehicleAnnouncement {
-        vehicle_id: r.get(0)?,
-        name: r.get(1)?,
+        vehicle_id: r.text(0)?,
+        name: r.text(1)?,
         kind: json_column(r, 2, true)?,
-        vendor: r.get(3)?,
+        vendor: r.text(3)?,
         capabilities: json_column(r, 4, false)?,
         sensors: json_column(r, 5, false)?,
         links: json_column(r, 6, false)?,
-        max_speed_mps: r.get(7)?,
-        timestamp_ms: r.get(8)?,
+        max_speed_mps: r.real(7)?,
+        timestamp_ms: r.int(8)?,
     })
 }
 
-fn task_row(r: &Row<'_>) -> rusqlite::Result<TaskAssignment> {
+fn task_row(r: &dyn Fields) -> Result<TaskAssignment, HistoryError> {
     Ok(TaskAssignment {
-        task_id: r.get(0)?,
-        mission_id: r.get(1)?,
-        vehicle_id: r.get(2)?,
-        issued_ms: r.get(3)?,
+        task_id: r.text(0)?,
+        mission_id: r.text(1)?,
+        vehicle_id: r.text(2)?,
+        issued_ms: r.int(3)?,
         kind: json_column(r, 4, true)?,
         area: json_column(r, 5, false)?,
-        depth_m: r.get(6)?,
-        altitude_m: r.get(7)?,
-        speed_mps: r.get(8)?,
-        line_spacing_m: r.get(9)?,
-        duration_s: r.get(10)?,
-        rate_hz: r.get(11)?,
+        depth_m: r.real(6)?,
+        altitude_m: r.real(7)?,
+        speed_mps: r.real(8)?,
+        line_spacing_m: r.real(9)?,
+        duration_s: r.real(10)?,
+        rate_hz: r.real(11)?,
     })
 }
 
-fn task_status_row(r: &Row<'_>) -> rusqlite::Result<TaskStatus> {
+fn task_status_row(r: &dyn Fields) -> Result<TaskStatus, HistoryError> {
     Ok(TaskStatus {
-        task_id: r.get(0)?,
-        timestamp_ms: r.get(1)?,
+        task_id: r.text(0)?,
+        timestamp_ms: r.int(1)?,
         state: json_column(r, 2, true)?,
-        progress_pct: r.get(3)?,
-        message: r.get(4)?,
-        vehicle_id: r.get(5)?,
+        progress_pct: r.real(3)?,
+        message: r.text(4)?,
+        vehicle_id: r.text(5)?,
     })
 }
 
-fn event_row(r: &Row<'_>) -> rusqlite::Result<Event> {
+fn event_row(r: &dyn Fields) -> Result<Event, HistoryError> {
     Ok(Event {
-        event_id: r.get(0)?,
-        timestamp_ms: r.get(1)?,
+        event_id: r.text(0)?,
+        timestamp_ms: r.int(1)?,
         severity: json_column(r, 2, true)?,
         kind: json_column(r, 3, true)?,
-        vehicle_id: r.get(4)?,
-        task_id: r.get(5)?,
-        text: r.get(6)?,
+        vehicle_id: r.text(4)?,
+        task_id: r.text(5)?,
+        text: r.text(6)?,
     })
 }
 
-fn observation_row(r: &Row<'_>) -> rusqlite::Result<EnvironmentObservation> {
+fn observation_row(r: &dyn Fields) -> Result<EnvironmentObservation, HistoryError> {
     Ok(EnvironmentObservation {
-        vehicle_id: r.get(0)?,
-        property: r.get(1)?,
-        timestamp_ms: r.get(2)?,
-        value: r.get(3)?,
-        unit: r.get(4)?,
-        latitude_deg: r.get(5)?,
-        longitude_deg: r.get(6)?,
-        depth_m: r.get(7)?,
+        vehicle_id: r.text(0)?,
+        property: r.text(1)?,
+        timestamp_ms: r.int(2)?,
+        value: r.real(3)?,
+        unit: r.text(4)?,
+        latitude_deg: r.real(5)?,
+        longitude_deg: r.real(6)?,
+        depth_m: r.real(7)?,
     })
+}
+
+fn rejected_row(r: &dyn Fields) -> Result<RejectedRecord, HistoryError> {
+    Ok(RejectedRecord {
+        id: r.int(0)?,
+        received_ms: r.int(1)?,
+        topic: r.text(2)?,
+        reason: r.text(3)?,
+        payload_json: r.text(4)?,
+    })
+}
+
+fn count_row(r: &dyn Fields) -> Result<i64, HistoryError> {
+    r.int(0)
 }
 
 impl HistoryReader {
-    pub(crate) fn new(conn: Connection) -> Self {
+    pub(crate) fn sqlite(conn: Connection) -> Self {
         Self {
-            conn: Arc::new(Mutex::new(conn)),
+            conn: Arc::new(ReadConn::Sqlite(Mutex::new(conn))),
         }
     }
 
-    fn conn(&self) -> MutexGuard<'_, Connection> {
-        // A panic in another query leaves the connection usable: statements are scoped.
-        self.conn.lock().unwrap_or_else(PoisonError::into_inner)
+    pub(crate) fn postgres(reader: PgReader) -> Self {
+        Self {
+            conn: Arc::new(ReadConn::Postgres(reader)),
+        }
     }
 
-    /// Runs `sql` with `params` and collects the rows decoded by `row`.
-    fn collect<T, P: rusqlite::Params>(
+    /// Runs `sql` with `params` and collects the rows decoded by `decode`.
+    fn collect<T: Send + 'static>(
         &self,
         sql: &str,
-        params: P,
-        row: fn(&Row<'_>) -> rusqlite::Result<T>,
+        params: Vec<Param>,
+        decode: Decode<T>,
     ) -> Result<Vec<T>, HistoryError> {
-        let conn = self.conn();
-        let mut stmt = conn.prepare_cached(sql)?;
-        let rows = stmt.query_map(params, row)?;
-        Ok(rows.collect::<Result<Vec<_>, _>>()?)
+        match &*self.conn {
+            ReadConn::Sqlite(conn) => {
+                // A panic in another query leaves the connection usable: statements are
+                // scoped.
+                let conn = conn.lock().unwrap_or_else(PoisonError::into_inner);
+                let mut stmt = conn.prepare_cached(sql)?;
+                let mut rows = stmt.query(rusqlite::params_from_iter(params.iter()))?;
+                let mut out = Vec::new();
+                while let Some(row) = rows.next()? {
+                    out.push(decode(row)?);
+                }
+                Ok(out)
+            }
+            ReadConn::Postgres(reader) => {
+                let sql = sql.to_owned();
+                reader.call(move |session| {
+                    session
+                        .query(&sql, &params)?
+                        .iter()
+                        .map(|row| decode(row))
+                        .collect()
+                })
+            }
+        }
     }
 
     /// A vehicle's state vectors with `from_ms <= timestamp_ms <= to_ms`, oldest first, at
@@ -168,22 +297,27 @@ impl HistoryReader {
         );
         self.collect(
             &sql,
-            params![vehicle_id, from_ms, to_ms, sql_limit(limit)],
+            vec![
+                vehicle_id.into(),
+                from_ms.into(),
+                to_ms.into(),
+                sql_limit(limit),
+            ],
             state_row,
         )
     }
 
     /// How many state vectors are stored, for one vehicle or for all.
     pub fn count_states(&self, vehicle_id: Option<&str>) -> Result<u64, HistoryError> {
-        let conn = self.conn();
-        let n: i64 = match vehicle_id {
-            Some(v) => conn.query_row(
+        let counts = match vehicle_id {
+            Some(v) => self.collect(
                 "SELECT count(*) FROM state_vector WHERE vehicle_id = ?1",
-                [v],
-                |r| r.get(0),
+                vec![v.into()],
+                count_row,
             )?,
-            None => conn.query_row("SELECT count(*) FROM state_vector", [], |r| r.get(0))?,
+            None => self.collect("SELECT count(*) FROM state_vector", vec![], count_row)?,
         };
+        let n = counts.first().copied().unwrap_or(0);
         Ok(u64::try_from(n).unwrap_or(0))
     }
 
@@ -193,6 +327,7 @@ impl HistoryReader {
         // A `GROUP BY vehicle_id` would scan the whole table. The recursive CTE instead hops
         // from one vehicle id to the next through the primary key, and takes each vehicle's
         // newest row with one more lookup: O(vehicles × log rows), whatever the history size.
+        // (Both databases plan it that way: it is PostgreSQL's "loose index scan" idiom.)
         let sql = format!(
             "WITH RECURSIVE v(id) AS ( \
                  SELECT min(vehicle_id) FROM state_vector \
@@ -204,7 +339,7 @@ impl HistoryReader {
                  SELECT max(timestamp_ms) FROM state_vector WHERE vehicle_id = v.id) \
              ORDER BY s.vehicle_id"
         );
-        self.collect(&sql, [], state_row)
+        self.collect(&sql, vec![], state_row)
     }
 
     /// Every vehicle ever announced, with the fields of its newest announcement, by id.
@@ -212,7 +347,7 @@ impl HistoryReader {
         self.collect(
             "SELECT vehicle_id, name, kind, vendor, capabilities, sensors, links, \
              max_speed_mps, last_seen_ms FROM vehicle ORDER BY vehicle_id",
-            [],
+            vec![],
             vehicle_row,
         )
     }
@@ -222,7 +357,7 @@ impl HistoryReader {
         self.collect(
             "SELECT event_id, timestamp_ms, severity, kind, vehicle_id, task_id, text \
              FROM event WHERE timestamp_ms >= ?1 ORDER BY timestamp_ms, event_id LIMIT ?2",
-            params![since_ms, sql_limit(limit)],
+            vec![since_ms.into(), sql_limit(limit)],
             event_row,
         )
     }
@@ -230,22 +365,22 @@ impl HistoryReader {
     /// A task's assignment and its status reports, oldest first (reports of the same
     /// millisecond in life-cycle order).
     pub fn task_history(&self, task_id: &str) -> Result<TaskHistory, HistoryError> {
-        let assignment = {
-            let conn = self.conn();
-            conn.prepare_cached(
+        let assignment = self
+            .collect(
                 "SELECT task_id, mission_id, vehicle_id, issued_ms, kind, area, depth_m, \
                  altitude_m, speed_mps, line_spacing_m, duration_s, rate_hz \
                  FROM task_assignment WHERE task_id = ?1",
+                vec![task_id.into()],
+                task_row,
             )?
-            .query_row([task_id], task_row)
-            .optional()?
-        };
+            .into_iter()
+            .next();
         let statuses = self.collect(
             "SELECT task_id, timestamp_ms, state, progress_pct, message, vehicle_id \
              FROM task_status WHERE task_id = ?1 ORDER BY timestamp_ms, \
              CASE state WHEN 'pending' THEN 0 WHEN 'sent' THEN 1 WHEN 'accepted' THEN 2 \
              WHEN 'running' THEN 3 ELSE 4 END, state",
-            [task_id],
+            vec![task_id.into()],
             task_status_row,
         )?;
         Ok(TaskHistory {
@@ -269,7 +404,13 @@ impl HistoryReader {
              longitude_deg, depth_m FROM observation \
              WHERE vehicle_id = ?1 AND property = ?2 AND timestamp_ms BETWEEN ?3 AND ?4 \
              ORDER BY timestamp_ms LIMIT ?5",
-            params![vehicle_id, property, from_ms, to_ms, sql_limit(limit)],
+            vec![
+                vehicle_id.into(),
+                property.into(),
+                from_ms.into(),
+                to_ms.into(),
+                sql_limit(limit),
+            ],
             observation_row,
         )
     }
@@ -279,24 +420,22 @@ impl HistoryReader {
         self.collect(
             "SELECT id, received_ms, topic, reason, payload_json FROM rejected \
              ORDER BY id DESC LIMIT ?1",
-            [sql_limit(limit)],
-            |r| {
-                Ok(RejectedRecord {
-                    id: r.get(0)?,
-                    received_ms: r.get(1)?,
-                    topic: r.get(2)?,
-                    reason: r.get(3)?,
-                    payload_json: r.get(4)?,
-                })
-            },
+            vec![sql_limit(limit)],
+            rejected_row,
         )
     }
 }
 
 #[cfg(test)]
 impl HistoryReader {
-    /// The raw connection, for tests that look at stored columns.
-    pub(crate) fn conn_for_tests(&self) -> MutexGuard<'_, Connection> {
-        self.conn()
+    /// The first column of every row of `sql` as text, for tests that look at stored
+    /// columns on either backend.
+    pub(crate) fn texts_for_tests(&self, sql: &str) -> Result<Vec<String>, HistoryError> {
+        self.collect(sql, vec![], |r| r.text(0))
+    }
+
+    /// The first column of every row of `sql` as an integer.
+    pub(crate) fn ints_for_tests(&self, sql: &str) -> Result<Vec<i64>, HistoryError> {
+        self.collect(sql, vec![], |r| r.int(0))
     }
 }

@@ -1,4 +1,5 @@
-//! Writing records: one SQL statement per record, and batches with per-row fallback.
+//! Writing records to SQLite: one SQL statement per record, and batches with per-row
+//! fallback. (PostgreSQL's counterpart is `crate::pg::store`, with the same rules.)
 //!
 //! Duplicate keys are upserts (`INSERT OR REPLACE`) rather than errors or `INSERT OR IGNORE`:
 //! a duplicate is almost always the same sample delivered twice (a DDS reliable
@@ -61,6 +62,12 @@ pub(crate) enum StoreError {
     /// SQLite refused.
     #[error("{0}")]
     Sqlite(#[from] rusqlite::Error),
+    /// PostgreSQL refused, or the connection to it failed.
+    #[error("{}", crate::error::pg_text(.0))]
+    Postgres(#[from] tokio_postgres::Error),
+    /// PostgreSQL did not answer in time; the connection is presumed dead.
+    #[error("no answer from PostgreSQL within {0:?}")]
+    Timeout(std::time::Duration),
     /// A JSON column could not be encoded.
     #[error("cannot encode a JSON column: {0}")]
     Encode(#[from] serde_json::Error),
@@ -74,6 +81,10 @@ impl StoreError {
     pub(crate) fn is_data_error(&self) -> bool {
         match self {
             Self::Encode(_) => true,
+            // Classified by SQLSTATE; errors without one (I/O, closed connection) are the
+            // environment's.
+            Self::Postgres(e) => e.code().is_some_and(crate::pg::is_data_state),
+            Self::Timeout(_) => false,
             Self::Sqlite(e) => match e.sqlite_error_code() {
                 Some(code) => matches!(
                     code,

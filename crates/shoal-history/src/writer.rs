@@ -16,11 +16,11 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
-use rusqlite::Connection;
 use tokio::sync::watch;
 use tracing::{debug, error, warn};
 
-use crate::store::{self, Outcome};
+use crate::backend::WriteStore;
+use crate::store::Outcome;
 use crate::{Record, SubmitError, WaitError};
 
 /// Attempts at a failing batch once the store is closing, before its records are given up.
@@ -254,11 +254,11 @@ impl Drop for WriterAlive<'_> {
 }
 
 /// The writer thread's body: batches until closed and drained.
-pub(crate) fn run(mut conn: Connection, shared: &Shared) {
+pub(crate) fn run(mut store: WriteStore, shared: &Shared) {
     let _alive = WriterAlive(shared);
     let mut batch = Vec::with_capacity(shared.batch_max);
     while let Some(last_seq) = shared.next_batch(&mut batch) {
-        if !commit_with_retries(&mut conn, shared, &batch, last_seq) {
+        if !commit_with_retries(&mut store, shared, &batch, last_seq) {
             // The database keeps failing and we are closing: what is left cannot be stored
             // either. It was never acknowledged, so nothing acknowledged is lost.
             let mut q = lock(&shared.queue);
@@ -283,7 +283,7 @@ pub(crate) fn run(mut conn: Connection, shared: &Shared) {
 /// is open (the queue then fills up and producers see `Full`, which is the back-pressure we
 /// want). Returns false only when closing and the failures persist.
 fn commit_with_retries(
-    conn: &mut Connection,
+    store: &mut WriteStore,
     shared: &Shared,
     batch: &[Record],
     last_seq: u64,
@@ -291,7 +291,7 @@ fn commit_with_retries(
     let mut attempt: u32 = 0;
     let mut closing_attempts: u32 = 0;
     loop {
-        match store::write_batch(conn, batch) {
+        match store.write_batch(batch) {
             Ok(outcome) => {
                 if outcome.failed > 0 {
                     warn!(

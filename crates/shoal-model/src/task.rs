@@ -50,6 +50,71 @@ pub enum TaskKind {
     SetReportingRate,
 }
 
+/// True when two non-adjacent edges of the closed polygon cross or touch (longitude and
+/// latitude as planar coordinates, as the lawnmower planner uses them). O(n²) over at
+/// most `MAX_AREA` corners.
+fn self_intersecting(polygon: &[GeoPoint]) -> bool {
+    fn orient(a: GeoPoint, b: GeoPoint, c: GeoPoint) -> f64 {
+        (b.longitude_deg - a.longitude_deg) * (c.latitude_deg - a.latitude_deg)
+            - (b.latitude_deg - a.latitude_deg) * (c.longitude_deg - a.longitude_deg)
+    }
+    fn on_segment(a: GeoPoint, b: GeoPoint, p: GeoPoint) -> bool {
+        p.longitude_deg >= a.longitude_deg.min(b.longitude_deg)
+            && p.longitude_deg <= a.longitude_deg.max(b.longitude_deg)
+            && p.latitude_deg >= a.latitude_deg.min(b.latitude_deg)
+            && p.latitude_deg <= a.latitude_deg.max(b.latitude_deg)
+    }
+    fn cross(a: GeoPoint, b: GeoPoint, c: GeoPoint, d: GeoPoint) -> bool {
+        let (o1, o2, o3, o4) = (
+            orient(a, b, c),
+            orient(a, b, d),
+            orient(c, d, a),
+            orient(c, d, b),
+        );
+        if o1 * o2 < 0.0 && o3 * o4 < 0.0 {
+            return true;
+        }
+        (o1 == 0.0 && on_segment(a, b, c))
+            || (o2 == 0.0 && on_segment(a, b, d))
+            || (o3 == 0.0 && on_segment(c, d, a))
+            || (o4 == 0.0 && on_segment(c, d, b))
+    }
+    let n = polygon.len();
+    if n < 4 {
+        // A triangle cannot cross itself (a degenerate one is caught by the area check).
+        return false;
+    }
+    for i in 0..n {
+        let (a, b) = (polygon[i], polygon[(i + 1) % n]);
+        for j in (i + 2)..n {
+            // The first and last edges share a corner.
+            if i == 0 && j == n - 1 {
+                continue;
+            }
+            if cross(a, b, polygon[j], polygon[(j + 1) % n]) {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+impl TaskKind {
+    /// The capability code a vehicle announces to say it can do this kind of task.
+    pub fn capability(self) -> &'static str {
+        match self {
+            Self::GotoWaypoint => "goto",
+            Self::SurveyArea => "survey",
+            Self::Hold => "hold",
+            Self::Surface => "surface",
+            Self::ReturnHome => "return_home",
+            Self::Abort => "abort",
+            Self::RequestState => "request_state",
+            Self::SetReportingRate => "set_reporting_rate",
+        }
+    }
+}
+
 /// A simple task for one vehicle; DDS key `task_id`, reliable and transient-local.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TaskAssignment {
@@ -80,15 +145,20 @@ pub struct TaskAssignment {
 }
 
 /// The typed view of a [`TaskAssignment`]'s kind and parameters.
-#[derive(Debug, Clone, PartialEq)]
+/// As JSON, tagged by `kind` (`{"kind": "goto_waypoint", "target": {...}, "speed_mps": 1.5}`);
+/// an absent `depth_m` or `altitude_m` is `None`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Task {
     /// Go to a waypoint at a depth (or altitude) and speed.
     GotoWaypoint {
         /// Where to go.
         target: GeoPoint,
         /// Depth in metres, or `None` to hold altitude.
+        #[serde(default)]
         depth_m: Option<f64>,
         /// Altitude in metres, or `None` to hold depth.
+        #[serde(default)]
         altitude_m: Option<f64>,
         /// Speed in m/s.
         speed_mps: f64,
@@ -100,8 +170,10 @@ pub enum Task {
         /// Distance between lines in metres.
         line_spacing_m: f64,
         /// Depth in metres, or `None` to hold altitude.
+        #[serde(default)]
         depth_m: Option<f64>,
         /// Altitude in metres, or `None` to hold depth.
+        #[serde(default)]
         altitude_m: Option<f64>,
         /// Speed in m/s.
         speed_mps: f64,
@@ -287,6 +359,12 @@ impl Validate for TaskAssignment {
                 field: "area",
                 rule: "survey_area needs a polygon of at least 3 points",
             }),
+            TaskKind::SurveyArea if self_intersecting(&self.area) => {
+                Err(ValidationError::Inconsistent {
+                    field: "area",
+                    rule: "the survey polygon's edges must not cross each other",
+                })
+            }
             TaskKind::SurveyArea if self.line_spacing_m < 1.0 => Err(ValidationError::OutOfRange {
                 field: "line_spacing_m",
                 value: self.line_spacing_m,
@@ -368,6 +446,42 @@ impl Validate for TaskStatus {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_bow_tie_survey_polygon_is_refused_naming_the_area() {
+        let p = |lat: f64, lon: f64| GeoPoint {
+            latitude_deg: lat,
+            longitude_deg: lon,
+        };
+        let survey = |polygon: Vec<GeoPoint>| {
+            TaskAssignment::new(
+                "t",
+                "m",
+                "v",
+                1_800_000_000_000,
+                &Task::SurveyArea {
+                    polygon,
+                    line_spacing_m: 20.0,
+                    depth_m: Some(10.0),
+                    altitude_m: None,
+                    speed_mps: 1.5,
+                },
+            )
+        };
+        let bow_tie = survey(vec![p(0.0, 0.0), p(0.01, 0.01), p(0.0, 0.01), p(0.01, 0.0)]);
+        let err = bow_tie.task().unwrap_err();
+        assert_eq!(err.reason().to_string(), "inconsistent:area");
+        let square = survey(vec![p(0.0, 0.0), p(0.0, 0.01), p(0.01, 0.01), p(0.01, 0.0)]);
+        assert!(square.task().is_ok());
+        let concave = survey(vec![
+            p(0.0, 0.0),
+            p(0.0, 0.02),
+            p(0.01, 0.01),
+            p(0.02, 0.02),
+            p(0.02, 0.0),
+        ]);
+        assert!(concave.task().is_ok());
+    }
 
     const T: i64 = 1_700_000_000_000;
 

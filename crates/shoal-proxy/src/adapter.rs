@@ -167,16 +167,7 @@ pub struct VehicleEvent {
 /// The capability code a vehicle announces for a kind of task, as listed in
 /// `VehicleAnnouncement::capabilities` and the acoustic announcement table.
 pub fn capability_of(kind: TaskKind) -> &'static str {
-    match kind {
-        TaskKind::GotoWaypoint => "goto",
-        TaskKind::SurveyArea => "survey",
-        TaskKind::Hold => "hold",
-        TaskKind::Surface => "surface",
-        TaskKind::ReturnHome => "return_home",
-        TaskKind::Abort => "abort",
-        TaskKind::RequestState => "request_state",
-        TaskKind::SetReportingRate => "set_reporting_rate",
-    }
+    kind.capability()
 }
 
 #[cfg(test)]

@@ -22,6 +22,14 @@ pub struct StationConfig {
     pub recent_events: usize,
     /// The Data Pre-Processor's plausibility checks against each vehicle's history.
     pub plausibility: PlausibilityConfig,
+    /// Seconds a task sent over IP may wait for its vehicle's acknowledgement before it
+    /// expires.
+    pub task_ack_timeout_s: f64,
+    /// The same for a task sent over the acoustic link (store-and-forward, retransmissions).
+    pub acoustic_task_ack_timeout_s: f64,
+    /// Least battery, %, a vehicle needs to be given a task (surface, return home, abort and
+    /// state requests are always allowed).
+    pub min_dispatch_battery_pct: f64,
     /// Where user rules (and the enabled state of built-in ones) are kept across restarts.
     pub rules_path: PathBuf,
 }
@@ -35,6 +43,9 @@ impl Default for StationConfig {
             require_announcement: true,
             recent_events: 500,
             plausibility: PlausibilityConfig::default(),
+            task_ack_timeout_s: 60.0,
+            acoustic_task_ack_timeout_s: 900.0,
+            min_dispatch_battery_pct: 20.0,
             rules_path: PathBuf::from("shoal-data/rules.json"),
         }
     }
@@ -51,6 +62,18 @@ impl StationConfig {
         }
         if !(self.summary_interval_s.is_finite() && self.summary_interval_s >= 0.0) {
             return Err("station.summary_interval_s must be 0 or a positive number".into());
+        }
+        if !(self.task_ack_timeout_s.is_finite() && self.task_ack_timeout_s > 0.0) {
+            return Err("station.task_ack_timeout_s must be a positive number of seconds".into());
+        }
+        if !(self.acoustic_task_ack_timeout_s.is_finite() && self.acoustic_task_ack_timeout_s > 0.0)
+        {
+            return Err(
+                "station.acoustic_task_ack_timeout_s must be a positive number of seconds".into(),
+            );
+        }
+        if !(0.0..=100.0).contains(&self.min_dispatch_battery_pct) {
+            return Err("station.min_dispatch_battery_pct must be within [0, 100]".into());
         }
         self.plausibility.check()
     }

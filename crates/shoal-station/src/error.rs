@@ -23,16 +23,64 @@ pub enum StationError {
     Shutdown(String),
 }
 
-/// A task could not be dispatched.
+/// A task or mission could not be registered or dispatched.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum DispatchError {
-    /// The task is malformed.
+    /// The task is malformed; the error names the field.
     #[error("invalid task: {0}")]
     Invalid(#[source] ValidationError),
+    /// A field of the request breaks its rule.
+    #[error("{field}: {rule}")]
+    BadField {
+        /// The field.
+        field: &'static str,
+        /// Its rule.
+        rule: &'static str,
+    },
     /// No vehicle with that id is registered.
     #[error("unknown vehicle {0:?}")]
     UnknownVehicle(String),
+    /// The vehicle is not heard from.
+    #[error("vehicle {0} is lost: no contact")]
+    VehicleLost(String),
+    /// The vehicle did not announce the capability the task needs.
+    #[error("vehicle {vehicle} cannot do it: no {capability:?} capability")]
+    Incapable {
+        /// The vehicle.
+        vehicle: String,
+        /// The capability code it lacks.
+        capability: &'static str,
+    },
+    /// The vehicle's battery is below the dispatch minimum.
+    #[error(
+        "vehicle {vehicle} has {battery_pct:.1} % battery, below the {min_pct:.0} % needed to start a task"
+    )]
+    LowBattery {
+        /// The vehicle.
+        vehicle: String,
+        /// Its latest level.
+        battery_pct: f64,
+        /// The minimum (`station.min_dispatch_battery_pct`).
+        min_pct: f64,
+    },
+    /// A task with this id exists already.
+    #[error("task_id {0:?} is already in use")]
+    DuplicateTask(String),
+    /// A mission with this id exists already.
+    #[error("mission_id {0:?} is already in use")]
+    DuplicateMission(String),
+    /// No mission with this id.
+    #[error("unknown mission {0:?}")]
+    UnknownMission(String),
+    /// One task of a mission is refused.
+    #[error("tasks[{index}]: {error}")]
+    InMission {
+        /// Index of the task in the request.
+        index: usize,
+        /// Why.
+        error: Box<DispatchError>,
+    },
     /// DDS refused the write.
     #[error("could not publish the task: {0}")]
     Dds(String),

@@ -21,6 +21,22 @@ pub enum Contact {
     Silent,
 }
 
+/// What a vehicle can be asked to do now (the Vehicle Register's availability).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Availability {
+    /// In contact, no task under way.
+    Idle,
+    /// A task sent, accepted or running.
+    Busy,
+    /// At rest at the surface with its battery rising.
+    Charging,
+    /// Reported a fault in the last ten minutes.
+    Fault,
+    /// Not heard from for `lost_after_s`.
+    Lost,
+}
+
 /// One vehicle as the station knows it.
 #[derive(Debug, Clone, Serialize)]
 pub struct VehicleView {
@@ -36,6 +52,8 @@ pub struct VehicleView {
     pub link_status: Option<LinkStatus>,
     /// Contact status now.
     pub contact: Contact,
+    /// What it can be asked to do now.
+    pub availability: Availability,
     /// State vectors accepted from this vehicle since the station started.
     pub states_accepted: u64,
     /// State vectors rejected from this vehicle since the station started.
@@ -54,6 +72,10 @@ pub(crate) struct Entry {
     pub(crate) contact: Contact,
     /// Rejected state vectors in a row that may yet re-anchor the vehicle.
     pub(crate) suspects: Suspects,
+    /// The battery rose between the last two accepted states.
+    pub(crate) battery_rising: bool,
+    /// Station time of the vehicle's latest fault event.
+    pub(crate) last_fault_ms: Option<i64>,
 }
 
 /// All vehicles by id.
@@ -84,6 +106,8 @@ impl Fleet {
                         states_rejected: 0,
                         contact: Contact::Silent,
                         suspects: Suspects::default(),
+                        battery_rising: false,
+                        last_fault_ms: None,
                     },
                 );
                 true
@@ -114,14 +138,42 @@ impl Fleet {
         changed
     }
 
-    pub(crate) fn view(&self) -> Vec<VehicleView> {
-        self.vehicles.values().map(Entry::view).collect()
+    pub(crate) fn view(&self, busy: impl Fn(&str) -> bool, now_ms: i64) -> Vec<VehicleView> {
+        self.vehicles
+            .values()
+            .map(|e| e.view(busy(&e.announcement.vehicle_id), now_ms))
+            .collect()
     }
 }
 
 impl Entry {
-    pub(crate) fn view(&self) -> VehicleView {
+    /// Availability from contact, faults, tasks and charging, in that order of precedence.
+    pub(crate) fn availability(&self, busy: bool, now_ms: i64) -> Availability {
+        const FAULT_MEMORY_MS: i64 = 600_000;
+        if self.contact == Contact::Lost {
+            Availability::Lost
+        } else if self
+            .last_fault_ms
+            .is_some_and(|t| now_ms - t < FAULT_MEMORY_MS)
+        {
+            Availability::Fault
+        } else if busy {
+            Availability::Busy
+        } else if self.battery_rising
+            && self
+                .latest
+                .as_ref()
+                .is_some_and(|s| s.depth_m <= 1.0 && s.speed_mps <= 0.2)
+        {
+            Availability::Charging
+        } else {
+            Availability::Idle
+        }
+    }
+
+    pub(crate) fn view(&self, busy: bool, now_ms: i64) -> VehicleView {
         VehicleView {
+            availability: self.availability(busy, now_ms),
             announcement: self.announcement.clone(),
             latest: self.latest.clone(),
             last_contact_ms: self.last_contact_ms,

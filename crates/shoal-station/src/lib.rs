@@ -12,13 +12,17 @@
 mod config;
 mod error;
 mod fleet;
+mod missions;
 mod preprocess;
+mod reporters;
 mod rules;
 mod station;
 
 pub use config::StationConfig;
 pub use error::{DispatchError, RuleChangeError, StationError};
-pub use fleet::{Contact, VehicleView};
+pub use fleet::{Availability, Contact, VehicleView};
+pub use missions::{MissionSpec, MissionState, MissionTaskSpec, MissionView, TaskView};
 pub use preprocess::{Implausible, PlausibilityConfig};
+pub use reporters::{Ack, EnvSubscription, EnvSubscriptionSpec, EventView, LiveUpdate};
 pub use rules::{ConditionDoc, RuleDoc, RulesFileError};
-pub use station::{IngestStats, Station, StationHandle, StationReport, TaskView};
+pub use station::{IngestStats, Station, StationHandle, StationReport};

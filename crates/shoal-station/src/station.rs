@@ -22,7 +22,9 @@ use tracing::{debug, info, warn};
 use crate::config::StationConfig;
 use crate::error::{DispatchError, RuleChangeError, StationError};
 use crate::fleet::{Contact, Fleet, VehicleView};
+use crate::missions::{MissionSpec, MissionView, Register, TaskView};
 use crate::preprocess::{self, Verdict};
+use crate::reporters::{Ack, EnvSubscription, EnvSubscriptionSpec, EventView, LiveUpdate};
 use crate::rules::{RuleDoc, RulesFile};
 
 /// Applies the rules file: creates its user rules and switches built-in ones as saved.
@@ -89,21 +91,21 @@ impl IngestStats {
     }
 }
 
-/// A task as the station tracks it.
-#[derive(Debug, Clone, Serialize)]
-pub struct TaskView {
-    /// What was asked.
-    pub assignment: TaskAssignment,
-    /// The latest report from the vehicle, if any.
-    pub status: Option<TaskStatus>,
-}
-
 struct Shared {
     config: StationConfig,
     fleet: Mutex<Fleet>,
     stats: Mutex<IngestStats>,
     events: Mutex<VecDeque<Event>>,
-    tasks: Mutex<BTreeMap<String, TaskView>>,
+    /// The Mission & Task Register.
+    register: Mutex<Register>,
+    /// Operators' acknowledgements of events, by event id.
+    acks: Mutex<HashMap<String, Ack>>,
+    /// The Environment Reporter's subscriptions, by id.
+    env_subs: Mutex<BTreeMap<String, EnvSubscription>>,
+    /// Live updates for API clients (WebSocket); lagging receivers lose the oldest.
+    live: tokio::sync::broadcast::Sender<LiveUpdate>,
+    /// Last time each vehicle's state went to the live feed.
+    live_state_ms: Mutex<HashMap<String, i64>>,
     /// The semantic model (ontology + live swarm), updated in the same step as the history
     /// (the Data Access Manager's job); rules fire as data arrives.
     semantic: Mutex<SemanticStore>,
@@ -207,7 +209,11 @@ impl Station {
             fleet: Mutex::new(fleet),
             stats: Mutex::new(IngestStats::default()),
             events: Mutex::new(VecDeque::new()),
-            tasks: Mutex::new(BTreeMap::new()),
+            register: Mutex::new(Register::default()),
+            acks: Mutex::new(HashMap::new()),
+            env_subs: Mutex::new(BTreeMap::new()),
+            live: tokio::sync::broadcast::channel(4096).0,
+            live_state_ms: Mutex::new(HashMap::new()),
             semantic: Mutex::new(semantic),
             history: history.writer(),
             reader,
@@ -290,6 +296,7 @@ impl Station {
                         log_participant_event(&ev);
                     }
                     h.refresh_contact().await;
+                    h.expire_tasks();
                     h.semantic_tick();
                     if !summary_every.is_zero() && last_summary.elapsed() >= summary_every {
                         last_summary = tokio::time::Instant::now();
@@ -498,6 +505,10 @@ impl StationHandle {
                 if !matches!(verdict, Verdict::Reject(_)) {
                     // A late sample (acoustic store-and-forward) goes to the history only.
                     if newer {
+                        e.battery_rising = e
+                            .latest
+                            .as_ref()
+                            .is_some_and(|l| s.battery_pct > l.battery_pct && l.battery_pct >= 0.0);
                         e.latest = Some(s.clone());
                     }
                     e.states_accepted += 1;
@@ -549,8 +560,29 @@ impl StationHandle {
             let fired = lock(&self.shared.semantic).update_state(&s);
             self.emit_fired(fired);
         }
+        if newer {
+            self.push_state(&s.vehicle_id);
+        }
         self.store(Record::State(s));
         Ok(())
+    }
+
+    /// Sends a vehicle's view to live clients, at most once a second per vehicle.
+    fn push_state(&self, vehicle_id: &str) {
+        if self.shared.live.receiver_count() == 0 {
+            return;
+        }
+        let now = now_ms();
+        {
+            let mut last = lock(&self.shared.live_state_ms);
+            if last.get(vehicle_id).is_some_and(|t| now - t < 1000) {
+                return;
+            }
+            last.insert(vehicle_id.to_owned(), now);
+        }
+        if let Some(v) = self.vehicle(vehicle_id) {
+            let _ = self.shared.live.send(LiveUpdate::Vehicle(Box::new(v)));
+        }
     }
 
     /// The timestamp checks for data other than state vectors; true when accepted.
@@ -604,14 +636,166 @@ impl StationHandle {
         }) {
             return;
         }
+        let now = now_ms();
+        let changed = lock(&self.shared.register).on_status(&s, now);
+        let Some(changed) = changed else {
+            // Not a task this station gave that vehicle: nothing to track, nothing to store.
+            warn!(task = %s.task_id, vehicle = %s.vehicle_id, state = ?s.state, "status for a task this station never gave that vehicle; ignored");
+            *lock(&self.shared.stats)
+                .rejected
+                .entry("unknown_task".into())
+                .or_default() += 1;
+            return;
+        };
         lock(&self.shared.stats).task_status += 1;
         let fired = lock(&self.shared.semantic).task_status(&s);
         self.emit_fired(fired);
-        if let Some(t) = lock(&self.shared.tasks).get_mut(&s.task_id) {
-            t.status = Some(s.clone());
-        }
         info!(task = %s.task_id, vehicle = %s.vehicle_id, state = ?s.state, progress = s.progress_pct, "task status");
+        if changed {
+            self.task_changed(&s.task_id, s.state, &s.message);
+        }
         self.store(Record::TaskStatus(s));
+    }
+
+    /// Reports a task's new state (Tasks Reporter) and moves its mission on.
+    fn task_changed(&self, task_id: &str, state: shoal_model::TaskState, message: &str) {
+        use shoal_model::TaskState;
+        self.push_task(task_id);
+        let vehicle = lock(&self.shared.register)
+            .task(task_id)
+            .map(|t| t.assignment.vehicle_id.clone())
+            .unwrap_or_default();
+        let severity = match state {
+            TaskState::Failed | TaskState::Expired => Severity::Warning,
+            _ => Severity::Info,
+        };
+        if state.is_final() || state == TaskState::Accepted {
+            let state_name = format!("{state:?}").to_lowercase();
+            let text = if message.is_empty() {
+                format!("task {task_id} {state_name}")
+            } else {
+                format!("task {task_id} {state_name}: {message}")
+            };
+            self.raise(severity, EventKind::Task, &vehicle, task_id, &text);
+        }
+        let next = lock(&self.shared.register).advance(task_id, now_ms());
+        for id in next {
+            self.send_registered(&id);
+        }
+        self.push_mission_of(task_id);
+    }
+
+    fn push_task(&self, task_id: &str) {
+        if let Some(t) = self.task(task_id) {
+            let _ = self.shared.live.send(LiveUpdate::Task(Box::new(t)));
+        }
+    }
+
+    fn push_mission_of(&self, task_id: &str) {
+        let mission = self
+            .task(task_id)
+            .map(|t| t.assignment.mission_id)
+            .and_then(|m| self.mission(&m));
+        if let Some(m) = mission {
+            let _ = self.shared.live.send(LiveUpdate::Mission(Box::new(m)));
+        }
+    }
+
+    /// A live feed of events, tasks, missions, vehicle states (≤ 1 Hz each) and subscribed
+    /// observations; a receiver that falls behind loses the oldest updates.
+    pub fn live(&self) -> tokio::sync::broadcast::Receiver<LiveUpdate> {
+        self.shared.live.subscribe()
+    }
+
+    /// Recent events with their acknowledgements, oldest first.
+    pub fn event_views(&self) -> Vec<EventView> {
+        let acks = lock(&self.shared.acks);
+        lock(&self.shared.events)
+            .iter()
+            .map(|e| EventView {
+                acknowledged: acks.get(&e.event_id).cloned(),
+                event: e.clone(),
+            })
+            .collect()
+    }
+
+    /// An operator acknowledges an event; acknowledging twice keeps the first. The
+    /// acknowledgement is itself stored in the history as an event.
+    pub fn acknowledge(&self, event_id: &str, by: &str) -> Option<EventView> {
+        let event = lock(&self.shared.events)
+            .iter()
+            .find(|e| e.event_id == event_id)
+            .cloned()?;
+        let by: String = by.chars().take(shoal_model::MAX_NAME_LEN).collect();
+        let (ack, new) = {
+            let mut acks = lock(&self.shared.acks);
+            match acks.get(event_id) {
+                Some(a) => (a.clone(), false),
+                None => {
+                    let a = Ack {
+                        by: by.clone(),
+                        at_ms: now_ms(),
+                    };
+                    acks.insert(event_id.to_owned(), a.clone());
+                    (a, true)
+                }
+            }
+        };
+        if new {
+            info!(event = event_id, by = %by, "event acknowledged");
+            let seq = self.shared.event_seq.fetch_add(1, Ordering::Relaxed);
+            let record = Event {
+                event_id: format!("station-{}-{seq}", self.shared.started_ms),
+                timestamp_ms: ack.at_ms,
+                severity: Severity::Info,
+                kind: EventKind::Other,
+                vehicle_id: event.vehicle_id.clone(),
+                task_id: event.task_id.clone(),
+                text: format!("acknowledged {event_id} by {by}"),
+            };
+            self.store(Record::Event(record));
+        }
+        let view = EventView {
+            event,
+            acknowledged: Some(ack),
+        };
+        let _ = self.shared.live.send(LiveUpdate::Event(view.clone()));
+        Some(view)
+    }
+
+    /// Subscribes to environment observations (Environment Reporter).
+    pub fn subscribe_environment(
+        &self,
+        spec: EnvSubscriptionSpec,
+    ) -> Result<EnvSubscription, String> {
+        spec.check()?;
+        let seq = self.shared.event_seq.fetch_add(1, Ordering::Relaxed);
+        let sub = EnvSubscription {
+            id: format!("env-{seq}"),
+            spec,
+            delivered: 0,
+            recent: VecDeque::new(),
+            last_ms: HashMap::new(),
+        };
+        lock(&self.shared.env_subs).insert(sub.id.clone(), sub.clone());
+        Ok(sub)
+    }
+
+    /// Every environment subscription.
+    pub fn environment_subscriptions(&self) -> Vec<EnvSubscription> {
+        lock(&self.shared.env_subs).values().cloned().collect()
+    }
+
+    /// The observations a subscription matched, oldest first (the latest 1000).
+    pub fn environment_observations(&self, id: &str) -> Option<Vec<EnvironmentObservation>> {
+        lock(&self.shared.env_subs)
+            .get(id)
+            .map(|s| s.recent.iter().cloned().collect())
+    }
+
+    /// Ends a subscription; false if there was none.
+    pub fn unsubscribe_environment(&self, id: &str) -> bool {
+        lock(&self.shared.env_subs).remove(id).is_some()
     }
 
     fn on_event(&self, e: Event, meta: &SampleMeta) {
@@ -638,6 +822,11 @@ impl StationHandle {
             return;
         }
         lock(&self.shared.stats).events += 1;
+        if e.kind == EventKind::Fault
+            && let Some(v) = lock(&self.shared.fleet).vehicles.get_mut(&e.vehicle_id)
+        {
+            v.last_fault_ms = Some(now_ms());
+        }
         let fired = lock(&self.shared.semantic).add_event(&e);
         self.emit_fired(fired);
         self.remember_event(e.clone());
@@ -654,12 +843,27 @@ impl StationHandle {
             return;
         }
         lock(&self.shared.stats).observations += 1;
+        let now = now_ms();
+        let matched: Vec<String> = lock(&self.shared.env_subs)
+            .values_mut()
+            .filter_map(|sub| sub.offer(&o, now).then(|| sub.id.clone()))
+            .collect();
+        for subscription in matched {
+            let _ = self.shared.live.send(LiveUpdate::Observation {
+                subscription,
+                observation: o.clone(),
+            });
+        }
         let fired = lock(&self.shared.semantic).add_observation(&o);
         self.emit_fired(fired);
         self.store(Record::Observation(o));
     }
 
     fn remember_event(&self, e: Event) {
+        let _ = self.shared.live.send(LiveUpdate::Event(EventView {
+            event: e.clone(),
+            acknowledged: None,
+        }));
         let mut events = lock(&self.shared.events);
         events.push_back(e);
         while events.len() > self.shared.config.recent_events {
@@ -831,15 +1035,26 @@ impl StationHandle {
 
     /// Every known vehicle, sorted by id.
     pub fn fleet(&self) -> Vec<VehicleView> {
-        lock(&self.shared.fleet).view()
+        let busy = self.busy_vehicles();
+        lock(&self.shared.fleet).view(|id| busy.contains(id), now_ms())
     }
 
     /// One vehicle.
     pub fn vehicle(&self, id: &str) -> Option<VehicleView> {
+        let busy = !lock(&self.shared.register).active_tasks_of(id).is_empty();
         lock(&self.shared.fleet)
             .vehicles
             .get(id)
-            .map(crate::fleet::Entry::view)
+            .map(|e| e.view(busy, now_ms()))
+    }
+
+    fn busy_vehicles(&self) -> std::collections::HashSet<String> {
+        lock(&self.shared.register)
+            .tasks()
+            .into_iter()
+            .filter(|t| !t.state.is_final() && t.state != shoal_model::TaskState::Pending)
+            .map(|t| t.assignment.vehicle_id)
+            .collect()
     }
 
     /// Current counters.
@@ -867,9 +1082,24 @@ impl StationHandle {
         lock(&self.shared.events).iter().cloned().collect()
     }
 
-    /// Tasks dispatched since the station started, by id.
+    /// Tasks issued since the station started, by id.
     pub fn tasks(&self) -> Vec<TaskView> {
-        lock(&self.shared.tasks).values().cloned().collect()
+        lock(&self.shared.register).tasks()
+    }
+
+    /// One task.
+    pub fn task(&self, task_id: &str) -> Option<TaskView> {
+        lock(&self.shared.register).task(task_id).cloned()
+    }
+
+    /// Every mission, by id.
+    pub fn missions(&self) -> Vec<MissionView> {
+        lock(&self.shared.register).missions()
+    }
+
+    /// One mission.
+    pub fn mission(&self, mission_id: &str) -> Option<MissionView> {
+        lock(&self.shared.register).mission(mission_id)
     }
 
     /// Remote readers matched by the station's (control-class) task writer now.
@@ -949,37 +1179,290 @@ impl StationHandle {
             })
     }
 
-    /// Validates a task, checks its vehicle is registered, stores and publishes it.
-    /// Aborts go out on the emergency priority class.
-    pub async fn dispatch(&self, task: TaskAssignment) -> Result<(), DispatchError> {
+    /// Checks a task can go to its vehicle now: well-formed, the vehicle registered and
+    /// in contact, able to do it (its announced capabilities, the register's part of the
+    /// information model) and with battery enough for anything but going home or up.
+    fn check_task(&self, task: &TaskAssignment) -> Result<(), DispatchError> {
+        use shoal_model::TaskKind as K;
+        task.validate().map_err(DispatchError::Invalid)?;
         task.task().map_err(DispatchError::Invalid)?;
-        if !lock(&self.shared.fleet)
-            .vehicles
-            .contains_key(&task.vehicle_id)
-        {
-            return Err(DispatchError::UnknownVehicle(task.vehicle_id));
+        let fleet = lock(&self.shared.fleet);
+        let Some(v) = fleet.vehicles.get(&task.vehicle_id) else {
+            return Err(DispatchError::UnknownVehicle(task.vehicle_id.clone()));
+        };
+        if task.kind == K::Abort {
+            // An emergency order always goes out, whatever the vehicle says it can do.
+            return Ok(());
         }
+        if v.contact == Contact::Lost {
+            return Err(DispatchError::VehicleLost(task.vehicle_id.clone()));
+        }
+        let capability = task.kind.capability();
+        if !v.announcement.capabilities.iter().any(|c| c == capability) {
+            return Err(DispatchError::Incapable {
+                vehicle: task.vehicle_id.clone(),
+                capability,
+            });
+        }
+        let needs_energy = !matches!(
+            task.kind,
+            K::Surface | K::ReturnHome | K::RequestState | K::SetReportingRate
+        );
+        let min = self.shared.config.min_dispatch_battery_pct;
+        if let Some(s) = &v.latest
+            && needs_energy
+            && s.battery_pct != shoal_model::UNKNOWN
+            && s.battery_pct < min
+        {
+            return Err(DispatchError::LowBattery {
+                vehicle: task.vehicle_id.clone(),
+                battery_pct: s.battery_pct,
+                min_pct: min,
+            });
+        }
+        Ok(())
+    }
+
+    /// Validates a single task, registers it and sends it at once. Aborts go out on the
+    /// emergency priority class.
+    pub async fn dispatch(&self, task: TaskAssignment) -> Result<(), DispatchError> {
+        self.check_task(&task)?;
+        {
+            let mut reg = lock(&self.shared.register);
+            if reg.contains_task(&task.task_id) {
+                return Err(DispatchError::DuplicateTask(task.task_id));
+            }
+            reg.add_task(task.clone(), now_ms());
+        }
+        self.register_task(&task);
+        let id = task.task_id;
+        tokio::task::block_in_place(|| self.send_registered(&id));
+        match lock(&self.shared.register).task(&id).map(|t| t.state) {
+            Some(shoal_model::TaskState::Sent) => Ok(()),
+            _ => Err(DispatchError::Dds("the task could not be published".into())),
+        }
+    }
+
+    /// Enters a task in the semantic model and the history.
+    fn register_task(&self, task: &TaskAssignment) {
+        let fired = lock(&self.shared.semantic).upsert_task(task);
+        self.emit_fired(fired);
+        self.store(Record::Task(task.clone()));
+    }
+
+    /// Publishes a registered pending task on the link its vehicle is reachable on now.
+    ///
+    /// Both links start at the same DDS topic: a vehicle on IP takes it directly, and the
+    /// CDT that hears a submerged vehicle forwards it acoustically (retransmitting until
+    /// its TTL). The station records which link it expects to carry the task, which sets
+    /// how long it waits for an acknowledgement before the task expires.
+    fn send_registered(&self, task_id: &str) {
+        let Some(task) = lock(&self.shared.register)
+            .task(task_id)
+            .map(|t| t.assignment.clone())
+        else {
+            return;
+        };
+        // Checked again when a mission's next task comes due: things change.
+        if let Err(e) = self.check_task(&task) {
+            let now = now_ms();
+            warn!(task = task_id, error = %e, "task not sent");
+            lock(&self.shared.register).finish(
+                task_id,
+                shoal_model::TaskState::Failed,
+                &format!("not sent: {e}"),
+                now,
+            );
+            self.task_changed(
+                task_id,
+                shoal_model::TaskState::Failed,
+                &format!("not sent: {e}"),
+            );
+            return;
+        }
+        let link = lock(&self.shared.fleet)
+            .vehicles
+            .get(&task.vehicle_id)
+            .map_or(shoal_model::LinkKind::Ip, |v| v.link);
         let writer = if task.kind == TaskKind::Abort {
             &self.shared.abort_writer
         } else {
             &self.shared.task_writer
         };
-        writer
-            .write(task.clone())
-            .await
-            .map_err(|e| DispatchError::Dds(e.to_string()))?;
-        info!(task = %task.task_id, vehicle = %task.vehicle_id, kind = ?task.kind, "task dispatched");
-        lock(&self.shared.stats).tasks_dispatched += 1;
-        let fired = lock(&self.shared.semantic).upsert_task(&task);
-        self.emit_fired(fired);
-        lock(&self.shared.tasks).insert(
-            task.task_id.clone(),
-            TaskView {
-                assignment: task.clone(),
-                status: None,
-            },
+        let kind = task.kind;
+        let vehicle = task.vehicle_id.clone();
+        match writer.write_blocking(task) {
+            Ok(()) => {
+                info!(task = task_id, vehicle = %vehicle, ?kind, ?link, "task dispatched");
+                lock(&self.shared.stats).tasks_dispatched += 1;
+                lock(&self.shared.register).sent(task_id, link, now_ms());
+                self.push_task(task_id);
+            }
+            Err(e) => {
+                warn!(task = task_id, error = %e, "task not published");
+                lock(&self.shared.register).finish(
+                    task_id,
+                    shoal_model::TaskState::Failed,
+                    &format!("could not be published: {e}"),
+                    now_ms(),
+                );
+            }
+        }
+    }
+
+    /// Registers a mission after checking every task (ids unique, vehicles able); it
+    /// starts with [`Self::start_mission`].
+    pub fn plan_mission(&self, spec: MissionSpec) -> Result<MissionView, DispatchError> {
+        if !shoal_model::is_identifier(&spec.mission_id, shoal_model::MAX_ID_LEN) {
+            return Err(DispatchError::BadField {
+                field: "mission_id",
+                rule: "1..=64 of [A-Za-z0-9_.-]",
+            });
+        }
+        if spec.tasks.is_empty() {
+            return Err(DispatchError::BadField {
+                field: "tasks",
+                rule: "a mission needs at least one task",
+            });
+        }
+        if lock(&self.shared.register).contains_mission(&spec.mission_id) {
+            return Err(DispatchError::DuplicateMission(spec.mission_id));
+        }
+        let now = now_ms();
+        let mut assignments = Vec::with_capacity(spec.tasks.len());
+        for (n, t) in spec.tasks.iter().enumerate() {
+            let id = t
+                .task_id
+                .clone()
+                .unwrap_or_else(|| format!("{}-{}", spec.mission_id, n + 1));
+            let a = TaskAssignment::new(id, &spec.mission_id, &t.vehicle_id, now, &t.task);
+            self.check_task(&a).map_err(|e| DispatchError::InMission {
+                index: n,
+                error: Box::new(e),
+            })?;
+            if assignments
+                .iter()
+                .any(|b: &TaskAssignment| b.task_id == a.task_id)
+                || lock(&self.shared.register).contains_task(&a.task_id)
+            {
+                return Err(DispatchError::InMission {
+                    index: n,
+                    error: Box::new(DispatchError::DuplicateTask(a.task_id)),
+                });
+            }
+            assignments.push(a);
+        }
+        {
+            let mut reg = lock(&self.shared.register);
+            let ids = assignments.iter().map(|a| a.task_id.clone()).collect();
+            for a in &assignments {
+                reg.add_task(a.clone(), now);
+            }
+            reg.add_mission(&spec.mission_id, &spec.name, ids, now);
+        }
+        for a in &assignments {
+            self.register_task(a);
+        }
+        info!(mission = %spec.mission_id, tasks = assignments.len(), "mission planned");
+        self.mission(&spec.mission_id)
+            .ok_or(DispatchError::UnknownMission(spec.mission_id))
+    }
+
+    /// Starts a planned mission: each vehicle's first task goes out.
+    pub fn start_mission(&self, mission_id: &str) -> Result<MissionView, DispatchError> {
+        let first = lock(&self.shared.register)
+            .start(mission_id, now_ms())
+            .ok_or_else(|| DispatchError::UnknownMission(mission_id.to_owned()))?;
+        info!(mission = mission_id, "mission started");
+        tokio::task::block_in_place(|| {
+            for id in first {
+                self.send_registered(&id);
+            }
+        });
+        self.mission(mission_id)
+            .ok_or_else(|| DispatchError::UnknownMission(mission_id.to_owned()))
+    }
+
+    /// Aborts a mission: pending tasks end, vehicles with a task under way get an abort
+    /// (emergency surface) on the emergency class.
+    pub fn abort_mission(&self, mission_id: &str) -> Result<MissionView, DispatchError> {
+        let busy = lock(&self.shared.register)
+            .abort_mission(mission_id, now_ms())
+            .ok_or_else(|| DispatchError::UnknownMission(mission_id.to_owned()))?;
+        warn!(mission = mission_id, vehicles = ?busy, "mission aborted");
+        self.raise(
+            Severity::Warning,
+            EventKind::Task,
+            "",
+            "",
+            &format!("mission {mission_id} aborted by the operator"),
         );
-        self.store(Record::Task(task));
-        Ok(())
+        tokio::task::block_in_place(|| {
+            for v in busy {
+                self.send_abort(&v, mission_id);
+            }
+        });
+        self.mission(mission_id)
+            .ok_or_else(|| DispatchError::UnknownMission(mission_id.to_owned()))
+    }
+
+    /// Aborts every open mission and sends an abort to every vehicle in contact.
+    pub fn abort_all(&self) -> Vec<String> {
+        let missions = lock(&self.shared.register).open_missions();
+        for m in &missions {
+            let _ = lock(&self.shared.register).abort_mission(m, now_ms());
+        }
+        let vehicles: Vec<String> = lock(&self.shared.fleet)
+            .vehicles
+            .iter()
+            .filter(|(_, v)| v.contact != Contact::Lost)
+            .map(|(id, _)| id.clone())
+            .collect();
+        self.raise(
+            Severity::Alarm,
+            EventKind::Task,
+            "",
+            "",
+            &format!(
+                "ABORT ALL by the operator: {} vehicles, {} missions",
+                vehicles.len(),
+                missions.len()
+            ),
+        );
+        tokio::task::block_in_place(|| {
+            for v in &vehicles {
+                self.send_abort(v, "all");
+            }
+        });
+        vehicles
+    }
+
+    fn send_abort(&self, vehicle_id: &str, scope: &str) {
+        let seq = self.shared.event_seq.fetch_add(1, Ordering::Relaxed);
+        let id: String = format!("abort-{scope}-{vehicle_id}-{seq}")
+            .chars()
+            .take(shoal_model::MAX_ID_LEN)
+            .collect();
+        let a = TaskAssignment::new(&id, "", vehicle_id, now_ms(), &shoal_model::Task::Abort);
+        lock(&self.shared.register).add_task(a.clone(), now_ms());
+        self.register_task(&a);
+        self.send_registered(&id);
+    }
+
+    /// Expires sent tasks their vehicle never acknowledged in time.
+    fn expire_tasks(&self) {
+        let cfg = &self.shared.config;
+        #[allow(clippy::cast_possible_truncation)]
+        let (ip, acoustic) = (
+            (cfg.task_ack_timeout_s * 1000.0) as i64,
+            (cfg.acoustic_task_ack_timeout_s * 1000.0) as i64,
+        );
+        let now = now_ms();
+        let overdue = lock(&self.shared.register).overdue(now, ip, acoustic);
+        for id in overdue {
+            let msg = "not acknowledged by the vehicle in time";
+            lock(&self.shared.register).finish(&id, shoal_model::TaskState::Expired, msg, now);
+            self.task_changed(&id, shoal_model::TaskState::Expired, msg);
+        }
     }
 }

@@ -14,7 +14,7 @@ use tower::ServiceExt;
 
 use crate::common::{dds, eventually, start_station};
 
-async fn call(
+pub(crate) async fn call(
     router: &axum::Router,
     method: &str,
     uri: &str,

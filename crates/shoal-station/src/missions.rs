@@ -1,0 +1,615 @@
+//! The Mission & Task Register: every task the station issued with its state machine, and
+//! missions as ordered task lists per vehicle.
+//!
+//! Pure bookkeeping, no I/O: the station asks it what to dispatch and feeds it the
+//! vehicles' reports, so the rules below are tested without DDS.
+//!
+//! - A task moves forward only: pending → sent → accepted → running (progress) → done |
+//!   failed | aborted | expired. A report that would move it backwards, or touch a final
+//!   task, is ignored (late or duplicated delivery, e.g. over the acoustic link).
+//! - A mission runs each vehicle's tasks one at a time, in order: the next is dispatched
+//!   when the previous is done. When a task fails, expires or is aborted, the vehicle's
+//!   remaining tasks in that mission are aborted ("skipped"); the mission ends `done` when
+//!   every task is done, otherwise `failed` (or `aborted` by an operator).
+
+use std::collections::{BTreeMap, HashMap};
+
+use serde::{Deserialize, Serialize};
+use shoal_model::{LinkKind, Task, TaskAssignment, TaskState, TaskStatus};
+
+/// A task as the register tracks it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TaskView {
+    /// What was asked.
+    pub assignment: TaskAssignment,
+    /// Where it is in its state machine.
+    pub state: TaskState,
+    /// Progress reported by the vehicle, %.
+    pub progress_pct: f64,
+    /// The latest message (why it failed, which link carried it ...).
+    pub message: String,
+    /// When the state last changed or progress was reported, ms since the Unix epoch.
+    pub updated_ms: i64,
+    /// The link the station chose when it dispatched the task.
+    pub link: Option<LinkKind>,
+    /// The latest report from the vehicle, if any.
+    pub status: Option<TaskStatus>,
+}
+
+/// Where a mission is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MissionState {
+    /// Registered, not started.
+    Planned,
+    /// Started; some task is not final yet.
+    Running,
+    /// Every task done.
+    Done,
+    /// Every task final, some not done.
+    Failed,
+    /// Aborted by an operator.
+    Aborted,
+}
+
+/// One task of a mission as an operator writes it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MissionTaskSpec {
+    /// Task id; `<mission_id>-<n>` when absent.
+    #[serde(default)]
+    pub task_id: Option<String>,
+    /// Vehicle that executes it.
+    pub vehicle_id: String,
+    /// What to do.
+    pub task: Task,
+}
+
+/// A mission as an operator writes it: tasks per vehicle, run in the order listed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MissionSpec {
+    /// Mission id: 1..=64 of `[A-Za-z0-9_.-]`.
+    pub mission_id: String,
+    /// Name shown to operators.
+    #[serde(default)]
+    pub name: String,
+    /// The tasks, in order per vehicle.
+    pub tasks: Vec<MissionTaskSpec>,
+}
+
+/// A mission as the register tracks it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MissionView {
+    /// Mission id.
+    pub mission_id: String,
+    /// Name shown to operators.
+    pub name: String,
+    /// Where it is.
+    pub state: MissionState,
+    /// When it was registered, started and ended, ms since the Unix epoch.
+    pub created_ms: i64,
+    /// When it was started.
+    pub started_ms: Option<i64>,
+    /// When its last task reached a final state.
+    pub ended_ms: Option<i64>,
+    /// Done tasks plus the running tasks' progress, over all tasks, %.
+    pub progress_pct: f64,
+    /// Its tasks, in order.
+    pub tasks: Vec<TaskView>,
+}
+
+#[derive(Debug, Clone)]
+struct Mission {
+    mission_id: String,
+    name: String,
+    state: MissionState,
+    created_ms: i64,
+    started_ms: Option<i64>,
+    ended_ms: Option<i64>,
+    task_ids: Vec<String>,
+}
+
+/// Every task and mission.
+#[derive(Debug, Default)]
+pub(crate) struct Register {
+    tasks: BTreeMap<String, TaskView>,
+    missions: BTreeMap<String, Mission>,
+    mission_of: HashMap<String, String>,
+}
+
+/// Rank in the state machine; a report may only keep or raise it.
+fn rank(s: TaskState) -> u8 {
+    match s {
+        TaskState::Pending => 0,
+        TaskState::Sent => 1,
+        TaskState::Accepted => 2,
+        TaskState::Running => 3,
+        _ => 4,
+    }
+}
+
+/// True when a task in `from` may move to `to`.
+pub(crate) fn may_move(from: TaskState, to: TaskState) -> bool {
+    !from.is_final() && rank(to) >= rank(from) && to != TaskState::Pending
+}
+
+impl Register {
+    pub(crate) fn contains_task(&self, task_id: &str) -> bool {
+        self.tasks.contains_key(task_id)
+    }
+
+    pub(crate) fn contains_mission(&self, mission_id: &str) -> bool {
+        self.missions.contains_key(mission_id)
+    }
+
+    pub(crate) fn task(&self, task_id: &str) -> Option<&TaskView> {
+        self.tasks.get(task_id)
+    }
+
+    pub(crate) fn tasks(&self) -> Vec<TaskView> {
+        self.tasks.values().cloned().collect()
+    }
+
+    /// Tasks not final, per vehicle.
+    pub(crate) fn active_tasks_of(&self, vehicle_id: &str) -> Vec<&TaskView> {
+        self.tasks
+            .values()
+            .filter(|t| {
+                t.assignment.vehicle_id == vehicle_id
+                    && !t.state.is_final()
+                    && t.state != TaskState::Pending
+            })
+            .collect()
+    }
+
+    /// Registers a task in `pending`.
+    pub(crate) fn add_task(&mut self, assignment: TaskAssignment, now_ms: i64) {
+        let id = assignment.task_id.clone();
+        self.tasks.insert(
+            id,
+            TaskView {
+                assignment,
+                state: TaskState::Pending,
+                progress_pct: 0.0,
+                message: String::new(),
+                updated_ms: now_ms,
+                link: None,
+                status: None,
+            },
+        );
+    }
+
+    /// Registers a mission whose tasks were checked and added with [`Self::add_task`].
+    pub(crate) fn add_mission(
+        &mut self,
+        mission_id: &str,
+        name: &str,
+        task_ids: Vec<String>,
+        now_ms: i64,
+    ) {
+        for t in &task_ids {
+            self.mission_of.insert(t.clone(), mission_id.to_owned());
+        }
+        self.missions.insert(
+            mission_id.to_owned(),
+            Mission {
+                mission_id: mission_id.to_owned(),
+                name: name.to_owned(),
+                state: MissionState::Planned,
+                created_ms: now_ms,
+                started_ms: None,
+                ended_ms: None,
+                task_ids,
+            },
+        );
+    }
+
+    /// Marks a task handed to a link.
+    pub(crate) fn sent(&mut self, task_id: &str, link: LinkKind, now_ms: i64) {
+        if let Some(t) = self.tasks.get_mut(task_id)
+            && may_move(t.state, TaskState::Sent)
+        {
+            t.state = TaskState::Sent;
+            t.link = Some(link);
+            t.updated_ms = now_ms;
+            t.message = format!("sent over {}", link_name(link));
+        }
+    }
+
+    /// Moves a task to a final state decided at the station (expired, aborted, not sent).
+    pub(crate) fn finish(&mut self, task_id: &str, state: TaskState, message: &str, now_ms: i64) {
+        if let Some(t) = self.tasks.get_mut(task_id)
+            && may_move(t.state, state)
+        {
+            t.state = state;
+            t.message = message.to_owned();
+            t.updated_ms = now_ms;
+        }
+    }
+
+    /// Applies a vehicle's report. Returns false when the task is unknown (never issued by
+    /// this station) and the report must be ignored; a report that would move the task
+    /// backwards is kept as the latest status but does not change the state.
+    pub(crate) fn on_status(&mut self, s: &TaskStatus, now_ms: i64) -> Option<bool> {
+        let t = self.tasks.get_mut(&s.task_id)?;
+        if t.assignment.vehicle_id != s.vehicle_id {
+            return None;
+        }
+        t.status = Some(s.clone());
+        if !may_move(t.state, s.state) {
+            return Some(false);
+        }
+        t.state = s.state;
+        t.progress_pct = if s.state == TaskState::Done {
+            100.0
+        } else {
+            s.progress_pct
+        };
+        t.message.clone_from(&s.message);
+        t.updated_ms = now_ms;
+        Some(true)
+    }
+
+    /// Starts a planned mission: returns the first task of each vehicle to dispatch.
+    pub(crate) fn start(&mut self, mission_id: &str, now_ms: i64) -> Option<Vec<String>> {
+        let m = self.missions.get_mut(mission_id)?;
+        if m.state != MissionState::Planned {
+            return Some(Vec::new());
+        }
+        m.state = MissionState::Running;
+        m.started_ms = Some(now_ms);
+        Some(self.next_tasks(mission_id))
+    }
+
+    /// For each vehicle of a running mission with nothing active, its next pending task.
+    fn next_tasks(&self, mission_id: &str) -> Vec<String> {
+        let Some(m) = self.missions.get(mission_id) else {
+            return Vec::new();
+        };
+        if m.state != MissionState::Running {
+            return Vec::new();
+        }
+        let mut busy: Vec<&str> = Vec::new();
+        let mut next = Vec::new();
+        for id in &m.task_ids {
+            let Some(t) = self.tasks.get(id) else {
+                continue;
+            };
+            let v = t.assignment.vehicle_id.as_str();
+            if busy.contains(&v) {
+                continue;
+            }
+            match t.state {
+                TaskState::Pending => {
+                    next.push(id.clone());
+                    busy.push(v);
+                }
+                s if !s.is_final() => busy.push(v),
+                _ => {}
+            }
+        }
+        next
+    }
+
+    /// After a task changed: skips the rest of its vehicle's tasks in the mission when it
+    /// did not succeed, settles the mission, and returns the tasks to dispatch next.
+    pub(crate) fn advance(&mut self, task_id: &str, now_ms: i64) -> Vec<String> {
+        let Some(mission_id) = self.mission_of.get(task_id).cloned() else {
+            return Vec::new();
+        };
+        let Some(t) = self.tasks.get(task_id) else {
+            return Vec::new();
+        };
+        if matches!(
+            t.state,
+            TaskState::Failed | TaskState::Aborted | TaskState::Expired
+        ) {
+            let vehicle = t.assignment.vehicle_id.clone();
+            let why = format!("skipped: {task_id} ended {:?}", t.state).to_lowercase();
+            let ids = self.missions[&mission_id].task_ids.clone();
+            for id in ids {
+                if let Some(o) = self.tasks.get_mut(&id)
+                    && o.assignment.vehicle_id == vehicle
+                    && o.state == TaskState::Pending
+                {
+                    o.state = TaskState::Aborted;
+                    o.message.clone_from(&why);
+                    o.updated_ms = now_ms;
+                }
+            }
+        }
+        self.settle(&mission_id, now_ms);
+        self.next_tasks(&mission_id)
+    }
+
+    /// Ends a mission whose tasks are all final.
+    fn settle(&mut self, mission_id: &str, now_ms: i64) {
+        let Some(m) = self.missions.get(mission_id) else {
+            return;
+        };
+        if !matches!(m.state, MissionState::Running | MissionState::Aborted) || m.ended_ms.is_some()
+        {
+            return;
+        }
+        let states: Vec<TaskState> = m
+            .task_ids
+            .iter()
+            .filter_map(|id| self.tasks.get(id).map(|t| t.state))
+            .collect();
+        if !states.iter().all(|s| s.is_final()) {
+            return;
+        }
+        let Some(m) = self.missions.get_mut(mission_id) else {
+            return;
+        };
+        m.ended_ms = Some(now_ms);
+        if m.state == MissionState::Running {
+            m.state = if states.iter().all(|s| *s == TaskState::Done) {
+                MissionState::Done
+            } else {
+                MissionState::Failed
+            };
+        }
+    }
+
+    /// Aborts a mission: its pending tasks end `aborted` at once; returns the vehicles
+    /// with a task under way, which must be told to abort.
+    pub(crate) fn abort_mission(&mut self, mission_id: &str, now_ms: i64) -> Option<Vec<String>> {
+        let m = self.missions.get_mut(mission_id)?;
+        if matches!(
+            m.state,
+            MissionState::Done | MissionState::Failed | MissionState::Aborted
+        ) {
+            return Some(Vec::new());
+        }
+        m.state = MissionState::Aborted;
+        let ids = m.task_ids.clone();
+        let mut vehicles = Vec::new();
+        for id in ids {
+            if let Some(t) = self.tasks.get_mut(&id) {
+                if t.state == TaskState::Pending {
+                    t.state = TaskState::Aborted;
+                    t.message = "mission aborted by the operator".into();
+                    t.updated_ms = now_ms;
+                } else if !t.state.is_final() && !vehicles.contains(&t.assignment.vehicle_id) {
+                    vehicles.push(t.assignment.vehicle_id.clone());
+                }
+            }
+        }
+        self.settle(mission_id, now_ms);
+        Some(vehicles)
+    }
+
+    /// Missions not yet ended.
+    pub(crate) fn open_missions(&self) -> Vec<String> {
+        self.missions
+            .values()
+            .filter(|m| matches!(m.state, MissionState::Planned | MissionState::Running))
+            .map(|m| m.mission_id.clone())
+            .collect()
+    }
+
+    /// Sent tasks not acknowledged within their timeout (by link), to expire.
+    pub(crate) fn overdue(&self, now_ms: i64, ip_ms: i64, acoustic_ms: i64) -> Vec<String> {
+        self.tasks
+            .values()
+            .filter(|t| t.state == TaskState::Sent)
+            .filter(|t| {
+                let limit = if t.link == Some(LinkKind::Acoustic) {
+                    acoustic_ms
+                } else {
+                    ip_ms
+                };
+                now_ms - t.updated_ms > limit
+            })
+            .map(|t| t.assignment.task_id.clone())
+            .collect()
+    }
+
+    pub(crate) fn mission(&self, mission_id: &str) -> Option<MissionView> {
+        let m = self.missions.get(mission_id)?;
+        let tasks: Vec<TaskView> = m
+            .task_ids
+            .iter()
+            .filter_map(|id| self.tasks.get(id).cloned())
+            .collect();
+        #[allow(clippy::cast_precision_loss)]
+        let progress_pct = if tasks.is_empty() {
+            0.0
+        } else {
+            tasks
+                .iter()
+                .map(|t| match t.state {
+                    TaskState::Done => 100.0,
+                    TaskState::Running => t.progress_pct,
+                    _ => 0.0,
+                })
+                .sum::<f64>()
+                / tasks.len() as f64
+        };
+        Some(MissionView {
+            mission_id: m.mission_id.clone(),
+            name: m.name.clone(),
+            state: m.state,
+            created_ms: m.created_ms,
+            started_ms: m.started_ms,
+            ended_ms: m.ended_ms,
+            progress_pct,
+            tasks,
+        })
+    }
+
+    pub(crate) fn missions(&self) -> Vec<MissionView> {
+        self.missions
+            .keys()
+            .filter_map(|id| self.mission(id))
+            .collect()
+    }
+}
+
+fn link_name(link: LinkKind) -> &'static str {
+    match link {
+        LinkKind::Ip => "IP",
+        LinkKind::Acoustic => "the acoustic link",
+        _ => "a link",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shoal_model::GeoPoint;
+
+    const T: i64 = 1_800_000_000_000;
+
+    fn goto(id: &str, vehicle: &str) -> TaskAssignment {
+        TaskAssignment::new(
+            id,
+            "m1",
+            vehicle,
+            T,
+            &Task::GotoWaypoint {
+                target: GeoPoint {
+                    latitude_deg: 63.0,
+                    longitude_deg: 10.0,
+                },
+                depth_m: Some(5.0),
+                altitude_m: None,
+                speed_mps: 1.5,
+            },
+        )
+    }
+
+    fn report(id: &str, vehicle: &str, state: TaskState) -> TaskStatus {
+        TaskStatus {
+            task_id: id.into(),
+            vehicle_id: vehicle.into(),
+            timestamp_ms: T,
+            state,
+            progress_pct: 50.0,
+            message: String::new(),
+        }
+    }
+
+    fn mission() -> Register {
+        let mut r = Register::default();
+        for (id, v) in [("a1", "a"), ("b1", "b"), ("a2", "a"), ("b2", "b")] {
+            r.add_task(goto(id, v), T);
+        }
+        r.add_mission(
+            "m1",
+            "two each",
+            vec!["a1".into(), "b1".into(), "a2".into(), "b2".into()],
+            T,
+        );
+        r
+    }
+
+    #[test]
+    fn states_only_move_forward() {
+        assert!(may_move(TaskState::Pending, TaskState::Sent));
+        assert!(may_move(TaskState::Sent, TaskState::Running));
+        assert!(may_move(TaskState::Running, TaskState::Running));
+        assert!(!may_move(TaskState::Running, TaskState::Accepted));
+        assert!(!may_move(TaskState::Done, TaskState::Failed));
+        assert!(!may_move(TaskState::Sent, TaskState::Pending));
+    }
+
+    #[test]
+    fn a_mission_runs_each_vehicles_tasks_in_order_and_ends_done() {
+        let mut r = mission();
+        assert_eq!(r.start("m1", T).unwrap(), vec!["a1", "b1"]);
+        for id in ["a1", "b1"] {
+            r.sent(id, LinkKind::Ip, T);
+        }
+        assert_eq!(
+            r.on_status(&report("a1", "a", TaskState::Running), T),
+            Some(true)
+        );
+        assert!(r.advance("a1", T).is_empty());
+        assert_eq!(
+            r.on_status(&report("a1", "a", TaskState::Done), T),
+            Some(true)
+        );
+        assert_eq!(r.advance("a1", T), vec!["a2"]);
+        r.sent("a2", LinkKind::Ip, T);
+        // A late "running" after "done" changes nothing.
+        assert_eq!(
+            r.on_status(&report("a1", "a", TaskState::Running), T),
+            Some(false)
+        );
+        assert_eq!(r.task("a1").unwrap().state, TaskState::Done);
+        for id in ["b1", "a2", "b2"] {
+            let v = &id[..1];
+            r.sent(id, LinkKind::Ip, T);
+            r.on_status(&report(id, v, TaskState::Done), T);
+            r.advance(id, T);
+        }
+        let m = r.mission("m1").unwrap();
+        assert_eq!(m.state, MissionState::Done);
+        assert!((m.progress_pct - 100.0).abs() < 1e-9);
+        assert!(m.ended_ms.is_some());
+    }
+
+    #[test]
+    fn a_failed_task_skips_the_rest_of_its_vehicle_and_fails_the_mission() {
+        let mut r = mission();
+        r.start("m1", T);
+        r.sent("a1", LinkKind::Ip, T);
+        r.on_status(&report("a1", "a", TaskState::Failed), T);
+        // b1 is still pending (never sent here): it is next; nothing more for vehicle a.
+        assert_eq!(r.advance("a1", T), vec!["b1"]);
+        assert_eq!(r.task("a2").unwrap().state, TaskState::Aborted);
+        assert!(r.task("a2").unwrap().message.contains("skipped"));
+        for id in ["b1", "b2"] {
+            r.sent(id, LinkKind::Ip, T);
+            r.on_status(&report(id, "b", TaskState::Done), T);
+            r.advance(id, T);
+        }
+        assert_eq!(r.mission("m1").unwrap().state, MissionState::Failed);
+    }
+
+    #[test]
+    fn reports_for_unknown_tasks_or_from_another_vehicle_are_refused() {
+        let mut r = mission();
+        assert_eq!(r.on_status(&report("zz", "a", TaskState::Done), T), None);
+        assert_eq!(r.on_status(&report("a1", "b", TaskState::Done), T), None);
+    }
+
+    #[test]
+    fn aborting_a_mission_ends_pending_tasks_and_names_busy_vehicles() {
+        let mut r = mission();
+        r.start("m1", T);
+        r.sent("a1", LinkKind::Ip, T);
+        r.sent("b1", LinkKind::Acoustic, T);
+        r.on_status(&report("b1", "b", TaskState::Done), T);
+        r.advance("b1", T);
+        r.sent("b2", LinkKind::Acoustic, T);
+        let mut busy = r.abort_mission("m1", T).unwrap();
+        busy.sort();
+        assert_eq!(busy, vec!["a", "b"]);
+        assert_eq!(r.task("a2").unwrap().state, TaskState::Aborted);
+        assert_eq!(r.mission("m1").unwrap().state, MissionState::Aborted);
+        r.on_status(&report("a1", "a", TaskState::Aborted), T);
+        r.on_status(&report("b2", "b", TaskState::Aborted), T);
+        r.advance("a1", T);
+        r.advance("b2", T);
+        let m = r.mission("m1").unwrap();
+        assert_eq!(m.state, MissionState::Aborted);
+        assert!(m.ended_ms.is_some());
+    }
+
+    #[test]
+    fn sent_tasks_expire_by_their_links_timeout() {
+        let mut r = mission();
+        r.start("m1", T);
+        r.sent("a1", LinkKind::Ip, T);
+        r.sent("b1", LinkKind::Acoustic, T);
+        assert_eq!(r.overdue(T + 61_000, 60_000, 600_000), vec!["a1"]);
+        assert!(r.overdue(T + 30_000, 60_000, 600_000).is_empty());
+        let mut both = r.overdue(T + 601_000, 60_000, 600_000);
+        both.sort();
+        assert_eq!(both, vec!["a1", "b1"]);
+    }
+}
