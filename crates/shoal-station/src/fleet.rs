@@ -76,6 +76,11 @@ pub(crate) struct Entry {
     pub(crate) battery_rising: bool,
     /// Station time of the vehicle's latest fault event.
     pub(crate) last_fault_ms: Option<i64>,
+    /// DDS participant its announcements come from (its own, or a CDT's for an
+    /// acoustic vehicle).
+    pub(crate) participant: Option<String>,
+    /// Station time that participant left DDS; contact is lost until a newer state.
+    pub(crate) left_ms: Option<i64>,
 }
 
 /// All vehicles by id.
@@ -108,6 +113,8 @@ impl Fleet {
                         suspects: Suspects::default(),
                         battery_rising: false,
                         last_fault_ms: None,
+                        participant: None,
+                        left_ms: None,
                     },
                 );
                 true
@@ -125,6 +132,9 @@ impl Fleet {
         let mut changed = Vec::new();
         for (id, e) in &mut self.vehicles {
             let new = match e.last_contact_ms {
+                // Its DDS participant left after its last state: lost at once, without
+                // waiting for `lost_after_s`.
+                Some(t) if e.left_ms.is_some_and(|l| l >= t) => Contact::Lost,
                 None => Contact::Silent,
                 Some(t) if now_ms - t >= lost_ms => Contact::Lost,
                 Some(t) if now_ms - t >= stale_ms => Contact::Stale,
@@ -136,6 +146,18 @@ impl Fleet {
             }
         }
         changed
+    }
+
+    /// Marks the vehicles heard through `participant` as gone; returns their ids.
+    pub(crate) fn participant_left(&mut self, participant: &str, now_ms: i64) -> Vec<String> {
+        let mut gone = Vec::new();
+        for (id, e) in &mut self.vehicles {
+            if e.participant.as_deref() == Some(participant) {
+                e.left_ms = Some(now_ms);
+                gone.push(id.clone());
+            }
+        }
+        gone
     }
 
     pub(crate) fn view(&self, busy: impl Fn(&str) -> bool, now_ms: i64) -> Vec<VehicleView> {
@@ -231,5 +253,24 @@ mod tests {
         assert_eq!(f.refresh_contact(6000, 5000, 30_000)[0].2, Contact::Stale);
         assert_eq!(f.refresh_contact(31_000, 5000, 30_000)[0].2, Contact::Lost);
         assert!(f.refresh_contact(32_000, 5000, 30_000).is_empty());
+    }
+
+    #[test]
+    fn a_vehicle_whose_participant_left_is_lost_until_it_reports_again() {
+        let mut f = Fleet::default();
+        f.register(ann("a"));
+        if let Some(e) = f.vehicles.get_mut("a") {
+            e.last_contact_ms = Some(1000);
+            e.participant = Some("p1".into());
+        }
+        f.refresh_contact(1500, 5000, 30_000);
+        assert_eq!(f.participant_left("p2", 2000), Vec::<String>::new());
+        assert_eq!(f.participant_left("p1", 2000), vec!["a".to_string()]);
+        assert_eq!(f.refresh_contact(2100, 5000, 30_000)[0].2, Contact::Lost);
+        // A newer state (e.g. through another relay) brings it back.
+        if let Some(e) = f.vehicles.get_mut("a") {
+            e.last_contact_ms = Some(3000);
+        }
+        assert_eq!(f.refresh_contact(3100, 5000, 30_000)[0].2, Contact::Alive);
     }
 }

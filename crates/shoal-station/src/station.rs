@@ -294,6 +294,9 @@ impl Station {
                 _ = tick.tick() => {
                     for ev in self.dds.participant_events() {
                         log_participant_event(&ev);
+                        if let ParticipantEvent::Lost { participant, reason } = &ev {
+                            h.participant_left(participant, reason);
+                        }
                     }
                     h.refresh_contact().await;
                     h.expire_tasks();
@@ -603,7 +606,19 @@ impl StationHandle {
     }
 
     fn on_announcement(&self, a: VehicleAnnouncement, meta: &SampleMeta) {
+        let id = a.vehicle_id.clone();
         self.register(a, &meta.writer);
+        if let Some(e) = lock(&self.shared.fleet).vehicles.get_mut(&id) {
+            e.participant = Some(meta.participant.clone());
+        }
+    }
+
+    /// DDS discovery says a participant left: the vehicles heard through it are lost now.
+    fn participant_left(&self, participant: &str, reason: &str) {
+        let gone = lock(&self.shared.fleet).participant_left(participant, now_ms());
+        for id in gone {
+            info!(vehicle = %id, %participant, reason, "the vehicle's DDS participant left");
+        }
     }
 
     /// Registers (or re-registers) a vehicle as if it had announced itself, e.g. from the
@@ -970,13 +985,18 @@ impl StationHandle {
         let changed = lock(&self.shared.fleet).refresh_contact(now_ms(), stale, lost);
         for (id, from, to) in changed {
             match to {
-                Contact::Lost => self.raise(
-                    Severity::Alarm,
-                    EventKind::CommLost,
-                    &id,
-                    "",
-                    &format!("no state vector from {id} for {:.0} s", cfg.lost_after_s),
-                ),
+                Contact::Lost => {
+                    let left = lock(&self.shared.fleet).vehicles.get(&id).is_some_and(|e| {
+                        e.left_ms
+                            .is_some_and(|l| e.last_contact_ms.is_some_and(|t| l >= t))
+                    });
+                    let text = if left {
+                        format!("lost contact with {id}: its DDS participant left")
+                    } else {
+                        format!("no state vector from {id} for {:.0} s", cfg.lost_after_s)
+                    };
+                    self.raise(Severity::Alarm, EventKind::CommLost, &id, "", &text);
+                }
                 Contact::Alive if from == Contact::Lost => {
                     self.raise(
                         Severity::Info,

@@ -693,3 +693,42 @@ async fn rules_are_managed_through_the_api_and_survive_a_restart() {
     station.shutdown.cancel();
     station.task.await.unwrap();
 }
+
+/// Vehicle & Service Register: a vehicle whose DDS participant leaves is lost at once
+/// (from DDS discovery, long before `lost_after_s`), and is registered again, idempotently,
+/// when it comes back.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_vehicle_whose_participant_leaves_is_lost_at_once_and_rejoins() {
+    let station = start_station(58);
+    let h = station.handle.clone();
+    let spec = SimSpec {
+        id: "auv-gone".into(),
+        kind: VehicleKind::Auv,
+        latitude_deg: 63.0,
+        longitude_deg: 10.0,
+        rate_hz: 5.0,
+        battery_pct: 90.0,
+    };
+    for round in 0..2 {
+        let stop = CancellationToken::new();
+        let participant = dds(58);
+        let v = tokio::spawn(shoal_proxy::run_sim(spec.clone(), participant, stop.clone()));
+        eventually(20, "the vehicle alive", || {
+            h.vehicle("auv-gone")
+                .filter(|v| v.contact == shoal_station::Contact::Alive)
+        })
+        .await;
+        assert_eq!(h.fleet().len(), 1, "round {round}: re-registration is idempotent");
+        stop.cancel();
+        v.await.unwrap().unwrap();
+        // Lost well before the 30 s `lost_after_s`.
+        let lost = eventually(15, "the vehicle lost", || {
+            h.vehicle("auv-gone")
+                .filter(|v| v.contact == shoal_station::Contact::Lost)
+        })
+        .await;
+        assert_eq!(lost.availability, shoal_station::Availability::Lost);
+    }
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+}
