@@ -115,8 +115,9 @@ struct Cdt {
     /// (vehicle address, task number, station task id), newest last.
     tasks: VecDeque<(u8, u8, String)>,
     task_numbers: HashMap<u8, Counter>,
-    /// Task ids already forwarded (transient-local DDS re-delivers history).
-    forwarded: VecDeque<String>,
+    /// Tasks already forwarded, with their issue time: transient-local DDS re-delivers
+    /// history, while a station retrying an undelivered task re-issues it later.
+    forwarded: VecDeque<(String, i64)>,
     /// Link message id → (task id, vehicle id) of tasks in the link's hands.
     in_flight: HashMap<MessageId, (String, String)>,
     event_no: u64,
@@ -170,7 +171,11 @@ impl Cdt {
         let Ok(addr) = self.book.addr(&t.vehicle_id) else {
             return Ok(()); // Not an acoustic vehicle of this CDT: IP carries it.
         };
-        if self.forwarded.contains(&t.task_id) {
+        if self
+            .forwarded
+            .iter()
+            .any(|(id, issued)| *id == t.task_id && *issued >= t.issued_ms)
+        {
             return Ok(());
         }
         let ttl_ms = wall(self.cfg.link.ttl.control_s, self.cfg.time_scale).as_millis();
@@ -180,7 +185,7 @@ impl Cdt {
             debug!(task = %t.task_id, "stale task not forwarded");
             return Ok(());
         }
-        self.forwarded.push_back(t.task_id.clone());
+        self.forwarded.push_back((t.task_id.clone(), t.issued_ms));
         while self.forwarded.len() > TASK_MEMORY {
             self.forwarded.pop_front();
         }

@@ -27,6 +27,9 @@ pub struct StationConfig {
     pub task_ack_timeout_s: f64,
     /// The same for a task sent over the acoustic link (store-and-forward, retransmissions).
     pub acoustic_task_ack_timeout_s: f64,
+    /// Times a task is sent again when the acoustic link could not deliver it within its
+    /// TTL, before it expires.
+    pub acoustic_task_retries: u32,
     /// Least battery, %, a vehicle needs to be given a task (surface, return home, abort and
     /// state requests are always allowed).
     pub min_dispatch_battery_pct: f64,
@@ -45,6 +48,7 @@ impl Default for StationConfig {
             plausibility: PlausibilityConfig::default(),
             task_ack_timeout_s: 60.0,
             acoustic_task_ack_timeout_s: 900.0,
+            acoustic_task_retries: 2,
             min_dispatch_battery_pct: 20.0,
             rules_path: PathBuf::from("shoal-data/rules.json"),
         }

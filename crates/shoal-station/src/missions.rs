@@ -34,6 +34,8 @@ pub struct TaskView {
     pub link: Option<LinkKind>,
     /// The latest report from the vehicle, if any.
     pub status: Option<TaskStatus>,
+    /// Times the station sent it again after the acoustic link gave up on it.
+    pub retries: u32,
 }
 
 /// Where a mission is.
@@ -176,6 +178,7 @@ impl Register {
                 updated_ms: now_ms,
                 link: None,
                 status: None,
+                retries: 0,
             },
         );
     }
@@ -215,6 +218,30 @@ impl Register {
             t.updated_ms = now_ms;
             t.message = format!("sent over {}", link_name(link));
         }
+    }
+
+    /// Re-issues a task the acoustic link gave up on, if it has retries left: back to
+    /// `pending` with a new issue time (so relays forward it again). Returns the new
+    /// assignment.
+    pub(crate) fn retry(
+        &mut self,
+        task_id: &str,
+        max_retries: u32,
+        now_ms: i64,
+    ) -> Option<TaskAssignment> {
+        let t = self.tasks.get_mut(task_id)?;
+        let retryable = t.link == Some(LinkKind::Acoustic)
+            && matches!(t.state, TaskState::Sent | TaskState::Pending)
+            && t.retries < max_retries;
+        if !retryable {
+            return None;
+        }
+        t.retries += 1;
+        t.state = TaskState::Pending;
+        t.assignment.issued_ms = now_ms;
+        t.updated_ms = now_ms;
+        t.message = format!("retry {}/{max_retries} over the acoustic link", t.retries);
+        Some(t.assignment.clone())
     }
 
     /// Moves a task to a final state decided at the station (expired, aborted, not sent).
@@ -598,6 +625,26 @@ mod tests {
         let m = r.mission("m1").unwrap();
         assert_eq!(m.state, MissionState::Aborted);
         assert!(m.ended_ms.is_some());
+    }
+
+    #[test]
+    fn an_undelivered_acoustic_task_is_retried_a_bounded_number_of_times() {
+        let mut r = mission();
+        r.start("m1", T);
+        r.sent("a1", LinkKind::Acoustic, T);
+        r.sent("b1", LinkKind::Ip, T);
+        assert!(
+            r.retry("b1", 2, T + 1).is_none(),
+            "IP tasks are not retried"
+        );
+        for n in 1..=2 {
+            let again = r.retry("a1", 2, T + n).unwrap();
+            assert_eq!(again.issued_ms, T + n);
+            assert_eq!(r.task("a1").unwrap().state, TaskState::Pending);
+            r.sent("a1", LinkKind::Acoustic, T + n);
+        }
+        assert!(r.retry("a1", 2, T + 3).is_none());
+        assert_eq!(r.task("a1").unwrap().retries, 2);
     }
 
     #[test]

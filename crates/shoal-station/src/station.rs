@@ -652,6 +652,23 @@ impl StationHandle {
             return;
         }
         let now = now_ms();
+        // A relay that gave up on delivering a task acoustically: send it again while
+        // retries last, instead of expiring it.
+        if s.state == shoal_model::TaskState::Expired {
+            let again = lock(&self.shared.register).retry(
+                &s.task_id,
+                self.shared.config.acoustic_task_retries,
+                now,
+            );
+            if let Some(a) = again {
+                warn!(task = %s.task_id, vehicle = %s.vehicle_id, reason = %s.message, "task not delivered acoustically; sending it again");
+                self.store(Record::Task(a));
+                let id = s.task_id.clone();
+                self.store(Record::TaskStatus(s));
+                self.send_registered(&id);
+                return;
+            }
+        }
         let changed = lock(&self.shared.register).on_status(&s, now);
         let Some(changed) = changed else {
             // Not a task this station gave that vehicle: nothing to track, nothing to store.
