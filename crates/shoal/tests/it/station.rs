@@ -732,3 +732,71 @@ async fn a_vehicle_whose_participant_leaves_is_lost_at_once_and_rejoins() {
     station.shutdown.cancel();
     station.task.await.unwrap();
 }
+
+/// The live feed: a WebSocket client on `/api/ws` gets vehicle states and events as they
+/// happen, as typed JSON messages.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_websocket_streams_vehicles_and_events() {
+    use futures::StreamExt;
+    let station = start_station(57);
+    let h = station.handle.clone();
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let stop = CancellationToken::new();
+    let server = tokio::spawn(shoal_console::serve(listener, h.clone(), stop.clone()));
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/api/ws"))
+        .await
+        .unwrap();
+    h.register_vehicle(shoal_model::VehicleAnnouncement {
+        vehicle_id: "auv-ws".into(),
+        name: "ws".into(),
+        kind: VehicleKind::Auv,
+        vendor: "test".into(),
+        capabilities: vec!["goto".into()],
+        sensors: vec![],
+        links: vec![shoal_model::LinkKind::Ip],
+        max_speed_mps: 2.0,
+        timestamp_ms: now_ms(),
+    })
+    .unwrap();
+    let mut s = StateVector {
+        vehicle_id: "auv-ws".into(),
+        timestamp_ms: now_ms(),
+        latitude_deg: 63.0,
+        longitude_deg: 10.0,
+        depth_m: 3.0,
+        altitude_m: -1.0,
+        speed_mps: 1.0,
+        yaw_deg: 0.0,
+        pitch_deg: 0.0,
+        roll_deg: 0.0,
+        battery_pct: 10.0,
+    };
+    h.ingest_state(s.clone()).unwrap();
+    let mut seen_vehicle = false;
+    let mut seen_event = false;
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+    while !(seen_vehicle && seen_event) {
+        let msg = tokio::time::timeout_at(deadline, ws.next())
+            .await
+            .expect("live updates within 10 s")
+            .unwrap()
+            .unwrap();
+        let text = msg.into_text().unwrap();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        match v["type"].as_str().unwrap() {
+            "vehicle" => {
+                assert_eq!(v["data"]["announcement"]["vehicle_id"], "auv-ws");
+                seen_vehicle = true;
+            }
+            // 10 % battery: the built-in low-battery rule fires on insert.
+            "event" if v["data"]["kind"] == "low_battery" => seen_event = true,
+            _ => {}
+        }
+        s.timestamp_ms += 1;
+    }
+    stop.cancel();
+    server.await.unwrap().unwrap();
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+}
