@@ -72,3 +72,18 @@ pub async fn eventually<T>(secs: u64, what: &str, mut check: impl FnMut() -> Opt
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
 }
+
+/// An AUV's announcement (max 2 m/s, goto-capable, on IP), announced now.
+pub fn auv_announcement(id: &str) -> shoal_model::VehicleAnnouncement {
+    shoal_model::VehicleAnnouncement {
+        vehicle_id: id.into(),
+        name: format!("test {id}"),
+        kind: shoal_model::VehicleKind::Auv,
+        vendor: "test".into(),
+        capabilities: vec!["goto".into()],
+        sensors: vec![],
+        links: vec![shoal_model::LinkKind::Ip],
+        max_speed_mps: 2.0,
+        timestamp_ms: shoal_model::now_ms(),
+    }
+}

@@ -472,18 +472,8 @@ async fn the_sparql_endpoint_explains_malformed_requests() {
 async fn implausible_state_is_rejected_by_reason_and_good_data_is_kept() {
     let station = start_station(67);
     let h = station.handle.clone();
-    h.register_vehicle(shoal_model::VehicleAnnouncement {
-        vehicle_id: "auv-p".into(),
-        name: "plausibility".into(),
-        kind: VehicleKind::Auv,
-        vendor: "test".into(),
-        capabilities: vec![],
-        sensors: vec![],
-        links: vec![shoal_model::LinkKind::Ip],
-        max_speed_mps: 2.0,
-        timestamp_ms: now_ms(),
-    })
-    .unwrap();
+    h.register_vehicle(crate::common::auv_announcement("auv-p"))
+        .unwrap();
     let t0 = now_ms() - 60_000;
     let at = |dt_s: i64, lat: f64, battery: f64| StateVector {
         vehicle_id: "auv-p".into(),
@@ -590,18 +580,8 @@ async fn rules_are_managed_through_the_api_and_survive_a_restart() {
     use shoal_model::EventKind;
     let station = start_station(68);
     let h = station.handle.clone();
-    h.register_vehicle(shoal_model::VehicleAnnouncement {
-        vehicle_id: "auv-r".into(),
-        name: "rules".into(),
-        kind: VehicleKind::Auv,
-        vendor: "test".into(),
-        capabilities: vec![],
-        sensors: vec![],
-        links: vec![shoal_model::LinkKind::Ip],
-        max_speed_mps: 2.0,
-        timestamp_ms: now_ms(),
-    })
-    .unwrap();
+    h.register_vehicle(crate::common::auv_announcement("auv-r"))
+        .unwrap();
     let t0 = now_ms() - 30_000;
     let at = |i: i64, depth: f64| StateVector {
         vehicle_id: "auv-r".into(),
@@ -712,13 +692,21 @@ async fn a_vehicle_whose_participant_leaves_is_lost_at_once_and_rejoins() {
     for round in 0..2 {
         let stop = CancellationToken::new();
         let participant = dds(58);
-        let v = tokio::spawn(shoal_proxy::run_sim(spec.clone(), participant, stop.clone()));
+        let v = tokio::spawn(shoal_proxy::run_sim(
+            spec.clone(),
+            participant,
+            stop.clone(),
+        ));
         eventually(20, "the vehicle alive", || {
             h.vehicle("auv-gone")
                 .filter(|v| v.contact == shoal_station::Contact::Alive)
         })
         .await;
-        assert_eq!(h.fleet().len(), 1, "round {round}: re-registration is idempotent");
+        assert_eq!(
+            h.fleet().len(),
+            1,
+            "round {round}: re-registration is idempotent"
+        );
         stop.cancel();
         v.await.unwrap().unwrap();
         // Lost well before the 30 s `lost_after_s`.
@@ -747,18 +735,8 @@ async fn the_websocket_streams_vehicles_and_events() {
     let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/api/ws"))
         .await
         .unwrap();
-    h.register_vehicle(shoal_model::VehicleAnnouncement {
-        vehicle_id: "auv-ws".into(),
-        name: "ws".into(),
-        kind: VehicleKind::Auv,
-        vendor: "test".into(),
-        capabilities: vec!["goto".into()],
-        sensors: vec![],
-        links: vec![shoal_model::LinkKind::Ip],
-        max_speed_mps: 2.0,
-        timestamp_ms: now_ms(),
-    })
-    .unwrap();
+    h.register_vehicle(crate::common::auv_announcement("auv-ws"))
+        .unwrap();
     let mut s = StateVector {
         vehicle_id: "auv-ws".into(),
         timestamp_ms: now_ms(),
