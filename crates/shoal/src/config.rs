@@ -9,7 +9,7 @@ use shoal_console::ConsoleConfig;
 use shoal_dds::DdsConfig;
 use shoal_history::HistoryConfig;
 use shoal_model::VehicleKind;
-use shoal_proxy::sim::SimSpec;
+use shoal_proxy::sim::{SimSettings, SimSpec};
 use shoal_station::StationConfig;
 
 /// The commented default configuration, kept in the repository; a test parses it so it
@@ -39,8 +39,35 @@ pub struct FleetConfig {
     /// Also start the acoustic demo: a submerged AUV (auv-ac1) heard only through an
     /// emulated acoustic link, relayed by a CDT on the surface, as in the SWARMs sea trial.
     pub acoustic_demo: bool,
+    /// How every simulated vehicle behaves: battery reserve, low-battery warning,
+    /// detections, environment sampling.
+    pub sim: SimSettings,
     /// One entry per vehicle on IP.
     pub vehicles: Vec<SimSpec>,
+}
+
+impl FleetConfig {
+    /// Checks the simulator settings; the error names the key.
+    pub fn check(&self) -> Result<(), String> {
+        let s = &self.sim;
+        for (key, v, lo, hi) in [
+            ("reserve_pct", s.reserve_pct, 0.0, 100.0),
+            ("low_battery_pct", s.low_battery_pct, 0.0, 100.0),
+            (
+                "low_battery_hysteresis_pct",
+                s.low_battery_hysteresis_pct,
+                0.0,
+                100.0,
+            ),
+            ("detection_per_s", s.detection_per_s, 0.0, 1.0),
+            ("environment_hz", s.environment_hz, 0.0, 10.0),
+        ] {
+            if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                return Err(format!("fleet.sim.{key} = {v} is outside [{lo}, {hi}]"));
+            }
+        }
+        Ok(())
+    }
 }
 
 impl Default for FleetConfig {
@@ -56,6 +83,7 @@ impl Default for FleetConfig {
         };
         Self {
             acoustic_demo: true,
+            sim: SimSettings::default(),
             vehicles: vec![
                 v("auv-1", VehicleKind::Auv, 63.4650, 10.3700),
                 v("auv-2", VehicleKind::Auv, 63.4660, 10.3750),
@@ -139,6 +167,10 @@ fn from_table(table: toml::Table) -> Result<ShoalConfig> {
         .history
         .check()
         .map_err(|e| anyhow::anyhow!("invalid configuration in [history]: {e}"))?;
+    config
+        .fleet
+        .check()
+        .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
     Ok(config)
 }
 

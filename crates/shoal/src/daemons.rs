@@ -113,7 +113,7 @@ pub async fn vehicle(cfg: &ShoalConfig, spec: SimSpec, exit_on_stdin_close: bool
         .validate()
         .context("start position is invalid")?;
     let shutdown = shutdown_signal(exit_on_stdin_close);
-    shoal_proxy::run_sim(spec, dds(cfg)?, shutdown)
+    shoal_proxy::run_sim_with(spec, cfg.fleet.sim.clone(), dds(cfg)?, shutdown)
         .await
         .context("simulated vehicle failed")
 }
