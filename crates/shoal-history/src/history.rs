@@ -385,6 +385,11 @@ mod tests {
 
             assert_eq!(h.track("auv-1", T, T, 10).unwrap(), vec![s]);
             assert_eq!(h.vehicles().unwrap(), vec![v]);
+            let reloaded = h.reader().tasks_since(task.issued_ms, 10).unwrap();
+            assert_eq!(reloaded.len(), 1);
+            assert_eq!(reloaded[0].assignment.as_ref(), Some(&task));
+            assert_eq!(reloaded[0].statuses, vec![status.clone()]);
+            assert!(h.reader().tasks_since(task.issued_ms + 1, 10).unwrap().is_empty());
             let th = h.task_history("t-1").unwrap();
             assert_eq!(th.assignment.as_ref(), Some(&task));
             assert_eq!(th.assignment.unwrap().task(), Ok(survey));

@@ -389,6 +389,43 @@ impl HistoryReader {
         })
     }
 
+    /// Tasks issued at or after `since_ms` (at most `limit`, the oldest first), each with
+    /// its status reports in life-cycle order: what a restarted station reloads.
+    pub fn tasks_since(
+        &self,
+        since_ms: i64,
+        limit: usize,
+    ) -> Result<Vec<TaskHistory>, HistoryError> {
+        let assignments = self.collect(
+            "SELECT task_id, mission_id, vehicle_id, issued_ms, kind, area, depth_m, \
+             altitude_m, speed_mps, line_spacing_m, duration_s, rate_hz \
+             FROM task_assignment WHERE issued_ms >= ?1 ORDER BY issued_ms, task_id LIMIT ?2",
+            vec![since_ms.into(), sql_limit(limit)],
+            task_row,
+        )?;
+        let statuses = self.collect(
+            "SELECT s.task_id, s.timestamp_ms, s.state, s.progress_pct, s.message, s.vehicle_id \
+             FROM task_status s JOIN task_assignment a ON a.task_id = s.task_id \
+             WHERE a.issued_ms >= ?1 ORDER BY s.task_id, s.timestamp_ms, \
+             CASE s.state WHEN 'pending' THEN 0 WHEN 'sent' THEN 1 WHEN 'accepted' THEN 2 \
+             WHEN 'running' THEN 3 ELSE 4 END, s.state",
+            vec![since_ms.into()],
+            task_status_row,
+        )?;
+        let mut by_task: std::collections::HashMap<String, Vec<TaskStatus>> =
+            std::collections::HashMap::new();
+        for s in statuses {
+            by_task.entry(s.task_id.clone()).or_default().push(s);
+        }
+        Ok(assignments
+            .into_iter()
+            .map(|a| TaskHistory {
+                statuses: by_task.remove(&a.task_id).unwrap_or_default(),
+                assignment: Some(a),
+            })
+            .collect())
+    }
+
     /// A vehicle's observations of one property with `from_ms <= timestamp_ms <= to_ms`,
     /// oldest first, at most `limit`.
     pub fn observations(

@@ -118,6 +118,9 @@ pub(crate) struct Register {
     tasks: BTreeMap<String, TaskView>,
     missions: BTreeMap<String, Mission>,
     mission_of: HashMap<String, String>,
+    /// State changes the station itself made (sent, skipped, aborted, expired), to be
+    /// written to the history as task status reports so it holds every transition.
+    transitions: Vec<TaskStatus>,
 }
 
 /// Rank in the state machine; a report may only keep or raise it.
@@ -217,7 +220,75 @@ impl Register {
             t.link = Some(link);
             t.updated_ms = now_ms;
             t.message = format!("sent over {}", link_name(link));
+            let record = transition(t, now_ms);
+            self.transitions.push(record);
         }
+    }
+
+    /// The station's own state changes since the last call, oldest first.
+    pub(crate) fn take_transitions(&mut self) -> Vec<TaskStatus> {
+        std::mem::take(&mut self.transitions)
+    }
+
+    /// Rebuilds the register from the history after a restart: each task with the state
+    /// its reports reached, missions grouped by id in issue order. A mission with a task
+    /// past `pending` is running; one whose tasks are all final has ended.
+    pub(crate) fn restore(&mut self, history: Vec<shoal_history::TaskHistory>, now_ms: i64) {
+        let mut missions: Vec<(String, Vec<String>)> = Vec::new();
+        for h in history {
+            let Some(a) = h.assignment else { continue };
+            let id = a.task_id.clone();
+            let mission = a.mission_id.clone();
+            self.add_task(a, now_ms);
+            if let Some(t) = self.tasks.get_mut(&id) {
+                for s in h.statuses {
+                    if may_move(t.state, s.state) {
+                        t.state = s.state;
+                        t.progress_pct = s.progress_pct;
+                        t.message.clone_from(&s.message);
+                        t.updated_ms = s.timestamp_ms;
+                        if s.message.contains("acoustic link") {
+                            t.link = Some(LinkKind::Acoustic);
+                        }
+                        t.status = Some(s);
+                    }
+                }
+                if t.state == TaskState::Sent && t.link.is_none() {
+                    t.link = Some(LinkKind::Ip);
+                }
+            }
+            if mission.is_empty() {
+                continue;
+            }
+            match missions.iter_mut().find(|(m, _)| *m == mission) {
+                Some((_, ids)) => ids.push(id),
+                None => missions.push((mission, vec![id])),
+            }
+        }
+        for (mission, ids) in missions {
+            let states: Vec<TaskState> = ids
+                .iter()
+                .filter_map(|i| self.tasks.get(i).map(|t| t.state))
+                .collect();
+            self.add_mission(&mission, "", ids, now_ms);
+            if let Some(m) = self.missions.get_mut(&mission)
+                && states.iter().any(|s| *s != TaskState::Pending)
+            {
+                m.state = MissionState::Running;
+                m.started_ms = Some(now_ms);
+            }
+            self.settle(&mission, now_ms);
+        }
+    }
+
+    /// Running missions' tasks that are due (after a restart: re-sent, which is harmless,
+    /// since vehicles ignore a task id they already have).
+    pub(crate) fn due_tasks(&self) -> Vec<String> {
+        self.missions
+            .values()
+            .filter(|m| m.state == MissionState::Running)
+            .flat_map(|m| self.next_tasks(&m.mission_id))
+            .collect()
     }
 
     /// Re-issues a task the acoustic link gave up on, if it has retries left: back to
@@ -252,6 +323,8 @@ impl Register {
             t.state = state;
             t.message = message.to_owned();
             t.updated_ms = now_ms;
+            let record = transition(t, now_ms);
+            self.transitions.push(record);
         }
     }
 
@@ -343,6 +416,8 @@ impl Register {
                     o.state = TaskState::Aborted;
                     o.message.clone_from(&why);
                     o.updated_ms = now_ms;
+                    let record = transition(o, now_ms);
+                    self.transitions.push(record);
                 }
             }
         }
@@ -399,6 +474,8 @@ impl Register {
                     t.state = TaskState::Aborted;
                     t.message = "mission aborted by the operator".into();
                     t.updated_ms = now_ms;
+                    let record = transition(t, now_ms);
+                    self.transitions.push(record);
                 } else if !t.state.is_final() && !vehicles.contains(&t.assignment.vehicle_id) {
                     vehicles.push(t.assignment.vehicle_id.clone());
                 }
@@ -472,6 +549,18 @@ impl Register {
             .keys()
             .filter_map(|id| self.mission(id))
             .collect()
+    }
+}
+
+/// A state change the station made, as a status report for the history.
+fn transition(t: &TaskView, now_ms: i64) -> TaskStatus {
+    TaskStatus {
+        task_id: t.assignment.task_id.clone(),
+        vehicle_id: t.assignment.vehicle_id.clone(),
+        timestamp_ms: now_ms,
+        state: t.state,
+        progress_pct: t.progress_pct,
+        message: t.message.chars().take(shoal_model::MAX_TEXT_LEN).collect(),
     }
 }
 
@@ -645,6 +734,41 @@ mod tests {
         }
         assert!(r.retry("a1", 2, T + 3).is_none());
         assert_eq!(r.task("a1").unwrap().retries, 2);
+    }
+
+    #[test]
+    fn a_restarted_register_resumes_missions_from_the_transitions_it_recorded() {
+        let mut r = mission();
+        r.start("m1", T);
+        r.sent("a1", LinkKind::Ip, T);
+        r.sent("b1", LinkKind::Acoustic, T);
+        r.on_status(&report("a1", "a", TaskState::Done), T);
+        r.advance("a1", T);
+        r.sent("a2", LinkKind::Ip, T);
+        // What the history holds: assignments, the vehicles' reports, the station's own.
+        let mut statuses: Vec<TaskStatus> = r.take_transitions();
+        statuses.push(report("a1", "a", TaskState::Done));
+        let history: Vec<shoal_history::TaskHistory> = ["a1", "b1", "a2", "b2"]
+            .iter()
+            .map(|id| shoal_history::TaskHistory {
+                assignment: Some(r.task(id).unwrap().assignment.clone()),
+                statuses: statuses
+                    .iter()
+                    .filter(|s| s.task_id == *id)
+                    .cloned()
+                    .collect(),
+            })
+            .collect();
+        let mut back = Register::default();
+        back.restore(history, T + 10);
+        assert_eq!(back.task("a1").unwrap().state, TaskState::Done);
+        assert_eq!(back.task("a2").unwrap().state, TaskState::Sent);
+        assert_eq!(back.task("b1").unwrap().link, Some(LinkKind::Acoustic));
+        assert_eq!(back.mission("m1").unwrap().state, MissionState::Running);
+        // Nothing new is due: both vehicles have a task under way.
+        assert!(back.due_tasks().is_empty());
+        back.on_status(&report("b1", "b", TaskState::Done), T + 20);
+        assert_eq!(back.advance("b1", T + 20), vec!["b2"]);
     }
 
     #[test]

@@ -56,6 +56,9 @@ fn apply_rules_file(
     Ok(())
 }
 
+/// How far back a restarted station reloads tasks from the history.
+const TASK_MEMORY_MS: i64 = 24 * 3_600_000;
+
 /// A datum as JSON for the quarantine table.
 fn payload<T: Serialize>(value: &T) -> String {
     serde_json::to_string(value).unwrap_or_else(|e| format!("{{\"unencodable\":\"{e}\"}}"))
@@ -205,11 +208,27 @@ impl Station {
                 e.latest = Some(s);
             }
         }
+        // The Mission & Task Register resumes where it was: tasks of the last day with the
+        // state their recorded transitions reached.
+        let mut register = Register::default();
+        let since = now_ms() - TASK_MEMORY_MS;
+        let reloaded = reader
+            .tasks_since(since, 100_000)
+            .map_err(StationError::History)?;
+        if !reloaded.is_empty() {
+            info!(tasks = reloaded.len(), "tasks reloaded from the history");
+        }
+        for t in reloaded.iter().filter_map(|t| t.assignment.as_ref()) {
+            if let Err(err) = semantic.upsert_task(t) {
+                warn!(task = %t.task_id, error = %err, "task not in the semantic model");
+            }
+        }
+        register.restore(reloaded, now_ms());
         let shared = Arc::new(Shared {
             fleet: Mutex::new(fleet),
             stats: Mutex::new(IngestStats::default()),
             events: Mutex::new(VecDeque::new()),
-            register: Mutex::new(Register::default()),
+            register: Mutex::new(register),
             acks: Mutex::new(HashMap::new()),
             env_subs: Mutex::new(BTreeMap::new()),
             live: tokio::sync::broadcast::channel(4096).0,
@@ -282,6 +301,18 @@ impl Station {
             StationHandle::on_observation,
         ));
         info!(participant = %self.dds.participant_id(), "station running");
+        let due = lock(&self.shared.register).due_tasks();
+        if !due.is_empty() {
+            info!(
+                tasks = due.len(),
+                "sending the tasks restored missions are waiting for"
+            );
+            tokio::task::block_in_place(|| {
+                for id in due {
+                    h.send_registered(&id);
+                }
+            });
+        }
 
         let cfg = &self.shared.config;
         let mut tick = tokio::time::interval(Duration::from_secs(1));
@@ -711,10 +742,22 @@ impl StationHandle {
             self.raise(severity, EventKind::Task, &vehicle, task_id, &text);
         }
         let next = lock(&self.shared.register).advance(task_id, now_ms());
+        self.record_transitions();
         for id in next {
             self.send_registered(&id);
         }
         self.push_mission_of(task_id);
+    }
+
+    /// Writes the state changes the station made itself to the history and the model, so
+    /// the history holds every transition (and a restarted station can resume).
+    fn record_transitions(&self) {
+        let records = lock(&self.shared.register).take_transitions();
+        for s in records {
+            let fired = lock(&self.shared.semantic).task_status(&s);
+            self.emit_fired(fired);
+            self.store(Record::TaskStatus(s));
+        }
     }
 
     fn push_task(&self, task_id: &str) {
@@ -1333,6 +1376,7 @@ impl StationHandle {
                 info!(task = task_id, vehicle = %vehicle, ?kind, ?link, "task dispatched");
                 lock(&self.shared.stats).tasks_dispatched += 1;
                 lock(&self.shared.register).sent(task_id, link, now_ms());
+                self.record_transitions();
                 self.push_task(task_id);
             }
             Err(e) => {
@@ -1343,6 +1387,7 @@ impl StationHandle {
                     &format!("could not be published: {e}"),
                     now_ms(),
                 );
+                self.record_transitions();
             }
         }
     }
@@ -1372,7 +1417,9 @@ impl StationHandle {
                 .task_id
                 .clone()
                 .unwrap_or_else(|| format!("{}-{}", spec.mission_id, n + 1));
-            let a = TaskAssignment::new(id, &spec.mission_id, &t.vehicle_id, now, &t.task);
+            // One millisecond apart, so that the history keeps the mission's order.
+            let issued = now + i64::try_from(n).unwrap_or(0);
+            let a = TaskAssignment::new(id, &spec.mission_id, &t.vehicle_id, issued, &t.task);
             self.check_task(&a).map_err(|e| DispatchError::InMission {
                 index: n,
                 error: Box::new(e),
@@ -1426,6 +1473,7 @@ impl StationHandle {
         let busy = lock(&self.shared.register)
             .abort_mission(mission_id, now_ms())
             .ok_or_else(|| DispatchError::UnknownMission(mission_id.to_owned()))?;
+        self.record_transitions();
         warn!(mission = mission_id, vehicles = ?busy, "mission aborted");
         self.raise(
             Severity::Warning,
@@ -1449,6 +1497,7 @@ impl StationHandle {
         for m in &missions {
             let _ = lock(&self.shared.register).abort_mission(m, now_ms());
         }
+        self.record_transitions();
         let vehicles: Vec<String> = lock(&self.shared.fleet)
             .vehicles
             .iter()

@@ -778,3 +778,72 @@ async fn the_websocket_streams_vehicles_and_events() {
     station.shutdown.cancel();
     station.task.await.unwrap();
 }
+
+/// The Mission & Task Register survives a station restart: a mission under way when the
+/// station stops is reloaded from the history's recorded transitions and runs to done.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_mission_resumes_after_the_station_restarts() {
+    let station = start_station(56);
+    let stop = CancellationToken::new();
+    let spec = SimSpec {
+        id: "auv-rs".into(),
+        kind: VehicleKind::Auv,
+        latitude_deg: 63.0,
+        longitude_deg: 10.0,
+        rate_hz: 5.0,
+        battery_pct: 90.0,
+    };
+    let v = tokio::spawn(shoal_proxy::run_sim(spec, dds(56), stop.clone()));
+    let h = station.handle.clone();
+    eventually(20, "auv-rs to report state", || {
+        h.vehicle("auv-rs").filter(|v| v.latest.is_some())
+    })
+    .await;
+    let goto = |lat: f64| shoal_station::MissionTaskSpec {
+        task_id: None,
+        vehicle_id: "auv-rs".into(),
+        task: Task::GotoWaypoint {
+            target: GeoPoint {
+                latitude_deg: lat,
+                longitude_deg: 10.0,
+            },
+            depth_m: Some(2.0),
+            altitude_m: None,
+            speed_mps: 2.0,
+        },
+    };
+    h.plan_mission(shoal_station::MissionSpec {
+        mission_id: "m-rs".into(),
+        name: "restart".into(),
+        tasks: vec![goto(63.000_2), goto(63.000_4)],
+    })
+    .unwrap();
+    tokio::task::block_in_place(|| h.start_mission("m-rs")).unwrap();
+    eventually(30, "the first task running", || {
+        h.task("m-rs-1")
+            .filter(|t| matches!(t.state, TaskState::Running | TaskState::Done))
+    })
+    .await;
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+
+    let station = crate::common::start_station_in(56, station.dir);
+    let h = station.handle.clone();
+    let m = h.mission("m-rs").expect("the mission is reloaded");
+    assert_eq!(m.state, shoal_station::MissionState::Running, "{m:?}");
+    let done = eventually(60, "the mission done after the restart", || {
+        h.mission("m-rs")
+            .filter(|m| m.state == shoal_station::MissionState::Done)
+    })
+    .await;
+    assert!(done.tasks.iter().all(|t| t.state == TaskState::Done));
+    // Every transition is in the history: sent by the station, then the vehicle's reports.
+    let th = h.history().task_history("m-rs-2").unwrap();
+    let states: Vec<TaskState> = th.statuses.iter().map(|s| s.state).collect();
+    assert_eq!(states.first(), Some(&TaskState::Sent), "{states:?}");
+    assert_eq!(states.last(), Some(&TaskState::Done), "{states:?}");
+    stop.cancel();
+    v.await.unwrap().unwrap();
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+}
