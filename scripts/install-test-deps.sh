@@ -6,6 +6,8 @@
 #   - $REPO/.venv with PyPI cyclonedds and rticonnextdds-connector (DDS peers) and
 #     rdflib (independent SPARQL engine for the semantic cross-check)
 #   - the Fast DDS C++ peer, built into tests/interop/build/ (gitignored)
+#   - pymavlink and imcpy in the venv, the vehicle proxies' test peers
+#     (scripts/install-proxy-peers.sh)
 # Idempotent: every step is skipped when already done, so a re-run is fast.
 # Run as root, non-interactively (CI=true, no stdin is fine).
 #
@@ -69,5 +71,9 @@ else
     say "building Fast DDS peer -> tests/interop/build/fastdds_peer"
     make -C "$REPO/tests/interop/fastdds" BUILD="$REPO/tests/interop/build"
 fi
+
+# ---------------------------------------------------------------- vehicle proxy peers
+# pymavlink (an ArduSub-like vehicle) and imcpy (an IMC AUV) for the proxy tests.
+"$REPO/scripts/install-proxy-peers.sh"
 
 say "done"

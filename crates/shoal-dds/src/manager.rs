@@ -122,7 +122,11 @@ impl PubSub {
                 name.to_string(),
                 T::TYPE_NAME.to_string(),
                 &T::PROFILE.topic_qos(self.config.topic_cache_samples),
-                TopicKind::WithKey,
+                if T::KEYED {
+                    TopicKind::WithKey
+                } else {
+                    TopicKind::NoKey
+                },
             )
             .map_err(|e| dds_err(format!("topic {name}"), e))?;
         topics.insert(name.to_string(), t.clone());
@@ -149,10 +153,20 @@ impl PubSub {
     ) -> Result<Writer<T>, CreateError> {
         let topic = self.topic::<T>(topic_name)?;
         let qos = T::PROFILE.writer_qos(&options);
-        let inner = self
-            .publisher
-            .create_datawriter_cdr::<Wire<T>>(&topic, Some(qos))
-            .map_err(|e| dds_err(format!("a writer on {}", T::TOPIC), e))?;
+        let err = |e| dds_err(format!("a writer on {}", T::TOPIC), e);
+        let inner = if T::KEYED {
+            WriterInner::Keyed(
+                self.publisher
+                    .create_datawriter_cdr::<Wire<T>>(&topic, Some(qos))
+                    .map_err(err)?,
+            )
+        } else {
+            WriterInner::Unkeyed(
+                self.publisher
+                    .create_datawriter_no_key_cdr::<Wire<T>>(&topic, Some(qos))
+                    .map_err(err)?,
+            )
+        };
         debug!(
             topic = T::TOPIC,
             priority = options.priority.as_str(),
@@ -172,10 +186,20 @@ impl PubSub {
     ) -> Result<Subscription<T>, CreateError> {
         let topic = self.topic::<T>(topic_name)?;
         let qos = T::PROFILE.reader_qos(self.config.topic_cache_samples);
-        let reader = self
-            .subscriber
-            .create_datareader_cdr::<Wire<T>>(&topic, Some(qos))
-            .map_err(|e| dds_err(format!("a reader on {topic_name}"), e))?;
+        let err = |e| dds_err(format!("a reader on {topic_name}"), e);
+        let reader = if T::KEYED {
+            ReaderInner::Keyed(
+                self.subscriber
+                    .create_datareader_cdr::<Wire<T>>(&topic, Some(qos))
+                    .map_err(err)?,
+            )
+        } else {
+            ReaderInner::Unkeyed(
+                self.subscriber
+                    .create_datareader_no_key_cdr::<Wire<T>>(&topic, Some(qos))
+                    .map_err(err)?,
+            )
+        };
         spawn_reader(reader, topic_name)
     }
 
@@ -259,9 +283,38 @@ impl ParticipantEvent {
     }
 }
 
+/// A DDS writer of a keyed or an unkeyed topic.
+enum WriterInner<T: TopicType> {
+    Keyed(DataWriter<Wire<T>, CDRSerializerAdapter<Wire<T>>>),
+    Unkeyed(rustdds::no_key::DataWriter<Wire<T>, CDRSerializerAdapter<Wire<T>>>),
+}
+
+impl<T: TopicType> WriterInner<T> {
+    async fn async_write(&self, sample: Wire<T>) -> rustdds::dds::result::WriteResult<(), Wire<T>> {
+        match self {
+            Self::Keyed(w) => w.async_write(sample, None).await,
+            Self::Unkeyed(w) => w.async_write(sample, None).await,
+        }
+    }
+
+    fn write(&self, sample: Wire<T>) -> rustdds::dds::result::WriteResult<(), Wire<T>> {
+        match self {
+            Self::Keyed(w) => w.write(sample, None),
+            Self::Unkeyed(w) => w.write(sample, None),
+        }
+    }
+
+    fn try_recv_status(&self) -> Option<rustdds::DataWriterStatus> {
+        match self {
+            Self::Keyed(w) => w.try_recv_status(),
+            Self::Unkeyed(w) => w.try_recv_status(),
+        }
+    }
+}
+
 /// A typed DDS writer in one priority class.
 pub struct Writer<T: TopicType> {
-    inner: DataWriter<Wire<T>, CDRSerializerAdapter<Wire<T>>>,
+    inner: WriterInner<T>,
     options: WriterOptions,
     matched: Mutex<i32>,
 }
@@ -306,7 +359,7 @@ impl<T: TopicType> Writer<T> {
         let sample = Self::check(sample)?;
         let backup = sample.clone();
         self.inner
-            .async_write(Wire(sample), None)
+            .async_write(Wire(sample))
             .await
             .map_err(|e| Self::map_err(e, backup))
     }
@@ -316,7 +369,7 @@ impl<T: TopicType> Writer<T> {
     pub async fn write_unchecked(&self, sample: T) -> Result<(), WriteError<T>> {
         let backup = sample.clone();
         self.inner
-            .async_write(Wire(sample), None)
+            .async_write(Wire(sample))
             .await
             .map_err(|e| Self::map_err(e, backup))
     }
@@ -326,7 +379,7 @@ impl<T: TopicType> Writer<T> {
         let sample = Self::check(sample)?;
         let backup = sample.clone();
         self.inner
-            .write(Wire(sample), None)
+            .write(Wire(sample))
             .map_err(|e| Self::map_err(e, backup))
     }
 
@@ -405,8 +458,14 @@ const CHANNEL: usize = 4096;
 
 type Tx<T> = tokio::sync::mpsc::Sender<Result<(T, SampleMeta), ReadError>>;
 
+/// A DDS reader of a keyed or an unkeyed topic.
+enum ReaderInner<T: TopicType> {
+    Keyed(DataReader<Wire<T>, CDRDeserializerAdapter<Wire<T>>>),
+    Unkeyed(rustdds::no_key::DataReader<Wire<T>, CDRDeserializerAdapter<Wire<T>>>),
+}
+
 fn spawn_reader<T: TopicType>(
-    reader: DataReader<Wire<T>, CDRDeserializerAdapter<Wire<T>>>,
+    reader: ReaderInner<T>,
     topic_name: &str,
 ) -> Result<Subscription<T>, CreateError> {
     let (tx, rx) = tokio::sync::mpsc::channel(CHANNEL);
@@ -417,7 +476,11 @@ fn spawn_reader<T: TopicType>(
     std::thread::Builder::new()
         .name(name.chars().take(15).collect())
         .spawn(move || {
-            if let Err(e) = reader_loop(reader, &tx, &thread_stop) {
+            let result = match reader {
+                ReaderInner::Keyed(r) => reader_loop(r, &tx, &thread_stop),
+                ReaderInner::Unkeyed(r) => reader_loop_no_key(r, &tx, &thread_stop),
+            };
+            if let Err(e) = result {
                 warn!(topic, error = %e, "DDS reader thread stopped");
             }
         })
@@ -482,6 +545,77 @@ fn reader_loop<T: TopicType>(
         }
         // The timeout bounds how long a dropped subscription keeps its thread.
         poll.poll(&mut events, Some(std::time::Duration::from_millis(200)))?;
+    }
+}
+
+fn reader_loop_no_key<T: TopicType>(
+    mut reader: rustdds::no_key::DataReader<Wire<T>, CDRDeserializerAdapter<Wire<T>>>,
+    tx: &Tx<T>,
+    stop: &AtomicBool,
+) -> std::io::Result<()> {
+    use rustdds::mio1::{Events, Interest, Poll as MioPoll, Token};
+    let mut poll = MioPoll::new()?;
+    poll.registry()
+        .register(&mut reader, Token(0), Interest::READABLE)?;
+    let mut events = Events::with_capacity(4);
+    loop {
+        loop {
+            if stop.load(Ordering::Relaxed) || tx.is_closed() {
+                return Ok(());
+            }
+            match reader.take(BATCH, ReadCondition::not_read()) {
+                Ok(batch) if batch.is_empty() => break,
+                Ok(batch) => {
+                    for sample in batch {
+                        let info = sample.sample_info().clone();
+                        let Wire(value) = sample.into_value();
+                        if tx.blocking_send(validated(value, &info)).is_err() {
+                            return Ok(());
+                        }
+                    }
+                }
+                Err(rustdds::dds::result::ReadError::Deserialization { reason }) => {
+                    warn!(topic = T::TOPIC, %reason, "malformed sample dropped");
+                    let item = Err(ReadError::Malformed {
+                        topic: T::TOPIC,
+                        detail: reason,
+                    });
+                    if tx.blocking_send(item).is_err() {
+                        return Ok(());
+                    }
+                }
+                Err(e) => {
+                    let item = Err(ReadError::Dds {
+                        topic: T::TOPIC,
+                        detail: e.to_string(),
+                    });
+                    if tx.blocking_send(item).is_err() {
+                        return Ok(());
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(100));
+                }
+            }
+        }
+        poll.poll(&mut events, Some(std::time::Duration::from_millis(200)))?;
+    }
+}
+
+fn validated<T: TopicType>(
+    value: T,
+    info: &rustdds::SampleInfo,
+) -> Result<(T, SampleMeta), ReadError> {
+    let meta = SampleMeta {
+        writer: format!("{:?}", info.writer_guid()),
+        participant: format!("{:?}", info.writer_guid().prefix),
+        source_timestamp_ms: info.source_timestamp().map(timestamp_ms),
+    };
+    match value.validate() {
+        Ok(()) => Ok((value, meta)),
+        Err(error) => Err(ReadError::Invalid {
+            topic: T::TOPIC,
+            error,
+            payload: serde_json::to_string(&value).unwrap_or_else(|e| format!("\"{e}\"")),
+        }),
     }
 }
 

@@ -25,6 +25,10 @@ pub trait TopicType:
     type Key: rustdds::Key + DeserializeOwned + Send + Sync + std::fmt::Debug;
     /// The instance key of this sample.
     fn key(&self) -> Self::Key;
+    /// Whether the topic has a key (RTPS WITH_KEY endpoints). Foreign types without one,
+    /// such as ROS 2 messages, set `false`: DDS implementations match only endpoints of the
+    /// same keyedness (Cyclone DDS drops the others silently).
+    const KEYED: bool = true;
 }
 
 impl TopicType for StateVector {

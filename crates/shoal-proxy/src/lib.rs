@@ -17,7 +17,10 @@
 //! [`sim::SimVehicle`] is the simulation itself, with no I/O, so it is tested step by step.
 
 pub mod adapter;
+pub mod imc;
+pub mod mavlink;
 mod proxy;
+pub mod ros2;
 pub mod sim;
 
 use std::sync::Arc;

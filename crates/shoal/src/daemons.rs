@@ -258,3 +258,119 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, no_fleet: bool) -> Res
         }
     }
 }
+
+/// The command-line settings of `shoal vehicle --proxy ...`.
+#[derive(Debug)]
+pub struct ProxyFlags {
+    /// Vehicle id.
+    pub id: String,
+    /// `--address`.
+    pub address: Option<String>,
+    /// `--bind`.
+    pub bind: Option<String>,
+    /// `--namespace`.
+    pub namespace: Option<String>,
+    /// `--proxy-config`.
+    pub config_file: Option<std::path::PathBuf>,
+    /// `--rate`.
+    pub rate_hz: f64,
+}
+
+/// Reads a proxy's settings from `--proxy-config`, or its defaults.
+fn proxy_settings<T: serde::de::DeserializeOwned + Default>(file: Option<&Path>) -> Result<T> {
+    let Some(path) = file else {
+        return Ok(T::default());
+    };
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read proxy settings {}", path.display()))?;
+    let de = toml::Deserializer::parse(&text)
+        .with_context(|| format!("proxy settings {}", path.display()))?;
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let inner = e.inner().to_string();
+        let first = inner.lines().next().unwrap_or_default().to_string();
+        anyhow::anyhow!(
+            "proxy settings {}: invalid value at `{}`: {first}",
+            path.display(),
+            e.path()
+        )
+    })
+}
+
+fn socket_addr(flag: &str, value: &str) -> Result<std::net::SocketAddr> {
+    value
+        .parse()
+        .with_context(|| format!("{flag} {value:?} is not HOST:PORT (an IP address and a port)"))
+}
+
+/// `shoal vehicle --proxy mavlink|imc|ros2 ...`: joins a real vehicle's software to DDS.
+pub async fn proxy(
+    cfg: &ShoalConfig,
+    kind: crate::ProxyKind,
+    flags: ProxyFlags,
+    exit_on_stdin_close: bool,
+) -> Result<()> {
+    use shoal_proxy::{ProxyOptions, imc, mavlink, ros2, run_proxy};
+    if !(flags.rate_hz > 0.0 && flags.rate_hz <= 100.0) {
+        bail!(
+            "--rate must be in (0, 100] state vectors per second, not {}",
+            flags.rate_hz
+        );
+    }
+    if !shoal_model::is_identifier(&flags.id, shoal_model::MAX_VEHICLE_ID_LEN) {
+        bail!(
+            "--id {:?}: 1..=32 letters, digits, '_', '-' or '.'",
+            flags.id
+        );
+    }
+    let options = ProxyOptions {
+        state_rate_hz: flags.rate_hz,
+        ..ProxyOptions::default()
+    };
+    let file = flags.config_file.as_deref();
+    let shutdown = shutdown_signal(exit_on_stdin_close);
+    match kind {
+        crate::ProxyKind::Mavlink => {
+            let mut c: mavlink::MavlinkConfig = proxy_settings(file)?;
+            c.vehicle_id.clone_from(&flags.id);
+            if let Some(a) = flags.address {
+                c.address = a;
+            }
+            info!(address = %c.address, "MAVLink proxy starting");
+            let adapter = mavlink::MavlinkAdapter::connect(c)
+                .await
+                .context("MAVLink proxy")?;
+            run_proxy(adapter, dds(cfg)?, options, shutdown)
+                .await
+                .context("MAVLink proxy stopped")
+        }
+        crate::ProxyKind::Imc => {
+            let mut c: imc::ImcConfig = proxy_settings(file)?;
+            c.vehicle_id.clone_from(&flags.id);
+            if let Some(a) = &flags.address {
+                c.vehicle = socket_addr("--address", a)?;
+            }
+            if let Some(b) = &flags.bind {
+                c.bind = socket_addr("--bind", b)?;
+            }
+            info!(bind = %c.bind, vehicle = %c.vehicle, "IMC proxy starting");
+            let adapter = imc::ImcAdapter::bind(c).await.context("IMC proxy")?;
+            run_proxy(adapter, dds(cfg)?, options, shutdown)
+                .await
+                .context("IMC proxy stopped")
+        }
+        crate::ProxyKind::Ros2 => {
+            let mut c: ros2::Ros2Config = proxy_settings(file)?;
+            c.vehicle_id.clone_from(&flags.id);
+            if let Some(ns) = flags.namespace {
+                c.namespace = ns;
+            }
+            info!(namespace = %c.namespace, "ROS 2 proxy starting");
+            let participant = dds(cfg)?;
+            let adapter =
+                ros2::Ros2Adapter::new(Arc::clone(&participant), c).context("ROS 2 proxy")?;
+            run_proxy(adapter, participant, options, shutdown)
+                .await
+                .context("ROS 2 proxy stopped")
+        }
+    }
+}

@@ -44,11 +44,34 @@ enum Command {
         #[arg(long, hide = true)]
         exit_on_stdin_close: bool,
     },
-    /// Run one simulated vehicle on DDS.
+    /// Join one vehicle to DDS: a simulated one (`--sim auv`), or a real vehicle's software
+    /// through a proxy (`--proxy mavlink|imc|ros2`).
     Vehicle {
         /// Kind of simulated vehicle.
+        #[arg(
+            long,
+            value_enum,
+            required_unless_present = "proxy",
+            conflicts_with = "proxy"
+        )]
+        sim: Option<SimKind>,
+        /// Proxy for a real vehicle: MAVLink (ArduSub), IMC (LSTS DUNE) or ROS 2.
         #[arg(long, value_enum)]
-        sim: SimKind,
+        proxy: Option<ProxyKind>,
+        /// MAVLink: the connection, `udpin:127.0.0.1:14550` (wait for the vehicle) or
+        /// `udpout:HOST:PORT`. IMC: the vehicle's UDP address, `HOST:PORT`.
+        #[arg(long)]
+        address: Option<String>,
+        /// IMC: the local UDP address to bind, `HOST:PORT`.
+        #[arg(long)]
+        bind: Option<String>,
+        /// ROS 2: the vehicle's namespace (topics `rt/<namespace>/...`).
+        #[arg(long)]
+        namespace: Option<String>,
+        /// The proxy's full settings as TOML (every key of its configuration; see the
+        /// integrator guide); flags given here override it.
+        #[arg(long, value_name = "FILE")]
+        proxy_config: Option<PathBuf>,
         /// Vehicle id: letters, digits, '_', '-', '.', at most 32.
         #[arg(long)]
         id: String,
@@ -105,6 +128,17 @@ enum Command {
         #[arg(long)]
         default: bool,
     },
+}
+
+/// Vehicle software a proxy speaks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ProxyKind {
+    /// MAVLink 2, ardupilotmega dialect (ArduSub / BlueROV2), over UDP.
+    Mavlink,
+    /// IMC (LSTS DUNE), static unicast UDP.
+    Imc,
+    /// ROS 2 topics over DDS (NavSatFix, Odometry, BatteryState; PoseStamped goals).
+    Ros2,
 }
 
 /// Kinds of simulated vehicle.
@@ -218,15 +252,38 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Vehicle {
             sim,
+            proxy: Some(kind),
+            address,
+            bind,
+            namespace,
+            proxy_config,
+            id,
+            rate,
+            exit_on_stdin_close,
+            ..
+        } if sim.is_none() => {
+            let flags = daemons::ProxyFlags {
+                id,
+                address,
+                bind,
+                namespace,
+                config_file: proxy_config,
+                rate_hz: rate,
+            };
+            rt.block_on(daemons::proxy(&cfg, kind, flags, exit_on_stdin_close))
+        }
+        Command::Vehicle {
+            sim,
             id,
             lat,
             lon,
             rate,
             exit_on_stdin_close,
+            ..
         } => {
             let spec = shoal_proxy::sim::SimSpec {
                 id,
-                kind: sim.into(),
+                kind: sim.unwrap_or(SimKind::Auv).into(),
                 latitude_deg: lat,
                 longitude_deg: lon,
                 rate_hz: rate,

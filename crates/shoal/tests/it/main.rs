@@ -7,6 +7,7 @@
 //! Where new tests go:
 //! - `station`: station + simulated vehicles in one process, the HTTP API, bad input.
 //! - `cli`: the `shoal` binary itself (`up`, configuration errors).
+//! - `proxies`: `shoal vehicle --proxy ...` against an independent vehicle implementation.
 //! - `scenario`: the services end to end — missions on three vehicles, one acoustic.
 //! - `interop`: foreign DDS implementations (Cyclone DDS, RTI Connext, Fast DDS) against
 //!   the station, both directions; skipped with a reason when a peer is not installed.
@@ -15,5 +16,6 @@
 mod cli;
 mod common;
 mod interop;
+mod proxies;
 mod scenario;
 mod station;

@@ -1,0 +1,1087 @@
+//! The ROS 2 proxy: a vehicle whose software is a ROS 2 graph, reached over Shoal's own
+//! DDS participant, wire-compatible without ROS installed.
+//!
+//! ROS 2 topics are DDS topics named `rt/<namespace>/<name>` whose types are the `.msg`
+//! types as plain CDR under the names `<package>::msg::dds_::<Name>_` ([`msgs`]).
+//! [`Ros2Adapter::new`] subscribes, in the configured namespace, to
+//!
+//! - `sensor_msgs/NavSatFix` (`fix`): latitude and longitude (`status` -1, no fix, and NaN
+//!   positions are counted and dropped);
+//! - `nav_msgs/Odometry` (`odom`): depth as the negative of the pose's z (the odometry
+//!   frame's z = 0 must be the sea surface), attitude from the REP 103 quaternion, speed
+//!   from the body-frame twist;
+//! - `sensor_msgs/BatteryState` (`battery`): `percentage` is a fraction, made percent;
+//! - `rcl_interfaces/Log` on `rt/rosout`: warnings and errors of the namespace's nodes
+//!   become events;
+//!
+//! and publishes `geometry_msgs/PoseStamped` goals (`goal_pose`) in a local ENU frame
+//! (`goal_frame_id`, "map" by default) whose origin is [`Ros2Config::datum`] (or the first
+//! fix): x east, y north, z up (so z = -depth), oriented towards the target.
+//!
+//! QoS is ROS 2's default for topics: reliable, volatile. Shoal's DDS layer keeps 64
+//! samples of history per writer rather than ROS's 10; history depth is not part of QoS
+//! matching, so ROS 2 nodes match either way.
+//!
+//! **Keyedness.** ROS 2 message types have no key, and DDS implementations match a writer
+//! and a reader only if both are keyed or both unkeyed (Cyclone DDS, rmw_cyclonedds'
+//! middleware, ignores a mismatched endpoint without a word). `shoal_dds` creates every
+//! topic keyed today, so a real ROS 2 graph and this adapter discover each other but
+//! exchange nothing until `shoal_dds::TopicType` can declare a type unkeyed (and the
+//! types of [`msgs`] do). Against another Shoal participant (both sides keyed) it works
+//! as is.
+//!
+//! Tasks become goals: `goto_waypoint` one, `survey_area` one per lawnmower point (the
+//! next published when the vehicle reaches the last), `hold` one at the current position
+//! for the duration, `surface` and `abort` one at the current position at depth 0,
+//! `return_home` one at the datum at the surface. ROS 2 goals have no acknowledgement
+//! without actions: a goal counts as taken when DDS delivered it to at least one
+//! subscriber (none matched: the task is refused), and progress and arrival come from the
+//! vehicle's fix and odometry.
+
+pub mod mapping;
+pub mod msgs;
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use futures::StreamExt;
+use serde::{Deserialize, Serialize};
+use shoal_dds::{
+    CreateError, Priority, PubSub, ReadError, SampleMeta, Subscription, Writer, WriterOptions,
+};
+use shoal_model::{
+    EventKind, GeoPoint, LinkKind, Severity, StateVector, Task, TaskKind, TaskState, UNKNOWN,
+    Validate, VehicleAnnouncement, VehicleKind, now_ms,
+};
+use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
+use tokio::time::{Instant, MissedTickBehavior};
+use tracing::{debug, info, warn};
+
+use crate::adapter::{
+    Acceptance, Refusal, TaskOrder, TaskUpdate, VehicleAdapter, VehicleEvent, VehicleOutput,
+    capability_of,
+};
+use crate::sim::{distance, distance_bearing, lawnmower};
+use mapping::EnuFrame;
+use msgs::{
+    BatteryState, Header, Log, NavSatFix, Odometry, Point, Pose, PoseStamped, STATUS_NO_FIX, Time,
+    log_level,
+};
+
+/// Outputs buffered for the proxy before new ones are dropped (and counted).
+const OUTPUT_QUEUE: usize = 1024;
+/// How often silence and goals are checked.
+const WATCH_EVERY: Duration = Duration::from_millis(200);
+/// Least progress change worth a report, percent.
+const PROGRESS_STEP: f64 = 1.0;
+
+/// A geodetic datum in a configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Datum {
+    /// Latitude, degrees.
+    pub latitude_deg: f64,
+    /// Longitude, degrees.
+    pub longitude_deg: f64,
+}
+
+/// How to reach a ROS 2 vehicle; the `[proxy.ros2]` section a CLI would read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Ros2Config {
+    /// Shoal vehicle id the proxy announces.
+    pub vehicle_id: String,
+    /// Human-readable name.
+    pub name: String,
+    /// Kind of vehicle.
+    pub kind: VehicleKind,
+    /// Vendor or integrator.
+    pub vendor: String,
+    /// Maximum speed, m/s.
+    pub max_speed_mps: f64,
+    /// The ROS 2 namespace of the vehicle's topics (e.g. `bluerov`; empty for none).
+    pub namespace: String,
+    /// `sensor_msgs/NavSatFix` topic, relative to the namespace.
+    pub fix_topic: String,
+    /// `nav_msgs/Odometry` topic.
+    pub odom_topic: String,
+    /// `sensor_msgs/BatteryState` topic.
+    pub battery_topic: String,
+    /// `geometry_msgs/PoseStamped` goal topic.
+    pub goal_topic: String,
+    /// Turn the namespace's `/rosout` warnings and errors into events.
+    pub rosout: bool,
+    /// `frame_id` of the goals: a local ENU frame with its origin at `datum`.
+    pub goal_frame_id: String,
+    /// Origin of the goal frame; `None` takes the first fix.
+    pub datum: Option<Datum>,
+    /// Silence after which the link is reported lost, ms.
+    pub lost_after_ms: u64,
+    /// Distance at which a goal counts as reached, m.
+    pub arrival_radius_m: f64,
+    /// Depth error within which a goal's depth counts as reached, m.
+    pub depth_tolerance_m: f64,
+}
+
+impl Default for Ros2Config {
+    fn default() -> Self {
+        Self {
+            vehicle_id: "ros2-1".into(),
+            name: "ROS 2 vehicle".into(),
+            kind: VehicleKind::Auv,
+            vendor: "ROS 2".into(),
+            max_speed_mps: 2.0,
+            namespace: String::new(),
+            fix_topic: "fix".into(),
+            odom_topic: "odom".into(),
+            battery_topic: "battery".into(),
+            goal_topic: "goal_pose".into(),
+            rosout: true,
+            goal_frame_id: "map".into(),
+            datum: None,
+            lost_after_ms: 3000,
+            arrival_radius_m: 2.0,
+            depth_tolerance_m: 0.5,
+        }
+    }
+}
+
+impl Ros2Config {
+    /// The DDS name of a ROS 2 topic of this vehicle: `rt/<namespace>/<name>`.
+    pub fn dds_topic(&self, name: &str) -> String {
+        let ns = self.namespace.trim_matches('/');
+        let name = name.trim_matches('/');
+        if ns.is_empty() {
+            format!("rt/{name}")
+        } else {
+            format!("rt/{ns}/{name}")
+        }
+    }
+}
+
+/// Why the ROS 2 adapter cannot start or goes on no more.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Ros2Error {
+    /// The configuration cannot work.
+    #[error("invalid ROS 2 configuration: {0}")]
+    Config(String),
+    /// The DDS readers or the goal writer could not be created.
+    #[error("ROS 2 topics could not be opened: {0}")]
+    Dds(#[from] CreateError),
+    /// The link task ended.
+    #[error("the ROS 2 link stopped: {0}")]
+    LinkStopped(String),
+}
+
+/// What the link has seen so far; a snapshot from [`Ros2Adapter::counters`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct Ros2Counters {
+    /// Samples received and used.
+    pub samples: u64,
+    /// Samples that did not decode as their ROS type.
+    pub malformed: u64,
+    /// Samples that failed their wire checks (e.g. oversized strings).
+    pub invalid: u64,
+    /// Fixes without a fix (`status` -1).
+    pub no_fix: u64,
+    /// Values out of range (NaN position, battery fraction above 1, ...).
+    pub out_of_range: u64,
+    /// Goals published.
+    pub goals_sent: u64,
+    /// Goals that could not be published.
+    pub goal_errors: u64,
+    /// Outputs dropped because the proxy was not reading them.
+    pub outputs_dropped: u64,
+}
+
+#[derive(Debug, Default)]
+struct Counters {
+    samples: AtomicU64,
+    malformed: AtomicU64,
+    invalid: AtomicU64,
+    no_fix: AtomicU64,
+    out_of_range: AtomicU64,
+    goals_sent: AtomicU64,
+    goal_errors: AtomicU64,
+    outputs_dropped: AtomicU64,
+}
+
+fn bump(c: &AtomicU64) {
+    c.fetch_add(1, Ordering::Relaxed);
+}
+
+impl Counters {
+    fn snapshot(&self) -> Ros2Counters {
+        let g = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        Ros2Counters {
+            samples: g(&self.samples),
+            malformed: g(&self.malformed),
+            invalid: g(&self.invalid),
+            no_fix: g(&self.no_fix),
+            out_of_range: g(&self.out_of_range),
+            goals_sent: g(&self.goals_sent),
+            goal_errors: g(&self.goal_errors),
+            outputs_dropped: g(&self.outputs_dropped),
+        }
+    }
+}
+
+/// What the odometry says, in Shoal's terms.
+#[derive(Debug, Clone, Copy)]
+struct Odo {
+    depth: f64,
+    speed: f64,
+    roll: f64,
+    pitch: f64,
+    heading: f64,
+}
+
+/// What the adapter and the link task share.
+#[derive(Debug, Default)]
+struct Shared {
+    fix: Option<(GeoPoint, i64)>,
+    odo: Option<Odo>,
+    battery_pct: Option<f64>,
+    datum: Option<EnuFrame>,
+    heard: bool,
+    lost: bool,
+}
+
+fn lock(shared: &Mutex<Shared>) -> std::sync::MutexGuard<'_, Shared> {
+    // Plain values, consistent between statements: a poisoned lock is still usable.
+    shared.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+impl Shared {
+    fn state(&self, vehicle_id: &str) -> Option<StateVector> {
+        if self.lost {
+            return None;
+        }
+        let (p, at_ms) = self.fix?;
+        let odo = self.odo?;
+        Some(StateVector {
+            vehicle_id: vehicle_id.to_string(),
+            timestamp_ms: at_ms,
+            latitude_deg: p.latitude_deg,
+            longitude_deg: p.longitude_deg,
+            depth_m: odo.depth,
+            altitude_m: UNKNOWN,
+            speed_mps: odo.speed,
+            yaw_deg: odo.heading,
+            pitch_deg: odo.pitch,
+            roll_deg: odo.roll,
+            battery_pct: self.battery_pct?,
+        })
+    }
+}
+
+/// One goal of a task.
+#[derive(Debug, Clone, Copy)]
+struct Leg {
+    target: GeoPoint,
+    depth: f64,
+    /// Only the depth counts (surfacing where the vehicle is).
+    depth_only: bool,
+}
+
+/// The task the vehicle is working on.
+#[derive(Debug)]
+struct Job {
+    task_id: String,
+    legs: Vec<Leg>,
+    index: usize,
+    leg_start: Option<f64>,
+    /// After the last leg: hold this long (`Some(None)`: until the next task).
+    hold: Option<Option<Duration>>,
+    held_since: Option<Instant>,
+    last_progress: f64,
+}
+
+/// What the adapter asks of the link task.
+#[derive(Debug)]
+struct Command {
+    job: Job,
+    abort: bool,
+}
+
+/// A ROS 2 vehicle behind a DDS Proxy.
+#[derive(Debug)]
+pub struct Ros2Adapter {
+    /// Kept: the readers and the writer stop working when their participant is dropped.
+    dds: Arc<PubSub>,
+    config: Ros2Config,
+    shared: Arc<Mutex<Shared>>,
+    counters: Arc<Counters>,
+    goals: Arc<Writer<PoseStamped>>,
+    commands: mpsc::UnboundedSender<Command>,
+    outputs: mpsc::Receiver<VehicleOutput>,
+    link: JoinHandle<()>,
+}
+
+impl Drop for Ros2Adapter {
+    fn drop(&mut self) {
+        self.link.abort();
+    }
+}
+
+fn check(c: &Ros2Config) -> Result<(), Ros2Error> {
+    let mut a = announcement_of(c);
+    a.timestamp_ms = now_ms();
+    a.validate()
+        .map_err(|e| Ros2Error::Config(format!("the vehicle cannot be announced: {e}")))?;
+    let name_ok = |s: &str| {
+        s.trim_matches('/')
+            .chars()
+            .all(|ch| ch.is_ascii_alphanumeric() || ch == '_' || ch == '/')
+    };
+    for (what, s) in [
+        ("namespace", &c.namespace),
+        ("fix_topic", &c.fix_topic),
+        ("odom_topic", &c.odom_topic),
+        ("battery_topic", &c.battery_topic),
+        ("goal_topic", &c.goal_topic),
+    ] {
+        if !name_ok(s) || (what != "namespace" && s.trim_matches('/').is_empty()) {
+            return Err(Ros2Error::Config(format!(
+                "{what} {s:?} is not a ROS 2 name (letters, digits, _ and /)"
+            )));
+        }
+    }
+    if c.lost_after_ms == 0 {
+        return Err(Ros2Error::Config("lost_after_ms must be positive".into()));
+    }
+    let positive = |v: f64| v > 0.0 && v.is_finite();
+    if !positive(c.arrival_radius_m) || !positive(c.depth_tolerance_m) {
+        return Err(Ros2Error::Config(
+            "arrival_radius_m and depth_tolerance_m must be positive".into(),
+        ));
+    }
+    if let Some(d) = c.datum
+        && !((-90.0..=90.0).contains(&d.latitude_deg)
+            && (-180.0..=180.0).contains(&d.longitude_deg))
+    {
+        return Err(Ros2Error::Config("datum is not a WGS84 position".into()));
+    }
+    Ok(())
+}
+
+fn announcement_of(c: &Ros2Config) -> VehicleAnnouncement {
+    VehicleAnnouncement {
+        vehicle_id: c.vehicle_id.clone(),
+        name: c.name.clone(),
+        kind: c.kind,
+        vendor: c.vendor.clone(),
+        capabilities: [
+            TaskKind::GotoWaypoint,
+            TaskKind::SurveyArea,
+            TaskKind::Hold,
+            TaskKind::Surface,
+            TaskKind::ReturnHome,
+            TaskKind::Abort,
+        ]
+        .into_iter()
+        .map(|k| capability_of(k).to_string())
+        .collect(),
+        sensors: vec!["gps".into()],
+        links: vec![LinkKind::Ip],
+        max_speed_mps: c.max_speed_mps,
+        timestamp_ms: 0,
+    }
+}
+
+/// The link's DDS endpoints.
+struct Topics {
+    fix: Subscription<NavSatFix>,
+    odom: Subscription<Odometry>,
+    battery: Subscription<BatteryState>,
+    rosout: Option<Subscription<Log>>,
+}
+
+impl Ros2Adapter {
+    /// Subscribes to the vehicle's topics and opens its goal topic on `dds`. Must be called
+    /// within a Tokio runtime (it starts the link task).
+    pub fn new(dds: Arc<PubSub>, config: Ros2Config) -> Result<Self, Ros2Error> {
+        check(&config)?;
+        let runtime = tokio::runtime::Handle::try_current()
+            .map_err(|_| Ros2Error::Config("Ros2Adapter::new needs a Tokio runtime".into()))?;
+        let topics = Topics {
+            fix: dds.subscribe_on(&config.dds_topic(&config.fix_topic))?,
+            odom: dds.subscribe_on(&config.dds_topic(&config.odom_topic))?,
+            battery: dds.subscribe_on(&config.dds_topic(&config.battery_topic))?,
+            rosout: if config.rosout {
+                Some(dds.subscribe_on("rt/rosout")?)
+            } else {
+                None
+            },
+        };
+        let goals = Arc::new(dds.writer_on::<PoseStamped>(
+            &config.dds_topic(&config.goal_topic),
+            WriterOptions::new(Priority::Control),
+        )?);
+        info!(vehicle = %config.vehicle_id, namespace = %config.namespace, "ROS 2 topics open");
+        let shared = Arc::new(Mutex::new(Shared {
+            datum: config.datum.map(|d| {
+                EnuFrame::new(GeoPoint {
+                    latitude_deg: d.latitude_deg,
+                    longitude_deg: d.longitude_deg,
+                })
+            }),
+            ..Shared::default()
+        }));
+        let counters = Arc::new(Counters::default());
+        let (commands, command_rx) = mpsc::unbounded_channel();
+        let (output_tx, outputs) = mpsc::channel(OUTPUT_QUEUE);
+        let link = Link {
+            logger_prefix: format!("{}.", config.namespace.trim_matches('/').replace('/', ".")),
+            config: config.clone(),
+            shared: Arc::clone(&shared),
+            counters: Arc::clone(&counters),
+            goals: Arc::clone(&goals),
+            outputs: output_tx,
+            last_heard: None,
+            lost_since: None,
+            job: None,
+        };
+        let link = runtime.spawn(link.run(topics, command_rx));
+        Ok(Self {
+            dds,
+            config,
+            shared,
+            counters,
+            goals,
+            commands,
+            outputs,
+            link,
+        })
+    }
+
+    /// Sample and error counts so far.
+    pub fn counters(&self) -> Ros2Counters {
+        self.counters.snapshot()
+    }
+
+    /// True while the vehicle's topics are heard.
+    pub fn is_connected(&self) -> bool {
+        let s = lock(&self.shared);
+        s.heard && !s.lost
+    }
+
+    /// The DDS participant the adapter's topics live on.
+    pub fn dds(&self) -> &Arc<PubSub> {
+        &self.dds
+    }
+
+    /// The goal frame's origin, once known.
+    pub fn datum(&self) -> Option<GeoPoint> {
+        lock(&self.shared).datum.map(|d| d.origin())
+    }
+
+    fn job_for(&self, order: &TaskOrder) -> Result<Job, Refusal> {
+        let (here, depth, datum) = {
+            let s = lock(&self.shared);
+            (s.fix.map(|f| f.0), s.odo.map(|o| o.depth), s.datum)
+        };
+        let here = || here.ok_or_else(|| Refusal::new("no fix from the vehicle yet"));
+        let depth = || depth.ok_or_else(|| Refusal::new("no odometry from the vehicle yet"));
+        let datum = datum.ok_or_else(|| Refusal::new("no datum for the goal frame yet"))?;
+        let leg = |target, depth| Leg {
+            target,
+            depth,
+            depth_only: false,
+        };
+        let no_altitude = |altitude_m: &Option<f64>| {
+            if altitude_m.is_some() {
+                Err(Refusal::new(
+                    "a PoseStamped goal carries a depth, not an altitude above the seabed",
+                ))
+            } else {
+                Ok(())
+            }
+        };
+        let (legs, hold) = match &order.task {
+            Task::GotoWaypoint {
+                target,
+                depth_m,
+                altitude_m,
+                ..
+            } => {
+                no_altitude(altitude_m)?;
+                (vec![leg(*target, depth_m.unwrap_or(0.0))], None)
+            }
+            Task::SurveyArea {
+                polygon,
+                line_spacing_m,
+                depth_m,
+                altitude_m,
+                ..
+            } => {
+                no_altitude(altitude_m)?;
+                let points = lawnmower(polygon, *line_spacing_m)
+                    .map_err(|e| Refusal::new(format!("no survey pattern: {e}")))?;
+                if points.is_empty() {
+                    return Err(Refusal::new("the survey polygon gives no survey lines"));
+                }
+                let z = depth_m.unwrap_or(0.0);
+                (points.into_iter().map(|p| leg(p, z)).collect(), None)
+            }
+            Task::Hold { duration_s } => {
+                let d = (*duration_s > 0.0).then(|| Duration::from_secs_f64(*duration_s));
+                (vec![leg(here()?, depth()?)], Some(d))
+            }
+            Task::Surface | Task::Abort => (
+                vec![Leg {
+                    target: here()?,
+                    depth: 0.0,
+                    depth_only: true,
+                }],
+                None,
+            ),
+            Task::ReturnHome => (vec![leg(datum.origin(), 0.0)], None),
+            Task::RequestState | Task::SetReportingRate { .. } => {
+                return Err(Refusal::new("served by the proxy, not the vehicle"));
+            }
+        };
+        Ok(Job {
+            task_id: order.task_id.clone(),
+            legs,
+            index: 0,
+            leg_start: None,
+            hold,
+            held_since: None,
+            last_progress: 0.0,
+        })
+    }
+}
+
+impl VehicleAdapter for Ros2Adapter {
+    type Error = Ros2Error;
+
+    fn announcement(&self) -> VehicleAnnouncement {
+        announcement_of(&self.config)
+    }
+
+    fn state(&mut self) -> Option<StateVector> {
+        lock(&self.shared).state(&self.config.vehicle_id)
+    }
+
+    async fn next_output(&mut self) -> Result<VehicleOutput, Ros2Error> {
+        match self.outputs.recv().await {
+            Some(out) => Ok(out),
+            None => Err(Ros2Error::LinkStopped(
+                "the link task ended; see the log for why".into(),
+            )),
+        }
+    }
+
+    async fn submit(&mut self, order: TaskOrder) -> Result<Acceptance, Refusal> {
+        let abort = matches!(order.task, Task::Abort);
+        if !abort && !self.is_connected() {
+            return Err(Refusal::new("no data from the vehicle's ROS 2 topics"));
+        }
+        let subscribers = self.goals.matched_readers();
+        if subscribers == 0 {
+            return Err(Refusal::new(format!(
+                "nothing subscribes to {}",
+                self.config.dds_topic(&self.config.goal_topic)
+            )));
+        }
+        let job = self.job_for(&order)?;
+        let legs = job.legs.len();
+        self.commands
+            .send(Command { job, abort })
+            .map_err(|_| Refusal::new("the ROS 2 link has stopped"))?;
+        Ok(Acceptance::with_message(format!(
+            "{legs} goal(s) for {subscribers} subscriber(s)"
+        )))
+    }
+}
+
+/// The task that owns the subscriptions.
+struct Link {
+    config: Ros2Config,
+    shared: Arc<Mutex<Shared>>,
+    counters: Arc<Counters>,
+    goals: Arc<Writer<PoseStamped>>,
+    outputs: mpsc::Sender<VehicleOutput>,
+    logger_prefix: String,
+    last_heard: Option<Instant>,
+    lost_since: Option<Instant>,
+    job: Option<Job>,
+}
+
+impl Link {
+    async fn run(mut self, mut t: Topics, mut commands: mpsc::UnboundedReceiver<Command>) {
+        let mut watch = tokio::time::interval(WATCH_EVERY);
+        watch.set_missed_tick_behavior(MissedTickBehavior::Delay);
+        loop {
+            tokio::select! {
+                Some(s) = t.fix.next() => {
+                    if let Some(fix) = self.sample(s) {
+                        self.on_fix(&fix).await;
+                    }
+                }
+                Some(s) = t.odom.next() => {
+                    if let Some(odom) = self.sample(s) {
+                        self.on_odom(&odom).await;
+                    }
+                }
+                Some(s) = t.battery.next() => {
+                    if let Some(b) = self.sample(s) {
+                        self.on_battery(&b);
+                    }
+                }
+                Some(s) = next_or_pending(t.rosout.as_mut()) => {
+                    if let Ok((log, _)) = s {
+                        self.on_log(&log);
+                    }
+                }
+                command = commands.recv() => match command {
+                    Some(c) => self.on_command(c).await,
+                    None => return,
+                },
+                _ = watch.tick() => self.on_watch().await,
+            }
+        }
+    }
+
+    fn sample<T>(&mut self, s: Result<(T, SampleMeta), ReadError>) -> Option<T> {
+        match s {
+            Ok((v, _)) => {
+                bump(&self.counters.samples);
+                Some(v)
+            }
+            Err(ReadError::Malformed { detail, .. }) => {
+                bump(&self.counters.malformed);
+                debug!(%detail, "malformed ROS 2 sample dropped");
+                None
+            }
+            Err(e) => {
+                bump(&self.counters.invalid);
+                debug!(error = %e, "invalid ROS 2 sample dropped");
+                None
+            }
+        }
+    }
+
+    fn output(&self, out: VehicleOutput) {
+        if self.outputs.try_send(out).is_err() {
+            bump(&self.counters.outputs_dropped);
+        }
+    }
+
+    fn task_update(&self, task_id: &str, state: TaskState, progress: f64, message: &str) {
+        self.output(VehicleOutput::Task(TaskUpdate::new(
+            task_id,
+            state,
+            progress.clamp(0.0, 100.0),
+            message,
+        )));
+    }
+
+    fn event(&self, severity: Severity, kind: EventKind, text: String) {
+        self.output(VehicleOutput::Event(VehicleEvent {
+            timestamp_ms: now_ms(),
+            severity,
+            kind,
+            task_id: String::new(),
+            text,
+        }));
+    }
+
+    fn heard(&mut self) {
+        self.last_heard = Some(Instant::now());
+        let was_lost = {
+            let mut s = lock(&self.shared);
+            let was = s.lost;
+            s.heard = true;
+            s.lost = false;
+            was
+        };
+        if was_lost {
+            let silent = self
+                .lost_since
+                .take()
+                .map_or(0.0, |t| t.elapsed().as_secs_f64());
+            info!(vehicle = %self.config.vehicle_id, "ROS 2 topics heard again");
+            self.event(
+                Severity::Info,
+                EventKind::CommLost,
+                format!("ROS 2 topics heard again after {silent:.1} s of silence"),
+            );
+        }
+    }
+
+    async fn on_fix(&mut self, fix: &NavSatFix) {
+        self.heard();
+        if fix.status.status == STATUS_NO_FIX {
+            bump(&self.counters.no_fix);
+            return;
+        }
+        let (lat, lon) = (fix.latitude, fix.longitude);
+        if !((-90.0..=90.0).contains(&lat) && (-180.0..=180.0).contains(&lon)) {
+            bump(&self.counters.out_of_range);
+            return;
+        }
+        let p = GeoPoint {
+            latitude_deg: lat,
+            longitude_deg: lon,
+        };
+        {
+            let mut s = lock(&self.shared);
+            s.fix = Some((p, now_ms()));
+            if s.datum.is_none() {
+                info!(lat, lon, "ROS 2 goal frame datum set at the first fix");
+                s.datum = Some(EnuFrame::new(p));
+            }
+        }
+        self.check_goal().await;
+    }
+
+    async fn on_odom(&mut self, o: &Odometry) {
+        self.heard();
+        let pose = &o.pose.pose;
+        let twist = &o.twist.twist;
+        let Some((roll, pitch, heading)) = mapping::attitude_deg(&pose.orientation) else {
+            bump(&self.counters.out_of_range);
+            return;
+        };
+        let odo = Odo {
+            // Above the surface (a wave, a datum offset) is depth 0.
+            depth: (-pose.position.z).max(0.0),
+            speed: twist.linear.x.hypot(twist.linear.y),
+            roll,
+            pitch,
+            heading,
+        };
+        let ok = odo.depth.is_finite()
+            && odo.depth <= StateVector::DEPTH.1
+            && (0.0..=StateVector::SPEED.1).contains(&odo.speed)
+            && (-90.0..=90.0).contains(&odo.pitch);
+        if !ok {
+            bump(&self.counters.out_of_range);
+            return;
+        }
+        lock(&self.shared).odo = Some(odo);
+        self.check_goal().await;
+    }
+
+    fn on_battery(&mut self, b: &BatteryState) {
+        self.heard();
+        match mapping::battery_pct(b.percentage) {
+            Ok(Some(pct)) => lock(&self.shared).battery_pct = Some(pct),
+            Ok(None) => {}
+            Err(_) => bump(&self.counters.out_of_range),
+        }
+    }
+
+    fn on_log(&self, log: &Log) {
+        let ours = self.logger_prefix == "." || log.name.starts_with(&self.logger_prefix);
+        if !ours || log.level < log_level::WARN {
+            return;
+        }
+        let (severity, kind) = match log.level {
+            l if l >= log_level::FATAL => (Severity::Critical, EventKind::Fault),
+            l if l >= log_level::ERROR => (Severity::Alarm, EventKind::Fault),
+            _ => (Severity::Warning, EventKind::Other),
+        };
+        self.event(severity, kind, format!("{}: {}", log.name, log.msg));
+    }
+
+    async fn on_command(&mut self, command: Command) {
+        let Command { job, abort } = command;
+        if let Some(old) = self.job.take() {
+            let held_until_next = matches!(old.hold, Some(None)) && old.held_since.is_some();
+            if held_until_next && !abort {
+                self.task_update(
+                    &old.task_id,
+                    TaskState::Done,
+                    100.0,
+                    "held until the next task",
+                );
+            } else {
+                let why = if abort {
+                    format!("aborted by task {}", job.task_id)
+                } else {
+                    format!("superseded by task {}", job.task_id)
+                };
+                self.task_update(&old.task_id, TaskState::Aborted, old.last_progress, &why);
+            }
+        }
+        self.job = Some(job);
+        if self.publish_leg().await {
+            if let Some(job) = &self.job {
+                let n = job.legs.len();
+                self.task_update(
+                    &job.task_id,
+                    TaskState::Running,
+                    0.0,
+                    &format!(
+                        "goal 1 of {n} published to {} subscriber(s)",
+                        self.goals.matched_readers()
+                    ),
+                );
+            }
+            self.check_goal().await;
+        }
+    }
+
+    /// Publishes the goal of the running task's current leg; fails the task if it cannot.
+    async fn publish_leg(&mut self) -> bool {
+        let (datum, here, heading) = {
+            let s = lock(&self.shared);
+            (s.datum, s.fix.map(|f| f.0), s.odo.map(|o| o.heading))
+        };
+        let Some(job) = self.job.as_ref() else {
+            return false;
+        };
+        let Some(leg) = job.legs.get(job.index).copied() else {
+            return false;
+        };
+        let Some(datum) = datum else {
+            self.fail("no datum for the goal frame");
+            return false;
+        };
+        let (east, north) = datum.to_enu(leg.target);
+        // Face the target; a goal where the vehicle already is keeps its heading.
+        let facing = match here {
+            Some(h) if distance(h, leg.target) > self.config.arrival_radius_m => {
+                distance_bearing(
+                    h.latitude_deg,
+                    h.longitude_deg,
+                    leg.target.latitude_deg,
+                    leg.target.longitude_deg,
+                )
+                .1
+            }
+            _ => heading.unwrap_or(0.0),
+        };
+        let goal = PoseStamped {
+            header: Header {
+                stamp: Time::from_ms(now_ms()),
+                frame_id: self.config.goal_frame_id.clone(),
+            },
+            pose: Pose {
+                position: Point {
+                    x: east,
+                    y: north,
+                    z: -leg.depth,
+                },
+                orientation: mapping::heading_quaternion(facing),
+            },
+        };
+        match self.goals.write(goal).await {
+            Ok(()) => {
+                bump(&self.counters.goals_sent);
+                debug!(east, north, depth = leg.depth, "ROS 2 goal published");
+                true
+            }
+            Err(e) => {
+                bump(&self.counters.goal_errors);
+                self.fail(&format!("the goal could not be published: {e}"));
+                false
+            }
+        }
+    }
+
+    fn fail(&mut self, why: &str) {
+        if let Some(job) = self.job.take() {
+            warn!(task = %job.task_id, why, "ROS 2 task failed");
+            self.task_update(&job.task_id, TaskState::Failed, job.last_progress, why);
+        }
+    }
+
+    /// Advances or ends the running task from the latest fix and odometry.
+    async fn check_goal(&mut self) {
+        let (here, depth) = {
+            let s = lock(&self.shared);
+            (s.fix.map(|f| f.0), s.odo.map(|o| o.depth))
+        };
+        let (Some(here), Some(depth)) = (here, depth) else {
+            return;
+        };
+        let radius = self.config.arrival_radius_m;
+        let tolerance = self.config.depth_tolerance_m;
+        let Some(job) = self.job.as_mut() else {
+            return;
+        };
+        if let Some(since) = job.held_since {
+            if let Some(Some(d)) = job.hold
+                && since.elapsed() >= d
+                && let Some(job) = self.job.take()
+            {
+                self.task_update(
+                    &job.task_id,
+                    TaskState::Done,
+                    100.0,
+                    "held for the duration",
+                );
+            }
+            return;
+        }
+        let Some(leg) = job.legs.get(job.index).copied() else {
+            return;
+        };
+        let d = distance(here, leg.target);
+        let arrived = (leg.depth_only || d <= radius) && (depth - leg.depth).abs() <= tolerance;
+        let n = job.legs.len();
+        if !arrived {
+            let start = *job.leg_start.get_or_insert(d);
+            let frac = if leg.depth_only || start <= radius {
+                0.0
+            } else {
+                (1.0 - (d - radius).max(0.0) / (start - radius)).clamp(0.0, 1.0)
+            };
+            #[allow(clippy::cast_precision_loss)]
+            let progress = 100.0 * (job.index as f64 + frac) / n as f64;
+            if (progress - job.last_progress).abs() >= PROGRESS_STEP {
+                job.last_progress = progress;
+                let task = job.task_id.clone();
+                self.task_update(&task, TaskState::Running, progress, "under way");
+            }
+            return;
+        }
+        job.index += 1;
+        job.leg_start = None;
+        if job.index < n {
+            #[allow(clippy::cast_precision_loss)]
+            let progress = 100.0 * job.index as f64 / n as f64;
+            job.last_progress = progress;
+            let (task, i) = (job.task_id.clone(), job.index);
+            if self.publish_leg().await {
+                self.task_update(
+                    &task,
+                    TaskState::Running,
+                    progress,
+                    &format!("goal {} of {n} published", i + 1),
+                );
+            }
+            return;
+        }
+        match job.hold {
+            Some(hold) => {
+                job.held_since = Some(Instant::now());
+                if hold.is_none() {
+                    let task = job.task_id.clone();
+                    self.task_update(
+                        &task,
+                        TaskState::Running,
+                        100.0,
+                        "holding until the next task",
+                    );
+                }
+            }
+            None => {
+                if let Some(job) = self.job.take() {
+                    let message = if leg.depth_only {
+                        "at the surface"
+                    } else {
+                        "arrived"
+                    };
+                    self.task_update(&job.task_id, TaskState::Done, 100.0, message);
+                }
+            }
+        }
+    }
+
+    async fn on_watch(&mut self) {
+        let lost_after = Duration::from_millis(self.config.lost_after_ms);
+        if let Some(t) = self.last_heard
+            && t.elapsed() > lost_after
+            && self.lost_since.is_none()
+        {
+            self.lost_since = Some(t);
+            lock(&self.shared).lost = true;
+            warn!(vehicle = %self.config.vehicle_id, "ROS 2 topics silent");
+            self.event(
+                Severity::Alarm,
+                EventKind::CommLost,
+                format!(
+                    "no data on the vehicle's ROS 2 topics for {:.1} s: link lost",
+                    lost_after.as_secs_f64()
+                ),
+            );
+        }
+        self.check_goal().await;
+    }
+}
+
+/// The next item of an optional stream; pending for ever when there is none.
+async fn next_or_pending<S: futures::Stream + Unpin>(s: Option<&mut S>) -> Option<S::Item> {
+    match s {
+        Some(s) => s.next().await,
+        None => std::future::pending().await,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn topic_names_follow_ros_2() {
+        let c = Ros2Config {
+            namespace: "/bluerov/".into(),
+            ..Ros2Config::default()
+        };
+        assert_eq!(c.dds_topic("fix"), "rt/bluerov/fix");
+        assert_eq!(c.dds_topic("/goal_pose"), "rt/bluerov/goal_pose");
+        assert_eq!(Ros2Config::default().dds_topic("odom"), "rt/odom");
+    }
+
+    #[test]
+    fn the_config_has_defaults_and_rejects_unknown_fields() {
+        let c: Ros2Config = serde_json::from_str(
+            r#"{"namespace": "auv1", "datum": {"latitude_deg": 59.9, "longitude_deg": 10.7}}"#,
+        )
+        .unwrap();
+        assert_eq!(c.namespace, "auv1");
+        assert_eq!(c.goal_topic, "goal_pose");
+        assert!(check(&c).is_ok());
+        assert!(serde_json::from_str::<Ros2Config>(r#"{"name_space": "x"}"#).is_err());
+        let bad = Ros2Config {
+            namespace: "bad ns".into(),
+            ..Ros2Config::default()
+        };
+        assert!(matches!(check(&bad), Err(Ros2Error::Config(_))));
+        let bad = Ros2Config {
+            datum: Some(Datum {
+                latitude_deg: 100.0,
+                longitude_deg: 0.0,
+            }),
+            ..Ros2Config::default()
+        };
+        assert!(check(&bad).is_err());
+    }
+
+    #[test]
+    fn a_state_needs_fix_odometry_and_battery() {
+        let mut s = Shared {
+            fix: Some((
+                GeoPoint {
+                    latitude_deg: 59.9,
+                    longitude_deg: 10.7,
+                },
+                1_700_000_000_000,
+            )),
+            ..Shared::default()
+        };
+        assert!(s.state("auv").is_none());
+        s.odo = Some(Odo {
+            depth: 4.0,
+            speed: 1.0,
+            roll: 0.0,
+            pitch: -5.0,
+            heading: 359.0,
+        });
+        assert!(s.state("auv").is_none());
+        s.battery_pct = Some(42.0);
+        let v = s.state("auv").unwrap();
+        assert_eq!(v.validate(), Ok(()));
+        assert_eq!((v.depth_m, v.battery_pct, v.yaw_deg), (4.0, 42.0, 359.0));
+        s.lost = true;
+        assert!(s.state("auv").is_none());
+    }
+}

@@ -1,0 +1,208 @@
+//! The ROS 2 adapter against a ROS 2 vehicle as DDS sees it, written with PyPI `cyclonedds`
+//! (`tests/peers/ros2_vehicle_peer.py`): ROS 2 topic and type names, plain CDR in `.msg`
+//! order, ROS 2's default QoS. Opens a DDS participant, so run it inside a loopback-only
+//! network namespace (`scripts/netns-run.sh`), as CI does.
+//!
+//! NavSatFix, Odometry and BatteryState become valid state vectors; a `/rosout` warning
+//! becomes an event; a goto reaches the vehicle as a PoseStamped in the ENU goal frame
+//! and its progress and arrival come back as task updates; surfacing; a vehicle that goes
+//! silent is reported lost.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+mod common;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use common::{eventually, start_peer};
+use shoal_dds::{DdsConfig, PubSub};
+use shoal_model::{EventKind, GeoPoint, Severity, Task, TaskState, Validate, now_ms};
+use shoal_proxy::ros2::mapping::EnuFrame;
+use shoal_proxy::ros2::{Datum, Ros2Adapter, Ros2Config};
+use shoal_proxy::{Refusal, TaskOrder, VehicleAdapter, VehicleEvent, VehicleOutput};
+
+const DOMAIN: u16 = 171;
+const DATUM: (f64, f64) = (59.9, 10.7);
+
+fn order(id: &str, task: Task) -> TaskOrder {
+    TaskOrder {
+        task_id: id.into(),
+        mission_id: String::new(),
+        issued_ms: now_ms(),
+        task,
+    }
+}
+
+async fn run_to_end(adapter: &mut Ros2Adapter, task_id: &str) -> Vec<(TaskState, f64, String)> {
+    let mut states = Vec::new();
+    loop {
+        let out = tokio::time::timeout(Duration::from_secs(30), adapter.next_output())
+            .await
+            .unwrap_or_else(|_| panic!("{task_id} did not end within 30 s: {states:?}"))
+            .unwrap();
+        if let VehicleOutput::Task(u) = out
+            && u.task_id == task_id
+        {
+            states.push((u.state, u.progress_pct, u.message.clone()));
+            if u.state.is_final() {
+                return states;
+            }
+        }
+    }
+}
+
+async fn next_event(adapter: &mut Ros2Adapter, kind: EventKind, secs: u64) -> VehicleEvent {
+    loop {
+        let out = tokio::time::timeout(Duration::from_secs(secs), adapter.next_output())
+            .await
+            .expect("an event")
+            .unwrap();
+        if let VehicleOutput::Event(e) = out
+            && e.kind == kind
+        {
+            return e;
+        }
+    }
+}
+
+/// Submits until the goal writer has matched the vehicle's subscriber (discovery takes a
+/// moment), then returns the acceptance note.
+async fn submit_when_matched(adapter: &mut Ros2Adapter, id: &str, task: Task) -> String {
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(30);
+    loop {
+        match adapter.submit(order(id, task.clone())).await {
+            Ok(a) => return a.message,
+            Err(Refusal { reason }) if reason.starts_with("nothing subscribes") => {
+                assert!(tokio::time::Instant::now() < deadline, "{reason}");
+                tokio::time::sleep(Duration::from_millis(200)).await;
+            }
+            Err(r) => panic!("refused: {r}"),
+        }
+    }
+}
+
+// Cyclone DDS (like every DDS) matches only endpoints of the same keyedness, and ROS 2
+// message types are unkeyed, while shoal-dds creates every topic keyed: until shoal-dds
+// can create unkeyed topics (`TopicType::KEYED`, see the `ros2` module docs), no sample
+// crosses. With that change this test passes (checked against a patched shoal-dds).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cyclonedds_ros2_vehicle_is_driven_through_the_ros2_adapter() {
+    let args: Vec<String> = ["--domain", &DOMAIN.to_string(), "--namespace", "bluerov"]
+        .iter()
+        .map(ToString::to_string)
+        .collect();
+    let Some(mut peer) = start_peer("ros2_vehicle_peer.py", "cyclonedds", &args) else {
+        return;
+    };
+    let dds = Arc::new(
+        PubSub::new(&DdsConfig {
+            domain_id: DOMAIN,
+            ..DdsConfig::default()
+        })
+        .unwrap(),
+    );
+    let mut adapter = Ros2Adapter::new(
+        dds,
+        Ros2Config {
+            vehicle_id: "auv-ros".into(),
+            namespace: "bluerov".into(),
+            datum: Some(Datum {
+                latitude_deg: DATUM.0,
+                longitude_deg: DATUM.1,
+            }),
+            ..Ros2Config::default()
+        },
+    )
+    .unwrap();
+    peer.expect("ready", 20).await;
+    let frame = EnuFrame::new(GeoPoint {
+        latitude_deg: DATUM.0,
+        longitude_deg: DATUM.1,
+    });
+
+    // Telemetry: the fix, depth from odometry z, REP 103 attitude, battery fraction.
+    let s = eventually(30, "a state vector", || adapter.state()).await;
+    assert_eq!(s.validate(), Ok(()));
+    assert_eq!(s.vehicle_id, "auv-ros");
+    let start = frame.to_geo(10.0, -20.0);
+    assert!((s.latitude_deg - start.latitude_deg).abs() < 1e-8, "{s:?}");
+    assert!(
+        (s.longitude_deg - start.longitude_deg).abs() < 1e-8,
+        "{s:?}"
+    );
+    assert!((s.depth_m - 2.5).abs() < 1e-9, "odometry z -2.5: {s:?}");
+    assert!((s.battery_pct - 64.0).abs() < 1e-4, "fraction 0.64: {s:?}");
+    assert!(
+        (s.yaw_deg - 90.0).abs() < 1e-6,
+        "ENU yaw 0 faces east: {s:?}"
+    );
+    assert!(
+        (s.pitch_deg + 0.1f64.to_degrees()).abs() < 1e-6,
+        "nose down 0.1 rad: {s:?}"
+    );
+
+    let warn = next_event(&mut adapter, EventKind::Other, 20).await;
+    assert_eq!(warn.severity, Severity::Warning);
+    assert_eq!(warn.text, "bluerov.controller: thruster 3 current high");
+
+    // A goto: a PoseStamped in the ENU goal frame, progress, arrival.
+    let target = frame.to_geo(40.0, 30.0);
+    let task = Task::GotoWaypoint {
+        target,
+        depth_m: Some(4.0),
+        altitude_m: None,
+        speed_mps: 1.0,
+    };
+    let note = submit_when_matched(&mut adapter, "goto-1", task).await;
+    assert_eq!(note, "1 goal(s) for 1 subscriber(s)");
+    let goal = peer.expect("goal", 10).await;
+    assert_eq!(goal["frame_id"], "map");
+    let x = goal["x"].as_f64().unwrap();
+    let y = goal["y"].as_f64().unwrap();
+    assert!((x - 40.0).abs() < 1e-6 && (y - 30.0).abs() < 1e-6, "{goal}");
+    assert_eq!(goal["z"].as_f64(), Some(-4.0), "z up: 4 m deep is -4");
+    let yaw = 2.0
+        * goal["qz"]
+            .as_f64()
+            .unwrap()
+            .atan2(goal["qw"].as_f64().unwrap());
+    assert!(
+        (yaw - 50f64.atan2(30.0)).abs() < 0.01,
+        "facing the target: {yaw}"
+    );
+    assert!(goal["sec"].as_i64().unwrap() > 1_600_000_000);
+    let states = run_to_end(&mut adapter, "goto-1").await;
+    assert_eq!(states[0].0, TaskState::Running, "{states:?}");
+    assert!(
+        states
+            .iter()
+            .any(|(s, p, _)| *s == TaskState::Running && *p > 0.0 && *p < 100.0),
+        "{states:?}"
+    );
+    assert_eq!(
+        states.last().map(|s| (s.0, s.2.as_str())),
+        Some((TaskState::Done, "arrived"))
+    );
+    let s = adapter.state().unwrap();
+    assert!((s.depth_m - 4.0).abs() <= 0.5, "{s:?}");
+
+    // Surfacing: a goal where the vehicle is, at z 0.
+    submit_when_matched(&mut adapter, "up", Task::Surface).await;
+    let goal = peer.expect("goal", 10).await;
+    assert_eq!(goal["z"].as_f64(), Some(0.0));
+    assert!((goal["x"].as_f64().unwrap() - 40.0).abs() < 2.0, "{goal}");
+    let states = run_to_end(&mut adapter, "up").await;
+    assert_eq!(
+        states.last().map(|s| (s.0, s.2.as_str())),
+        Some((TaskState::Done, "at the surface"))
+    );
+    let c = adapter.counters();
+    assert_eq!((c.malformed, c.invalid, c.goals_sent), (0, 0, 2), "{c:?}");
+
+    // Silence: lost.
+    peer.kill().await;
+    let e = next_event(&mut adapter, EventKind::CommLost, 20).await;
+    assert_eq!(e.severity, Severity::Alarm);
+    assert!(adapter.state().is_none());
+}
