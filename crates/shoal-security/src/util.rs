@@ -1,0 +1,82 @@
+//! Small helpers shared by the modules: hex, dates, randomness.
+
+use std::fmt::Write as _;
+
+use time::OffsetDateTime;
+
+/// Lower-case hex of `bytes`.
+pub(crate) fn hex(bytes: &[u8]) -> String {
+    let mut s = String::with_capacity(bytes.len() * 2);
+    for b in bytes {
+        let _ = write!(s, "{b:02x}");
+    }
+    s
+}
+
+/// Decodes lower- or upper-case hex; `None` on odd length or a non-hex digit.
+pub(crate) fn unhex(s: &str) -> Option<Vec<u8>> {
+    if !s.len().is_multiple_of(2) {
+        return None;
+    }
+    (0..s.len())
+        .step_by(2)
+        .map(|i| s.get(i..i + 2).and_then(|d| u8::from_str_radix(d, 16).ok()))
+        .collect()
+}
+
+/// A time in ms since the Unix epoch as a whole-second UTC date-time (X.509 has seconds).
+pub(crate) fn datetime(ms: i64) -> OffsetDateTime {
+    OffsetDateTime::from_unix_timestamp(ms.div_euclid(1000)).unwrap_or(if ms < 0 {
+        OffsetDateTime::UNIX_EPOCH
+    } else {
+        // Past year 9999: clamp to the largest date the time crate represents.
+        OffsetDateTime::new_utc(time::Date::MAX, time::Time::MIDNIGHT)
+    })
+}
+
+/// RFC 3339 UTC text of a time in ms, e.g. `2026-05-01T12:00:00Z`, for messages.
+pub(crate) fn rfc3339(ms: i64) -> String {
+    let t = datetime(ms);
+    format!(
+        "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z",
+        t.year(),
+        u8::from(t.month()),
+        t.day(),
+        t.hour(),
+        t.minute(),
+        t.second()
+    )
+}
+
+/// Fills `buf` from the operating system's random source.
+pub(crate) fn random(buf: &mut [u8]) -> Result<(), RandomError> {
+    getrandom::fill(buf).map_err(|e| RandomError(e.to_string()))
+}
+
+/// The operating system's random source failed (no entropy can be had).
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("the operating system's random source failed: {0}")]
+pub struct RandomError(String);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hex_round_trips_and_rejects_garbage() {
+        assert_eq!(hex(&[0, 0xab, 0x10]), "00ab10");
+        assert_eq!(unhex("00AB10").unwrap(), vec![0, 0xab, 0x10]);
+        assert!(unhex("abc").is_none());
+        assert!(unhex("zz").is_none());
+        assert!(unhex("é1").is_none());
+    }
+
+    #[test]
+    fn dates_format_as_rfc3339() {
+        assert_eq!(rfc3339(0), "1970-01-01T00:00:00Z");
+        assert_eq!(rfc3339(1_767_225_600_999), "2026-01-01T00:00:00Z");
+        // Out-of-range inputs clamp instead of panicking.
+        let _ = rfc3339(i64::MAX);
+        let _ = rfc3339(i64::MIN);
+    }
+}
