@@ -7,7 +7,9 @@
 #   3. runs the foreign-peer matrix and every Rust test INSIDE a private network
 #      namespace (loopback only, multicast routed to lo), so no DDS discovery traffic
 #      can leave the machine,
-#   4. runs each cargo-fuzz target for a short smoke run.
+#   4. builds the release binary and drives the web console in Debian's Chromium
+#      (Playwright) against `shoal up`, inside the namespace,
+#   5. runs each cargo-fuzz target for a short smoke run.
 # Environment: SHOAL_SKIP_FUZZ=1 skips step 4; SHOAL_NETNS names the namespace.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -41,6 +43,10 @@ trap 'rm -f "$results"; scripts/postgres.sh stop >/dev/null 2>&1 || true' EXIT
 SHOAL_INTEROP_REQUIRED=1 SHOAL_TEST_POSTGRES_URL="$pg_url" SHOAL_TEST_POSTGRES_REQUIRED=1 \
     scripts/netns-run.sh "$NS" -- cargo test --workspace --locked 2>&1 | tee "$results"
 passed=$(grep -Eo 'test result: ok\. [0-9]+ passed' "$results" | awk '{s += $4} END {print s + 0}')
+
+step "web console in a real browser (Playwright + Chromium against shoal up, inside $NS)"
+cargo build --release --locked -p shoal
+SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" scripts/console-e2e.sh "$NS"
 
 if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
     step "fuzz smoke run (every cargo-fuzz target, 20 s each)"

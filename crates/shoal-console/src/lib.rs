@@ -1,51 +1,73 @@
-//! The back end of Shoal's Mission Management Tool: the station's HTTP API.
+//! Shoal's Mission Management Tool: the station's HTTP API and the web console over it.
 //!
-//! - [`router`] builds the axum router over a [`StationHandle`]; tests drive it without
-//!   sockets.
-//! - [`serve`] runs it on a listener until shutdown.
+//! - [`router`] builds the axum router over a [`StationHandle`] without authentication;
+//!   [`console_router`] takes an [`Auth`] store. Tests drive both without sockets.
+//! - [`serve_with`] runs it on a listener until shutdown, with the `[console]` configuration
+//!   ([`ConsoleConfig`], authentication included); [`serve`] uses the defaults.
 //! - [`ApiError`] is the one error type: client errors are explained in a JSON body,
 //!   internal ones are logged and hidden.
 //!
-//! Endpoints (JSON): `GET /api/health`, `GET /api/fleet`, `GET /api/vehicles/{id}`,
-//! `GET /api/vehicles/{id}/track?from_ms=&to_ms=&limit=`, `GET /api/stats`,
-//! `GET /api/events`, `GET /api/tasks`, `POST /api/tasks`, `GET /api/rejected?limit=`;
-//! rules: `GET|POST /api/rules`, `GET|PATCH|DELETE /api/rules/{id}` (PATCH takes
-//! `{"enabled": bool}`);
-//! `GET|POST /api/sparql` is a read-only SPARQL 1.1 Protocol endpoint over the semantic
-//! model (results as SPARQL JSON or CSV); `GET /` is a plain status page listing the fleet.
+//! `GET /` is the web console (built from `web/` by `build.rs` and embedded), `GET
+//! /status.html` a plain status page that needs no JavaScript. The JSON API is under
+//! `/api/` and described in `openapi.json` (served at `/api/openapi.json`): fleet,
+//! vehicles and their tracks, events and acknowledgement, tasks, missions (plan, start,
+//! abort, abort all, CSV/GeoJSON export), rules, environment subscriptions, SPARQL, the
+//! live WebSocket `/api/ws`, and logins (`/api/auth/...`, see [`auth`]).
 
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
+use std::sync::Arc;
 
 use axum::extract::rejection::JsonRejection;
-use axum::extract::{Path, Query, State};
-use axum::http::StatusCode;
+use axum::extract::{FromRef, Path, Query, Request, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::middleware::Next;
 use axum::response::{Html, IntoResponse, Response};
-use axum::routing::get;
-use axum::{Json, Router};
+use axum::routing::{get, post};
+use axum::{Extension, Json, Router};
 use serde::{Deserialize, Serialize};
 use shoal_model::TaskAssignment;
 use shoal_station::{
     DispatchError, EnvSubscriptionSpec, MissionSpec, RuleChangeError, RuleDoc, StationHandle,
 };
 use tokio_util::sync::CancellationToken;
-use tracing::{error, info};
+use tracing::{error, info, warn};
 
+pub mod auth;
+pub mod export;
 mod live;
+pub mod web;
+
+pub use auth::{Auth, AuthConfig, AuthError, Identity, Role};
 
 /// The `[console]` section of Shoal's configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ConsoleConfig {
-    /// Address the HTTP API listens on; loopback by default.
+    /// Address the console and its API listen on; loopback by default.
     pub listen: SocketAddr,
+    /// Logins, roles and API tokens (`[console.auth]`); off by default.
+    pub auth: AuthConfig,
 }
 
 impl Default for ConsoleConfig {
     fn default() -> Self {
         Self {
             listen: SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, 8640)),
+            auth: AuthConfig::default(),
         }
     }
+}
+
+/// Why the console cannot start.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ConsoleError {
+    /// The users file of `[console.auth]` cannot be used.
+    #[error("console authentication: {0}")]
+    Auth(#[from] AuthError),
+    /// The server failed.
+    #[error("console server: {0}")]
+    Io(#[from] std::io::Error),
 }
 
 /// The API's error: a status and a message for the client.
@@ -61,6 +83,12 @@ pub enum ApiError {
     /// The request conflicts with what exists (a duplicate id, deleting a built-in).
     #[error("{0}")]
     Conflict(String),
+    /// No valid credentials: log in or send a token.
+    #[error("{0}")]
+    Unauthorized(String),
+    /// The credentials are valid but their role may not do this.
+    #[error("{0}")]
+    Forbidden(String),
     /// The request was right but could not be answered in time.
     #[error("{0}")]
     Unavailable(String),
@@ -80,6 +108,8 @@ impl IntoResponse for ApiError {
             Self::BadRequest(_) => StatusCode::BAD_REQUEST,
             Self::NotFound(_) => StatusCode::NOT_FOUND,
             Self::Conflict(_) => StatusCode::CONFLICT,
+            Self::Unauthorized(_) => StatusCode::UNAUTHORIZED,
+            Self::Forbidden(_) => StatusCode::FORBIDDEN,
             Self::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
             Self::Internal(detail) => {
                 error!(%detail, "API request failed");
@@ -91,12 +121,37 @@ impl IntoResponse for ApiError {
     }
 }
 
-/// Builds the API router over a running station.
+/// What every handler can reach: the station and the authentication store.
+#[derive(Debug, Clone)]
+pub(crate) struct AppState {
+    station: StationHandle,
+    auth: Arc<Auth>,
+}
+
+impl FromRef<AppState> for StationHandle {
+    fn from_ref(app: &AppState) -> Self {
+        app.station.clone()
+    }
+}
+
+impl FromRef<AppState> for Arc<Auth> {
+    fn from_ref(app: &AppState) -> Self {
+        app.auth.clone()
+    }
+}
+
+/// Builds the console and API router over a running station, without authentication.
 pub fn router(station: StationHandle) -> Router {
+    console_router(station, Arc::new(Auth::disabled()))
+}
+
+/// Builds the console and API router; `auth` decides who may do what.
+pub fn console_router(station: StationHandle, auth: Arc<Auth>) -> Router {
     // Every request body is small JSON; anything beyond this is refused before parsing.
     const MAX_BODY: usize = 1 << 20;
+    let state = AppState { station, auth };
     Router::new()
-        .route("/", get(index))
+        .route("/status.html", get(status_page))
         .route("/api/health", get(health))
         .route("/api/fleet", get(fleet))
         .route("/api/vehicles/{id}", get(vehicle))
@@ -108,16 +163,12 @@ pub fn router(station: StationHandle) -> Router {
         .route("/api/vehicles", get(fleet).post(register_vehicle))
         .route("/api/missions", get(missions).post(plan_mission))
         .route("/api/missions/{id}", get(mission))
-        .route(
-            "/api/missions/{id}/start",
-            axum::routing::post(start_mission),
-        )
-        .route(
-            "/api/missions/{id}/abort",
-            axum::routing::post(abort_mission),
-        )
-        .route("/api/abort-all", axum::routing::post(abort_all))
-        .route("/api/events/{id}/ack", axum::routing::post(ack_event))
+        .route("/api/missions/{id}/start", post(start_mission))
+        .route("/api/missions/{id}/abort", post(abort_mission))
+        .route("/api/missions/{id}/export.csv", get(export_csv))
+        .route("/api/missions/{id}/export.geojson", get(export_geojson))
+        .route("/api/abort-all", post(abort_all))
+        .route("/api/events/{id}/ack", post(ack_event))
         .route(
             "/api/environment/subscriptions",
             get(env_subscriptions).post(env_subscribe),
@@ -135,25 +186,121 @@ pub fn router(station: StationHandle) -> Router {
             get(rule).patch(patch_rule).delete(delete_rule),
         )
         .route("/api/sparql", get(sparql_get).post(sparql_post))
+        .route("/api/auth/login", post(login))
+        .route("/api/auth/logout", post(logout))
+        .route("/api/auth/session", get(session))
+        .route("/api/auth/users", get(users).post(set_user))
+        .route("/api/auth/users/{name}", axum::routing::delete(delete_user))
+        .route("/api/auth/tokens", get(tokens).post(create_token))
+        .route("/api/auth/tokens/{id}", axum::routing::delete(delete_token))
+        .fallback(web::serve)
+        .layer(axum::middleware::from_fn_with_state(state.clone(), guard))
         .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY))
-        .with_state(station)
+        .with_state(state)
 }
 
-/// Serves the API on `listener` until `shutdown` is cancelled.
+/// Serves the console on `listener` until `shutdown` is cancelled, without
+/// authentication (the `[console]` defaults).
 pub async fn serve(
     listener: tokio::net::TcpListener,
     station: StationHandle,
     shutdown: CancellationToken,
 ) -> std::io::Result<()> {
-    if let Ok(addr) = listener.local_addr() {
-        info!(%addr, "HTTP API listening: http://{addr}/api/fleet");
+    match serve_with(listener, station, ConsoleConfig::default(), shutdown).await {
+        Ok(()) => Ok(()),
+        Err(ConsoleError::Io(e)) => Err(e),
+        Err(e) => Err(std::io::Error::other(e)),
     }
-    axum::serve(listener, router(station))
-        .with_graceful_shutdown(shutdown.cancelled_owned())
-        .await
 }
 
-async fn index() -> Html<&'static str> {
+/// Serves the console on `listener` with `config` (authentication included) until
+/// `shutdown` is cancelled. On the first start with authentication enabled it logs the
+/// admin password and token it created, once.
+pub async fn serve_with(
+    listener: tokio::net::TcpListener,
+    station: StationHandle,
+    config: ConsoleConfig,
+    shutdown: CancellationToken,
+) -> Result<(), ConsoleError> {
+    let ConsoleConfig {
+        auth: auth_config, ..
+    } = config;
+    let (auth, boot) = tokio::task::spawn_blocking(move || Auth::load(&auth_config))
+        .await
+        .map_err(std::io::Error::other)??;
+    let addr = listener.local_addr()?;
+    if let Some(b) = boot {
+        warn!(
+            users_file = %auth.path().display(),
+            "console authentication: created user \"{}\" with password {} and an admin API \
+             token {} (shown only now; only their hashes are stored)",
+            b.user,
+            b.password,
+            b.token
+        );
+    }
+    if auth.enabled() {
+        info!(%addr, users = auth.users().len(), "console: http://{addr}/ (login required)");
+    } else {
+        if !addr.ip().is_loopback() {
+            warn!(%addr, "the console listens beyond this host without authentication: set [console.auth] enabled = true");
+        }
+        info!(%addr, "console: http://{addr}/  API: http://{addr}/api/fleet");
+    }
+    axum::serve(listener, console_router(station, Arc::new(auth)))
+        .with_graceful_shutdown(shutdown.cancelled_owned())
+        .await?;
+    Ok(())
+}
+
+/// Checks credentials and role before any handler runs (see [`auth::required_role`]).
+async fn guard(State(app): State<AppState>, mut req: Request, next: Next) -> Response {
+    let path = req.uri().path().to_owned();
+    let Some(need) = auth::required_role(req.method(), &path) else {
+        return next.run(req).await;
+    };
+    if !app.auth.enabled() {
+        return next.run(req).await;
+    }
+    // A browser sends the session cookie with any WebSocket handshake to this host; only
+    // pages served from here may open the live feed with it.
+    if path == "/api/ws" && !same_origin(req.headers()) {
+        return ApiError::Forbidden(
+            "the live feed is only for pages served by this station".into(),
+        )
+        .into_response();
+    }
+    match app.auth.authenticate(req.headers()) {
+        Err(why) => ApiError::Unauthorized(why.into()).into_response(),
+        Ok(who) if who.role < need => ApiError::Forbidden(format!(
+            "{} {path} needs the {need} role; {} is {}",
+            req.method(),
+            who.name,
+            who.role
+        ))
+        .into_response(),
+        Ok(who) => {
+            req.extensions_mut().insert(who);
+            next.run(req).await
+        }
+    }
+}
+
+/// True when the request has no `Origin` (not a browser) or one naming this host.
+fn same_origin(headers: &HeaderMap) -> bool {
+    let Some(origin) = headers.get(header::ORIGIN).and_then(|v| v.to_str().ok()) else {
+        return true;
+    };
+    let host = headers
+        .get(header::HOST)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("");
+    origin
+        .split_once("://")
+        .is_some_and(|(_, rest)| !host.is_empty() && rest == host)
+}
+
+async fn status_page() -> Html<&'static str> {
     Html(include_str!("status.html"))
 }
 
@@ -287,7 +434,7 @@ struct SparqlParams {
 
 fn result_format(
     params_format: Option<&str>,
-    headers: &axum::http::HeaderMap,
+    headers: &HeaderMap,
 ) -> Result<shoal_semantic::ResultFormat, ApiError> {
     use shoal_semantic::ResultFormat;
     if let Some(f) = params_format {
@@ -302,7 +449,7 @@ fn result_format(
         };
     }
     let accept = headers
-        .get(axum::http::header::ACCEPT)
+        .get(header::ACCEPT)
         .and_then(|v| v.to_str().ok())
         .unwrap_or("");
     Ok(if accept.contains("text/csv") {
@@ -330,11 +477,7 @@ async fn run_sparql(
     .await
     .map_err(|e| ApiError::Internal(e.to_string()))?;
     match out {
-        Ok(bytes) => Ok((
-            [(axum::http::header::CONTENT_TYPE, format.media_type())],
-            bytes,
-        )
-            .into_response()),
+        Ok(bytes) => Ok(([(header::CONTENT_TYPE, format.media_type())], bytes).into_response()),
         Err(e @ QueryError::Timeout(_)) => Err(ApiError::Unavailable(e.to_string())),
         Err(e @ (QueryError::Evaluation(_) | QueryError::Serialize(_))) => {
             Err(ApiError::Internal(e.to_string()))
@@ -354,7 +497,7 @@ fn check_dataset(p: &SparqlParams) -> Result<(), ApiError> {
 
 async fn sparql_get(
     State(s): State<StationHandle>,
-    headers: axum::http::HeaderMap,
+    headers: HeaderMap,
     q: Result<Query<SparqlParams>, axum::extract::rejection::QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(p) = q.map_err(|e| ApiError::BadRequest(e.body_text()))?;
@@ -370,13 +513,13 @@ async fn sparql_get(
 /// `application/x-www-form-urlencoded` (`query=...`), as in the SPARQL 1.1 Protocol.
 async fn sparql_post(
     State(s): State<StationHandle>,
-    headers: axum::http::HeaderMap,
+    headers: HeaderMap,
     q: Result<Query<SparqlParams>, axum::extract::rejection::QueryRejection>,
     body: String,
 ) -> Result<Response, ApiError> {
     let Query(url) = q.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let content_type = headers
-        .get(axum::http::header::CONTENT_TYPE)
+        .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
         .unwrap_or("")
         .to_ascii_lowercase();
@@ -584,20 +727,24 @@ async fn abort_all(
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct AckBody {
-    /// Operator name (until the console has logins).
+    /// Operator name; with authentication on, the logged-in user is recorded instead.
     #[serde(default)]
     by: Option<String>,
 }
 
 async fn ack_event(
     State(s): State<StationHandle>,
+    who: Option<Extension<Identity>>,
     Path(id): Path<String>,
     body: Option<Json<AckBody>>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let by = body
-        .and_then(|Json(b)| b.by)
-        .filter(|b| !b.trim().is_empty())
-        .unwrap_or_else(|| "operator".into());
+    let by = match who {
+        Some(Extension(who)) => who.name,
+        None => body
+            .and_then(|Json(b)| b.by)
+            .filter(|b| !b.trim().is_empty())
+            .unwrap_or_else(|| "operator".into()),
+    };
     s.acknowledge(&id, &by)
         .map(Json)
         .ok_or_else(|| ApiError::NotFound(format!("no recent event {id:?}")))
@@ -638,14 +785,227 @@ async fn env_unsubscribe(
     }
 }
 
+/// A mission's log from the history: its vehicles' tracks over its time window.
+async fn mission_log(s: &StationHandle, id: &str) -> Result<export::MissionLog, ApiError> {
+    let mission = s
+        .mission(id)
+        .ok_or_else(|| ApiError::NotFound(format!("no mission {id:?}")))?;
+    let (from_ms, to_ms) = export::MissionLog::window(&mission, shoal_model::now_ms());
+    let vehicles = export::MissionLog::vehicles(&mission);
+    let reader = s.history().clone();
+    let (tracks, truncated) = tokio::task::spawn_blocking(move || {
+        let mut truncated = false;
+        let mut tracks = Vec::with_capacity(vehicles.len());
+        for v in vehicles {
+            let rows = reader
+                .track(&v, from_ms, to_ms, MAX_EXPORT_ROWS)
+                .map_err(|e| e.to_string())?;
+            truncated |= rows.len() == MAX_EXPORT_ROWS;
+            tracks.push((v, rows));
+        }
+        Ok::<_, String>((tracks, truncated))
+    })
+    .await
+    .map_err(|e| ApiError::Internal(e.to_string()))?
+    .map_err(ApiError::Internal)?;
+    Ok(export::MissionLog {
+        mission,
+        from_ms,
+        to_ms,
+        tracks,
+        truncated,
+    })
+}
+
+/// Most state vectors per vehicle in one export (about 28 h at 1 Hz).
+const MAX_EXPORT_ROWS: usize = 100_000;
+
+fn attachment(id: &str, ext: &str) -> String {
+    // Mission ids are `[A-Za-z0-9_.-]`, safe in a quoted file name.
+    format!("attachment; filename=\"{id}.{ext}\"")
+}
+
+async fn export_csv(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let log = mission_log(&s, &id).await?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_owned()),
+            (header::CONTENT_DISPOSITION, attachment(&id, "csv")),
+        ],
+        export::to_csv(&log),
+    )
+        .into_response())
+}
+
+async fn export_geojson(
+    State(s): State<StationHandle>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let log = mission_log(&s, &id).await?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "application/geo+json".to_owned()),
+            (header::CONTENT_DISPOSITION, attachment(&id, "geojson")),
+        ],
+        export::to_geojson(&log).to_string(),
+    )
+        .into_response())
+}
+
+impl From<AuthError> for ApiError {
+    fn from(e: AuthError) -> Self {
+        match e {
+            AuthError::BadCredentials => Self::Unauthorized(e.to_string()),
+            AuthError::Invalid(_) | AuthError::Disabled => Self::BadRequest(e.to_string()),
+            AuthError::NotFound(_) => Self::NotFound(e.to_string()),
+            e => Self::Internal(e.to_string()),
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LoginBody {
+    user: String,
+    password: String,
+}
+
+#[derive(Serialize)]
+struct SessionView {
+    /// Whether the station requires logins.
+    enabled: bool,
+    /// Who is logged in (absent when nobody is).
+    user: Option<String>,
+    /// What they may do; `admin` when authentication is off.
+    role: Option<Role>,
+    /// `session`, `token` or `open`.
+    via: Option<&'static str>,
+}
+
+impl SessionView {
+    fn of(auth: &Auth, who: Option<Identity>) -> Self {
+        Self {
+            enabled: auth.enabled(),
+            user: who
+                .as_ref()
+                .filter(|_| auth.enabled())
+                .map(|w| w.name.clone()),
+            role: who.as_ref().map(|w| w.role),
+            via: who.map(|w| w.via),
+        }
+    }
+}
+
+async fn login(
+    State(auth): State<Arc<Auth>>,
+    body: Result<Json<LoginBody>, JsonRejection>,
+) -> Result<Response, ApiError> {
+    let Json(b) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    let a = auth.clone();
+    // Argon2 takes tens of milliseconds on purpose: not on the async threads.
+    let (session, who) = tokio::task::spawn_blocking(move || a.login(&b.user, &b.password))
+        .await
+        .map_err(|e| ApiError::Internal(e.to_string()))?
+        .inspect_err(|e| {
+            if matches!(e, AuthError::BadCredentials) {
+                warn!("console login refused: wrong user name or password");
+            }
+        })?;
+    info!(user = %who.name, role = %who.role, "console login");
+    let cookie = auth::session_set_cookie(Some(&session), auth.ttl_s());
+    Ok((
+        [(header::SET_COOKIE, cookie)],
+        Json(SessionView::of(&auth, Some(who))),
+    )
+        .into_response())
+}
+
+async fn logout(State(auth): State<Arc<Auth>>, headers: HeaderMap) -> Response {
+    auth.logout(&headers);
+    (
+        StatusCode::NO_CONTENT,
+        [(header::SET_COOKIE, auth::session_set_cookie(None, 0))],
+    )
+        .into_response()
+}
+
+async fn session(State(auth): State<Arc<Auth>>, headers: HeaderMap) -> Json<SessionView> {
+    Json(SessionView::of(&auth, auth.authenticate(&headers).ok()))
+}
+
+async fn users(State(auth): State<Arc<Auth>>) -> Json<Vec<auth::UserInfo>> {
+    Json(auth.users())
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct UserBody {
+    name: String,
+    password: String,
+    role: Role,
+}
+
+async fn set_user(
+    State(auth): State<Arc<Auth>>,
+    body: Result<Json<UserBody>, JsonRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Json(b) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    let a = auth.clone();
+    let (name, role) = (b.name.clone(), b.role);
+    tokio::task::spawn_blocking(move || a.set_user(&b.name, &b.password, b.role))
+        .await
+        .map_err(|e| ApiError::Internal(e.to_string()))??;
+    info!(user = %name, %role, "console user saved");
+    Ok((StatusCode::CREATED, Json(auth::UserInfo { name, role })))
+}
+
+async fn delete_user(
+    State(auth): State<Arc<Auth>>,
+    Path(name): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    auth.delete_user(&name)?;
+    Ok(StatusCode::NO_CONTENT)
+}
+
+async fn tokens(State(auth): State<Arc<Auth>>) -> Json<Vec<auth::TokenInfo>> {
+    Json(auth.tokens())
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TokenBody {
+    name: String,
+    role: Role,
+}
+
+async fn create_token(
+    State(auth): State<Arc<Auth>>,
+    body: Result<Json<TokenBody>, JsonRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Json(b) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    let (info, token) = auth.create_token(&b.name, b.role)?;
+    Ok((
+        StatusCode::CREATED,
+        Json(serde_json::json!({ "token": token, "info": info })),
+    ))
+}
+
+async fn delete_token(
+    State(auth): State<Arc<Auth>>,
+    Path(id): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    auth.delete_token(&id)?;
+    Ok(StatusCode::NO_CONTENT)
+}
+
 /// The OpenAPI 3.1 description of this API.
 pub const OPENAPI: &str = include_str!("openapi.json");
 
 async fn openapi() -> impl IntoResponse {
-    (
-        [(axum::http::header::CONTENT_TYPE, "application/json")],
-        OPENAPI,
-    )
+    ([(header::CONTENT_TYPE, "application/json")], OPENAPI)
 }
 
 #[cfg(test)]

@@ -73,9 +73,10 @@ pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> 
     let dds = dds(&cfg)?;
     let station =
         Station::new(cfg.station.clone(), dds, history).context("cannot start the station")?;
-    let api = tokio::spawn(shoal_console::serve(
+    let api = tokio::spawn(shoal_console::serve_with(
         listener,
         station.handle(),
+        cfg.console.clone(),
         shutdown.clone(),
     ));
     let report = station
@@ -219,7 +220,7 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, no_fleet: bool) -> Res
     }
     info!(
         vehicles = children.len() - 1,
-        "Shoal is up. Status page: http://{addr}/  API: http://{addr}/api/fleet  Ctrl-C stops everything."
+        "Shoal is up. Console: http://{addr}/  API: http://{addr}/api/fleet  Ctrl-C stops everything."
     );
     // Run until Ctrl-C, or until a child dies on its own (then stop the rest too).
     let mut failed = None;

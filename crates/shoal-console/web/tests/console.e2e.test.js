@@ -1,0 +1,281 @@
+// The console in a real browser (Debian's Chromium driven by playwright-core) against a
+// running `shoal up` with authentication on. Started by scripts/console-e2e.sh, which
+// passes SHOAL_URL, SHOAL_ADMIN_TOKEN and SHOAL_E2E_OUT (screenshots, request log).
+//
+// Every request the browser makes is recorded; the last test asserts none left this host.
+
+import { after, before, describe, test } from 'node:test';
+import assert from 'node:assert/strict';
+import { mkdirSync, mkdtempSync, rmSync, writeFileSync } from 'node:fs';
+import { tmpdir } from 'node:os';
+import { join } from 'node:path';
+import { chromium } from 'playwright-core';
+
+const BASE = process.env.SHOAL_URL || 'http://127.0.0.1:8640';
+const TOKEN = process.env.SHOAL_ADMIN_TOKEN;
+const OUT = process.env.SHOAL_E2E_OUT || 'target/console-e2e';
+const CHROMIUM = process.env.CHROMIUM || '/usr/bin/chromium';
+const ARGS = ['--headless', '--no-sandbox', '--disable-gpu', '--no-first-run', '--disable-background-networking', '--disable-component-update', '--disable-sync'];
+const FLEET = ['auv-1', 'auv-2', 'usv-1', 'rov-1', 'auv-ac1'];
+
+const users = {
+  operator: { user: 'e2e-operator', password: `op-${Date.now()}-pw` },
+  viewer: { user: 'e2e-viewer', password: `view-${Date.now()}-pw` },
+  admin: { user: 'e2e-admin', password: `admin-${Date.now()}-pw` },
+};
+const requests = [];
+const contexts = [];
+const profiles = [];
+
+/** The admin's API token, as a tool would use it. */
+async function admin(method, path, body) {
+  const res = await fetch(BASE + path, {
+    method,
+    headers: { Authorization: `Bearer ${TOKEN}`, 'Content-Type': 'application/json' },
+    body: body === undefined ? undefined : JSON.stringify(body),
+  });
+  const text = await res.text();
+  if (!res.ok) throw new Error(`${method} ${path}: ${res.status} ${text}`);
+  return text ? JSON.parse(text) : null;
+}
+
+/** A browser with a fresh profile; every request and WebSocket it opens is recorded. */
+async function browser() {
+  const dir = mkdtempSync(join(tmpdir(), 'shoal-e2e-profile-'));
+  profiles.push(dir);
+  const ctx = await chromium.launchPersistentContext(dir, {
+    executablePath: CHROMIUM,
+    headless: true,
+    args: ARGS,
+    viewport: { width: 1600, height: 950 },
+  });
+  contexts.push(ctx);
+  ctx.on('request', (r) => requests.push(r.url()));
+  const page = ctx.pages()[0] || (await ctx.newPage());
+  page.on('websocket', (ws) => requests.push(ws.url()));
+  page.on('pageerror', (e) => console.error('page error:', e.message));
+  return page;
+}
+
+async function login(page, who) {
+  await page.goto(BASE + '/');
+  await page.locator('#login').waitFor({ state: 'visible' });
+  await page.fill('#login-form input[name=user]', who.user);
+  await page.fill('#login-form input[name=password]', who.password);
+  await page.click('#login-form button[type=submit]');
+  await page.locator('#login').waitFor({ state: 'hidden' });
+  await page.locator('#conn[data-state=live]').waitFor({ timeout: 15000 });
+}
+
+const shot = (page, name) => page.screenshot({ path: join(OUT, `${name}.png`) });
+
+/** Clicks the map at a WGS84 position, as an operator would. */
+async function clickMap(page, lat, lon) {
+  const [x, y] = await page.evaluate(([la, lo]) => {
+    const { map } = window.shoalConsole;
+    // EPSG:3857 from degrees, as ol/proj's fromLonLat does.
+    const R = 6378137;
+    const c = [(lo * Math.PI * R) / 180, R * Math.log(Math.tan(Math.PI / 4 + (la * Math.PI) / 360))];
+    return map.getPixelFromCoordinate(c);
+  }, [lat, lon]);
+  const box = await page.locator('#map').boundingBox();
+  await page.mouse.click(box.x + x, box.y + y);
+}
+
+describe('Shoal console in Chromium', { concurrency: false }, () => {
+  let page;
+
+  before(async () => {
+    assert.ok(TOKEN, 'SHOAL_ADMIN_TOKEN is not set (scripts/console-e2e.sh reads it from the log)');
+    mkdirSync(OUT, { recursive: true });
+    const session = await admin('GET', '/api/auth/session');
+    assert.equal(session.enabled, true, 'the station runs without [console.auth]');
+    await admin('POST', '/api/auth/users', { name: users.operator.user, password: users.operator.password, role: 'operator' });
+    await admin('POST', '/api/auth/users', { name: users.viewer.user, password: users.viewer.password, role: 'viewer' });
+    await admin('POST', '/api/auth/users', { name: users.admin.user, password: users.admin.password, role: 'admin' });
+    page = await browser();
+  });
+
+  after(async () => {
+    for (const c of contexts) await c.close();
+    for (const d of profiles) rmSync(d, { recursive: true, force: true });
+  });
+
+  test('the API refuses requests without credentials', async () => {
+    const res = await fetch(BASE + '/api/fleet');
+    assert.equal(res.status, 401);
+    assert.match((await res.json()).error, /log in/);
+  });
+
+  test('an operator logs in; vehicles appear in the list and on the map', async () => {
+    await login(page, users.operator);
+    for (const id of FLEET) {
+      await page.locator(`#fleet-table tr[data-vehicle="${id}"]`).waitFor({ timeout: 60000 });
+    }
+    // Each vehicle is drawn inside the visible map.
+    await page.waitForFunction((ids) => {
+      const { map, sources } = window.shoalConsole;
+      const extent = map.getView().calculateExtent(map.getSize());
+      return ids.every((id) => {
+        const f = sources.vehicles.getFeatureById(id);
+        if (!f) return false;
+        const [x, y] = f.getGeometry().getCoordinates();
+        return x >= extent[0] && x <= extent[2] && y >= extent[1] && y <= extent[3];
+      });
+    }, FLEET, { timeout: 30000 });
+    // The submerged AUV is heard through the CDT, whose link status follows its first data.
+    await page.waitForFunction(() => {
+      const cell = document.querySelector('#fleet-table tr[data-vehicle="auv-ac1"] .link');
+      return cell && cell.textContent.trim() === 'acoustic';
+    }, null, { timeout: 60000 });
+    assert.ok(await page.locator('#who').textContent().then((t) => t.includes('operator')));
+    await shot(page, '01-fleet-and-map');
+  });
+
+  test('a mission is drawn on the map, checked, started and reaches done', async () => {
+    await page.click('#tabs button[data-tab=missions]');
+    const form = page.locator('#mission-form');
+    await form.locator('select[name=vehicle]').selectOption('usv-1');
+    // Invalid input is explained next to the field.
+    await form.locator('input[name=speed]').fill('');
+    await page.click('#start-mission');
+    await assert.doesNotReject(form.locator('input[name=speed] ~ .field-error', { hasText: 'Speed' }).waitFor());
+    assert.match(await form.locator('#points ~ .field-error, #points + .field-error').first().textContent(), /waypoint/);
+    await form.locator('input[name=speed]').fill('3');
+    await form.locator('input[name=level]').fill('0');
+    const v = await page.evaluate(() => window.shoalConsole.sources.vehicles.getFeatureById('usv-1').get('view').latest);
+    await page.click('#draw');
+    // About 60 m north-east of the USV.
+    await clickMap(page, v.latitude_deg + 0.0004, v.longitude_deg + 0.0006);
+    await page.locator('#points li', { hasText: 'waypoint 1' }).waitFor();
+    const missionId = await form.locator('input[name=mission_id]').inputValue();
+    await page.click('#start-mission');
+    await page.locator('#confirm[open]').waitFor();
+    await page.click('#confirm-ok');
+    const card = page.locator(`.mission[data-mission="${missionId}"]`);
+    await card.waitFor({ timeout: 10000 });
+    await shot(page, '02-mission-running');
+    await card.locator('.pill[data-state=done]').waitFor({ timeout: 150000 });
+    // The waypoint shows on the map as a task.
+    const tasksDrawn = await page.evaluate(() => window.shoalConsole.sources.tasks.getFeatures().length);
+    assert.ok(tasksDrawn >= 1);
+    await shot(page, '03-mission-done');
+    // Its log exports as CSV and GeoJSON.
+    const exported = await page.evaluate(async (id) => {
+      const csv = await (await fetch(`/api/missions/${id}/export.csv`)).text();
+      const geo = await (await fetch(`/api/missions/${id}/export.geojson`)).json();
+      return { rows: csv.trim().split('\n').length, features: geo.features.map((f) => f.geometry && f.geometry.type) };
+    }, missionId);
+    assert.ok(exported.rows > 2, `CSV rows: ${exported.rows}`);
+    assert.ok(exported.features.includes('LineString') && exported.features.includes('Point'), JSON.stringify(exported.features));
+  });
+
+  test('an alarm appears live and is acknowledged', async () => {
+    const ruleId = `e2e-alarm-${Date.now() % 100000}`;
+    await page.click('#tabs button[data-tab=alarms]');
+    await admin('POST', '/api/rules', { id: ruleId, description: 'end-to-end test alarm', severity: 'alarm', condition: { type: 'threshold', expr: 'battery_pct < 101' } });
+    try {
+      const row = page.locator('#event-table tr.sev-alarm:not(.acked)').first();
+      await row.waitFor({ timeout: 30000 });
+      const eventId = await row.getAttribute('data-event');
+      // The list re-renders as further alarms arrive: name the row by its event id.
+      const acked = page.locator(`#event-table tr[data-event="${eventId}"]`);
+      await acked.locator('button.ack').click();
+      await page.waitForFunction((id) => {
+        const tr = document.querySelector(`#event-table tr[data-event="${id}"]`);
+        return tr && tr.classList.contains('acked');
+      }, eventId, { timeout: 10000 });
+      assert.match(await acked.textContent(), new RegExp(users.operator.user));
+      await shot(page, '04-alarm-acknowledged');
+    } finally {
+      await admin('DELETE', `/api/rules/${ruleId}`);
+    }
+  });
+
+  test('a semantic query returns rows', async () => {
+    await page.click('#tabs button[data-tab=query]');
+    await page.click('#run-query');
+    await page.locator('#query-table tbody tr').first().waitFor({ timeout: 15000 });
+    const rows = await page.locator('#query-table tbody tr').count();
+    assert.ok(rows >= FLEET.length, `${rows} rows`);
+    await shot(page, '05-query');
+  });
+
+  test('the vehicle detail shows depth and battery charts', async () => {
+    await page.click('#tabs button[data-tab=fleet]');
+    await page.click('#fleet-table tr[data-vehicle="auv-1"]');
+    await page.click('#tabs button[data-tab=vehicles]');
+    // A flat line (a full battery) has no height, so wait for the paths, not their visibility.
+    await page.locator('#charts svg.chart path.series').nth(1).waitFor({ state: 'attached', timeout: 15000 });
+    const segments = await page.locator('#charts svg.chart path.series').evaluateAll((paths) => paths.map((p) => p.getAttribute('d').split('L').length));
+    assert.equal(segments.length, 2);
+    assert.ok(segments.every((n) => n >= 2), `points per chart: ${segments}`);
+    await shot(page, '06-vehicle-charts');
+  });
+
+  test('the live feed shows "reconnecting" when the link drops and recovers by itself', async () => {
+    // Offline, the socket is cut and every new handshake fails until the link is back.
+    await page.context().setOffline(true);
+    await page.evaluate(() => window.shoalConsole.dropLive());
+    await page.locator('#conn[data-state=reconnecting]').waitFor({ timeout: 10000 });
+    await page.waitForTimeout(3000);
+    assert.equal(await page.locator('#conn').getAttribute('data-state'), 'reconnecting');
+    await shot(page, '07-reconnecting');
+    await page.context().setOffline(false);
+    await page.locator('#conn[data-state=live]').waitFor({ timeout: 20000 });
+  });
+
+  test('an admin registers a vehicle; it shows as silent until it reports', async () => {
+    const adminPage = await browser();
+    await login(adminPage, users.admin);
+    await adminPage.click('#tabs button[data-tab=vehicles]');
+    const form = adminPage.locator('#vehicle-form');
+    await form.locator('input[name=vehicle_id]').fill('glider-e2e');
+    await form.locator('input[name=name]').fill('Test glider');
+    await form.locator('select[name=kind]').selectOption('glider');
+    await form.locator('input[name=vendor]').fill('e2e');
+    await form.locator('input[name=max_speed]').fill('99');
+    await form.locator('button[type=submit]').click();
+    await form.locator('input[name=max_speed] ~ .field-error', { hasText: '30' }).waitFor();
+    await form.locator('input[name=max_speed]').fill('0.5');
+    await form.locator('button[type=submit]').click();
+    await adminPage.click('#tabs button[data-tab=fleet]');
+    const row = adminPage.locator('#fleet-table tr[data-vehicle="glider-e2e"].contact-silent');
+    await row.waitFor({ timeout: 10000 });
+    assert.match(await row.textContent(), /GLIDER.*e2e.*silent/s);
+    await shot(adminPage, '08-registered-vehicle');
+  });
+
+  test('a viewer sees everything but cannot dispatch', async () => {
+    const viewer = await browser();
+    await login(viewer, users.viewer);
+    await viewer.locator('#fleet-table tr[data-vehicle="auv-1"]').waitFor({ timeout: 30000 });
+    await viewer.click('#tabs button[data-tab=missions]');
+    assert.equal(await viewer.locator('#start-mission').isDisabled(), true);
+    assert.equal(await viewer.locator('#abort-all').isDisabled(), true);
+    const refused = await viewer.evaluate(async () => {
+      const post = (path, body) => fetch(path, { method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(body) });
+      const mission = await post('/api/missions?start=true', {
+        mission_id: 'viewer-try',
+        name: '',
+        tasks: [{ vehicle_id: 'auv-1', task: { kind: 'goto_waypoint', target: { latitude_deg: 63.466, longitude_deg: 10.371 }, depth_m: 5, speed_mps: 1 } }],
+      });
+      const abort = await post('/api/abort-all', { confirm: true });
+      return { mission: mission.status, abort: abort.status, error: (await mission.json()).error };
+    });
+    assert.deepEqual([refused.mission, refused.abort], [403, 403]);
+    assert.match(refused.error, /operator role/);
+    await shot(viewer, '09-viewer-read-only');
+  });
+
+  test('no request left this host', async () => {
+    assert.ok(requests.length > 10, `only ${requests.length} requests recorded`);
+    writeFileSync(join(OUT, 'requests.txt'), `${requests.join('\n')}\n`);
+    const outside = requests.filter((u) => {
+      const url = new URL(u);
+      if (url.protocol === 'data:' || url.protocol === 'blob:') return false;
+      return !['127.0.0.1', 'localhost', '[::1]'].includes(url.hostname);
+    });
+    assert.deepEqual(outside, []);
+  });
+});

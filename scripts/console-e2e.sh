@@ -1,0 +1,114 @@
+#!/usr/bin/env bash
+# The web console in a real browser: starts `shoal up` (station, simulated fleet, console
+# with [console.auth] on) inside a private network namespace, then runs
+# crates/shoal-console/web/tests/*.test.js with playwright-core driving Debian's Chromium
+# in the same namespace. Screenshots and the browser's request log go to target/console-e2e/.
+#
+# Usage: scripts/console-e2e.sh [<netns>]        (default: shoal-test)
+#   SHOAL_BIN   the shoal binary (default: target/release/shoal; build it first with
+#               cargo build --release -p shoal)
+#   SHOAL_E2E_PORT  console port inside the namespace (default 18640)
+#
+# Needs root (network namespace; installs chromium with apt-get if /usr/bin/chromium is
+# missing), node and npm (web/node_modules is installed with npm ci if missing).
+# Exits non-zero on any failure and prints one summary line.
+set -euo pipefail
+
+repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+ns="${1:-shoal-test}"
+bin="${SHOAL_BIN:-$repo/target/release/shoal}"
+port="${SHOAL_E2E_PORT:-18640}"
+web="$repo/crates/shoal-console/web"
+out="$repo/target/console-e2e"
+started=$(date +%s)
+
+summary() { echo "console-e2e: $*"; }
+die() { summary "FAILED: $*"; exit 1; }
+
+[[ -x "$bin" ]] || die "no shoal binary at $bin (cargo build --release -p shoal, or set SHOAL_BIN)"
+command -v node >/dev/null || die "node is not installed (Debian: apt-get install nodejs npm)"
+if [[ ! -x /usr/bin/chromium ]]; then
+    echo "console-e2e: installing Debian's chromium" >&2
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null 2>&1 || {
+        apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+    } || die "cannot install chromium (apt-get install chromium)"
+fi
+if [[ ! -d "$web/node_modules/playwright-core" ]]; then
+    # Outside the namespace: npm needs the registry.
+    (cd "$web" && npm ci --no-audit --no-fund --loglevel=error) || die "npm ci failed in $web"
+fi
+
+"$repo/scripts/netns-run.sh" --setup "$ns" || die "cannot set up network namespace $ns"
+rm -rf "$out"
+mkdir -p "$out"
+work="$(mktemp -d /tmp/shoal-console-e2e.XXXXXX)"
+up_pid=""
+cleanup() {
+    if [[ -n "$up_pid" ]] && kill -0 "$up_pid" 2>/dev/null; then
+        kill -INT "$up_pid" 2>/dev/null || true
+        for _ in $(seq 1 100); do kill -0 "$up_pid" 2>/dev/null || break; sleep 0.2; done
+        kill -KILL "$up_pid" 2>/dev/null || true
+    fi
+    rm -rf "$work"
+}
+trap cleanup EXIT
+
+# DDS domain 145: the console's tests use 140-149, so they never meet other tests' DDS.
+cat > "$work/shoal.toml" <<EOF
+[dds]
+domain_id = 145
+
+[station]
+rules_path = "$work/rules.json"
+summary_interval_s = 0.0
+
+[history]
+path = "$work/history.db"
+
+[console]
+listen = "127.0.0.1:$port"
+
+[console.auth]
+enabled = true
+users_path = "$work/console-users.json"
+EOF
+
+ip netns exec "$ns" "$bin" --config "$work/shoal.toml" up >"$out/shoal-up.log" 2>&1 &
+up_pid=$!
+
+# The station logs the admin token it creates on its first start with auth enabled.
+token=""
+for _ in $(seq 1 300); do
+    kill -0 "$up_pid" 2>/dev/null || die "shoal up exited early; see $out/shoal-up.log"
+    token="$(grep -ao 'admin API token shoal_[0-9a-f]*' "$out/shoal-up.log" | head -n1 | awk '{print $4}' || true)"
+    if [[ -n "$token" ]] && ip netns exec "$ns" curl -sf "http://127.0.0.1:$port/api/health" >/dev/null 2>&1; then
+        break
+    fi
+    sleep 0.2
+done
+if [[ -z "$token" ]]; then
+    if grep -aq "console: http" "$out/shoal-up.log"; then
+        die "the station ignores [console.auth]: crates/shoal/src/daemons.rs must start the console with shoal_console::serve_with(listener, handle, cfg.console.clone(), shutdown)"
+    fi
+    die "no admin token in $out/shoal-up.log within 60 s"
+fi
+
+set +e
+ip netns exec "$ns" env \
+    SHOAL_URL="http://127.0.0.1:$port" \
+    SHOAL_ADMIN_TOKEN="$token" \
+    SHOAL_E2E_OUT="$out" \
+    node --test --test-reporter=spec --test-reporter-destination=stdout \
+    "$web/tests/console.e2e.test.js" 2>&1 | tee "$out/results.txt"
+status=${PIPESTATUS[0]}
+set -e
+
+pass=$(grep -aoE '^ℹ pass [0-9]+' "$out/results.txt" | awk '{print $3}' | tail -n1)
+fail=$(grep -aoE '^ℹ fail [0-9]+' "$out/results.txt" | awk '{print $3}' | tail -n1)
+elapsed=$(( $(date +%s) - started ))
+shots=$(find "$out" -name '*.png' | wc -l)
+if [[ $status -ne 0 || -z "$pass" || "${fail:-1}" != "0" ]]; then
+    summary "FAILED: ${pass:-0} passed, ${fail:-?} failed in ${elapsed} s; $shots screenshots and logs in $out"
+    exit 1
+fi
+summary "${pass} passed, 0 failed in ${elapsed} s; $shots screenshots in $out"
