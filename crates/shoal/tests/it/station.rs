@@ -837,7 +837,9 @@ async fn a_mission_resumes_after_the_station_restarts() {
     })
     .await;
     assert!(done.tasks.iter().all(|t| t.state == TaskState::Done));
-    // Every transition is in the history: sent by the station, then the vehicle's reports.
+    // Every transition is in the history: sent by the station, then the vehicle's reports
+    // (the writer commits in batches: wait for what was submitted).
+    tokio::task::block_in_place(|| h.flush_history(Duration::from_secs(10))).unwrap();
     let th = h.history().task_history("m-rs-2").unwrap();
     let states: Vec<TaskState> = th.statuses.iter().map(|s| s.state).collect();
     assert_eq!(states.first(), Some(&TaskState::Sent), "{states:?}");
