@@ -26,6 +26,59 @@ fn an_invalid_config_file_gives_one_line_naming_the_key() {
     assert!(lines[0].contains("dds.domain_id"), "{err}");
 }
 
+/// `shoal vehicle --proxy`: bad flags and a bad settings file are named before anything
+/// starts, and the process exits with an error instead of panicking.
+#[test]
+fn proxy_flags_and_settings_errors_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        let out = shoal().arg("vehicle").args(args).output().unwrap();
+        assert!(!out.status.success(), "{args:?} succeeded");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = run(&[
+        "--proxy",
+        "imc",
+        "--id",
+        "v1",
+        "--address",
+        "not-an-address",
+    ]);
+    assert!(
+        err.contains("--address") && err.contains("HOST:PORT"),
+        "{err}"
+    );
+    let err = run(&["--proxy", "mavlink", "--id", "bad id!"]);
+    assert!(err.contains("--id"), "{err}");
+    let missing = dir.path().join("missing.toml");
+    let err = run(&[
+        "--proxy",
+        "ros2",
+        "--id",
+        "v1",
+        "--proxy-config",
+        missing.to_str().unwrap(),
+    ]);
+    assert!(err.contains("missing.toml"), "{err}");
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "lost_after_ms = \"soon\"\n").unwrap();
+    let err = run(&[
+        "--proxy",
+        "mavlink",
+        "--id",
+        "v1",
+        "--proxy-config",
+        bad.to_str().unwrap(),
+    ]);
+    assert!(
+        err.contains("bad.toml") && err.contains("lost_after_ms"),
+        "{err}"
+    );
+    let err = run(&["--sim", "auv", "--proxy", "imc", "--id", "v1"]);
+    assert!(err.contains("cannot be used with"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
 #[test]
 fn an_environment_override_with_a_bad_value_is_named() {
     let out = shoal()
