@@ -1130,10 +1130,9 @@ impl StationHandle {
 
     fn busy_vehicles(&self) -> std::collections::HashSet<String> {
         lock(&self.shared.register)
-            .tasks()
+            .busy_vehicles()
             .into_iter()
-            .filter(|t| !t.state.is_final() && t.state != shoal_model::TaskState::Pending)
-            .map(|t| t.assignment.vehicle_id)
+            .map(str::to_owned)
             .collect()
     }
 
