@@ -208,6 +208,17 @@ pub async fn run_acoustic_demo(
     shutdown: CancellationToken,
 ) -> Result<(), ConverterError> {
     cfg.check(station)?;
+    run_acoustic_demo_with(cfg, Arc::new(PubSub::new(station)?), shutdown).await
+}
+
+/// Like [`run_acoustic_demo`] with the CDT's participant on the station's domain given, e.g.
+/// one with security on ([`PubSub::new_secure`]) so the station admits what it relays.
+pub async fn run_acoustic_demo_with(
+    cfg: AcousticDemoConfig,
+    cdt_dds: Arc<PubSub>,
+    shutdown: CancellationToken,
+) -> Result<(), ConverterError> {
+    cfg.check(cdt_dds.config())?;
     // A child token: a failing part stops the others without cancelling the caller.
     let stop = shutdown.child_token();
     let emu =
@@ -218,7 +229,6 @@ pub async fn run_acoustic_demo(
     let relay = endpoint(cfg.relay_address)
         .ok_or_else(|| ConverterError::Config("relay modem missing".into()))?;
     let cdt_cfg = cfg.cdt_config(cfg.modem(relay.at, relay.nl).address);
-    let cdt_dds = Arc::new(PubSub::new(station)?);
     let driver = Modem::start(&cdt_cfg.modem, cfg.time_scale);
     tasks.spawn(run_cdt(cdt_cfg, cdt_dds, driver, stop.clone()));
 

@@ -4,6 +4,7 @@ mod acoustic;
 mod bench;
 mod config;
 mod daemons;
+mod keys;
 mod query;
 
 use std::path::PathBuf;
@@ -31,6 +32,10 @@ enum Command {
         /// Start only the station, no simulated vehicles.
         #[arg(long)]
         no_fleet: bool,
+        /// Turn security on (as `[security] enabled = true`): create the key store if
+        /// missing, issue and export each vehicle's certificate, and sign everything.
+        #[arg(long)]
+        secure: bool,
     },
     /// Run the Command and Control Station: ingest, history, register, HTTP API.
     Station {
@@ -114,6 +119,9 @@ enum Command {
         #[arg(long, value_name = "ADDR")]
         station: Option<std::net::SocketAddr>,
     },
+    /// The station's key store: CA, station and vehicle certificates, acoustic keys,
+    /// revocations (see the operator guide, "Security").
+    Keys(keys::KeysArgs),
     /// Compact acoustic PDUs: encode JSON to hex, decode hex to JSON, print sizes.
     Pdu {
         #[command(subcommand)]
@@ -215,6 +223,7 @@ fn main() -> ExitCode {
         Command::AcousticDemo { .. } => "acoustic".to_string(),
         Command::Bench { .. } => "bench".to_string(),
         Command::Config { .. } => "config".to_string(),
+        Command::Keys(_) => "keys".to_string(),
         Command::Pdu { .. } => "pdu".to_string(),
         Command::Query { .. } => "query".to_string(),
         Command::ModemEmu(_) => "modem-emu".to_string(),
@@ -236,7 +245,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         .enable_all()
         .build()?;
     match cli.command {
-        Command::Up { no_fleet } => rt.block_on(daemons::up(cli.config.as_deref(), &cfg, no_fleet)),
+        Command::Up { no_fleet, secure } => {
+            rt.block_on(daemons::up(cli.config.as_deref(), &cfg, no_fleet, secure))
+        }
+        Command::Keys(args) => keys::run(args, &cfg.security),
         Command::Station {
             listen,
             db,

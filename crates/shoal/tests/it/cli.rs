@@ -1,6 +1,8 @@
 //! The `shoal` binary: configuration errors and `shoal up`.
 
 use std::io::Read;
+
+use crate::common::http_get;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -166,18 +168,4 @@ fn up_starts_the_station_and_fleet_and_stops_cleanly() {
     );
     assert!(log.contains("station stopped"), "{log}");
     assert!(dir.path().join("shoal-data/history.db").exists());
-}
-
-/// A minimal HTTP/1.0 GET over a plain socket, to keep an HTTP client out of the test deps.
-fn http_get(port: u16, path: &str) -> std::io::Result<String> {
-    use std::io::Write;
-    let mut s = std::net::TcpStream::connect(("127.0.0.1", port))?;
-    s.set_read_timeout(Some(Duration::from_secs(5)))?;
-    write!(s, "GET {path} HTTP/1.0\r\nHost: localhost\r\n\r\n")?;
-    let mut out = String::new();
-    s.read_to_string(&mut out)?;
-    Ok(out
-        .split_once("\r\n\r\n")
-        .map(|(_, b)| b.to_string())
-        .unwrap_or_default())
 }

@@ -87,3 +87,17 @@ pub fn auv_announcement(id: &str) -> shoal_model::VehicleAnnouncement {
         timestamp_ms: shoal_model::now_ms(),
     }
 }
+
+/// A minimal HTTP/1.0 GET over a plain socket, to keep an HTTP client out of the test deps.
+pub fn http_get(port: u16, path: &str) -> std::io::Result<String> {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", port))?;
+    s.set_read_timeout(Some(Duration::from_secs(5)))?;
+    write!(s, "GET {path} HTTP/1.0\r\nHost: localhost\r\n\r\n")?;
+    let mut out = String::new();
+    s.read_to_string(&mut out)?;
+    Ok(out
+        .split_once("\r\n\r\n")
+        .map(|(_, b)| b.to_string())
+        .unwrap_or_default())
+}
