@@ -189,7 +189,13 @@ pub async fn acoustic_demo(cfg: &ShoalConfig, exit_on_stdin_close: bool) -> Resu
         "acoustic demo: submerged AUV -> emulated modem -> CDT on the relay -> station"
     );
     let cdt_dds = station_dds(cfg, &shutdown)?;
-    shoal_converter::relay::run_acoustic_demo_with(demo, cdt_dds, shutdown)
+    let keys = if cfg.security.enabled {
+        let ids: Vec<&str> = demo.vehicles.iter().map(|v| v.sim.id.as_str()).collect();
+        Some(crate::keys::acoustic_keys(&cfg.security, &ids)?)
+    } else {
+        None
+    };
+    shoal_converter::relay::run_acoustic_demo_with(demo, cdt_dds, keys, shutdown)
         .await
         .context("acoustic demo failed")
 }
@@ -221,11 +227,14 @@ pub async fn up(
     let mut station_env = Vec::new();
     let mut bundles = std::collections::HashMap::new();
     if secure {
-        let ids: Vec<&str> = if no_fleet {
-            Vec::new()
-        } else {
-            cfg.fleet.vehicles.iter().map(|v| v.id.as_str()).collect()
-        };
+        let demo = shoal_converter::relay::AcousticDemoConfig::default();
+        let mut ids: Vec<&str> = Vec::new();
+        if !no_fleet {
+            ids.extend(cfg.fleet.vehicles.iter().map(|v| v.id.as_str()));
+            if cfg.fleet.acoustic_demo {
+                ids.extend(demo.vehicles.iter().map(|v| v.sim.id.as_str()));
+            }
+        }
         bundles = crate::keys::prepare_fleet(&cfg.security, &ids)?;
         station_env.push(("SHOAL_SECURITY__ENABLED".to_string(), "true".to_string()));
     }

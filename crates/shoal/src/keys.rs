@@ -325,6 +325,26 @@ pub fn prepare_fleet(
     Ok(out)
 }
 
+/// The acoustic keys of `vehicle_ids` from the station's key store (the CDT runs at the
+/// station's side), with 64-bit tags.
+pub fn acoustic_keys(
+    cfg: &SecurityConfig,
+    vehicle_ids: &[&str],
+) -> Result<shoal_converter::relay::AcousticKeys> {
+    let store = KeyStore::open(&cfg.store).context("cannot open the key store")?;
+    let mut keys = std::collections::HashMap::new();
+    for id in vehicle_ids {
+        let key = store
+            .acoustic_key(id)
+            .with_context(|| format!("no acoustic key for {id:?}: run `shoal keys issue {id}`"))?;
+        keys.insert((*id).to_string(), key);
+    }
+    Ok(shoal_converter::relay::AcousticKeys {
+        tag: shoal_security::TagSize::Bits64,
+        keys,
+    })
+}
+
 fn modified(path: &Path) -> Option<SystemTime> {
     std::fs::metadata(path).and_then(|m| m.modified()).ok()
 }
