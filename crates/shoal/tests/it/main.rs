@@ -6,6 +6,7 @@
 //!
 //! Where new tests go:
 //! - `station`: station + simulated vehicles in one process, the HTTP API, bad input.
+//! - `faults`: the station killed with SIGKILL and restarted.
 //! - `cli`: the `shoal` binary itself (`up`, configuration errors).
 //! - `proxies`: `shoal vehicle --proxy ...` against an independent vehicle implementation.
 //! - `security`: `[security]` on: signed fleet, refused intruders, revocation, start-up
@@ -17,6 +18,7 @@
 
 mod cli;
 mod common;
+mod faults;
 mod interop;
 mod proxies;
 mod scenario;
