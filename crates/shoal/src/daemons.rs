@@ -213,14 +213,45 @@ async fn stop_child(mut c: Child) {
     }
 }
 
+/// What `shoal up` starts besides the station.
+#[derive(Debug, Clone, Copy)]
+pub struct UpOptions {
+    /// No simulated vehicles at all.
+    pub no_fleet: bool,
+    /// Security on.
+    pub secure: bool,
+    /// Lightweight vehicles in a `shoal swarm` process.
+    pub sim_vehicles: usize,
+}
+
+/// `shoal swarm`.
+pub async fn swarm(
+    cfg: &ShoalConfig,
+    spec: shoal_proxy::swarm::SwarmSpec,
+    exit_on_stdin_close: bool,
+) -> Result<()> {
+    if cfg.security.enabled {
+        bail!("shoal swarm does not sign: run it with security off (it is for scale tests)");
+    }
+    warn_if_not_loopback(cfg);
+    let dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?);
+    let shutdown = shutdown_signal(exit_on_stdin_close);
+    shoal_proxy::swarm::run_swarm(spec, dds, shutdown)
+        .await
+        .context("swarm failed")
+}
+
 /// `shoal up`: a station and the configured fleet, each its own process (its own DDS
 /// participant, as on real vehicles), stopped together.
-pub async fn up(
-    config: Option<&Path>,
-    cfg: &ShoalConfig,
-    no_fleet: bool,
-    secure: bool,
-) -> Result<()> {
+pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Result<()> {
+    let UpOptions {
+        no_fleet,
+        secure,
+        sim_vehicles,
+    } = opts;
+    if (secure || cfg.security.enabled) && sim_vehicles > 0 {
+        bail!("--sim-vehicles cannot be combined with security (swarm vehicles do not sign)");
+    }
     let exe = std::env::current_exe().context("cannot find the shoal executable")?;
     let shutdown = shutdown_signal(false);
     let secure = secure || cfg.security.enabled;
@@ -295,6 +326,19 @@ pub async fn up(
             &station_env,
             "acoustic demo",
             &["acoustic-demo".to_string()],
+        )?);
+    }
+    if sim_vehicles > 0 {
+        children.push(spawn(
+            &exe,
+            config,
+            &station_env,
+            "swarm",
+            &[
+                "swarm".to_string(),
+                "--count".into(),
+                sim_vehicles.to_string(),
+            ],
         )?);
     }
     info!(

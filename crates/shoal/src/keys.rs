@@ -92,27 +92,7 @@ impl From<Reason> for RevokeReason {
     }
 }
 
-fn date(ms: i64) -> String {
-    // Whole days are enough for a listing; the certificate holds the exact time.
-    let secs = u64::try_from(ms / 1000).unwrap_or(0);
-    let days = secs / 86_400;
-    let (y, m, d) = civil_from_days(i64::try_from(days).unwrap_or(0));
-    format!("{y:04}-{m:02}-{d:02}")
-}
-
-/// Days since 1970-01-01 to a proleptic Gregorian date (Howard Hinnant's algorithm).
-fn civil_from_days(z: i64) -> (i64, u32, u32) {
-    let z = z + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = u32::try_from(doy - (153 * mp + 2) / 5 + 1).unwrap_or(1);
-    let m = u32::try_from(if mp < 10 { mp + 3 } else { mp - 9 }).unwrap_or(1);
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    (y, m, d)
-}
+use crate::bench::utc_date as date;
 
 /// Runs `shoal keys ...`; prints what it did on standard output.
 pub fn run(args: KeysArgs, cfg: &SecurityConfig) -> Result<()> {
@@ -389,9 +369,10 @@ mod tests {
     use super::*;
 
     #[test]
-    fn dates_are_proleptic_gregorian() {
+    fn dates_are_utc_calendar_days() {
         assert_eq!(date(0), "1970-01-01");
         assert_eq!(date(951_782_400_000), "2000-02-29");
-        assert_eq!(date(1_795_219_200_000), "2026-11-21");
+        assert_eq!(date(1_795_219_200_000 - 1), "2026-11-20");
+        assert_eq!(date(i64::MAX), "(date out of range)");
     }
 }
