@@ -185,14 +185,33 @@ pub async fn run_swarm(
     let period = Duration::from_secs_f64(1.0 / spec.rate_hz);
     #[allow(clippy::cast_possible_truncation)]
     let mut ticker = tokio::time::interval(period / SLICES as u32);
-    ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    // Catch up after a slow slice, so the offered rate holds on average.
+    ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
+    // States from a vehicle the station has not heard announced are refused: once a
+    // reader matched both writers (or after 30 s), announce everyone, give the station a
+    // second to take the announcements (another reader thread), then report.
+    let waiting = tokio::time::Instant::now();
+    while (announce.matched_readers() == 0 || states.matched_readers() == 0)
+        && waiting.elapsed() < Duration::from_secs(30)
+    {
+        tokio::select! {
+            () = shutdown.cancelled() => return Ok(()),
+            () = tokio::time::sleep(Duration::from_millis(100)) => {}
+        }
+    }
+    for v in &vehicles {
+        if let Err(e) = announce.write(v.announcement()).await {
+            warn!(vehicle = %v.id, error = %e, "announcement not sent");
+        }
+    }
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let mut last_announce = Some(tokio::time::Instant::now());
     info!(
         vehicles = spec.count,
         rate_hz = spec.rate_hz,
         "swarm started"
     );
     let mut slice = 0usize;
-    let mut last_announce: Option<tokio::time::Instant> = None;
     let (mut sent, mut failed) = (0u64, 0u64);
     loop {
         tokio::select! {
