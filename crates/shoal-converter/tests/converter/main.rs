@@ -11,6 +11,8 @@
 //!   (domains 101, 102).
 //! - `reconnect`: the modem connection drops and comes back; queued tasks survive
 //!   (domains 103, 104).
+//! - `outage`: ten simulated minutes out of acoustic range; queued tasks all arrive
+//!   afterwards (domains 107, 108).
 //! - `relay`: the `run_acoustic_demo` topology (domains 105, 106).
 //! - `bench`: the `shoal bench acoustic` figures meet their goals (no DDS).
 //!
@@ -21,5 +23,6 @@
 mod bench;
 mod common;
 mod end_to_end;
+mod outage;
 mod reconnect;
 mod relay;
