@@ -54,6 +54,8 @@ pub struct SizeRow {
     pub vs_swarms_ascii: f64,
     /// How many fit in one 64-byte instant message.
     pub per_frame: usize,
+    /// How many fit once the frame carries the default 64-bit authentication tag.
+    pub per_frame_tagged: usize,
 }
 
 /// The PDU size table and its reference points.
@@ -67,8 +69,8 @@ pub struct SizeReport {
     pub swarms_ascii_bytes: usize,
     /// Naive binary layout, bytes.
     pub naive_binary_bytes: usize,
-    /// Bytes an authentication tag adds per frame; `None`: the acoustic link carries no
-    /// tag yet (symmetric-key tags are planned with the security crate).
+    /// Bytes the default (64-bit) authentication tag and its counter add per frame when
+    /// security is on (`shoal_acoustic::secure::TaggedDriver`).
     pub auth_tag_bytes: Option<usize>,
 }
 
@@ -83,6 +85,9 @@ pub fn pdu_sizes() -> SizeReport {
             bytes: e.bytes,
             vs_swarms_ascii: e.bytes as f64 / SWARMS_ASCII_BYTES as f64,
             per_frame: MAX_FRAME.checked_div(e.bytes).unwrap_or(0),
+            per_frame_tagged: (MAX_FRAME - shoal_security::acoustic::OVERHEAD_64)
+                .checked_div(e.bytes)
+                .unwrap_or(0),
         })
         .collect();
     SizeReport {
@@ -90,7 +95,7 @@ pub fn pdu_sizes() -> SizeReport {
         dccl_reference_bytes: DCCL_REFERENCE_BYTES,
         swarms_ascii_bytes: SWARMS_ASCII_BYTES,
         naive_binary_bytes: NAIVE_BINARY_BYTES,
-        auth_tag_bytes: None,
+        auth_tag_bytes: Some(shoal_security::acoustic::OVERHEAD_64),
     }
 }
 

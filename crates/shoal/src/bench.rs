@@ -649,7 +649,7 @@ async fn acoustic(time_scale: f64) -> Result<()> {
         .context("acoustic benchmark failed")?;
     println!("# shoal bench acoustic — {} — {}", machine(), date());
     println!(
-        "PDU sizes (DCCL reference {} B, SWARMs ASCII {} B, naive binary {} B; auth tag {}):",
+        "PDU sizes (DCCL reference {} B, SWARMs ASCII {} B, naive binary {} B; auth tag + counter {}):",
         r.sizes.dccl_reference_bytes,
         r.sizes.swarms_ascii_bytes,
         r.sizes.naive_binary_bytes,
@@ -658,17 +658,18 @@ async fn acoustic(time_scale: f64) -> Result<()> {
             .map_or_else(|| "none yet".to_string(), |b| format!("{b} B"))
     );
     println!(
-        "  {:<34} {:>5} {:>6} {:>10} {:>10}",
-        "message", "bits", "bytes", "vs 51 B", "per frame"
+        "  {:<34} {:>5} {:>6} {:>10} {:>10} {:>10}",
+        "message", "bits", "bytes", "vs 51 B", "per frame", "tagged"
     );
     for row in &r.sizes.rows {
         println!(
-            "  {:<34} {:>5} {:>6} {:>9.0}% {:>10}",
+            "  {:<34} {:>5} {:>6} {:>9.0}% {:>10} {:>10}",
             row.message,
             row.bits,
             row.bytes,
             row.vs_swarms_ascii * 100.0,
-            row.per_frame
+            row.per_frame,
+            row.per_frame_tagged
         );
     }
     let c = &r.channel;
