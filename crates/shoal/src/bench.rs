@@ -113,6 +113,23 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 24)]
         domain: u16,
     },
+    /// Every figure of the targets in one run and one table, each beside the peer
+    /// measured in the same run (Cyclone DDS ddsperf, a raw batched SQLite insert, DCCL's
+    /// published size) and its target; saved as Markdown under `--out`.
+    Suite {
+        /// Seconds of round trips (and of latency measurement) per figure.
+        #[arg(long, default_value_t = 10)]
+        seconds: u64,
+        /// Vehicles of the scale figure.
+        #[arg(long, default_value_t = 10_000)]
+        scale_vehicles: usize,
+        /// Directory the Markdown report is written to.
+        #[arg(long, default_value = "bench/runs")]
+        out: std::path::PathBuf,
+        /// First DDS domain (the suite uses the next eight).
+        #[arg(long, default_value_t = 30)]
+        domain: u16,
+    },
     /// End-to-end latency, vehicle -> station -> console: N lightweight vehicles in another
     /// process (`shoal swarm`, each state stamped when sent) and a WebSocket client on the
     /// console's live feed, as the web console reads it; p50/p99 of arrival minus stamp.
@@ -199,6 +216,12 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             domain,
         } => latency(cfg, vehicles, rate, seconds, domain).await,
         BenchCommand::LateJoiner { trials, domain } => late_joiner(cfg, trials, domain).await,
+        BenchCommand::Suite {
+            seconds,
+            scale_vehicles,
+            out,
+            domain,
+        } => suite(cfg, seconds, scale_vehicles, &out, domain).await,
         BenchCommand::Scale {
             vehicles,
             rate,
@@ -573,7 +596,20 @@ async fn ddsperf(domain: u16, seconds: u64) -> Result<PerfResult> {
     })
 }
 
-async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: bool) -> Result<()> {
+/// What `bench bus` measures.
+struct BusFigures {
+    rt: RoundTrip,
+    throughput: f64,
+    steps: Vec<(f64, u64, u64)>,
+    peer: Option<PerfResult>,
+}
+
+async fn bus_figures(
+    cfg: &ShoalConfig,
+    domain: u16,
+    seconds: u64,
+    no_peer: bool,
+) -> Result<BusFigures> {
     eprintln!("bus: {seconds} s of Shoal round trips (RustDDS, two processes, state vectors)...");
     let rt = shoal_round_trip(cfg, domain, seconds).await?;
     eprintln!("bus: Shoal throughput, stepping the offered rate up until samples are lost...");
@@ -590,6 +626,21 @@ async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: bool) -> Res
             }
         }
     };
+    Ok(BusFigures {
+        rt,
+        throughput: thr,
+        steps,
+        peer,
+    })
+}
+
+async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: bool) -> Result<()> {
+    let BusFigures {
+        rt,
+        throughput: thr,
+        steps,
+        peer,
+    } = bus_figures(cfg, domain, seconds, no_peer).await?;
     println!("# shoal bench bus — {} — {}", machine(), date());
     println!(
         "{:<38} {:>12} {:>14} {:>9}",
@@ -1062,7 +1113,25 @@ fn pipeline_rules() -> Vec<shoal_station::RuleDoc> {
     ]
 }
 
-async fn pipeline(cfg: &ShoalConfig, domain: u16, vehicles: usize, rows: usize) -> Result<()> {
+/// What `bench pipeline` measures.
+struct PipelineFigures {
+    enabled: usize,
+    accepted: u64,
+    rejected: usize,
+    firings: u64,
+    committed: u64,
+    elapsed: Duration,
+    raw: Duration,
+    rate: f64,
+    raw_rate: f64,
+}
+
+async fn pipeline_figures(
+    cfg: &ShoalConfig,
+    domain: u16,
+    vehicles: usize,
+    rows: usize,
+) -> Result<PipelineFigures> {
     let dir = tempfile_dir()?;
     eprintln!("pipeline: generating {rows} state vectors for {vehicles} vehicles...");
     let data = pipeline_rows(vehicles, rows);
@@ -1130,14 +1199,39 @@ async fn pipeline(cfg: &ShoalConfig, domain: u16, vehicles: usize, rows: usize) 
         rows as f64 / elapsed.as_secs_f64(),
         rows as f64 / raw.as_secs_f64(),
     );
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(PipelineFigures {
+        enabled,
+        accepted: stats.states_accepted,
+        rejected,
+        firings: stats.rule_firings,
+        committed,
+        elapsed,
+        raw,
+        rate,
+        raw_rate,
+    })
+}
+
+async fn pipeline(cfg: &ShoalConfig, domain: u16, vehicles: usize, rows: usize) -> Result<()> {
+    let PipelineFigures {
+        enabled,
+        accepted,
+        rejected,
+        firings,
+        committed,
+        elapsed,
+        raw,
+        rate,
+        raw_rate,
+    } = pipeline_figures(cfg, domain, vehicles, rows).await?;
     println!("# shoal bench pipeline — {} — {}", machine(), date());
     println!(
         "{vehicles} vehicles, {rows} state vectors, {enabled} rules enabled, history batch {}",
         cfg.history.batch_max
     );
     println!(
-        "accepted {}, rejected {rejected}, rule firings {}, history committed {committed}",
-        stats.states_accepted, stats.rule_firings
+        "accepted {accepted}, rejected {rejected}, rule firings {firings}, history committed {committed}"
     );
     println!("{:<58} {:>12} {:>12}", "", "state vec/s", "time");
     println!(
@@ -1157,7 +1251,6 @@ async fn pipeline(cfg: &ShoalConfig, domain: u16, vehicles: usize, rows: usize) 
         rate / raw_rate,
         if rate >= 100_000.0 { "met" } else { "NOT met" }
     );
-    let _ = std::fs::remove_dir_all(&dir);
     Ok(())
 }
 
@@ -1214,7 +1307,25 @@ fn child(args: &[&str], domain: u16) -> Result<tokio::process::Child> {
         .with_context(|| format!("cannot start shoal {}", args.join(" ")))
 }
 
+/// What `bench scale` measures.
+struct ScaleFigures {
+    all_alive_after_s: Option<f64>,
+    mean_rate: f64,
+    peak_rss_mb: f64,
+}
+
 async fn scale(vehicles: usize, rate: f64, seconds: u64, domain: u16) -> Result<()> {
+    scale_figures(vehicles, rate, seconds, domain)
+        .await
+        .map(|_| ())
+}
+
+async fn scale_figures(
+    vehicles: usize,
+    rate: f64,
+    seconds: u64,
+    domain: u16,
+) -> Result<ScaleFigures> {
     let dir = tempfile_dir()?;
     let port = std::net::TcpListener::bind("127.0.0.1:0")?
         .local_addr()?
@@ -1286,12 +1397,12 @@ async fn scale(vehicles: usize, rate: f64, seconds: u64, domain: u16) -> Result<
     let _ = tokio::time::timeout(Duration::from_secs(15), swarm.wait()).await;
     let _ = tokio::time::timeout(Duration::from_secs(15), station.wait()).await;
     let _ = std::fs::remove_dir_all(&dir);
+    let steady: Vec<f64> = rows.iter().skip(1).map(|r| r.0).collect();
+    #[allow(clippy::cast_precision_loss)]
+    let mean = steady.iter().sum::<f64>() / steady.len().max(1) as f64;
+    let peak = rows.iter().map(|r| r.1).fold(0.0, f64::max);
     match all_alive_at {
         Some(t) => {
-            let steady: Vec<f64> = rows.iter().skip(1).map(|r| r.0).collect();
-            #[allow(clippy::cast_precision_loss)]
-            let mean = steady.iter().sum::<f64>() / steady.len().max(1) as f64;
-            let peak = rows.iter().map(|r| r.1).fold(0.0, f64::max);
             println!(
                 "all {vehicles} alive after {:.0} s; steady ingest {mean:.0} state vectors/s (offered {:.0}/s); station RSS idle {idle_rss:.1} MB, all alive {:.1} MB, peak {peak:.1} MB",
                 t.as_secs_f64(),
@@ -1305,7 +1416,17 @@ async fn scale(vehicles: usize, rate: f64, seconds: u64, domain: u16) -> Result<
         }
         None => println!("not every vehicle was alive within 120 s"),
     }
-    Ok(())
+    Ok(ScaleFigures {
+        all_alive_after_s: all_alive_at.map(|t| t.as_secs_f64()),
+        mean_rate: mean,
+        peak_rss_mb: peak,
+    })
+}
+
+/// What `bench latency` measures, in ms.
+struct LatencyFigures {
+    samples: Vec<f64>,
+    lagged: u64,
 }
 
 async fn latency(
@@ -1315,6 +1436,29 @@ async fn latency(
     seconds: u64,
     domain: u16,
 ) -> Result<()> {
+    let LatencyFigures { samples, lagged } =
+        latency_figures(cfg, vehicles, rate, seconds, domain).await?;
+    println!("# shoal bench latency — {} — {}", machine(), date());
+    println!(
+        "vehicle -> station -> console live feed, {vehicles} vehicles x {rate} Hz, {} updates in {seconds} s (missed by a slow client: {lagged})",
+        samples.len()
+    );
+    println!(
+        "latency p50 {:.0} ms, p99 {:.0} ms, max {:.0} ms (stamps have 1 ms resolution)",
+        percentile(&samples, 50.0),
+        percentile(&samples, 99.0),
+        samples.last().copied().unwrap_or(f64::NAN)
+    );
+    Ok(())
+}
+
+async fn latency_figures(
+    cfg: &ShoalConfig,
+    vehicles: usize,
+    rate: f64,
+    seconds: u64,
+    domain: u16,
+) -> Result<LatencyFigures> {
     use tokio_tungstenite::tungstenite::Message;
     let dir = tempfile_dir()?;
     let history = History::open(&HistoryConfig {
@@ -1389,18 +1533,7 @@ async fn latency(
     let _ = console.await;
     let _ = std::fs::remove_dir_all(&dir);
     samples.sort_by(f64::total_cmp);
-    println!("# shoal bench latency — {} — {}", machine(), date());
-    println!(
-        "vehicle -> station -> console live feed, {vehicles} vehicles x {rate} Hz, {} updates in {seconds} s (missed by a slow client: {lagged})",
-        samples.len()
-    );
-    println!(
-        "latency p50 {:.0} ms, p99 {:.0} ms, max {:.0} ms (stamps have 1 ms resolution)",
-        percentile(&samples, 50.0),
-        percentile(&samples, 99.0),
-        samples.last().copied().unwrap_or(f64::NAN)
-    );
-    Ok(())
+    Ok(LatencyFigures { samples, lagged })
 }
 
 async fn late_joiner(cfg: &ShoalConfig, trials: usize, domain: u16) -> Result<()> {
@@ -1452,5 +1585,232 @@ async fn late_joiner(cfg: &ShoalConfig, trials: usize, domain: u16) -> Result<()
             &missed[..missed.len().min(10)]
         );
     }
+    Ok(())
+}
+
+/// One line of the suite's table.
+struct SuiteRow {
+    figure: String,
+    shoal: String,
+    peer: String,
+    ratio: String,
+    target: String,
+    met: Option<bool>,
+}
+
+impl SuiteRow {
+    fn new(figure: &str, shoal: String, target: &str, met: Option<bool>) -> Self {
+        Self {
+            figure: figure.to_string(),
+            shoal,
+            peer: "-".into(),
+            ratio: "-".into(),
+            target: target.to_string(),
+            met,
+        }
+    }
+
+    fn with_peer(mut self, peer: String, ratio: f64) -> Self {
+        self.peer = peer;
+        self.ratio = format!("{ratio:.2}×");
+        self
+    }
+}
+
+fn suite_table(rows: &[SuiteRow]) -> String {
+    let mut t = String::from(
+        "| figure | Shoal | peer, same run | ratio | target | met |\n| --- | --- | --- | --- | --- | --- |\n",
+    );
+    for r in rows {
+        let met = match r.met {
+            Some(true) => "yes",
+            Some(false) => "**no**",
+            None => "-",
+        };
+        t.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {met} |\n",
+            r.figure, r.shoal, r.peer, r.ratio, r.target
+        ));
+    }
+    t
+}
+
+async fn suite(
+    cfg: &ShoalConfig,
+    seconds: u64,
+    scale_vehicles: usize,
+    out: &std::path::Path,
+    domain: u16,
+) -> Result<()> {
+    let started = Instant::now();
+    let mut rows = Vec::new();
+
+    eprintln!("suite 1/6: bus (Shoal vs Cyclone DDS ddsperf)");
+    let bus = bus_figures(cfg, domain, seconds, false).await?;
+    let peer = bus.peer.as_ref();
+    let mut rt = SuiteRow::new(
+        "bus round trip p50",
+        format!("{:.0} µs", bus.rt.p50_us),
+        "≤ 2× Cyclone",
+        peer.map(|p| bus.rt.p50_us <= 2.0 * p.p50_us),
+    );
+    if let Some(p) = peer {
+        rt = rt.with_peer(
+            format!("Cyclone {:.0} µs", p.p50_us),
+            bus.rt.p50_us / p.p50_us,
+        );
+    }
+    rows.push(rt);
+    let mut rt99 = SuiteRow::new(
+        "bus round trip p99",
+        format!("{:.0} µs", bus.rt.p99_us),
+        "-",
+        None,
+    );
+    if let Some(p) = peer {
+        rt99 = rt99.with_peer(
+            format!("Cyclone {:.0} µs", p.p99_us),
+            bus.rt.p99_us / p.p99_us,
+        );
+    }
+    rows.push(rt99);
+    let mut thr = SuiteRow::new(
+        "bus throughput, reliable, no loss",
+        format!("≥ {:.0} k/s", bus.throughput / 1000.0),
+        "-",
+        None,
+    );
+    if let Some(p) = peer {
+        thr = thr.with_peer(
+            format!("Cyclone {:.0} k/s", p.throughput / 1000.0),
+            bus.throughput / p.throughput,
+        );
+    }
+    rows.push(thr);
+
+    eprintln!("suite 2/6: ingest pipeline (Shoal vs raw batched SQLite insert)");
+    let pf = pipeline_figures(cfg, domain + 4, 1000, 300_000).await?;
+    rows.push(
+        SuiteRow::new(
+            "ingest (validate + plausibility + latest + semantic + 10 rules + history)",
+            format!("{:.0}/s", pf.rate),
+            "≥ 100,000/s and ≥ 0.8× raw",
+            Some(pf.rate >= 100_000.0 && pf.rate >= 0.8 * pf.raw_rate),
+        )
+        .with_peer(
+            format!("raw SQLite {:.0}/s", pf.raw_rate),
+            pf.rate / pf.raw_rate,
+        ),
+    );
+
+    eprintln!("suite 3/6: end-to-end latency, 1000 vehicles x 1 Hz");
+    let lat = latency_figures(cfg, 1000, 1.0, seconds.max(10), domain + 5).await?;
+    let p99 = percentile(&lat.samples, 99.0);
+    rows.push(SuiteRow::new(
+        "vehicle → console latency p50 (1000 × 1 Hz)",
+        format!("{:.0} ms", percentile(&lat.samples, 50.0)),
+        "-",
+        None,
+    ));
+    rows.push(SuiteRow::new(
+        "vehicle → console latency p99 (1000 × 1 Hz)",
+        format!("{p99:.0} ms"),
+        "≤ 5 ms",
+        Some(p99 <= 5.0),
+    ));
+
+    eprintln!("suite 4/6: SPARQL, 1000 vehicles");
+    let sem = tokio::task::spawn_blocking(|| {
+        shoal_semantic::bench::run(shoal_semantic::bench::BenchOptions {
+            vehicles: 1000,
+            updates_per_vehicle: 10,
+            samples: 30,
+        })
+    })
+    .await?
+    .context("semantic benchmark")?;
+    for q in &sem.fresh {
+        let ms = q.p50.as_secs_f64() * 1e3;
+        rows.push(SuiteRow::new(
+            &format!("SPARQL p50 {} (1000 vehicles)", q.name),
+            format!("{ms:.2} ms"),
+            "≤ 2 ms",
+            Some(ms <= 2.0),
+        ));
+    }
+
+    eprintln!("suite 5/6: acoustic (PDU sizes, channel use)");
+    let ac = shoal_converter::bench::run(&shoal_converter::bench::BenchOptions {
+        time_scale: 0.02,
+        ..Default::default()
+    })
+    .await
+    .context("acoustic benchmark")?;
+    let key = ac
+        .sizes
+        .rows
+        .iter()
+        .find(|r| r.message.starts_with("state_keyframe"))
+        .map_or(0, |r| r.bytes);
+    #[allow(clippy::cast_precision_loss)]
+    rows.push(
+        SuiteRow::new(
+            "State Vector PDU",
+            format!("{key} B"),
+            "≤ DCCL",
+            Some(key <= ac.sizes.dccl_reference_bytes),
+        )
+        .with_peer(
+            format!("DCCL {} B (published)", ac.sizes.dccl_reference_bytes),
+            key as f64 / ac.sizes.dccl_reference_bytes as f64,
+        ),
+    );
+    rows.push(SuiteRow::new(
+        "acoustic channel use under saturation",
+        format!("{:.2}", ac.channel.channel_use),
+        "≥ 0.90",
+        Some(ac.channel.goal_met),
+    ));
+    rows.push(SuiteRow::new(
+        "acoustic frame tag + counter (security on)",
+        format!("{} B of 64", ac.sizes.auth_tag_bytes.unwrap_or(0)),
+        "-",
+        None,
+    ));
+
+    eprintln!("suite 6/6: scale, {scale_vehicles} vehicles x 1 Hz");
+    let sc = scale_figures(scale_vehicles, 1.0, 30, domain + 6).await?;
+    rows.push(SuiteRow::new(
+        &format!("station RSS, {scale_vehicles} vehicles × 1 Hz (peak)"),
+        format!("{:.0} MB", sc.peak_rss_mb),
+        "≤ 2048 MB, all alive",
+        Some(sc.peak_rss_mb <= 2048.0 && sc.all_alive_after_s.is_some()),
+    ));
+    #[allow(clippy::cast_precision_loss)]
+    rows.push(SuiteRow::new(
+        &format!("station ingest, {scale_vehicles} vehicles × 1 Hz offered"),
+        format!("{:.0}/s", sc.mean_rate),
+        "= offered",
+        Some(sc.mean_rate >= 0.95 * scale_vehicles as f64),
+    ));
+
+    let table = suite_table(&rows);
+    let header = format!(
+        "# shoal bench suite — {} — {}\n\nRelease build, loopback only, {:.0} s in all. Peers measured in the same run on the same host.\n\n",
+        date(),
+        machine(),
+        started.elapsed().as_secs_f64()
+    );
+    println!("{header}{table}");
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let host = machine()
+        .split_whitespace()
+        .next()
+        .unwrap_or("host")
+        .to_string();
+    let path = out.join(format!("{}-{host}-suite.md", date()));
+    std::fs::write(&path, format!("{header}{table}"))
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    eprintln!("suite: written to {}", path.display());
     Ok(())
 }
