@@ -923,6 +923,23 @@ async fn load(
     Ok(())
 }
 
+/// A station for a measurement: the configured one, with its history in `db` and no
+/// periodic summary in the output.
+fn bench_station(cfg: &ShoalConfig, domain: u16, db: &std::path::Path) -> Result<Station> {
+    let history = History::open(&HistoryConfig {
+        path: db.to_path_buf(),
+        ..cfg.history.clone()
+    })?;
+    Ok(Station::new(
+        StationConfig {
+            summary_interval_s: 0.0,
+            ..cfg.station.clone()
+        },
+        dds(cfg, domain)?,
+        history,
+    )?)
+}
+
 async fn ingest(
     cfg: &ShoalConfig,
     domain: u16,
@@ -931,18 +948,7 @@ async fn ingest(
     seconds: f64,
 ) -> Result<()> {
     let dir = tempfile_dir()?;
-    let history = History::open(&HistoryConfig {
-        path: dir.join("ingest.db"),
-        ..cfg.history.clone()
-    })?;
-    let station = Station::new(
-        StationConfig {
-            summary_interval_s: 0.0,
-            ..cfg.station.clone()
-        },
-        dds(cfg, domain)?,
-        history,
-    )?;
+    let station = bench_station(cfg, domain, &dir.join("ingest.db"))?;
     let h = station.handle();
     let stop = CancellationToken::new();
     let task = tokio::spawn(station.run(stop.clone()));
@@ -1461,18 +1467,7 @@ async fn latency_figures(
 ) -> Result<LatencyFigures> {
     use tokio_tungstenite::tungstenite::Message;
     let dir = tempfile_dir()?;
-    let history = History::open(&HistoryConfig {
-        path: dir.join("latency.db"),
-        ..cfg.history.clone()
-    })?;
-    let station = Station::new(
-        StationConfig {
-            summary_interval_s: 0.0,
-            ..cfg.station.clone()
-        },
-        dds(cfg, domain)?,
-        history,
-    )?;
+    let station = bench_station(cfg, domain, &dir.join("latency.db"))?;
     let stop = CancellationToken::new();
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
     let api = listener.local_addr()?;

@@ -108,10 +108,7 @@ fn config_prints_the_effective_configuration() {
 #[test]
 fn up_starts_the_station_and_fleet_and_stops_cleanly() {
     let dir = tempfile::tempdir().unwrap();
-    let port = {
-        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        l.local_addr().unwrap().port()
-    };
+    let port = crate::common::free_port();
     let mut child = shoal()
         .arg("up")
         .current_dir(dir.path())

@@ -126,3 +126,9 @@ pub fn http_post(port: u16, path: &str, json: &str) -> std::io::Result<(u16, Str
             .unwrap_or_default(),
     ))
 }
+
+/// A free TCP port on 127.0.0.1 (bound and released).
+pub fn free_port() -> u16 {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().port()
+}

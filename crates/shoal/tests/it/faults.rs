@@ -60,10 +60,7 @@ fn wait_for(secs: u64, what: &str, mut check: impl FnMut() -> bool) -> Duration 
 #[test]
 fn a_station_killed_under_load_loses_no_committed_record_and_resumes() {
     let dir = tempfile::tempdir().unwrap();
-    let port = {
-        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        l.local_addr().unwrap().port()
-    };
+    let port = crate::common::free_port();
     let first = station(dir.path(), port);
     let ids = ["k-1", "k-2", "k-3"];
     let _vehicles: Vec<Proc> = ids

@@ -55,10 +55,7 @@ impl Drop for KillOnDrop {
 #[test]
 fn a_secure_fleet_works_and_unsigned_or_revoked_senders_are_refused() {
     let dir = tempfile::tempdir().unwrap();
-    let port = {
-        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        l.local_addr().unwrap().port()
-    };
+    let port = crate::common::free_port();
     let env = [
         ("SHOAL_DDS__DOMAIN_ID", "59".to_string()),
         ("SHOAL_CONSOLE__LISTEN", format!("127.0.0.1:{port}")),
@@ -135,19 +132,29 @@ fn a_secure_fleet_works_and_unsigned_or_revoked_senders_are_refused() {
     drop(up);
 }
 
+/// Runs `shoal <args>` in `dir` with security on and `env`; it must fail. Its stderr.
+fn refused(dir: &std::path::Path, args: &[&str], env: &[(&str, &str)]) -> String {
+    let out = shoal()
+        .args(args)
+        .current_dir(dir)
+        .env("SHOAL_SECURITY__ENABLED", "true")
+        .env("SHOAL_DDS__DOMAIN_ID", "59")
+        .envs(env.iter().copied())
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "shoal {args:?} started");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 #[test]
 fn a_station_told_to_be_secure_without_keys_refuses_to_start() {
     let dir = tempfile::tempdir().unwrap();
-    let out = shoal()
-        .args(["station", "--db", ":memory:", "--listen", "127.0.0.1:0"])
-        .current_dir(dir.path())
-        .env("SHOAL_SECURITY__ENABLED", "true")
-        .env("SHOAL_SECURITY__STORE", "missing-keys")
-        .env("SHOAL_DDS__DOMAIN_ID", "59")
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let station = ["station", "--db", ":memory:", "--listen", "127.0.0.1:0"];
+    let err = refused(
+        dir.path(),
+        &station,
+        &[("SHOAL_SECURITY__STORE", "missing-keys")],
+    );
     assert!(err.contains("missing-keys"), "{err}");
     assert!(err.contains("shoal keys init"), "{err}");
 
@@ -163,27 +170,18 @@ fn a_station_told_to_be_secure_without_keys_refuses_to_start() {
         "[[allow]]\npublisher = \"robot\"\ntopics = [\"*\"]\ninstances = \"any\"\n",
     )
     .unwrap();
-    let out = shoal()
-        .args(["station", "--db", ":memory:", "--listen", "127.0.0.1:0"])
-        .current_dir(dir.path())
-        .env("SHOAL_SECURITY__ENABLED", "true")
-        .env("SHOAL_SECURITY__POLICY", "policy.toml")
-        .env("SHOAL_DDS__DOMAIN_ID", "59")
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = refused(
+        dir.path(),
+        &station,
+        &[("SHOAL_SECURITY__POLICY", "policy.toml")],
+    );
     assert!(err.contains("policy.toml: line 2"), "{err}");
 
     // A vehicle without its bundle says how to make one.
-    let out = shoal()
-        .args(["vehicle", "--sim", "auv", "--id", "auv-9"])
-        .current_dir(dir.path())
-        .env("SHOAL_SECURITY__ENABLED", "true")
-        .env("SHOAL_DDS__DOMAIN_ID", "59")
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = refused(
+        dir.path(),
+        &["vehicle", "--sim", "auv", "--id", "auv-9"],
+        &[],
+    );
     assert!(err.contains("shoal keys export auv-9"), "{err}");
 }
