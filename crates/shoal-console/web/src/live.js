@@ -12,9 +12,11 @@ let wanted = false;
 let retryTimer = null;
 let fleetTimer = null;
 
-/** How often the fleet is re-read: the feed carries states, not contact changes
- *  (alive → stale → lost happen exactly when a vehicle sends nothing). */
-const FLEET_REFRESH_MS = 3000;
+/** How often the fleet is re-read anyway. The feed carries every vehicle's state and its
+ *  contact changes (the station pushes the vehicle when it turns stale or lost, which
+ *  happens exactly when it sends nothing); this only catches up on what a dropped message
+ *  or an idle socket could miss. */
+const FLEET_REFRESH_MS = 10000;
 
 async function refreshFleet() {
   if (!socket || socket.readyState !== WebSocket.OPEN) return;
