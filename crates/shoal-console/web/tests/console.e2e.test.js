@@ -9,6 +9,7 @@ import assert from 'node:assert/strict';
 import { mkdirSync, mkdtempSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
+import { spawn } from 'node:child_process';
 import { chromium } from 'playwright-core';
 
 const BASE = process.env.SHOAL_URL || 'http://127.0.0.1:8640';
@@ -24,6 +25,8 @@ const users = {
   admin: { user: 'e2e-admin', password: `admin-${Date.now()}-pw` },
 };
 const requests = [];
+/** Live-feed messages about vehicles not alive (contact changes), as the browsers got them. */
+const contactFrames = [];
 const contexts = [];
 const profiles = [];
 
@@ -52,7 +55,13 @@ async function browser() {
   contexts.push(ctx);
   ctx.on('request', (r) => requests.push(r.url()));
   const page = ctx.pages()[0] || (await ctx.newPage());
-  page.on('websocket', (ws) => requests.push(ws.url()));
+  page.on('websocket', (ws) => {
+    requests.push(ws.url());
+    ws.on('framereceived', (f) => {
+      const text = String(f.payload);
+      if (text.startsWith('{"type":"vehicle"') && !text.includes('"contact":"alive"')) contactFrames.push(text);
+    });
+  });
   page.on('pageerror', (e) => console.error('page error:', e.message));
   return page;
 }
@@ -226,12 +235,16 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
   test('the live feed shows "reconnecting" when the link drops and recovers by itself', async () => {
     // Offline, the socket is cut and every new handshake fails until the link is back.
     await page.context().setOffline(true);
-    await page.evaluate(() => window.shoalConsole.dropLive());
-    await page.locator('#conn[data-state=reconnecting]').waitFor({ timeout: 10000 });
-    await page.waitForTimeout(3000);
-    assert.equal(await page.locator('#conn').getAttribute('data-state'), 'reconnecting');
-    await shot(page, '07-reconnecting');
-    await page.context().setOffline(false);
+    try {
+      await page.evaluate(() => window.shoalConsole.dropLive());
+      await page.locator('#conn[data-state=reconnecting]').waitFor({ timeout: 10000 });
+      await page.waitForTimeout(3000);
+      assert.equal(await page.locator('#conn').getAttribute('data-state'), 'reconnecting');
+      await shot(page, '07-reconnecting');
+    } finally {
+      // Whatever happened, the later tests need this page online.
+      await page.context().setOffline(false);
+    }
     await page.locator('#conn[data-state=live]').waitFor({ timeout: 20000 });
   });
 
@@ -440,6 +453,42 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     await shot(page, '16-survey-planned');
     // Planned only: it leaves the vehicles alone; abort it so nothing waits for it.
     await admin('POST', `/api/missions/${missionId}/abort`);
+  });
+
+  test('a vehicle that falls silent turns stale, then lost, live in the list', { skip: !process.env.SHOAL_BIN && 'SHOAL_BIN is not set' }, async () => {
+    // A simulated vehicle of this test's own on the station's DDS domain; stopping the
+    // process (SIGSTOP) silences it without leaving DDS, as a vehicle out of range would.
+    const id = 'usv-e2e';
+    const child = spawn(process.env.SHOAL_BIN, ['--config', process.env.SHOAL_E2E_CONFIG, 'vehicle', '--sim', 'usv', '--id', id, '--lat', '63.4655', '--lon', '10.372'], { stdio: ['ignore', 'ignore', 'pipe'] });
+    let log = '';
+    child.stderr.on('data', (d) => { log = (log + d).slice(-4000); });
+    try {
+      await page.click('#tabs button[data-tab=fleet]');
+      const row = (contact) => page.locator(`#fleet-table tr[data-vehicle="${id}"].contact-${contact}`);
+      await row('alive').waitFor({ timeout: 60000 }).catch((e) => { throw new Error(`${e.message}\nshoal vehicle: ${log}`); });
+      const framesBefore = contactFrames.length;
+      child.kill('SIGSTOP');
+      // station.stale_after_s is 5 s, lost_after_s 30 s: each change shows as it happens.
+      await row('stale').waitFor({ timeout: 20000 });
+      assert.match(await row('stale').locator('.pill').first().textContent(), /stale/);
+      await shot(page, '17-vehicle-stale');
+      // The station pushed the change (no state carries it); the page did not just poll.
+      assert.ok(contactFrames.slice(framesBefore).some((t) => t.includes(`"vehicle_id":"${id}"`) && t.includes('"contact":"stale"')), 'no stale vehicle message on the live feed');
+      await row('lost').waitFor({ timeout: 45000 });
+      await shot(page, '18-vehicle-lost');
+      assert.ok(contactFrames.slice(framesBefore).some((t) => t.includes(`"vehicle_id":"${id}"`) && t.includes('"contact":"lost"')), 'no lost vehicle message on the live feed');
+      // On the map too: its icon follows the contact.
+      const mapped = await page.evaluate((v) => window.shoalConsole.sources.vehicles.getFeatureById(v).get('view').contact, id);
+      assert.equal(mapped, 'lost');
+    } finally {
+      child.kill('SIGCONT');
+      child.kill('SIGINT');
+      await new Promise((resolve) => {
+        const t = setTimeout(() => { child.kill('SIGKILL'); resolve(); }, 10000);
+        child.once('exit', () => { clearTimeout(t); resolve(); });
+        if (child.exitCode !== null) { clearTimeout(t); resolve(); }
+      });
+    }
   });
 
   test('no request left this host', async () => {
