@@ -2,7 +2,9 @@
 # The web console in a real browser: starts `shoal up` (station, simulated fleet, console
 # with [console.auth] on) inside a private network namespace, then runs
 # crates/shoal-console/web/tests/*.test.js with playwright-core driving Debian's Chromium
-# in the same namespace. Screenshots and the browser's request log go to target/console-e2e/.
+# in the same namespace (one test also starts a `shoal vehicle --sim` of its own on the
+# same DDS domain, to watch it go stale and lost). Screenshots and the browser's request
+# log go to target/console-e2e/.
 #
 # Usage: scripts/console-e2e.sh [<netns>]        (default: shoal-test)
 #   SHOAL_BIN   the shoal binary (default: target/release/shoal; build it first with
@@ -98,6 +100,8 @@ ip netns exec "$ns" env \
     SHOAL_URL="http://127.0.0.1:$port" \
     SHOAL_ADMIN_TOKEN="$token" \
     SHOAL_E2E_OUT="$out" \
+    SHOAL_BIN="$bin" \
+    SHOAL_E2E_CONFIG="$work/shoal.toml" \
     node --test --test-reporter=spec --test-reporter-destination=stdout \
     "$web/tests/console.e2e.test.js" 2>&1 | tee "$out/results.txt"
 status=${PIPESTATUS[0]}

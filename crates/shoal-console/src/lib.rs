@@ -11,7 +11,8 @@
 //! /status.html` a plain status page that needs no JavaScript. The JSON API is under
 //! `/api/` and described in `openapi.json` (served at `/api/openapi.json`): fleet,
 //! vehicles and their tracks, events and acknowledgement, tasks, missions (plan, start,
-//! abort, abort all, CSV/GeoJSON export), rules, environment subscriptions, SPARQL, the
+//! abort, abort all, CSV/GeoJSON export), the vehicles able to do a task (from the semantic
+//! model), rules, environment subscriptions, SPARQL, the
 //! live WebSocket `/api/ws`, and logins (`/api/auth/...`, see [`auth`]).
 
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
@@ -33,6 +34,7 @@ use tokio_util::sync::CancellationToken;
 use tracing::{error, info, warn};
 
 pub mod auth;
+mod capable;
 pub mod export;
 mod live;
 pub mod web;
@@ -154,6 +156,7 @@ pub fn console_router(station: StationHandle, auth: Arc<Auth>) -> Router {
         .route("/status.html", get(status_page))
         .route("/api/health", get(health))
         .route("/api/fleet", get(fleet))
+        .route("/api/fleet/capable", get(capable::capable))
         .route("/api/vehicles/{id}", get(vehicle))
         .route("/api/vehicles/{id}/track", get(track))
         .route("/api/stats", get(stats))
@@ -584,10 +587,19 @@ async fn create_rule(
     Ok((StatusCode::CREATED, Json(created)))
 }
 
-#[derive(Debug, Deserialize)]
+/// A change to a rule: `enabled` alone switches it (built-in rules too); any other member
+/// replaces that part of a user rule's definition, checked exactly as on creation. `id` and
+/// `built_in` may be sent back as `GET` gave them, but not changed.
+#[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RulePatch {
-    enabled: bool,
+    id: Option<String>,
+    description: Option<String>,
+    severity: Option<shoal_model::Severity>,
+    kind: Option<shoal_model::EventKind>,
+    condition: Option<shoal_station::ConditionDoc>,
+    enabled: Option<bool>,
+    built_in: Option<bool>,
 }
 
 async fn patch_rule(
@@ -596,7 +608,45 @@ async fn patch_rule(
     body: Result<Json<RulePatch>, JsonRejection>,
 ) -> Result<impl IntoResponse, ApiError> {
     let Json(patch) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
-    Ok(Json(s.set_rule_enabled(&id, patch.enabled)?))
+    let current = s
+        .rule(&id)
+        .ok_or_else(|| ApiError::NotFound(format!("no rule {id:?}")))?;
+    if patch.id.as_ref().is_some_and(|p| *p != id) {
+        return Err(ApiError::BadRequest(format!(
+            "id: a rule cannot be renamed ({id:?} in the path); create a new one instead"
+        )));
+    }
+    if patch.built_in.is_some_and(|b| b != current.built_in) {
+        return Err(ApiError::BadRequest(
+            "built_in: whether a rule is built in cannot be changed".into(),
+        ));
+    }
+    let redefines = patch.description.is_some()
+        || patch.severity.is_some()
+        || patch.kind.is_some()
+        || patch.condition.is_some();
+    if !redefines {
+        let enabled = patch.enabled.ok_or_else(|| {
+            ApiError::BadRequest(
+                "nothing to change: send enabled, description, severity, kind or condition".into(),
+            )
+        })?;
+        return Ok(Json(s.set_rule_enabled(&id, enabled)?));
+    }
+    if current.built_in {
+        return Err(ApiError::Conflict(format!(
+            "rule {id:?} is built in: it can be enabled or disabled, not redefined"
+        )));
+    }
+    let doc = RuleDoc {
+        description: patch.description.unwrap_or(current.description),
+        severity: patch.severity.unwrap_or(current.severity),
+        kind: patch.kind.unwrap_or(current.kind),
+        condition: patch.condition.unwrap_or(current.condition),
+        enabled: patch.enabled.unwrap_or(current.enabled),
+        ..current
+    };
+    Ok(Json(s.replace_rule(&doc)?))
 }
 
 async fn delete_rule(

@@ -30,6 +30,11 @@ struct Fixture {
 }
 
 fn start(domain_id: u16) -> Fixture {
+    start_with(domain_id, |c| c)
+}
+
+/// A station whose configuration `tune` adjusts (shorter contact timeouts, say).
+fn start_with(domain_id: u16, tune: impl FnOnce(StationConfig) -> StationConfig) -> Fixture {
     let dir = tempfile::tempdir().unwrap();
     let history = History::open(&HistoryConfig {
         path: dir.path().join("history.db"),
@@ -43,11 +48,11 @@ fn start(domain_id: u16) -> Fixture {
         })
         .unwrap(),
     );
-    let config = StationConfig {
+    let config = tune(StationConfig {
         summary_interval_s: 0.0,
         rules_path: dir.path().join("rules.json"),
         ..StationConfig::default()
-    };
+    });
     let station = Station::new(config, dds, history).unwrap();
     let handle = station.handle();
     let shutdown = CancellationToken::new();
@@ -425,5 +430,512 @@ async fn a_missions_log_exports_as_csv_and_geojson() {
     let (status, _, body) = call(r, "GET", "/status.html", None, None).await;
     assert_eq!(status, StatusCode::OK);
     assert!(String::from_utf8_lossy(&body).contains("/api/fleet"));
+    f.shutdown.cancel();
+}
+
+/// A vehicle with these sensors and announced capabilities.
+fn equipped(id: &str, kind: VehicleKind, sensors: &[&str], caps: &[&str]) -> VehicleAnnouncement {
+    VehicleAnnouncement {
+        kind,
+        sensors: sensors.iter().map(|s| (*s).to_owned()).collect(),
+        capabilities: caps.iter().map(|s| (*s).to_owned()).collect(),
+        ..announcement(id)
+    }
+}
+
+fn candidate<'a>(answer: &'a Value, id: &str) -> &'a Value {
+    answer["vehicles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|v| v["vehicle_id"] == id)
+        .unwrap_or_else(|| panic!("{id} not listed: {answer}"))
+}
+
+fn strings(v: &Value) -> Vec<&str> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_str().unwrap())
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn capable_vehicles_come_from_the_semantic_model() {
+    let f = start(143);
+    let r = &f.router;
+    let token = bearer(&f.admin_token);
+    let h = &f.handle;
+    let fleet = [
+        // Side-scan sonar: sidescan_survey and seabed_imaging are inferred, not declared.
+        equipped(
+            "auv-s",
+            VehicleKind::Auv,
+            &["sidescan_sonar", "ctd"],
+            &["goto", "survey"],
+        ),
+        // Declares sidescan_survey without the sensor: declared counts too.
+        equipped(
+            "auv-d",
+            VehicleKind::Auv,
+            &["ctd"],
+            &["goto", "survey", "sidescan_survey"],
+        ),
+        equipped("auv-c", VehicleKind::Auv, &["ctd"], &["goto", "survey"]),
+        // A synthetic aperture sonar is a side-scan sonar (sub-class in the ontology).
+        equipped("auv-sas", VehicleKind::Auv, &["sas"], &["goto", "survey"]),
+        equipped("rov-x", VehicleKind::Rov, &["camera"], &["goto"]),
+        equipped(
+            "auv-low",
+            VehicleKind::Auv,
+            &["sidescan_sonar"],
+            &["goto", "survey"],
+        ),
+        // Its sonar gives it sidescan_survey, but a survey_area task also needs "survey",
+        // which nothing but an announcement gives.
+        equipped("usv-n", VehicleKind::Usv, &["sidescan_sonar"], &["goto"]),
+    ];
+    for a in fleet {
+        let (status, _, body) = call(
+            r,
+            "POST",
+            "/api/vehicles",
+            token.clone(),
+            Some(serde_json::to_value(&a).unwrap()),
+        )
+        .await;
+        assert_eq!(
+            status,
+            StatusCode::CREATED,
+            "{}",
+            String::from_utf8_lossy(&body)
+        );
+        let mut s = state(&a.vehicle_id, now_ms(), 63.46);
+        if a.vehicle_id == "auv-low" {
+            s.battery_pct = 10.0;
+        }
+        h.ingest_state(s).unwrap();
+    }
+
+    let (status, _, body) = call(
+        r,
+        "GET",
+        "/api/fleet/capable?kind=survey_area&capability=sidescan_survey",
+        token.clone(),
+        None,
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{}", String::from_utf8_lossy(&body));
+    let a = json_of(&body);
+    assert_eq!(a["kind"], "survey_area");
+    let req: Vec<(&str, &str)> = a["requires"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|q| {
+            (
+                q["capability"].as_str().unwrap(),
+                q["from"].as_str().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(req, [("survey", "kind"), ("sidescan_survey", "request")]);
+
+    let s = candidate(&a, "auv-s");
+    assert_eq!(
+        (s["capable"].as_bool(), s["dispatchable"].as_bool()),
+        (Some(true), Some(true)),
+        "{s}"
+    );
+    let sss = &s["capabilities"][1];
+    assert_eq!(sss["capability"], "sidescan_survey");
+    assert_eq!(sss["declared"], false);
+    assert_eq!(strings(&sss["inferred_from"]), ["sidescan_sonar"]);
+    assert_eq!(s["capabilities"][0]["declared"], true);
+    let d = candidate(&a, "auv-d");
+    assert_eq!(d["dispatchable"], true, "{d}");
+    assert_eq!(d["capabilities"][1]["declared"], true);
+    assert_eq!(
+        strings(&candidate(&a, "auv-sas")["capabilities"][1]["inferred_from"]),
+        ["sas"]
+    );
+    assert_eq!(candidate(&a, "auv-sas")["dispatchable"], true);
+
+    let c = candidate(&a, "auv-c");
+    assert_eq!(c["capable"], false);
+    assert_eq!(strings(&c["missing"]), ["sidescan_survey"]);
+    assert!(strings(&c["reasons"])[0].contains("sidescan_survey"), "{c}");
+    let x = candidate(&a, "rov-x");
+    assert_eq!(strings(&x["missing"]), ["survey", "sidescan_survey"]);
+    // The station's own refusal ("no survey capability") is not repeated.
+    assert_eq!(x["reasons"].as_array().unwrap().len(), 2, "{x}");
+
+    let low = candidate(&a, "auv-low");
+    assert_eq!(
+        (low["capable"].as_bool(), low["dispatchable"].as_bool()),
+        (Some(true), Some(false))
+    );
+    assert!(strings(&low["reasons"])[0].contains("battery"), "{low}");
+    assert_eq!(low["battery_pct"], 10.0);
+    let n = candidate(&a, "usv-n");
+    assert_eq!(n["capable"], false, "{n}");
+    assert_eq!(strings(&n["missing"]), ["survey"]);
+
+    // Dispatchable first, then capable, then the rest; by id within each.
+    let order: Vec<&str> = a["vehicles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v["vehicle_id"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        order,
+        [
+            "auv-d", "auv-s", "auv-sas", "auv-low", "auv-c", "rov-x", "usv-n"
+        ]
+    );
+
+    // A capability alone: the sonar also enables seabed imaging. Without a task kind the
+    // station's task checks do not apply, only contact.
+    let (status, _, body) = call(
+        r,
+        "GET",
+        "/api/fleet/capable?capability=seabed_imaging",
+        token.clone(),
+        None,
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+    let a = json_of(&body);
+    assert_eq!(a["kind"], Value::Null);
+    for (id, capable) in [
+        ("auv-s", true),
+        ("usv-n", true),
+        ("auv-c", false),
+        ("auv-d", false),
+    ] {
+        let v = candidate(&a, id);
+        assert_eq!(v["capable"], capable, "{v}");
+        assert_eq!(v["dispatchable"], capable, "{v}");
+    }
+    // A task kind that needs nothing of the ontology (abort): every vehicle, even incapable.
+    let (status, _, body) = call(
+        r,
+        "GET",
+        "/api/fleet/capable?kind=abort",
+        token.clone(),
+        None,
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+    let a = json_of(&body);
+    assert_eq!(a["requires"], json!([]));
+    assert!(
+        a["vehicles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|v| v["dispatchable"] == true),
+        "{a}"
+    );
+
+    // Wrong questions are explained.
+    for (uri, expect) in [
+        ("/api/fleet/capable", "kind="),
+        ("/api/fleet/capable?kind=fly", "unknown task kind"),
+        (
+            "/api/fleet/capable?capability=teleport",
+            "neither in the ontology",
+        ),
+        (
+            "/api/fleet/capable?capability=x%22%7D%20UNION",
+            "not a code",
+        ),
+        ("/api/fleet/capable?kind=goto_waypoint&colour=red", "colour"),
+        ("/api/fleet/capable?capability=a,b,c,d,e,f,g,h,i", "at most"),
+    ] {
+        let (status, _, body) = call(r, "GET", uri, token.clone(), None).await;
+        assert_eq!(status, StatusCode::BAD_REQUEST, "{uri}");
+        let msg = json_of(&body)["error"].as_str().unwrap().to_owned();
+        assert!(msg.contains(expect), "{uri}: {msg}");
+    }
+    // A viewer may ask.
+    let (status, _, _) = call(r, "GET", "/api/fleet/capable?kind=hold", None, None).await;
+    assert_eq!(status, StatusCode::UNAUTHORIZED);
+    f.shutdown.cancel();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_rule_is_edited_in_place_and_checked_like_a_new_one() {
+    let f = start(144);
+    let r = &f.router;
+    let token = bearer(&f.admin_token);
+    let rule = |body: &[u8]| json_of(body);
+    let (status, _, body) = call(
+        r,
+        "POST",
+        "/api/rules",
+        token.clone(),
+        Some(
+            json!({"id": "r-edit", "description": "deep", "severity": "info",
+                    "condition": {"type": "threshold", "expr": "depth_m > 900"}}),
+        ),
+    )
+    .await;
+    assert_eq!(
+        status,
+        StatusCode::CREATED,
+        "{}",
+        String::from_utf8_lossy(&body)
+    );
+
+    // A new condition and severity; the description stays.
+    let (status, _, body) = call(
+        r,
+        "PATCH",
+        "/api/rules/r-edit",
+        token.clone(),
+        Some(
+            json!({"severity": "alarm", "condition": {"type": "threshold", "expr": "depth_m > 3"}}),
+        ),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{}", String::from_utf8_lossy(&body));
+    let doc = rule(&body);
+    assert_eq!(doc["condition"]["expr"], "depth_m > 3");
+    assert_eq!(doc["severity"], "alarm");
+    assert_eq!(doc["description"], "deep");
+    assert_eq!(doc["enabled"], true);
+    // Saved for the next start.
+    let saved = std::fs::read_to_string(f._dir.path().join("rules.json")).unwrap();
+    assert!(
+        saved.contains("depth_m > 3") && !saved.contains("depth_m > 900"),
+        "{saved}"
+    );
+    // And in force: a state 4 m deep fires it.
+    f.handle.register_vehicle(announcement("auv-r")).unwrap();
+    f.handle
+        .ingest_state(state("auv-r", now_ms(), 63.46))
+        .unwrap();
+    let mut fired = false;
+    for _ in 0..50 {
+        let (_, _, body) = call(r, "GET", "/api/events", token.clone(), None).await;
+        if String::from_utf8_lossy(&body).contains("r-edit") {
+            fired = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(fired, "the edited rule did not fire");
+
+    // A definition the parser refuses: 400 with its message, the rule unchanged.
+    for bad in [
+        json!({"condition": {"type": "threshold", "expr": "no_such_field > 3"}}),
+        json!({"condition": {"type": "threshold", "expr": "depth_m >"}}),
+        json!({"condition": {"type": "sparql", "query": "ASK { ?this shoal:batteryLevel ?b FILTER(?b < 15 }", "watches": ["shoal:batteryLevel"]}}),
+        json!({"condition": {"type": "sparql", "query": "ASK { ?this shoal:batteryLevel ?b }", "watches": []}}),
+        json!({"condition": {"type": "sparql", "query": "ASK { ?s ?p ?o }", "watches": ["shoal:batteryLevel"]}}),
+        json!({"description": "x".repeat(600)}),
+    ] {
+        let (status, _, body) = call(
+            r,
+            "PATCH",
+            "/api/rules/r-edit",
+            token.clone(),
+            Some(bad.clone()),
+        )
+        .await;
+        assert_eq!(
+            status,
+            StatusCode::BAD_REQUEST,
+            "{bad}: {}",
+            String::from_utf8_lossy(&body)
+        );
+        assert!(!json_of(&body)["error"].as_str().unwrap().is_empty());
+        let (_, _, body) = call(r, "GET", "/api/rules/r-edit", token.clone(), None).await;
+        let now = rule(&body);
+        assert_eq!(
+            now["condition"]["expr"], "depth_m > 3",
+            "{bad} changed the rule"
+        );
+        assert_eq!(now["severity"], "alarm");
+        assert_eq!(now["enabled"], true);
+    }
+    let (_, _, body) = call(
+        r,
+        "PATCH",
+        "/api/rules/r-edit",
+        token.clone(),
+        Some(json!({"condition": {"type": "sparql", "query": "ASK { ?this shoal:batteryLevel ?b FILTER(?b < 15 }", "watches": ["shoal:batteryLevel"]}})),
+    )
+    .await;
+    assert!(
+        json_of(&body)["error"]
+            .as_str()
+            .unwrap()
+            .contains("does not parse"),
+        "{}",
+        String::from_utf8_lossy(&body)
+    );
+
+    // Switching alone still works; a later redefinition keeps it off.
+    let (status, _, body) = call(
+        r,
+        "PATCH",
+        "/api/rules/r-edit",
+        token.clone(),
+        Some(json!({"enabled": false})),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(rule(&body)["enabled"], false);
+    let (status, _, body) = call(
+        r,
+        "PATCH",
+        "/api/rules/r-edit",
+        token.clone(),
+        Some(json!({"description": "deeper", "condition": {"type": "sparql",
+            "query": "ASK { ?this shoal:batteryLevel ?b FILTER(?b < 15) }", "watches": ["shoal:batteryLevel"]}})),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{}", String::from_utf8_lossy(&body));
+    let doc = rule(&body);
+    assert_eq!(
+        (doc["enabled"].as_bool(), doc["condition"]["type"].as_str()),
+        (Some(false), Some("sparql"))
+    );
+    assert_eq!(doc["description"], "deeper");
+    // The whole document as GET gave it can be sent back.
+    let (status, _, _) = call(
+        r,
+        "PATCH",
+        "/api/rules/r-edit",
+        token.clone(),
+        Some(doc.clone()),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+
+    // What cannot be done is explained.
+    for (uri, body, want, text) in [
+        (
+            "/api/rules/r-edit",
+            json!({}),
+            StatusCode::BAD_REQUEST,
+            "nothing to change",
+        ),
+        (
+            "/api/rules/r-edit",
+            json!({"id": "other", "description": "y"}),
+            StatusCode::BAD_REQUEST,
+            "renamed",
+        ),
+        (
+            "/api/rules/r-edit",
+            json!({"built_in": true}),
+            StatusCode::BAD_REQUEST,
+            "built_in",
+        ),
+        (
+            "/api/rules/r-edit",
+            json!({"colour": "red"}),
+            StatusCode::BAD_REQUEST,
+            "colour",
+        ),
+        (
+            "/api/rules/r-edit",
+            json!({"severity": "fatal"}),
+            StatusCode::BAD_REQUEST,
+            "fatal",
+        ),
+        (
+            "/api/rules/nope",
+            json!({"enabled": true}),
+            StatusCode::NOT_FOUND,
+            "nope",
+        ),
+        (
+            "/api/rules/builtin.low_battery",
+            json!({"condition": {"type": "threshold", "expr": "battery_pct < 50"}}),
+            StatusCode::CONFLICT,
+            "built in",
+        ),
+    ] {
+        let (status, _, res) = call(r, "PATCH", uri, token.clone(), Some(body.clone())).await;
+        assert_eq!(
+            status,
+            want,
+            "{uri} {body}: {}",
+            String::from_utf8_lossy(&res)
+        );
+        let msg = json_of(&res)["error"].as_str().unwrap().to_owned();
+        assert!(msg.contains(text), "{uri} {body}: {msg}");
+    }
+    // Built-in rules are still switched.
+    let (status, _, body) = call(
+        r,
+        "PATCH",
+        "/api/rules/builtin.low_battery",
+        token.clone(),
+        Some(json!({"enabled": false})),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{}", String::from_utf8_lossy(&body));
+    assert_eq!(rule(&body)["enabled"], false);
+    f.shutdown.cancel();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn contact_changes_reach_the_live_feed() {
+    let f = start_with(146, |c| StationConfig {
+        stale_after_s: 1.0,
+        // Two one-second ticks apart, so a loaded machine still sees it stale first.
+        lost_after_s: 3.0,
+        ..c
+    });
+    let mut live = f.handle.live();
+    f.handle.register_vehicle(announcement("auv-q")).unwrap();
+    f.handle
+        .ingest_state(state("auv-q", now_ms(), 63.46))
+        .unwrap();
+    // Nothing more from it: the station must say so itself, stale then lost.
+    let mut seen = Vec::new();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+    while !seen.contains(&"lost".to_owned()) {
+        let update = tokio::time::timeout_at(deadline, live.recv())
+            .await
+            .expect("no lost vehicle on the live feed within 10 s")
+            .unwrap();
+        let u = serde_json::to_value(&update).unwrap();
+        if u["type"] == "vehicle" && u["data"]["announcement"]["vehicle_id"] == "auv-q" {
+            let c = u["data"]["contact"].as_str().unwrap().to_owned();
+            if seen.last() != Some(&c) {
+                seen.push(c);
+            }
+        }
+    }
+    // Its first state is pushed before the next contact check, while it is still silent.
+    if seen.first().is_some_and(|c| c == "silent") {
+        seen.remove(0);
+    }
+    assert_eq!(seen, ["alive", "stale", "lost"]);
+    // The editor is told why it is not offered.
+    let (status, _, body) = call(
+        &f.router,
+        "GET",
+        "/api/fleet/capable?kind=goto_waypoint",
+        bearer(&f.admin_token),
+        None,
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+    let a = json_of(&body);
+    let q = candidate(&a, "auv-q");
+    assert_eq!(
+        (q["capable"].as_bool(), q["dispatchable"].as_bool()),
+        (Some(true), Some(false))
+    );
+    assert!(strings(&q["reasons"])[0].contains("lost"), "{q}");
+    assert_eq!(q["contact"], "lost");
     f.shutdown.cancel();
 }

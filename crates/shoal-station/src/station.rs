@@ -1094,6 +1094,11 @@ impl StationHandle {
                 _ => {}
             }
             info!(vehicle = %id, from = ?from, to = ?to, "contact changed");
+            // Stale and lost happen exactly when the vehicle sends nothing, so no state
+            // carries the change to live clients: push the vehicle's view now.
+            if let Some(v) = self.vehicle(&id) {
+                let _ = self.shared.live.send(LiveUpdate::Vehicle(Box::new(v)));
+            }
         }
     }
 
@@ -1241,6 +1246,42 @@ impl StationHandle {
         self.change_rules(id, |sem| sem.set_rule_enabled(id, enabled))
     }
 
+    /// Replaces a user rule's definition (description, severity, kind, condition, enabled)
+    /// with `doc`, checked exactly as [`Self::create_rule`] checks a new one. On a refused
+    /// definition the rule stays as it was; built-in rules can only be enabled or disabled.
+    pub fn replace_rule(&self, doc: &RuleDoc) -> Result<RuleDoc, RuleChangeError> {
+        self.change_rules(&doc.id, |sem| {
+            let old = sem
+                .rules()
+                .into_iter()
+                .find(|r| r.spec.id == doc.id)
+                .ok_or_else(|| shoal_semantic::RuleError::NotFound(doc.id.clone()))?;
+            if old.built_in {
+                return Err(shoal_semantic::RuleError::BuiltIn(doc.id.clone()));
+            }
+            // A threshold expression is parsed here, before anything changes.
+            let spec = doc.to_spec()?;
+            // The store has no in-place update: the semantic lock is held throughout, so
+            // no datum is ever checked against a half-replaced rule.
+            sem.delete_rule(&doc.id)?;
+            if let Err(e) = sem.create_rule(spec) {
+                // The old definition was accepted before, so it is accepted again.
+                if let Err(back) = sem.create_rule(old.spec) {
+                    warn!(rule = %doc.id, error = %back, "rule lost while restoring it");
+                } else if !old.enabled
+                    && let Err(back) = sem.set_rule_enabled(&doc.id, false)
+                {
+                    warn!(rule = %doc.id, error = %back, "restored rule left enabled");
+                }
+                return Err(e);
+            }
+            if !doc.enabled {
+                sem.set_rule_enabled(&doc.id, false)?;
+            }
+            Ok(())
+        })
+    }
+
     /// Deletes a user rule (built-in rules can only be disabled).
     pub fn delete_rule(&self, id: &str) -> Result<(), RuleChangeError> {
         let _file = lock(&self.shared.rules_file);
@@ -1287,29 +1328,37 @@ impl StationHandle {
     /// in contact, able to do it (its announced capabilities, the register's part of the
     /// information model) and with battery enough for anything but going home or up.
     fn check_task(&self, task: &TaskAssignment) -> Result<(), DispatchError> {
-        use shoal_model::TaskKind as K;
         task.validate().map_err(DispatchError::Invalid)?;
         task.task().map_err(DispatchError::Invalid)?;
+        self.check_dispatch(&task.vehicle_id, task.kind)
+    }
+
+    /// Whether a task of `kind` would go to `vehicle_id` now, as far as the vehicle is
+    /// concerned (registered, in contact, announcing the capability, battery enough): the
+    /// same check dispatching makes, so that a console can say beforehand what the station
+    /// would refuse.
+    pub fn check_dispatch(&self, vehicle_id: &str, kind: TaskKind) -> Result<(), DispatchError> {
+        use shoal_model::TaskKind as K;
         let fleet = lock(&self.shared.fleet);
-        let Some(v) = fleet.vehicles.get(&task.vehicle_id) else {
-            return Err(DispatchError::UnknownVehicle(task.vehicle_id.clone()));
+        let Some(v) = fleet.vehicles.get(vehicle_id) else {
+            return Err(DispatchError::UnknownVehicle(vehicle_id.to_owned()));
         };
-        if task.kind == K::Abort {
+        if kind == K::Abort {
             // An emergency order always goes out, whatever the vehicle says it can do.
             return Ok(());
         }
         if v.contact == Contact::Lost {
-            return Err(DispatchError::VehicleLost(task.vehicle_id.clone()));
+            return Err(DispatchError::VehicleLost(vehicle_id.to_owned()));
         }
-        let capability = task.kind.capability();
+        let capability = kind.capability();
         if !v.announcement.capabilities.iter().any(|c| c == capability) {
             return Err(DispatchError::Incapable {
-                vehicle: task.vehicle_id.clone(),
+                vehicle: vehicle_id.to_owned(),
                 capability,
             });
         }
         let needs_energy = !matches!(
-            task.kind,
+            kind,
             K::Surface | K::ReturnHome | K::RequestState | K::SetReportingRate
         );
         let min = self.shared.config.min_dispatch_battery_pct;
@@ -1319,7 +1368,7 @@ impl StationHandle {
             && s.battery_pct < min
         {
             return Err(DispatchError::LowBattery {
-                vehicle: task.vehicle_id.clone(),
+                vehicle: vehicle_id.to_owned(),
                 battery_pct: s.battery_pct,
                 min_pct: min,
             });

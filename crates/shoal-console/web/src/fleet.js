@@ -6,6 +6,21 @@ import { currentTask, emit, on, state } from './store.js';
 import { ago, fmt, h } from './util.js';
 
 let root;
+/** Last contact seen per vehicle, to mark the moment it changes. */
+const lastContact = new Map();
+/** vehicle_id -> time until which its row is marked as just changed. */
+const changedUntil = new Map();
+const CHANGE_MARK_MS = 6000;
+
+/** Notes contact changes (alive → stale → lost and back) so the row stands out for a while. */
+function noteContact(rows, now) {
+  for (const v of rows) {
+    const id = v.announcement.vehicle_id;
+    const before = lastContact.get(id);
+    if (before && before !== v.contact) changedUntil.set(id, now + CHANGE_MARK_MS);
+    lastContact.set(id, v.contact);
+  }
+}
 
 function linkCell(v) {
   const parts = [h('span', { class: `link link-${v.link}` }, v.link)];
@@ -38,14 +53,17 @@ function render() {
   const now = Date.now();
   const rows = [...state.vehicles.values()].sort((a, b) => a.announcement.vehicle_id.localeCompare(b.announcement.vehicle_id));
   const counts = { alive: 0, stale: 0, lost: 0, silent: 0 };
+  noteContact(rows, now);
   const body = rows.map((v) => {
     const a = v.announcement;
     const s = v.latest || {};
     counts[v.contact] = (counts[v.contact] || 0) + 1;
+    const changed = (changedUntil.get(a.vehicle_id) || 0) > now;
     return h(
       'tr',
       {
-        class: `contact-${v.contact}${state.selected === a.vehicle_id ? ' selected' : ''}`,
+        class: `contact-${v.contact}${changed ? ' contact-changed' : ''}${state.selected === a.vehicle_id ? ' selected' : ''}`,
+        title: v.contact === 'alive' ? undefined : `${a.vehicle_id}: ${v.contact}, last heard ${ago(v.last_contact_ms, now)}`,
         dataset: { vehicle: a.vehicle_id },
         onclick: () => {
           state.selected = a.vehicle_id;

@@ -12,9 +12,11 @@ let wanted = false;
 let retryTimer = null;
 let fleetTimer = null;
 
-/** How often the fleet is re-read: the feed carries states, not contact changes
- *  (alive → stale → lost happen exactly when a vehicle sends nothing). */
-const FLEET_REFRESH_MS = 3000;
+/** How often the fleet is re-read anyway. The feed carries every vehicle's state and its
+ *  contact changes (the station pushes the vehicle when it turns stale or lost, which
+ *  happens exactly when it sends nothing); this only catches up on what a dropped message
+ *  or an idle socket could miss. */
+const FLEET_REFRESH_MS = 10000;
 
 async function refreshFleet() {
   if (!socket || socket.readyState !== WebSocket.OPEN) return;
@@ -113,22 +115,25 @@ function connect() {
       console.warn('bad live message', e);
     }
   });
-  ws.addEventListener('close', () => {
-    if (socket !== ws) return;
-    socket = null;
-    if (!wanted) return;
-    setConn('reconnecting', `reconnecting in ${Math.round(retryMs / 100) / 10} s…`);
-    // A handshake refused for want of a login looks like any drop: asking the API tells
-    // them apart (a 401 brings up the login form, which stops the retries).
-    api('GET', '/api/auth/session')
-      .then((s) => {
-        if (s.enabled && !s.user) return api('GET', '/api/fleet');
-        return null;
-      })
-      .catch(() => {});
-    retryTimer = setTimeout(connect, retryMs);
-    retryMs = Math.min(retryMs * 2, 5000);
-  });
+  ws.addEventListener('close', () => closed(ws));
+}
+
+/** The socket `ws` is gone: show it and retry with a growing delay. */
+function closed(ws) {
+  if (socket !== ws) return;
+  socket = null;
+  if (!wanted) return;
+  setConn('reconnecting', `reconnecting in ${Math.round(retryMs / 100) / 10} s…`);
+  // A handshake refused for want of a login looks like any drop: asking the API tells
+  // them apart (a 401 brings up the login form, which stops the retries).
+  api('GET', '/api/auth/session')
+    .then((s) => {
+      if (s.enabled && !s.user) return api('GET', '/api/fleet');
+      return null;
+    })
+    .catch(() => {});
+  retryTimer = setTimeout(connect, retryMs);
+  retryMs = Math.min(retryMs * 2, 5000);
 }
 
 /** Opens the live feed (again); safe to call when already open. */
@@ -156,7 +161,12 @@ export function stopLive() {
   setConn('offline', 'offline');
 }
 
-/** Closes the socket as a network drop would, leaving the retries on (used by the tests). */
+/** Closes the socket as a network drop would, leaving the retries on (used by the tests).
+ *  Offline, the closing handshake cannot finish and the close event may come late, so the
+ *  drop is handled at once; the late event then finds the socket already replaced. */
 export function dropLive() {
-  if (socket) socket.close(4000, 'dropped');
+  const ws = socket;
+  if (!ws) return;
+  ws.close(4000, 'dropped');
+  closed(ws);
 }

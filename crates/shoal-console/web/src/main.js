@@ -6,7 +6,7 @@ import { api, describe, onUnauthorized } from './api.js';
 import { dropLive, startLive, stopLive } from './live.js';
 import { createMap } from './map.js';
 import { initFleet } from './fleet.js';
-import { initMissions, leaveMissions } from './missions.js';
+import { initMissions, leaveMissions, showMissions } from './missions.js';
 import { initEvents } from './events.js';
 import { initRules, loadRules } from './rules.js';
 import { initQuery } from './query.js';
@@ -20,6 +20,7 @@ function showTab(name) {
   for (const b of document.querySelectorAll('#tabs button')) b.classList.toggle('active', b.dataset.tab === name);
   for (const s of document.querySelectorAll('.tab')) s.classList.toggle('active', s.id === `tab-${name}`);
   if (name !== 'missions') leaveMissions();
+  if (name === 'missions') showMissions();
   if (name === 'vehicles') showVehicles();
   if (name === 'replay') showReplay();
   if (name === 'rules') loadRules();

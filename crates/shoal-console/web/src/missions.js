@@ -1,5 +1,6 @@
 // Missions: the editor (waypoints clicked or a survey polygon drawn on the map, depth or
-// altitude, speed, a capable vehicle), then confirm and start; the list of missions with
+// altitude, speed, a vehicle the semantic model finds capable and the station would
+// dispatch to), then confirm and start; the list of missions with
 // their tasks' progress, abort, export and replay.
 
 import { api, describe } from './api.js';
@@ -14,7 +15,23 @@ let form;
 let draftTasks = [];
 let points = [];
 
-const CAPABILITY = { goto_waypoint: 'goto', survey_area: 'survey' };
+/** What a survey is for: a capability the vehicle needs besides "survey", which the semantic
+ *  model also infers from hosted sensors (a side-scan sonar gives sidescan_survey). */
+const PAYLOADS = [
+  ['', 'any area survey'],
+  ['sidescan_survey', 'side-scan sonar survey'],
+  ['bathymetry', 'bathymetry survey'],
+  ['seabed_imaging', 'seabed imaging'],
+  ['water_column_profiling', 'water-column profiling'],
+];
+
+/** The station's last answer to "who can do this task": vehicle_id -> candidate. */
+let offered = new Map();
+let capableSeq = 0;
+let capableTimer = null;
+let lastCapableMs = 0;
+/** What the last answer was for, to word the messages. */
+let needText = 'goto';
 
 function newMissionId() {
   const d = new Date();
@@ -26,26 +43,73 @@ function kind() {
   return form.elements.kind.value;
 }
 
-/** Vehicles that announced the capability the task kind needs. */
-function capableVehicles(k) {
-  const need = CAPABILITY[k];
-  return [...state.vehicles.values()].filter((v) => v.announcement.capabilities.includes(need));
+function payload() {
+  return kind() === 'survey_area' ? form.elements.payload.value : '';
 }
 
-function refreshVehicles() {
+function optionText(c) {
+  const v = state.vehicles.get(c.vehicle_id);
+  const max = v ? `, max ${fmt(v.announcement.max_speed_mps)} m/s` : '';
+  // Say when the model inferred a capability from a sensor rather than the announcement.
+  const inferred = c.capabilities.filter((x) => !x.declared && x.inferred_from.length).map((x) => `${x.capability} from ${x.inferred_from.join(', ')}`);
+  const extra = [...inferred, ...c.notes.map((n) => n.split(':')[0])];
+  const battery = typeof c.battery_pct === 'number' ? `, ${c.battery_pct.toFixed(0)} %` : '';
+  return `${c.vehicle_id} (${c.kind}${max}${battery})${extra.length ? ` — ${extra.join('; ')}` : ''}`;
+}
+
+/**
+ * Asks the station which vehicles can do the task being written (GET /api/fleet/capable:
+ * capabilities from the semantic model, dispatchability from the station's own checks);
+ * offers those it would dispatch to and says why the others are not offered.
+ */
+async function refreshVehicles() {
+  clearTimeout(capableTimer);
+  capableTimer = null;
   const sel = form.elements.vehicle;
   const k = kind();
+  const extra = payload();
+  const q = new URLSearchParams({ kind: k });
+  if (extra) q.set('capability', extra);
+  const seq = ++capableSeq;
+  let answer;
+  try {
+    answer = await api('GET', `/api/fleet/capable?${q}`);
+  } catch (e) {
+    if (seq === capableSeq) fieldError(sel, `Cannot learn which vehicles can do this: ${describe(e)}`);
+    return;
+  }
+  // A later question (the operator changed the task meanwhile) wins.
+  if (seq !== capableSeq) return;
+  lastCapableMs = Date.now();
   const keep = sel.value;
-  const capable = capableVehicles(k);
-  const options = capable
-    .sort((a, b) => a.announcement.vehicle_id.localeCompare(b.announcement.vehicle_id))
-    .map((v) => {
-      const a = v.announcement;
-      const note = v.contact !== 'alive' ? ` — ${v.contact}` : v.availability !== 'idle' ? ` — ${v.availability}` : '';
-      return h('option', { value: a.vehicle_id, selected: a.vehicle_id === keep }, `${a.vehicle_id} (${a.kind}, max ${fmt(a.max_speed_mps)} m/s)${note}`);
-    });
-  sel.replaceChildren(h('option', { value: '' }, `— ${capable.length} of ${state.vehicles.size} vehicles can ${CAPABILITY[k]} —`), ...options);
-  if (capable.some((v) => v.announcement.vehicle_id === keep)) sel.value = keep;
+  needText = answer.requires.map((r) => r.label || r.capability).join(' + ') || k.replace('_', ' ');
+  offered = new Map(answer.vehicles.filter((c) => c.dispatchable).map((c) => [c.vehicle_id, c]));
+  const options = [...offered.values()].map((c) => h('option', { value: c.vehicle_id, selected: c.vehicle_id === keep }, optionText(c)));
+  sel.replaceChildren(h('option', { value: '' }, `— ${offered.size} of ${answer.vehicles.length} vehicles can do ${needText} now —`), ...options);
+  if (offered.has(keep)) sel.value = keep;
+  const others = answer.vehicles.filter((c) => !c.dispatchable);
+  form.querySelector('#vehicle-why').replaceChildren(
+    ...others.map((c) => h('li', { dataset: { vehicle: c.vehicle_id, capable: String(c.capable) } }, h('strong', {}, c.vehicle_id), ` not offered: ${c.reasons.join('; ')}`)),
+  );
+  if (keep && !offered.has(keep)) {
+    const c = others.find((x) => x.vehicle_id === keep);
+    fieldError(sel, `${keep} is no longer offered${c ? `: ${c.reasons.join('; ')}` : ''}. Choose another vehicle.`);
+  } else if (sel.getAttribute('aria-invalid') === 'true' && sel.value) {
+    fieldError(sel, '');
+  }
+}
+
+/** Vehicle updates arrive every second: ask again at most every few seconds, and only
+ *  while the editor is shown. */
+function scheduleVehicles() {
+  if (capableTimer || !root.classList.contains('active')) return;
+  // Re-rendering the list would close it under the operator's pointer.
+  if (document.activeElement === form.elements.vehicle) return;
+  const wait = Math.max(0, 3000 - (Date.now() - lastCapableMs));
+  capableTimer = setTimeout(() => {
+    capableTimer = null;
+    refreshVehicles();
+  }, wait);
 }
 
 function renderPoints() {
@@ -106,7 +170,10 @@ function readTasks() {
   let ok = true;
   const vehicleId = form.elements.vehicle.value;
   const vehicle = state.vehicles.get(vehicleId);
-  ok = fieldError(form.elements.vehicle, vehicleId ? '' : `Choose a vehicle that can ${CAPABILITY[k]}.`) && ok;
+  let vehicleMsg = '';
+  if (!vehicleId) vehicleMsg = offered.size ? `Choose a vehicle that can do ${needText}.` : `No vehicle can do ${needText} now: see why under the list.`;
+  else if (!offered.has(vehicleId)) vehicleMsg = `${vehicleId} cannot do ${needText} now.`;
+  ok = fieldError(form.elements.vehicle, vehicleMsg) && ok;
   const vref = form.elements.vref.value;
   const level = num('level');
   const [lo, hi] = vref === 'depth' ? [0, 11000] : [0, 10000];
@@ -202,8 +269,11 @@ function buildForm() {
       h('legend', {}, 'Task'),
       h('label', { class: 'inline' }, h('input', { type: 'radio', name: 'kind', value: 'goto_waypoint', checked: true }), 'Go to waypoints'),
       h('label', { class: 'inline' }, h('input', { type: 'radio', name: 'kind', value: 'survey_area' }), 'Survey an area')),
+    h('div', { class: 'row survey-only' },
+      h('label', { class: 'wide' }, 'Survey for', h('select', { name: 'payload', title: 'the capability the survey needs besides "survey"; sensors count (the semantic model infers it)' }, PAYLOADS.map(([v, t]) => h('option', { value: v }, t))))),
     h('div', { class: 'row' },
-      h('label', { class: 'wide' }, 'Vehicle', h('select', { name: 'vehicle' }))),
+      h('label', { class: 'wide' }, 'Vehicle (able to do it, per the semantic model)', h('select', { name: 'vehicle' }))),
+    h('ul', { id: 'vehicle-why', class: 'why', 'aria-label': 'vehicles not offered and why' }),
     h('div', { class: 'row' },
       h('label', {}, 'Keep', h('select', { name: 'vref' }, h('option', { value: 'depth' }, 'depth (m)'), h('option', { value: 'altitude' }, 'altitude above seabed (m)'))),
       h('label', {}, 'Metres', h('input', { name: 'level', type: 'number', step: 'any', value: '5' })),
@@ -231,6 +301,7 @@ function buildForm() {
       renderPoints();
       refreshVehicles();
     }
+    if (e.target.name === 'payload') refreshVehicles();
   });
   form.addEventListener('input', (e) => {
     if (e.target.getAttribute('aria-invalid') === 'true') fieldError(e.target, '');
@@ -304,15 +375,19 @@ export function initMissions() {
   root.replaceChildren(buildForm(), h('div', { id: 'mission-list' }));
   renderPoints();
   renderDraftTasks();
-  refreshVehicles();
   renderList();
-  on('vehicles', () => {
-    if (!form.contains(document.activeElement) || document.activeElement !== form.elements.vehicle) refreshVehicles();
-  });
+  on('vehicles', scheduleVehicles);
   on('missions', renderList);
   on('session', () => {
     if (!may('operator')) stopDraw();
+    // Logged in now: the station answers who can do the task.
+    refreshVehicles();
   });
+}
+
+/** Called when the operator opens the tab: the vehicles able to do the task, now. */
+export function showMissions() {
+  refreshVehicles();
 }
 
 /** Called when the operator leaves the tab: drawing clicks must not land on a hidden form. */

@@ -9,6 +9,7 @@ import assert from 'node:assert/strict';
 import { mkdirSync, mkdtempSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
+import { spawn } from 'node:child_process';
 import { chromium } from 'playwright-core';
 
 const BASE = process.env.SHOAL_URL || 'http://127.0.0.1:8640';
@@ -24,6 +25,8 @@ const users = {
   admin: { user: 'e2e-admin', password: `admin-${Date.now()}-pw` },
 };
 const requests = [];
+/** Live-feed messages about vehicles not alive (contact changes), as the browsers got them. */
+const contactFrames = [];
 const contexts = [];
 const profiles = [];
 
@@ -52,7 +55,13 @@ async function browser() {
   contexts.push(ctx);
   ctx.on('request', (r) => requests.push(r.url()));
   const page = ctx.pages()[0] || (await ctx.newPage());
-  page.on('websocket', (ws) => requests.push(ws.url()));
+  page.on('websocket', (ws) => {
+    requests.push(ws.url());
+    ws.on('framereceived', (f) => {
+      const text = String(f.payload);
+      if (text.startsWith('{"type":"vehicle"') && !text.includes('"contact":"alive"')) contactFrames.push(text);
+    });
+  });
   page.on('pageerror', (e) => console.error('page error:', e.message));
   return page;
 }
@@ -84,6 +93,16 @@ async function clickMap(page, lat, lon) {
 
 describe('Shoal console in Chromium', { concurrency: false }, () => {
   let page;
+  let adminTab = null;
+
+  /** One admin's browser, logged in once, for the tests that change rules. */
+  async function adminBrowser() {
+    if (!adminTab) {
+      adminTab = await browser();
+      await login(adminTab, users.admin);
+    }
+    return adminTab;
+  }
 
   before(async () => {
     assert.ok(TOKEN, 'SHOAL_ADMIN_TOKEN is not set (scripts/console-e2e.sh reads it from the log)');
@@ -216,12 +235,16 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
   test('the live feed shows "reconnecting" when the link drops and recovers by itself', async () => {
     // Offline, the socket is cut and every new handshake fails until the link is back.
     await page.context().setOffline(true);
-    await page.evaluate(() => window.shoalConsole.dropLive());
-    await page.locator('#conn[data-state=reconnecting]').waitFor({ timeout: 10000 });
-    await page.waitForTimeout(3000);
-    assert.equal(await page.locator('#conn').getAttribute('data-state'), 'reconnecting');
-    await shot(page, '07-reconnecting');
-    await page.context().setOffline(false);
+    try {
+      await page.evaluate(() => window.shoalConsole.dropLive());
+      await page.locator('#conn[data-state=reconnecting]').waitFor({ timeout: 10000 });
+      await page.waitForTimeout(3000);
+      assert.equal(await page.locator('#conn').getAttribute('data-state'), 'reconnecting');
+      await shot(page, '07-reconnecting');
+    } finally {
+      // Whatever happened, the later tests need this page online.
+      await page.context().setOffline(false);
+    }
     await page.locator('#conn[data-state=live]').waitFor({ timeout: 20000 });
   });
 
@@ -266,6 +289,206 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     assert.deepEqual([refused.mission, refused.abort], [403, 403]);
     assert.match(refused.error, /operator role/);
     await shot(viewer, '09-viewer-read-only');
+  });
+
+  test('an admin creates a threshold rule, edits it in place and disables it', async () => {
+    const adminPage = await adminBrowser();
+    const ruleId = `e2e-edit-${Date.now() % 100000}`;
+    await adminPage.click('#tabs button[data-tab=rules]');
+    const form = adminPage.locator('#rule-form');
+    try {
+      await form.locator('input[name=id]').fill(ruleId);
+      await form.locator('select[name=severity]').selectOption('info');
+      await form.locator('input[name=description]').fill('deep dive (e2e)');
+      // Invalid input is explained next to the field, before anything is sent.
+      await form.locator('input[name=expr]').fill('depth_m >');
+      await form.locator('#rule-submit').click();
+      await form.locator('input[name=expr] ~ .field-error', { hasText: 'field op number' }).waitFor();
+      await form.locator('input[name=expr]').fill('depth_m > 9000');
+      await form.locator('#rule-submit').click();
+      const row = adminPage.locator(`#rule-table tr[data-rule="${ruleId}"]`);
+      await row.waitFor({ timeout: 10000 });
+      assert.match(await row.textContent(), /depth_m > 9000/);
+
+      // Edit in place: the form takes the rule, the id stays fixed.
+      await row.locator('button.edit').click();
+      await form.locator('h2', { hasText: `Edit rule ${ruleId}` }).waitFor();
+      assert.equal(await form.locator('input[name=id]').getAttribute('readonly'), '');
+      assert.equal(await form.locator('input[name=expr]').inputValue(), 'depth_m > 9000');
+      // The station checks the new definition as it checks a new rule; refused, the rule
+      // stays as it was and the parser's message is under the field.
+      await form.locator('input[name=expr]').fill('no_such_field > 3');
+      await form.locator('#rule-submit').click();
+      const refusal = form.locator('input[name=expr] ~ .field-error');
+      await refusal.filter({ hasText: /\S/ }).waitFor({ timeout: 10000 });
+      assert.match(await refusal.textContent(), /no_such_field|field/);
+      assert.equal((await admin('GET', `/api/rules/${ruleId}`)).condition.expr, 'depth_m > 9000');
+      await shot(adminPage, '10-rule-edit-refused');
+      await form.locator('input[name=expr]').fill('depth_m > 8000');
+      await form.locator('select[name=severity]').selectOption('warning');
+      await form.locator('#rule-submit').click();
+      await adminPage.waitForFunction((id) => {
+        const tr = document.querySelector(`#rule-table tr[data-rule="${id}"]`);
+        return tr && /depth_m > 8000/.test(tr.textContent) && /warning/.test(tr.textContent);
+      }, ruleId, { timeout: 10000 });
+      const changed = await admin('GET', `/api/rules/${ruleId}`);
+      assert.deepEqual([changed.condition.expr, changed.severity, changed.description, changed.enabled], ['depth_m > 8000', 'warning', 'deep dive (e2e)', true]);
+      // Back to creating: the form is empty again.
+      await form.locator('h2', { hasText: 'New rule' }).waitFor();
+
+      // Disable it.
+      await adminPage.locator(`#rule-table tr[data-rule="${ruleId}"] input[type=checkbox]`).uncheck();
+      await adminPage.locator(`#rule-table tr[data-rule="${ruleId}"].disabled`).waitFor({ timeout: 10000 });
+      assert.equal((await admin('GET', `/api/rules/${ruleId}`)).enabled, false);
+      await shot(adminPage, '11-rule-edited-disabled');
+    } finally {
+      await admin('DELETE', `/api/rules/${ruleId}`).catch(() => {});
+    }
+  });
+
+  test("a bad SPARQL rule shows the parser's message next to the query", async () => {
+    const adminPage = await adminBrowser();
+    await adminPage.click('#tabs button[data-tab=rules]');
+    const form = adminPage.locator('#rule-form');
+    const ruleId = `e2e-sparql-${Date.now() % 100000}`;
+    await form.locator('input[name=id]').fill(ruleId);
+    await form.locator('select[name=type]').selectOption('sparql');
+    await form.locator('textarea[name=query]').fill('ASK { ?this shoal:batteryLevel ?b FILTER(?b < 15 }');
+    // No watched property: explained next to that field first.
+    await form.locator('#rule-submit').click();
+    await form.locator('input[name=watches] ~ .field-error', { hasText: 'watches' }).waitFor();
+    await form.locator('input[name=watches]').fill('shoal:batteryLevel');
+    await form.locator('#rule-submit').click();
+    const msg = form.locator('textarea[name=query] ~ .field-error');
+    await msg.filter({ hasText: /\S/ }).waitFor({ timeout: 10000 });
+    assert.match(await msg.textContent(), /does not parse/);
+    assert.equal(await form.locator('textarea[name=query]').getAttribute('aria-invalid'), 'true');
+    await shot(adminPage, '12-sparql-rule-refused');
+    // Nothing was created.
+    const rules = await admin('GET', '/api/rules');
+    assert.ok(!rules.some((r) => r.id === ruleId));
+    // Fixed, it is accepted.
+    await form.locator('textarea[name=query]').fill('ASK { ?this shoal:batteryLevel ?b FILTER(?b < 1) }');
+    await form.locator('#rule-submit').click();
+    await adminPage.locator(`#rule-table tr[data-rule="${ruleId}"]`).waitFor({ timeout: 10000 });
+    await admin('DELETE', `/api/rules/${ruleId}`);
+  });
+
+  test('the environment view shows observations', async () => {
+    await page.click('#tabs button[data-tab=environment]');
+    const form = page.locator('#env-form');
+    await form.locator('input[name=rate]').fill('0');
+    await form.locator('button[type=submit]').click();
+    await form.locator('input[name=rate] ~ .field-error', { hasText: 'Rate' }).waitFor();
+    await form.locator('input[name=rate]').fill('5');
+    await form.locator('button[type=submit]').click();
+    // The simulated vehicles' CTDs report every ten seconds or so.
+    await page.locator('#env-table tbody tr').first().waitFor({ timeout: 60000 });
+    const first = await page.locator('#env-table tbody tr').first().textContent();
+    assert.match(first, /(auv|usv|rov)-/);
+    await shot(page, '13-environment');
+  });
+
+  test('a survey polygon is drawn and only capable vehicles are offered', async () => {
+    await page.click('#tabs button[data-tab=missions]');
+    const form = page.locator('#mission-form');
+    await form.locator('input[name=kind][value=survey_area]').check();
+    await form.locator('select[name=payload]').selectOption('sidescan_survey');
+    const offered = async () => form.locator('select[name=vehicle] option').evaluateAll((os) => os.map((o) => o.value).filter(Boolean));
+    // The AUVs carry a side-scan sonar: the semantic model infers the capability.
+    await page.waitForFunction(() => {
+      const vals = [...document.querySelectorAll('#mission-form select[name=vehicle] option')].map((o) => o.value);
+      return vals.includes('auv-1') && vals.includes('auv-2') && document.querySelector('#vehicle-why li[data-vehicle="rov-1"]');
+    }, null, { timeout: 15000 });
+    let ids = await offered();
+    assert.ok(!ids.includes('usv-1') && !ids.includes('rov-1'), `offered: ${ids}`);
+    assert.match(await page.locator('#vehicle-why li[data-vehicle="usv-1"]').textContent(), /sidescan_survey/);
+    assert.match(await page.locator('#vehicle-why li[data-vehicle="rov-1"]').textContent(), /"survey"/);
+    assert.match(await form.locator('select[name=vehicle] option[value="auv-1"]').textContent(), /sidescan_survey from sidescan_sonar/);
+    const answer = await page.evaluate(async () => (await fetch('/api/fleet/capable?kind=survey_area&capability=sidescan_survey')).json());
+    const auv1 = answer.vehicles.find((v) => v.vehicle_id === 'auv-1');
+    assert.ok(auv1.capable && auv1.dispatchable, JSON.stringify(auv1));
+    assert.deepEqual(auv1.capabilities.find((c) => c.capability === 'sidescan_survey').inferred_from, ['sidescan_sonar']);
+    // Any area survey: the USV (multibeam) is offered too, the ROV (camera) still not.
+    await form.locator('select[name=payload]').selectOption('');
+    await page.waitForFunction(() => [...document.querySelectorAll('#mission-form select[name=vehicle] option')].some((o) => o.value === 'usv-1'), null, { timeout: 15000 });
+    ids = await offered();
+    assert.ok(!ids.includes('rov-1'), `offered: ${ids}`);
+    await form.locator('select[name=payload]').selectOption('sidescan_survey');
+    await page.waitForFunction(() => ![...document.querySelectorAll('#mission-form select[name=vehicle] option')].some((o) => o.value === 'usv-1'), null, { timeout: 15000 });
+    await form.locator('select[name=vehicle]').selectOption('auv-1');
+
+    // Draw a triangle beside auv-1; clicking the first corner again closes it.
+    const v = await page.evaluate(() => window.shoalConsole.sources.vehicles.getFeatureById('auv-1').get('view').latest);
+    await page.click('#draw');
+    const corners = [[0.0006, -0.001], [0.0006, 0.001], [0.0016, 0]];
+    for (const [dlat, dlon] of corners) {
+      await clickMap(page, v.latitude_deg + dlat, v.longitude_deg + dlon);
+      await page.waitForTimeout(400);
+    }
+    await clickMap(page, v.latitude_deg + corners[0][0], v.longitude_deg + corners[0][1]);
+    await page.locator('#points li', { hasText: 'corner 3' }).waitFor({ timeout: 10000 });
+    // Invalid input is explained next to each field: the spacing, and a speed beyond
+    // what this AUV announced.
+    await form.locator('input[name=spacing]').fill('0');
+    await form.locator('input[name=speed]').fill('25');
+    await page.locator('#mission-form button', { hasText: 'Plan only' }).click();
+    await form.locator('input[name=spacing] ~ .field-error', { hasText: 'Line spacing' }).waitFor();
+    await form.locator('input[name=speed] ~ .field-error', { hasText: 'auv-1 goes at most' }).waitFor();
+    await shot(page, '14-survey-invalid-input');
+    await form.locator('input[name=spacing]').fill('25');
+    await form.locator('input[name=speed]').fill('1');
+    const missionId = `e2e-survey-${Date.now() % 100000}`;
+    await form.locator('input[name=mission_id]').fill(missionId);
+    await page.locator('#mission-form button', { hasText: 'Plan only' }).click();
+    await page.locator('#confirm[open]').waitFor();
+    assert.match(await page.locator('#confirm-body').textContent(), /auv-1: survey 3 corners/);
+    await shot(page, '15-survey-review');
+    await page.click('#confirm-ok');
+    const card = page.locator(`.mission[data-mission="${missionId}"]`);
+    await card.locator('.pill[data-state=planned]').waitFor({ timeout: 10000 });
+    const planned = await admin('GET', `/api/missions/${missionId}`);
+    assert.equal(planned.tasks[0].assignment.kind, 'survey_area');
+    assert.equal(planned.tasks[0].assignment.vehicle_id, 'auv-1');
+    await shot(page, '16-survey-planned');
+    // Planned only: it leaves the vehicles alone; abort it so nothing waits for it.
+    await admin('POST', `/api/missions/${missionId}/abort`);
+  });
+
+  test('a vehicle that falls silent turns stale, then lost, live in the list', { skip: !process.env.SHOAL_BIN && 'SHOAL_BIN is not set' }, async () => {
+    // A simulated vehicle of this test's own on the station's DDS domain; stopping the
+    // process (SIGSTOP) silences it without leaving DDS, as a vehicle out of range would.
+    const id = 'usv-e2e';
+    const child = spawn(process.env.SHOAL_BIN, ['--config', process.env.SHOAL_E2E_CONFIG, 'vehicle', '--sim', 'usv', '--id', id, '--lat', '63.4655', '--lon', '10.372'], { stdio: ['ignore', 'ignore', 'pipe'] });
+    let log = '';
+    child.stderr.on('data', (d) => { log = (log + d).slice(-4000); });
+    try {
+      await page.click('#tabs button[data-tab=fleet]');
+      const row = (contact) => page.locator(`#fleet-table tr[data-vehicle="${id}"].contact-${contact}`);
+      await row('alive').waitFor({ timeout: 60000 }).catch((e) => { throw new Error(`${e.message}\nshoal vehicle: ${log}`); });
+      const framesBefore = contactFrames.length;
+      child.kill('SIGSTOP');
+      // station.stale_after_s is 5 s, lost_after_s 30 s: each change shows as it happens.
+      await row('stale').waitFor({ timeout: 20000 });
+      assert.match(await row('stale').locator('.pill').first().textContent(), /stale/);
+      await shot(page, '17-vehicle-stale');
+      // The station pushed the change (no state carries it); the page did not just poll.
+      assert.ok(contactFrames.slice(framesBefore).some((t) => t.includes(`"vehicle_id":"${id}"`) && t.includes('"contact":"stale"')), 'no stale vehicle message on the live feed');
+      await row('lost').waitFor({ timeout: 45000 });
+      await shot(page, '18-vehicle-lost');
+      assert.ok(contactFrames.slice(framesBefore).some((t) => t.includes(`"vehicle_id":"${id}"`) && t.includes('"contact":"lost"')), 'no lost vehicle message on the live feed');
+      // On the map too: its icon follows the contact.
+      const mapped = await page.evaluate((v) => window.shoalConsole.sources.vehicles.getFeatureById(v).get('view').contact, id);
+      assert.equal(mapped, 'lost');
+    } finally {
+      child.kill('SIGCONT');
+      child.kill('SIGINT');
+      await new Promise((resolve) => {
+        const t = setTimeout(() => { child.kill('SIGKILL'); resolve(); }, 10000);
+        child.once('exit', () => { clearTimeout(t); resolve(); });
+        if (child.exitCode !== null) { clearTimeout(t); resolve(); }
+      });
+    }
   });
 
   test('no request left this host', async () => {
