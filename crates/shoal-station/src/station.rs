@@ -776,12 +776,25 @@ impl StationHandle {
 
     /// Writes the state changes the station made itself to the history and the model, so
     /// the history holds every transition (and a restarted station can resume).
+    /// Live consoles are told of each task that changed and of its mission once.
     fn record_transitions(&self) {
         let records = lock(&self.shared.register).take_transitions();
+        let mut task_ids = std::collections::BTreeSet::new();
         for s in records {
             let fired = lock(&self.shared.semantic).task_status(&s);
             self.emit_fired(fired);
+            self.push_task(&s.task_id);
+            task_ids.insert(s.task_id.clone());
             self.store(Record::TaskStatus(s));
+        }
+        let mut pushed = std::collections::BTreeSet::new();
+        for task_id in task_ids {
+            if let Some(m) = self.task(&task_id).map(|t| t.assignment.mission_id)
+                && pushed.insert(m.clone())
+                && let Some(view) = self.mission(&m)
+            {
+                let _ = self.shared.live.send(LiveUpdate::Mission(Box::new(view)));
+            }
         }
     }
 
@@ -1521,8 +1534,14 @@ impl StationHandle {
             self.register_task(a);
         }
         info!(mission = %spec.mission_id, tasks = assignments.len(), "mission planned");
-        self.mission(&spec.mission_id)
-            .ok_or(DispatchError::UnknownMission(spec.mission_id))
+        let view = self
+            .mission(&spec.mission_id)
+            .ok_or(DispatchError::UnknownMission(spec.mission_id))?;
+        let _ = self
+            .shared
+            .live
+            .send(LiveUpdate::Mission(Box::new(view.clone())));
+        Ok(view)
     }
 
     /// Starts a planned mission: each vehicle's first task goes out.

@@ -902,3 +902,61 @@ async fn a_mission_resumes_after_the_station_restarts() {
     station.shutdown.cancel();
     station.task.await.unwrap();
 }
+
+/// Consoles learn of missions the operator plans and aborts as they happen, not at their
+/// next reconnect: both go out on the live feed. Domain 53.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn planned_and_aborted_missions_go_out_on_the_live_feed() {
+    let station = start_station(53);
+    let stop = CancellationToken::new();
+    let spec = SimSpec {
+        id: "auv-lv".into(),
+        kind: VehicleKind::Auv,
+        latitude_deg: 63.0,
+        longitude_deg: 10.0,
+        rate_hz: 5.0,
+        battery_pct: 90.0,
+    };
+    let v = tokio::spawn(shoal_proxy::run_sim(spec, dds(53), stop.clone()));
+    let h = station.handle.clone();
+    eventually(20, "auv-lv to report state", || {
+        h.vehicle("auv-lv").filter(|v| v.latest.is_some())
+    })
+    .await;
+    let mut live = h.live();
+    let hold = shoal_station::MissionTaskSpec {
+        task_id: None,
+        vehicle_id: "auv-lv".into(),
+        task: Task::Hold { duration_s: 600.0 },
+    };
+    h.plan_mission(shoal_station::MissionSpec {
+        mission_id: "m-lv".into(),
+        name: "live".into(),
+        tasks: vec![hold.clone(), hold],
+    })
+    .unwrap();
+    let mission_state = |live: &mut tokio::sync::broadcast::Receiver<_>| {
+        let mut last = None;
+        while let Ok(u) = live.try_recv() {
+            if let shoal_station::LiveUpdate::Mission(m) = u
+                && m.mission_id == "m-lv"
+            {
+                last = Some(m.state);
+            }
+        }
+        last
+    };
+    assert_eq!(
+        mission_state(&mut live),
+        Some(shoal_station::MissionState::Planned)
+    );
+    tokio::task::block_in_place(|| h.abort_mission("m-lv")).unwrap();
+    assert_eq!(
+        mission_state(&mut live),
+        Some(shoal_station::MissionState::Aborted)
+    );
+    stop.cancel();
+    let _ = v.await;
+    station.shutdown.cancel();
+    station.task.await.unwrap();
+}
