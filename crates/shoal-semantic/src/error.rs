@@ -31,6 +31,9 @@ pub enum StoreError {
         /// Vehicle that reported.
         reporter: String,
     },
+    /// The configuration is unusable; nothing was built.
+    #[error("semantic store configuration: {0}")]
+    Config(#[from] crate::config::ConfigError),
     /// A compiled-in ontology file failed to parse (a build defect, caught by the tests).
     #[error("ontology file {file} does not parse: {message}")]
     Ontology {

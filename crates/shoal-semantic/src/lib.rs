@@ -16,24 +16,32 @@
 //!   for time-driven ones; every firing is a [`shoal_model::Event`] handed back to the
 //!   caller to publish and store.
 //! - Semantic Query ([`SemanticStore::query`]): read-only SPARQL with [`QueryLimits`];
-//!   [`QueryResult`] serialises as SPARQL JSON/CSV/TSV/XML.
+//!   [`QueryResult`] serialises as SPARQL JSON/CSV/TSV/XML. A trailing `ORDER BY` on
+//!   projected variables is applied to the materialised rows, which is much cheaper than
+//!   the evaluator's own sort.
 //! - Export ([`SemanticStore::export`]) as N-Quads/TriG/Turtle/N-Triples, and the five
 //!   standard queries ([`STANDARD_QUERIES`]) cross-checked against rdflib.
-//! - [`bench`]: figures for the standard queries at fleet scale.
+//! - [`bench`]: figures for the standard queries at fleet scale, fresh and through a
+//!   simulated hour of traffic.
+//! - [`StoreConfig`]: the store's tuning, deserialisable from the station's TOML, checked
+//!   by [`StoreConfig::check`].
 //!
 //! The crate is synchronous and runtime-free; the one thread it may start is the query
 //! watchdog that cancels queries at their timeout. It is not `Sync`-shared by itself: the
 //! station owns it behind its Data Access Manager (a `Mutex`/`RwLock` around it).
 
 pub mod bench;
+mod config;
 mod error;
 pub mod ontology;
+mod order;
 mod query;
 pub mod reasoner;
 mod rules;
 mod store;
 pub mod vocab;
 
+pub use config::{ConfigError, StoreConfig};
 pub use error::{QueryError, RuleError, StoreError};
 pub use query::{QueryLimits, QueryResult, QuerySnapshot, ResultFormat};
 pub use rules::{
@@ -41,8 +49,7 @@ pub use rules::{
     outside,
 };
 pub use store::{
-    Availability, CompactionReport, ExportFormat, ExportOptions, SemanticStore, StoreConfig,
-    StoreStats,
+    Availability, CompactionReport, ExportFormat, ExportOptions, SemanticStore, StoreStats,
 };
 
 /// The five standard queries (name, SPARQL), from `ontology/queries/`; the cross-check

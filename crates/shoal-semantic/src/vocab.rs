@@ -96,8 +96,6 @@ pub(crate) enum EntityKind {
     Ontology,
     /// A vehicle's registration (announcement) facts.
     Vehicle,
-    /// A vehicle's latest state, mirrored at a bounded rate.
-    State,
     /// A vehicle's availability.
     Availability,
     /// A task and its state.
