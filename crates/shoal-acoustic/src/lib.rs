@@ -28,3 +28,4 @@ pub mod link;
 pub mod nl;
 pub mod pdu;
 pub mod rng;
+pub mod secure;

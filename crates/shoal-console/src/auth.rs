@@ -201,8 +201,9 @@ pub struct Auth {
     path: PathBuf,
     ttl_ms: i64,
     inner: Mutex<Inner>,
-    /// Verified against when the user does not exist, so both cases take as long.
-    dummy_hash: String,
+    /// A real Argon2 hash checked when the user does not exist, so an unknown user and a
+    /// wrong password take equally long (no user enumeration by timing).
+    decoy_hash: String,
 }
 
 fn now_ms() -> i64 {
@@ -271,7 +272,7 @@ impl Auth {
             path: PathBuf::new(),
             ttl_ms: 0,
             inner: Mutex::new(Inner::default()),
-            dummy_hash: String::new(),
+            decoy_hash: String::new(),
         }
     }
 
@@ -299,7 +300,7 @@ impl Auth {
                 file,
                 sessions: HashMap::new(),
             }),
-            dummy_hash: hash_password("not a password anyone has")?,
+            decoy_hash: hash_password("not a password anyone has")?,
         };
         let has_admin = auth.lock().file.users.iter().any(|u| u.role == Role::Admin);
         if has_admin {
@@ -419,7 +420,7 @@ impl Auth {
             .find(|u| u.name == user)
             .cloned();
         let Some(found) = found else {
-            verify_password(password, &self.dummy_hash);
+            verify_password(password, &self.decoy_hash);
             return Err(AuthError::BadCredentials);
         };
         if !verify_password(password, &found.password_hash) {

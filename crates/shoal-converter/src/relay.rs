@@ -30,6 +30,7 @@ use std::sync::Arc;
 use futures::StreamExt;
 use serde::{Deserialize, Serialize};
 use shoal_acoustic::emulator::{Emulator, EmulatorConfig, EmulatorHandle, ModemConfig};
+use shoal_acoustic::secure::TaggedDriver;
 use shoal_dds::{DdsConfig, PubSub};
 use shoal_model::{StateVector, VehicleKind};
 use shoal_proxy::sim::SimSpec;
@@ -41,6 +42,55 @@ use crate::config::{AddressEntry, CdtConfig, LinkSettings, ModemKind, ModemSetti
 use crate::error::ConverterError;
 use crate::modem::Modem;
 use crate::{run_cdt, run_vdt};
+
+/// Per-vehicle acoustic keys for the demo's link: every frame between a vehicle's VDT and
+/// the CDT is tagged with that vehicle's key (`shoal keys` issues them).
+#[derive(Debug)]
+pub struct AcousticKeys {
+    /// Tag size on the link.
+    pub tag: shoal_security::TagSize,
+    /// Key of each demo vehicle, by vehicle id.
+    pub keys: std::collections::HashMap<String, shoal_security::AcousticKey>,
+}
+
+impl AcousticKeys {
+    fn key(&self, vehicle_id: &str) -> Result<&shoal_security::AcousticKey, ConverterError> {
+        self.keys.get(vehicle_id).ok_or_else(|| {
+            ConverterError::Config(format!("no acoustic key for demo vehicle {vehicle_id:?}"))
+        })
+    }
+
+    fn tagger(&self, local: u8) -> shoal_security::AcousticTagger {
+        shoal_security::AcousticTagger::new(
+            local,
+            self.tag,
+            shoal_security::acoustic::counter_start_from_clock(shoal_model::now_ms()),
+        )
+    }
+}
+
+/// Logs, at most every 10 s, how many received frames a tagged driver refused.
+async fn report_refusals(
+    who: &'static str,
+    counts: Arc<std::sync::Mutex<shoal_security::RejectionCounts>>,
+    stop: CancellationToken,
+) -> Result<(), ConverterError> {
+    let mut reported = 0;
+    loop {
+        tokio::select! {
+            () = stop.cancelled() => return Ok(()),
+            () = tokio::time::sleep(std::time::Duration::from_secs(10)) => {}
+        }
+        let Ok(c) = counts.lock().map(|c| c.clone()) else {
+            return Ok(());
+        };
+        if c.total() > reported {
+            reported = c.total();
+            let by_reason: Vec<String> = c.iter().map(|(r, n)| format!("{r}={n}")).collect();
+            warn!(converter = who, refused = reported, reasons = %by_reason.join(" "), "acoustic frames refused");
+        }
+    }
+}
 
 /// One submerged vehicle of the demo.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -208,6 +258,19 @@ pub async fn run_acoustic_demo(
     shutdown: CancellationToken,
 ) -> Result<(), ConverterError> {
     cfg.check(station)?;
+    run_acoustic_demo_with(cfg, Arc::new(PubSub::new(station)?), None, shutdown).await
+}
+
+/// Like [`run_acoustic_demo`] with the CDT's participant on the station's domain given, e.g.
+/// one with security on ([`PubSub::new_secure`]) so the station admits what it relays,
+/// and with `keys`, every acoustic frame authenticated ([`shoal_acoustic::secure`]).
+pub async fn run_acoustic_demo_with(
+    cfg: AcousticDemoConfig,
+    cdt_dds: Arc<PubSub>,
+    keys: Option<AcousticKeys>,
+    shutdown: CancellationToken,
+) -> Result<(), ConverterError> {
+    cfg.check(cdt_dds.config())?;
     // A child token: a failing part stops the others without cancelling the caller.
     let stop = shutdown.child_token();
     let emu =
@@ -217,10 +280,21 @@ pub async fn run_acoustic_demo(
 
     let relay = endpoint(cfg.relay_address)
         .ok_or_else(|| ConverterError::Config("relay modem missing".into()))?;
-    let cdt_cfg = cfg.cdt_config(cfg.modem(relay.at, relay.nl).address);
-    let cdt_dds = Arc::new(PubSub::new(station)?);
+    let mut cdt_cfg = cfg.cdt_config(cfg.modem(relay.at, relay.nl).address);
     let driver = Modem::start(&cdt_cfg.modem, cfg.time_scale);
-    tasks.spawn(run_cdt(cdt_cfg, cdt_dds, driver, stop.clone()));
+    if let Some(keys) = &keys {
+        let mut tagger = keys.tagger(cfg.relay_address);
+        for v in &cfg.vehicles {
+            tagger.set_key(v.address, keys.key(&v.sim.id)?);
+        }
+        let driver = TaggedDriver::new(driver, tagger);
+        // The tag takes its bytes from every frame the link fills.
+        cdt_cfg.link.max_frame = driver.frame_budget(cdt_cfg.link.max_frame);
+        tasks.spawn(report_refusals("cdt", driver.refused(), stop.clone()));
+        tasks.spawn(run_cdt(cdt_cfg, cdt_dds, driver, stop.clone()));
+    } else {
+        tasks.spawn(run_cdt(cdt_cfg, cdt_dds, driver, stop.clone()));
+    }
 
     for v in &cfg.vehicles {
         let ep = endpoint(v.address)
@@ -232,7 +306,7 @@ pub async fn run_acoustic_demo(
         };
         let sim_dds = Arc::new(PubSub::new(&private)?);
         let vdt_dds = Arc::new(PubSub::new(&private)?);
-        let vdt_cfg = VdtConfig {
+        let mut vdt_cfg = VdtConfig {
             modem: cfg.modem(ep.at, ep.nl),
             cdt_address: cfg.relay_address,
             vehicles: vec![AddressEntry {
@@ -256,7 +330,16 @@ pub async fn run_acoustic_demo(
                 .map_err(ConverterError::from)
         });
         let driver = Modem::start(&vdt_cfg.modem, cfg.time_scale);
-        tasks.spawn(run_vdt(vdt_cfg, vdt_dds, driver, stop.clone()));
+        if let Some(keys) = &keys {
+            let mut tagger = keys.tagger(v.address);
+            tagger.set_key(cfg.relay_address, keys.key(&v.sim.id)?);
+            let driver = TaggedDriver::new(driver, tagger);
+            vdt_cfg.link.max_frame = driver.frame_budget(vdt_cfg.link.max_frame);
+            tasks.spawn(report_refusals("vdt", driver.refused(), stop.clone()));
+            tasks.spawn(run_vdt(vdt_cfg, vdt_dds, driver, stop.clone()));
+        } else {
+            tasks.spawn(run_vdt(vdt_cfg, vdt_dds, driver, stop.clone()));
+        }
         info!(vehicle = %v.sim.id, address = v.address, domain = v.domain_id, "acoustic vehicle started");
     }
 

@@ -73,6 +73,23 @@ pub enum ReadError {
         /// The sample as JSON (non-finite numbers become `null`), for the quarantine.
         payload: String,
     },
+    /// Security is on and the sample came unsigned, on the plain topic.
+    #[error("unsigned sample on {topic} refused (security is on)")]
+    Unsigned {
+        /// Topic name.
+        topic: &'static str,
+    },
+    /// Security is on and the signed sample failed a check (signature, certificate,
+    /// revocation, freshness, replay, publish policy).
+    #[error("signed sample on {topic} refused: {reason}: {detail}")]
+    Refused {
+        /// Topic name.
+        topic: &'static str,
+        /// The stable reason code (`shoal_security::RejectionReason`), e.g. `bad_signature`.
+        reason: &'static str,
+        /// The details.
+        detail: String,
+    },
     /// Any other reader failure reported by DDS.
     #[error("DDS read failed on {topic}: {detail}")]
     Dds {

@@ -9,18 +9,23 @@
 //! - [`TopicType`] binds each model type of `shoal-model` to its topic name, IDL type
 //!   name, key and [`QosProfile`].
 //!
+//! - With [`Security`] ([`PubSub::new_secure`]) Shoal's topics travel signed on twin
+//!   topics and only what the station CA and the publish policy vouch for is delivered.
+//!
 //! DDS threads stay inside RustDDS; what comes out is `futures` streams, usable from tokio.
 
 mod config;
 mod error;
 mod manager;
 mod qos;
+mod secure;
 mod topics;
 
 pub use config::DdsConfig;
 pub use error::{CreateError, ReadError, WriteError};
 pub use manager::{ParticipantEvent, PubSub, SampleMeta, Subscription, Writer};
 pub use qos::{Priority, QosProfile, WriterOptions};
+pub use secure::{SIGNED_TYPE_NAME, Security, SecurityCounts, signed_topic};
 pub use topics::{ALL_TOPICS, ObservationKey, TopicType};
 
 /// Serialises a sample exactly as it goes on the wire: a 4-byte encapsulation header
@@ -31,4 +36,20 @@ pub fn to_cdr_le<T: TopicType>(sample: &T) -> Result<Vec<u8>, String> {
         .map_err(|e| e.to_string())?;
     out.extend_from_slice(&body);
     Ok(out)
+}
+
+/// Decodes the bytes [`to_cdr_le`] makes (either byte order of plain CDR).
+pub fn from_cdr<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
+    let (header, body) = bytes.split_at_checked(4).ok_or_else(|| {
+        format!(
+            "{} bytes cannot hold a CDR encapsulation header",
+            bytes.len()
+        )
+    })?;
+    let decoded = match [header[0], header[1]] {
+        [0x00, 0x01] => rustdds::cdr_encoding::from_bytes::<T, byteorder::LittleEndian>(body),
+        [0x00, 0x00] => rustdds::cdr_encoding::from_bytes::<T, byteorder::BigEndian>(body),
+        other => return Err(format!("unsupported CDR encapsulation {other:02x?}")),
+    };
+    decoded.map(|(v, _)| v).map_err(|e| e.to_string())
 }

@@ -19,7 +19,10 @@ use tracing::{debug, info, warn};
 
 use crate::config::DdsConfig;
 use crate::error::{CreateError, ReadError, WriteError};
-use crate::qos::WriterOptions;
+use crate::qos::{QosProfile, WriterOptions};
+use crate::secure::{
+    Refused, SIGNED_TYPE_NAME, Security, SecurityCounts, SignedWire, signed_topic,
+};
 use crate::topics::{TopicType, Wire};
 
 fn dds_err(what: impl Into<String>, e: impl std::fmt::Display) -> CreateError {
@@ -37,6 +40,7 @@ pub struct PubSub {
     topics: Mutex<HashMap<String, Topic>>,
     status: DomainParticipantStatusListener,
     config: DdsConfig,
+    security: Option<Arc<Security>>,
 }
 
 impl std::fmt::Debug for PubSub {
@@ -95,7 +99,28 @@ impl PubSub {
             topics: Mutex::new(HashMap::new()),
             status,
             config: config.clone(),
+            security: None,
         })
+    }
+
+    /// Like [`PubSub::new`] with security on: Shoal's topics are written signed on their
+    /// twins, and only samples `security`'s gate admits are delivered; unsigned samples
+    /// are counted and dropped.
+    pub fn new_secure(config: &DdsConfig, security: Security) -> Result<Self, CreateError> {
+        let mut pubsub = Self::new(config)?;
+        info!(identity = %security.identity(), "DDS security on: samples are signed and verified");
+        pubsub.security = Some(Arc::new(security));
+        Ok(pubsub)
+    }
+
+    /// The credentials, when security is on.
+    pub fn security(&self) -> Option<&Security> {
+        self.security.as_deref()
+    }
+
+    /// Refusals so far, when security is on.
+    pub fn security_counts(&self) -> Option<SecurityCounts> {
+        self.security.as_ref().map(|s| s.counts())
     }
 
     /// The configuration this participant was created with.
@@ -109,6 +134,16 @@ impl PubSub {
     }
 
     fn topic<T: TopicType>(&self, name: &str) -> Result<Topic, CreateError> {
+        self.topic_raw(name, T::TYPE_NAME, T::PROFILE, T::KEYED)
+    }
+
+    fn topic_raw(
+        &self,
+        name: &str,
+        type_name: &str,
+        profile: QosProfile,
+        keyed: bool,
+    ) -> Result<Topic, CreateError> {
         let mut topics = self
             .topics
             .lock()
@@ -120,9 +155,9 @@ impl PubSub {
             .participant
             .create_topic(
                 name.to_string(),
-                T::TYPE_NAME.to_string(),
-                &T::PROFILE.topic_qos(self.config.topic_cache_samples),
-                if T::KEYED {
+                type_name.to_string(),
+                &profile.topic_qos(self.config.topic_cache_samples),
+                if keyed {
                     TopicKind::WithKey
                 } else {
                     TopicKind::NoKey
@@ -151,16 +186,26 @@ impl PubSub {
         topic_name: &str,
         options: WriterOptions,
     ) -> Result<Writer<T>, CreateError> {
-        let topic = self.topic::<T>(topic_name)?;
         let qos = T::PROFILE.writer_qos(&options);
         let err = |e| dds_err(format!("a writer on {}", T::TOPIC), e);
-        let inner = if T::KEYED {
+        let inner = if let Some(security) = self.security.as_ref().filter(|_| T::SIGNED) {
+            let name = signed_topic(topic_name);
+            let topic = self.topic_raw(&name, SIGNED_TYPE_NAME, T::PROFILE, true)?;
+            WriterInner::Signed(
+                self.publisher
+                    .create_datawriter_cdr::<SignedWire>(&topic, Some(qos))
+                    .map_err(err)?,
+                Arc::clone(security),
+            )
+        } else if T::KEYED {
+            let topic = self.topic::<T>(topic_name)?;
             WriterInner::Keyed(
                 self.publisher
                     .create_datawriter_cdr::<Wire<T>>(&topic, Some(qos))
                     .map_err(err)?,
             )
         } else {
+            let topic = self.topic::<T>(topic_name)?;
             WriterInner::Unkeyed(
                 self.publisher
                     .create_datawriter_no_key_cdr::<Wire<T>>(&topic, Some(qos))
@@ -180,27 +225,57 @@ impl PubSub {
     }
 
     /// Like [`PubSub::subscribe`] on another topic name with `T`'s type and QoS.
+    ///
+    /// With security on, a signed topic is read from its signed twin through the gate; the
+    /// plain topic is still read, to count and drop what arrives there unsigned.
     pub fn subscribe_on<T: TopicType>(
         &self,
         topic_name: &str,
     ) -> Result<Subscription<T>, CreateError> {
-        let topic = self.topic::<T>(topic_name)?;
         let qos = T::PROFILE.reader_qos(self.config.topic_cache_samples);
         let err = |e| dds_err(format!("a reader on {topic_name}"), e);
-        let reader = if T::KEYED {
-            ReaderInner::Keyed(
-                self.subscriber
-                    .create_datareader_cdr::<Wire<T>>(&topic, Some(qos))
-                    .map_err(err)?,
-            )
-        } else {
-            ReaderInner::Unkeyed(
-                self.subscriber
-                    .create_datareader_no_key_cdr::<Wire<T>>(&topic, Some(qos))
-                    .map_err(err)?,
-            )
+        let (tx, rx) = tokio::sync::mpsc::channel(CHANNEL);
+        let stop = Arc::new(AtomicBool::new(false));
+        let topic = self.topic::<T>(topic_name)?;
+        let security = self.security.as_ref().filter(|_| T::SIGNED);
+        if let Some(security) = security {
+            let name = signed_topic(topic_name);
+            let signed = self.topic_raw(&name, SIGNED_TYPE_NAME, T::PROFILE, true)?;
+            let reader = self
+                .subscriber
+                .create_datareader_cdr::<SignedWire>(&signed, Some(qos.clone()))
+                .map_err(err)?;
+            let sec = Arc::clone(security);
+            spawn_reader(
+                &name,
+                reader,
+                tx.clone(),
+                Arc::clone(&stop),
+                move |w, info| open_signed::<T>(&sec, &w, info),
+            )?;
+        }
+        let unsigned = security.cloned();
+        let plain = move |Wire(value): Wire<T>, info: &rustdds::SampleInfo| match &unsigned {
+            Some(sec) => {
+                sec.count_unsigned(T::TOPIC);
+                Err(ReadError::Unsigned { topic: T::TOPIC })
+            }
+            None => validated(value, info),
         };
-        spawn_reader(reader, topic_name)
+        if T::KEYED {
+            let reader = self
+                .subscriber
+                .create_datareader_cdr::<Wire<T>>(&topic, Some(qos))
+                .map_err(err)?;
+            spawn_reader(topic_name, reader, tx, Arc::clone(&stop), plain)?;
+        } else {
+            let reader = self
+                .subscriber
+                .create_datareader_no_key_cdr::<Wire<T>>(&topic, Some(qos))
+                .map_err(err)?;
+            spawn_reader(topic_name, reader, tx, Arc::clone(&stop), plain)?;
+        }
+        Ok(Subscription { rx, stop })
     }
 
     /// Discovery events that happened since the last call (never blocks).
@@ -283,24 +358,47 @@ impl ParticipantEvent {
     }
 }
 
-/// A DDS writer of a keyed or an unkeyed topic.
+/// A DDS writer of a keyed, an unkeyed or a signed topic.
 enum WriterInner<T: TopicType> {
     Keyed(DataWriter<Wire<T>, CDRSerializerAdapter<Wire<T>>>),
     Unkeyed(rustdds::no_key::DataWriter<Wire<T>, CDRSerializerAdapter<Wire<T>>>),
+    Signed(
+        DataWriter<SignedWire, CDRSerializerAdapter<SignedWire>>,
+        Arc<Security>,
+    ),
+}
+
+/// A DDS write failure in words (the sample itself is handed back by the caller).
+fn describe<D>(e: rustdds::dds::result::WriteError<D>) -> String {
+    use rustdds::dds::result::WriteError as E;
+    match e {
+        E::Serialization { reason, .. } | E::Poisoned { reason, .. } => reason,
+        E::WouldBlock { .. } => "reliable history full: readers are not acknowledging".into(),
+        E::Io(e) => e.to_string(),
+        E::Internal { reason } => reason,
+    }
 }
 
 impl<T: TopicType> WriterInner<T> {
-    async fn async_write(&self, sample: Wire<T>) -> rustdds::dds::result::WriteResult<(), Wire<T>> {
+    async fn async_write(&self, sample: T) -> Result<(), String> {
         match self {
-            Self::Keyed(w) => w.async_write(sample, None).await,
-            Self::Unkeyed(w) => w.async_write(sample, None).await,
+            Self::Keyed(w) => w.async_write(Wire(sample), None).await.map_err(describe),
+            Self::Unkeyed(w) => w.async_write(Wire(sample), None).await.map_err(describe),
+            Self::Signed(w, security) => {
+                let wire = security.seal(&sample)?;
+                w.async_write(wire, None).await.map_err(describe)
+            }
         }
     }
 
-    fn write(&self, sample: Wire<T>) -> rustdds::dds::result::WriteResult<(), Wire<T>> {
+    fn write(&self, sample: T) -> Result<(), String> {
         match self {
-            Self::Keyed(w) => w.write(sample, None),
-            Self::Unkeyed(w) => w.write(sample, None),
+            Self::Keyed(w) => w.write(Wire(sample), None).map_err(describe),
+            Self::Unkeyed(w) => w.write(Wire(sample), None).map_err(describe),
+            Self::Signed(w, security) => {
+                let wire = security.seal(&sample)?;
+                w.write(wire, None).map_err(describe)
+            }
         }
     }
 
@@ -308,6 +406,7 @@ impl<T: TopicType> WriterInner<T> {
         match self {
             Self::Keyed(w) => w.try_recv_status(),
             Self::Unkeyed(w) => w.try_recv_status(),
+            Self::Signed(w, _) => w.try_recv_status(),
         }
     }
 }
@@ -336,32 +435,10 @@ impl<T: TopicType> Writer<T> {
         }
     }
 
-    fn map_err(e: rustdds::dds::result::WriteError<Wire<T>>, backup: T) -> WriteError<T> {
-        use rustdds::dds::result::WriteError as E;
-        match e {
-            E::Serialization { reason, data } | E::Poisoned { reason, data } => WriteError::Dds {
-                detail: reason,
-                sample: data.0,
-            },
-            E::WouldBlock { data } => WriteError::Dds {
-                detail: "reliable history full: readers are not acknowledging".into(),
-                sample: data.0,
-            },
-            other => WriteError::Dds {
-                detail: other.to_string(),
-                sample: backup,
-            },
-        }
-    }
-
     /// Validates and publishes one sample; on failure the sample comes back in the error.
     pub async fn write(&self, sample: T) -> Result<(), WriteError<T>> {
         let sample = Self::check(sample)?;
-        let backup = sample.clone();
-        self.inner
-            .async_write(Wire(sample))
-            .await
-            .map_err(|e| Self::map_err(e, backup))
+        self.write_unchecked(sample).await
     }
 
     /// Publishes a sample WITHOUT validating it: for fault-injection tests and tools that
@@ -369,18 +446,22 @@ impl<T: TopicType> Writer<T> {
     pub async fn write_unchecked(&self, sample: T) -> Result<(), WriteError<T>> {
         let backup = sample.clone();
         self.inner
-            .async_write(Wire(sample))
+            .async_write(sample)
             .await
-            .map_err(|e| Self::map_err(e, backup))
+            .map_err(|detail| WriteError::Dds {
+                detail,
+                sample: backup,
+            })
     }
 
     /// Like [`Writer::write`] but synchronous (blocks at most the writer's `max_blocking`).
     pub fn write_blocking(&self, sample: T) -> Result<(), WriteError<T>> {
         let sample = Self::check(sample)?;
         let backup = sample.clone();
-        self.inner
-            .write(Wire(sample))
-            .map_err(|e| Self::map_err(e, backup))
+        self.inner.write(sample).map_err(|detail| WriteError::Dds {
+            detail,
+            sample: backup,
+        })
     }
 
     /// How many remote readers are matched now, from the writer's status events (RustDDS's
@@ -458,41 +539,92 @@ const CHANNEL: usize = 4096;
 
 type Tx<T> = tokio::sync::mpsc::Sender<Result<(T, SampleMeta), ReadError>>;
 
-/// A DDS reader of a keyed or an unkeyed topic.
-enum ReaderInner<T: TopicType> {
-    Keyed(DataReader<Wire<T>, CDRDeserializerAdapter<Wire<T>>>),
-    Unkeyed(rustdds::no_key::DataReader<Wire<T>, CDRDeserializerAdapter<Wire<T>>>),
+/// A DDS reader reduced to what the reader thread needs: readiness and "take a batch".
+trait TakeBatch<D>: rustdds::mio1::event::Source + Send + 'static {
+    /// Up to [`BATCH`] unread samples; `None` values are disposals.
+    fn take_batch(
+        &mut self,
+    ) -> Result<Vec<(Option<D>, rustdds::SampleInfo)>, rustdds::dds::result::ReadError>;
 }
 
-fn spawn_reader<T: TopicType>(
-    reader: ReaderInner<T>,
+impl<D> TakeBatch<D> for DataReader<D, CDRDeserializerAdapter<D>>
+where
+    D: rustdds::Keyed + serde::de::DeserializeOwned + Send + 'static,
+    D::K: rustdds::Key + serde::de::DeserializeOwned + Send,
+{
+    fn take_batch(
+        &mut self,
+    ) -> Result<Vec<(Option<D>, rustdds::SampleInfo)>, rustdds::dds::result::ReadError> {
+        Ok(self
+            .take(BATCH, ReadCondition::not_read())?
+            .into_iter()
+            .map(|s| {
+                let info = s.sample_info().clone();
+                match s.into_value() {
+                    Sample::Value(v) => (Some(v), info),
+                    // Disposals carry no data for Shoal: instances end by being superseded.
+                    Sample::Dispose(_) => (None, info),
+                }
+            })
+            .collect())
+    }
+}
+
+impl<D> TakeBatch<D> for rustdds::no_key::DataReader<D, CDRDeserializerAdapter<D>>
+where
+    D: serde::de::DeserializeOwned + Send + 'static,
+{
+    fn take_batch(
+        &mut self,
+    ) -> Result<Vec<(Option<D>, rustdds::SampleInfo)>, rustdds::dds::result::ReadError> {
+        Ok(self
+            .take(BATCH, ReadCondition::not_read())?
+            .into_iter()
+            .map(|s| {
+                let info = s.sample_info().clone();
+                (Some(s.into_value()), info)
+            })
+            .collect())
+    }
+}
+
+/// Starts a reader thread turning each sample of `reader` into a stream item with `convert`.
+fn spawn_reader<T, D, R, F>(
     topic_name: &str,
-) -> Result<Subscription<T>, CreateError> {
-    let (tx, rx) = tokio::sync::mpsc::channel(CHANNEL);
-    let stop = Arc::new(AtomicBool::new(false));
-    let thread_stop = Arc::clone(&stop);
+    reader: R,
+    tx: Tx<T>,
+    stop: Arc<AtomicBool>,
+    convert: F,
+) -> Result<(), CreateError>
+where
+    T: TopicType,
+    R: TakeBatch<D>,
+    F: FnMut(D, &rustdds::SampleInfo) -> Result<(T, SampleMeta), ReadError> + Send + 'static,
+{
     let name = format!("dds-reader {topic_name}");
     let topic: &'static str = T::TOPIC;
     std::thread::Builder::new()
         .name(name.chars().take(15).collect())
         .spawn(move || {
-            let result = match reader {
-                ReaderInner::Keyed(r) => reader_loop(r, &tx, &thread_stop),
-                ReaderInner::Unkeyed(r) => reader_loop_no_key(r, &tx, &thread_stop),
-            };
-            if let Err(e) = result {
+            if let Err(e) = reader_loop(reader, &tx, &stop, convert) {
                 warn!(topic, error = %e, "DDS reader thread stopped");
             }
         })
         .map_err(|e| dds_err(name, e))?;
-    Ok(Subscription { rx, stop })
+    Ok(())
 }
 
-fn reader_loop<T: TopicType>(
-    mut reader: DataReader<Wire<T>, CDRDeserializerAdapter<Wire<T>>>,
+fn reader_loop<T, D, R, F>(
+    mut reader: R,
     tx: &Tx<T>,
     stop: &AtomicBool,
-) -> std::io::Result<()> {
+    mut convert: F,
+) -> std::io::Result<()>
+where
+    T: TopicType,
+    R: TakeBatch<D>,
+    F: FnMut(D, &rustdds::SampleInfo) -> Result<(T, SampleMeta), ReadError>,
+{
     use rustdds::mio1::{Events, Interest, Poll as MioPoll, Token};
     // mio 1 readiness: RustDDS drains this event source inside `take`, so an edge is never
     // lost (its mio 0.6 channel is never drained by `take` and goes silent once full).
@@ -506,41 +638,37 @@ fn reader_loop<T: TopicType>(
             if stop.load(Ordering::Relaxed) || tx.is_closed() {
                 return Ok(());
             }
-            match reader.take(BATCH, ReadCondition::not_read()) {
+            let item = match reader.take_batch() {
                 Ok(batch) if batch.is_empty() => break,
                 Ok(batch) => {
-                    for sample in batch {
-                        if let Some(item) = convert(sample)
-                            && tx.blocking_send(item).is_err()
+                    for (value, info) in batch {
+                        if let Some(value) = value
+                            && tx.blocking_send(convert(value, &info)).is_err()
                         {
                             return Ok(());
                         }
                     }
+                    continue;
                 }
                 // The reader has moved past the bad sample; report it and go on.
                 Err(rustdds::dds::result::ReadError::Deserialization { reason }) => {
                     warn!(topic = T::TOPIC, %reason, "malformed sample dropped");
-                    if tx
-                        .blocking_send(Err(ReadError::Malformed {
-                            topic: T::TOPIC,
-                            detail: reason,
-                        }))
-                        .is_err()
-                    {
-                        return Ok(());
-                    }
+                    Err(ReadError::Malformed {
+                        topic: T::TOPIC,
+                        detail: reason,
+                    })
                 }
-                Err(rustdds::dds::result::ReadError::UnknownKey { .. }) => {}
+                Err(rustdds::dds::result::ReadError::UnknownKey { .. }) => continue,
                 Err(e) => {
-                    let item = Err(ReadError::Dds {
+                    std::thread::sleep(std::time::Duration::from_millis(100));
+                    Err(ReadError::Dds {
                         topic: T::TOPIC,
                         detail: e.to_string(),
-                    });
-                    if tx.blocking_send(item).is_err() {
-                        return Ok(());
-                    }
-                    std::thread::sleep(std::time::Duration::from_millis(100));
+                    })
                 }
+            };
+            if tx.blocking_send(item).is_err() {
+                return Ok(());
             }
         }
         // The timeout bounds how long a dropped subscription keeps its thread.
@@ -548,55 +676,35 @@ fn reader_loop<T: TopicType>(
     }
 }
 
-fn reader_loop_no_key<T: TopicType>(
-    mut reader: rustdds::no_key::DataReader<Wire<T>, CDRDeserializerAdapter<Wire<T>>>,
-    tx: &Tx<T>,
-    stop: &AtomicBool,
-) -> std::io::Result<()> {
-    use rustdds::mio1::{Events, Interest, Poll as MioPoll, Token};
-    let mut poll = MioPoll::new()?;
-    poll.registry()
-        .register(&mut reader, Token(0), Interest::READABLE)?;
-    let mut events = Events::with_capacity(4);
-    loop {
-        loop {
-            if stop.load(Ordering::Relaxed) || tx.is_closed() {
-                return Ok(());
-            }
-            match reader.take(BATCH, ReadCondition::not_read()) {
-                Ok(batch) if batch.is_empty() => break,
-                Ok(batch) => {
-                    for sample in batch {
-                        let info = sample.sample_info().clone();
-                        let Wire(value) = sample.into_value();
-                        if tx.blocking_send(validated(value, &info)).is_err() {
-                            return Ok(());
-                        }
-                    }
-                }
-                Err(rustdds::dds::result::ReadError::Deserialization { reason }) => {
-                    warn!(topic = T::TOPIC, %reason, "malformed sample dropped");
-                    let item = Err(ReadError::Malformed {
-                        topic: T::TOPIC,
-                        detail: reason,
-                    });
-                    if tx.blocking_send(item).is_err() {
-                        return Ok(());
-                    }
-                }
-                Err(e) => {
-                    let item = Err(ReadError::Dds {
-                        topic: T::TOPIC,
-                        detail: e.to_string(),
-                    });
-                    if tx.blocking_send(item).is_err() {
-                        return Ok(());
-                    }
-                    std::thread::sleep(std::time::Duration::from_millis(100));
-                }
-            }
+fn meta(info: &rustdds::SampleInfo) -> SampleMeta {
+    SampleMeta {
+        writer: format!("{:?}", info.writer_guid()),
+        participant: format!("{:?}", info.writer_guid().prefix),
+        source_timestamp_ms: info.source_timestamp().map(timestamp_ms),
+    }
+}
+
+/// A signed sample through the gate: the model sample, or why it was refused.
+fn open_signed<T: TopicType>(
+    security: &Security,
+    wire: &SignedWire,
+    info: &rustdds::SampleInfo,
+) -> Result<(T, SampleMeta), ReadError> {
+    match security.open::<T>(wire) {
+        Ok(sample) => Ok((sample, meta(info))),
+        Err(Refused::Gate(reason, detail)) => {
+            debug!(topic = T::TOPIC, reason, %detail, "signed sample refused");
+            Err(ReadError::Refused {
+                topic: T::TOPIC,
+                reason,
+                detail,
+            })
         }
-        poll.poll(&mut events, Some(std::time::Duration::from_millis(200)))?;
+        Err(Refused::Invalid(error, payload)) => Err(ReadError::Invalid {
+            topic: T::TOPIC,
+            error,
+            payload,
+        }),
     }
 }
 
@@ -604,41 +712,13 @@ fn validated<T: TopicType>(
     value: T,
     info: &rustdds::SampleInfo,
 ) -> Result<(T, SampleMeta), ReadError> {
-    let meta = SampleMeta {
-        writer: format!("{:?}", info.writer_guid()),
-        participant: format!("{:?}", info.writer_guid().prefix),
-        source_timestamp_ms: info.source_timestamp().map(timestamp_ms),
-    };
     match value.validate() {
-        Ok(()) => Ok((value, meta)),
+        Ok(()) => Ok((value, meta(info))),
         Err(error) => Err(ReadError::Invalid {
             topic: T::TOPIC,
             error,
             payload: serde_json::to_string(&value).unwrap_or_else(|e| format!("\"{e}\"")),
         }),
-    }
-}
-
-fn convert<T: TopicType>(
-    sample: rustdds::with_key::DataSample<Wire<T>>,
-) -> Option<Result<(T, SampleMeta), ReadError>> {
-    let info = sample.sample_info();
-    let meta = SampleMeta {
-        writer: format!("{:?}", info.writer_guid()),
-        participant: format!("{:?}", info.writer_guid().prefix),
-        source_timestamp_ms: info.source_timestamp().map(timestamp_ms),
-    };
-    match sample.into_value() {
-        Sample::Value(Wire(value)) => Some(match value.validate() {
-            Ok(()) => Ok((value, meta)),
-            Err(error) => Err(ReadError::Invalid {
-                topic: T::TOPIC,
-                error,
-                payload: serde_json::to_string(&value).unwrap_or_else(|e| format!("\"{e}\"")),
-            }),
-        }),
-        // Disposals carry no data for Shoal: instances end by being superseded.
-        Sample::Dispose(_) => None,
     }
 }
 

@@ -29,6 +29,18 @@ pub trait TopicType:
     /// such as ROS 2 messages, set `false`: DDS implementations match only endpoints of the
     /// same keyedness (Cyclone DDS drops the others silently).
     const KEYED: bool = true;
+    /// Whether a participant with security on signs and verifies this topic. Shoal's own
+    /// topics do; foreign types (ROS 2 messages) travel as their peers expect them.
+    const SIGNED: bool = false;
+    /// The vehicle this sample speaks for, which the publish policy checks against the
+    /// signer ("a vehicle publishes only its own data"); `None` for foreign types.
+    fn owner_vehicle(&self) -> Option<&str> {
+        None
+    }
+    /// The instance key as text, the key of the topic's signed twin.
+    fn key_text(&self) -> String {
+        format!("{:?}", self.key())
+    }
 }
 
 impl TopicType for StateVector {
@@ -38,6 +50,13 @@ impl TopicType for StateVector {
     const DEFAULT_PRIORITY: Priority = Priority::Telemetry;
     type Key = String;
     fn key(&self) -> String {
+        self.vehicle_id.clone()
+    }
+    const SIGNED: bool = true;
+    fn owner_vehicle(&self) -> Option<&str> {
+        Some(&self.vehicle_id)
+    }
+    fn key_text(&self) -> String {
         self.vehicle_id.clone()
     }
 }
@@ -51,6 +70,13 @@ impl TopicType for VehicleAnnouncement {
     fn key(&self) -> String {
         self.vehicle_id.clone()
     }
+    const SIGNED: bool = true;
+    fn owner_vehicle(&self) -> Option<&str> {
+        Some(&self.vehicle_id)
+    }
+    fn key_text(&self) -> String {
+        self.vehicle_id.clone()
+    }
 }
 
 impl TopicType for TaskAssignment {
@@ -60,6 +86,13 @@ impl TopicType for TaskAssignment {
     const DEFAULT_PRIORITY: Priority = Priority::Control;
     type Key = String;
     fn key(&self) -> String {
+        self.task_id.clone()
+    }
+    const SIGNED: bool = true;
+    fn owner_vehicle(&self) -> Option<&str> {
+        Some(&self.vehicle_id)
+    }
+    fn key_text(&self) -> String {
         self.task_id.clone()
     }
 }
@@ -73,6 +106,13 @@ impl TopicType for TaskStatus {
     fn key(&self) -> String {
         self.task_id.clone()
     }
+    const SIGNED: bool = true;
+    fn owner_vehicle(&self) -> Option<&str> {
+        Some(&self.vehicle_id)
+    }
+    fn key_text(&self) -> String {
+        self.task_id.clone()
+    }
 }
 
 impl TopicType for Event {
@@ -82,6 +122,13 @@ impl TopicType for Event {
     const DEFAULT_PRIORITY: Priority = Priority::Control;
     type Key = String;
     fn key(&self) -> String {
+        self.event_id.clone()
+    }
+    const SIGNED: bool = true;
+    fn owner_vehicle(&self) -> Option<&str> {
+        Some(&self.vehicle_id)
+    }
+    fn key_text(&self) -> String {
         self.event_id.clone()
     }
 }
@@ -117,6 +164,13 @@ impl TopicType for EnvironmentObservation {
             vehicle_id: self.vehicle_id.clone(),
             property: self.property.clone(),
         }
+    }
+    const SIGNED: bool = true;
+    fn owner_vehicle(&self) -> Option<&str> {
+        Some(&self.vehicle_id)
+    }
+    fn key_text(&self) -> String {
+        format!("{}/{}", self.vehicle_id, self.property)
     }
 }
 

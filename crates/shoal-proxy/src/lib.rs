@@ -22,6 +22,7 @@ pub mod mavlink;
 mod proxy;
 pub mod ros2;
 pub mod sim;
+pub mod swarm;
 
 use std::sync::Arc;
 

@@ -134,6 +134,11 @@ fn rank(s: TaskState) -> u8 {
     }
 }
 
+/// Sent to its vehicle and not final: the vehicle is busy with it.
+fn under_way(s: TaskState) -> bool {
+    !s.is_final() && s != TaskState::Pending
+}
+
 /// True when a task in `from` may move to `to`.
 pub(crate) fn may_move(from: TaskState, to: TaskState) -> bool {
     !from.is_final() && rank(to) >= rank(from) && to != TaskState::Pending
@@ -156,15 +161,20 @@ impl Register {
         self.tasks.values().cloned().collect()
     }
 
-    /// Tasks not final, per vehicle.
+    /// Tasks under way (sent, accepted or running) of one vehicle.
     pub(crate) fn active_tasks_of(&self, vehicle_id: &str) -> Vec<&TaskView> {
         self.tasks
             .values()
-            .filter(|t| {
-                t.assignment.vehicle_id == vehicle_id
-                    && !t.state.is_final()
-                    && t.state != TaskState::Pending
-            })
+            .filter(|t| t.assignment.vehicle_id == vehicle_id && under_way(t.state))
+            .collect()
+    }
+
+    /// Vehicles with a task under way.
+    pub(crate) fn busy_vehicles(&self) -> std::collections::HashSet<&str> {
+        self.tasks
+            .values()
+            .filter(|t| under_way(t.state))
+            .map(|t| t.assignment.vehicle_id.as_str())
             .collect()
     }
 

@@ -432,7 +432,24 @@ impl StationHandle {
         }
         warn!(topic, vehicle = vehicle_id, reason, detail, "data rejected");
         self.store(Record::rejected(topic, reason, payload_json));
-        // One event per vehicle and reason per minute: enough for the operator, no flood.
+        self.alert_rejection(topic, vehicle_id, reason, detail);
+    }
+
+    /// A sample refused by the P/S Manager's security (unsigned, forged, replayed, revoked,
+    /// not allowed): counted as `security:<reason>` and reported, never stored, because
+    /// nothing in it can be trusted, not even the vehicle it names.
+    fn refuse(&self, topic: &str, reason: &str, detail: &str) {
+        let reason = format!("security:{reason}");
+        *lock(&self.shared.stats)
+            .rejected
+            .entry(reason.clone())
+            .or_default() += 1;
+        debug!(topic, reason, detail, "sample refused by security");
+        self.alert_rejection(topic, "", &reason, detail);
+    }
+
+    /// One event per vehicle and reason per minute: enough for the operator, no flood.
+    fn alert_rejection(&self, topic: &str, vehicle_id: &str, reason: &str, detail: &str) {
         let now = now_ms();
         let key = (vehicle_id.to_string(), reason.to_string());
         let raise = {
@@ -486,6 +503,14 @@ impl StationHandle {
                     "null",
                 ));
             }
+            ReadError::Unsigned { .. } => {
+                self.refuse(
+                    T::TOPIC,
+                    "unsigned",
+                    "no signature: the sender has security off",
+                );
+            }
+            ReadError::Refused { reason, detail, .. } => self.refuse(T::TOPIC, reason, detail),
             other => warn!(topic = T::TOPIC, error = %other, "read failed"),
         }
     }
@@ -1130,10 +1155,9 @@ impl StationHandle {
 
     fn busy_vehicles(&self) -> std::collections::HashSet<String> {
         lock(&self.shared.register)
-            .tasks()
+            .busy_vehicles()
             .into_iter()
-            .filter(|t| !t.state.is_final() && t.state != shoal_model::TaskState::Pending)
-            .map(|t| t.assignment.vehicle_id)
+            .map(str::to_owned)
             .collect()
     }
 

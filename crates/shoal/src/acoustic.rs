@@ -58,9 +58,63 @@ pub fn pdu(cmd: PduCommand) -> Result<()> {
             println!(
                 "reference: DCCL State Vector 20 B (158 bits); SWARMs ASCII State Vector 51 B"
             );
+            print_tag_cost();
             Ok(())
         }
     }
+}
+
+/// What frame authentication costs on a 64-byte instant message: the counter and tag
+/// bytes, and how many state keyframes (and keyframe + deltas) still fit.
+fn print_tag_cost() {
+    use shoal_security::{TagSize, acoustic};
+    let table = pdu::size_table();
+    let size_of = |prefix: &str| {
+        table
+            .iter()
+            .find(|r| r.message.starts_with(prefix))
+            .map_or(0, |r| r.bytes)
+    };
+    let (key, delta) = (size_of("state_keyframe"), size_of("state_delta"));
+    println!();
+    println!(
+        "frame authentication (counter + truncated HMAC-SHA256), {}-byte instant message:",
+        pdu::MAX_FRAME
+    );
+    println!(
+        "{:<16} {:>9} {:>9} {:>14} {:>20}  no longer fits",
+        "tag", "overhead", "payload", "keyframes/msg", "1 keyframe + deltas"
+    );
+    for (name, overhead) in [
+        ("none", 0),
+        ("32-bit", acoustic::OVERHEAD_32),
+        ("64-bit (default)", acoustic::OVERHEAD_64),
+    ] {
+        let room = pdu::MAX_FRAME - overhead;
+        let keyframes = room.checked_div(key).unwrap_or(0);
+        let deltas = room.saturating_sub(key).checked_div(delta).unwrap_or(0);
+        let too_big: Vec<&str> = table
+            .iter()
+            .filter(|r| r.bytes > room)
+            .map(|r| r.message)
+            .collect();
+        println!(
+            "{name:<16} {:>7} B {:>7} B {keyframes:>14} {:>20}  {}",
+            overhead,
+            room,
+            format!("1 + {deltas}"),
+            if too_big.is_empty() {
+                "-".to_string()
+            } else {
+                too_big.join(", ")
+            }
+        );
+    }
+    println!(
+        "forgery per attempt: 32-bit {:.1e}, 64-bit {:.1e}",
+        TagSize::Bits32.forgery_probability(),
+        TagSize::Bits64.forgery_probability()
+    );
 }
 
 /// Options of `shoal modem-emu`.

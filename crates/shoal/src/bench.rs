@@ -96,6 +96,23 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 0.05)]
         time_scale: f64,
     },
+    /// Scale: a `shoal station` and N lightweight vehicles (`shoal swarm`), each its own
+    /// process, on loopback: vehicles alive, ingest rate and the resident memory of both
+    /// processes, every 10 s and at the end.
+    Scale {
+        /// Number of vehicles.
+        #[arg(long, default_value_t = 10_000)]
+        vehicles: usize,
+        /// State vectors per second per vehicle.
+        #[arg(long, default_value_t = 1.0)]
+        rate: f64,
+        /// Seconds to run once every vehicle is alive (or after 120 s of trying).
+        #[arg(long, default_value_t = 60)]
+        seconds: u64,
+        /// DDS domain for the measurement.
+        #[arg(long, default_value_t = 24)]
+        domain: u16,
+    },
     /// (helper) Echo pings back as pongs.
     #[command(hide = true)]
     Pong {
@@ -147,6 +164,12 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             domain,
         } => soak(cfg, domain, writes, instances).await,
         BenchCommand::Acoustic { time_scale } => acoustic(time_scale).await,
+        BenchCommand::Scale {
+            vehicles,
+            rate,
+            seconds,
+            domain,
+        } => scale(vehicles, rate, seconds, domain).await,
         BenchCommand::Pong { domain } => pong(cfg, domain).await,
         BenchCommand::Sink { domain } => sink(cfg, domain).await,
         BenchCommand::Load {
@@ -660,23 +683,24 @@ fn machine() -> String {
 }
 
 fn date() -> String {
-    // Days since the epoch to a civil date (Howard Hinnant's algorithm), to avoid a
-    // date-time dependency for one line of output.
-    let days = now_ms().div_euclid(86_400_000);
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!("{y:04}-{m:02}-{d:02}")
+    utc_date(now_ms())
+}
+
+/// The UTC calendar date of a time in ms since the Unix epoch, e.g. `2026-11-21`.
+pub(crate) fn utc_date(ms: i64) -> String {
+    match time::OffsetDateTime::from_unix_timestamp(ms.div_euclid(1000)) {
+        Ok(t) => format!("{:04}-{:02}-{:02}", t.year(), u8::from(t.month()), t.day()),
+        Err(_) => "(date out of range)".to_string(),
+    }
 }
 
 fn rss_mb() -> f64 {
-    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    rss_mb_of("self")
+}
+
+/// Resident memory of a process (`self` or a pid), MB.
+fn rss_mb_of(pid: &str) -> f64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
     status
         .lines()
         .find_map(|l| l.strip_prefix("VmRSS:"))
@@ -1105,4 +1129,145 @@ fn tempfile_dir() -> Result<std::path::PathBuf> {
     let dir = std::env::temp_dir().join(format!("shoal-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     Ok(dir)
+}
+
+/// One sample of a running station, read through its API.
+struct StationSample {
+    alive: usize,
+    accepted: u64,
+    rejected: u64,
+}
+
+async fn station_sample(api: std::net::SocketAddr) -> Option<StationSample> {
+    let (_, fleet) = crate::query::request(api, "GET", "/api/fleet", None)
+        .await
+        .ok()?;
+    let (_, stats) = crate::query::request(api, "GET", "/api/stats", None)
+        .await
+        .ok()?;
+    let fleet: serde_json::Value = serde_json::from_str(&fleet).ok()?;
+    let stats: serde_json::Value = serde_json::from_str(&stats).ok()?;
+    let alive = fleet
+        .as_array()?
+        .iter()
+        .filter(|v| v["contact"] == "alive")
+        .count();
+    let rejected = stats["ingest"]["rejected"].as_object().map_or(0, |m| {
+        m.values().filter_map(serde_json::Value::as_u64).sum()
+    });
+    Some(StationSample {
+        alive,
+        accepted: stats["ingest"]["states_accepted"].as_u64().unwrap_or(0),
+        rejected,
+    })
+}
+
+/// Starts `shoal <args>` with a domain, stopping when our stdin pipe closes.
+fn child(args: &[&str], domain: u16) -> Result<tokio::process::Child> {
+    let exe = std::env::current_exe()?;
+    tokio::process::Command::new(exe)
+        .args(args)
+        .arg("--exit-on-stdin-close")
+        .env("SHOAL_DDS__DOMAIN_ID", domain.to_string())
+        .env("RUST_LOG", "warn,rustdds=error")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit())
+        .kill_on_drop(true)
+        .spawn()
+        .with_context(|| format!("cannot start shoal {}", args.join(" ")))
+}
+
+async fn scale(vehicles: usize, rate: f64, seconds: u64, domain: u16) -> Result<()> {
+    let dir = tempfile_dir()?;
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port();
+    let api = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    let db = dir.join("scale.db");
+    let listen = api.to_string();
+    let db_arg = db.display().to_string();
+    let mut station = child(&["station", "--listen", &listen, "--db", &db_arg], domain)?;
+    let t = Instant::now();
+    while station_sample(api).await.is_none() {
+        if t.elapsed() > Duration::from_secs(30) {
+            bail!("the station did not open its API within 30 s");
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    let station_pid = station.id().map(|p| p.to_string()).unwrap_or_default();
+    let idle_rss = rss_mb_of(&station_pid);
+    let count = vehicles.to_string();
+    let rate_arg = rate.to_string();
+    let mut swarm = child(&["swarm", "--count", &count, "--rate", &rate_arg], domain)?;
+    let swarm_pid = swarm.id().map(|p| p.to_string()).unwrap_or_default();
+    println!(
+        "scale: {vehicles} vehicles x {rate} Hz, station and swarm in separate processes, domain {domain}"
+    );
+    println!(
+        "{:>6} {:>7} {:>12} {:>10} {:>12} {:>10}",
+        "t (s)", "alive", "accepted/s", "rejected", "station MB", "swarm MB"
+    );
+    let start = Instant::now();
+    let mut all_alive_at = None;
+    let mut last = (Instant::now(), 0u64);
+    let mut first_rss = None;
+    let mut rows = Vec::new();
+    loop {
+        tokio::time::sleep(Duration::from_secs(10)).await;
+        let Some(s) = station_sample(api).await else {
+            bail!("the station stopped answering");
+        };
+        let now = Instant::now();
+        #[allow(clippy::cast_precision_loss)]
+        let per_s = (s.accepted - last.1) as f64 / now.duration_since(last.0).as_secs_f64();
+        last = (now, s.accepted);
+        let (st, sw) = (rss_mb_of(&station_pid), rss_mb_of(&swarm_pid));
+        println!(
+            "{:>6.0} {:>7} {:>12.0} {:>10} {:>12.1} {:>10.1}",
+            start.elapsed().as_secs_f64(),
+            s.alive,
+            per_s,
+            s.rejected,
+            st,
+            sw
+        );
+        if all_alive_at.is_none() && s.alive >= vehicles {
+            all_alive_at = Some(start.elapsed());
+            first_rss = Some(st);
+        }
+        if all_alive_at.is_some() {
+            rows.push((per_s, st));
+        }
+        let deadline =
+            all_alive_at.unwrap_or(Duration::from_secs(120)) + Duration::from_secs(seconds);
+        if start.elapsed() >= deadline {
+            break;
+        }
+    }
+    drop(swarm.stdin.take());
+    drop(station.stdin.take());
+    let _ = tokio::time::timeout(Duration::from_secs(15), swarm.wait()).await;
+    let _ = tokio::time::timeout(Duration::from_secs(15), station.wait()).await;
+    let _ = std::fs::remove_dir_all(&dir);
+    match all_alive_at {
+        Some(t) => {
+            let steady: Vec<f64> = rows.iter().skip(1).map(|r| r.0).collect();
+            #[allow(clippy::cast_precision_loss)]
+            let mean = steady.iter().sum::<f64>() / steady.len().max(1) as f64;
+            let peak = rows.iter().map(|r| r.1).fold(0.0, f64::max);
+            println!(
+                "all {vehicles} alive after {:.0} s; steady ingest {mean:.0} state vectors/s (offered {:.0}/s); station RSS idle {idle_rss:.1} MB, all alive {:.1} MB, peak {peak:.1} MB",
+                t.as_secs_f64(),
+                rate * {
+                    #[allow(clippy::cast_precision_loss)]
+                    let v = vehicles as f64;
+                    v
+                },
+                first_rss.unwrap_or(f64::NAN)
+            );
+        }
+        None => println!("not every vehicle was alive within 120 s"),
+    }
+    Ok(())
 }

@@ -28,8 +28,69 @@ pub struct ShoalConfig {
     pub history: HistoryConfig,
     /// HTTP API.
     pub console: ConsoleConfig,
+    /// Message authentication and access control on IP links.
+    pub security: SecurityConfig,
     /// The simulated fleet `shoal up` starts.
     pub fleet: FleetConfig,
+}
+
+/// The `[security]` section.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SecurityConfig {
+    /// Sign every sample on Shoal's topics and drop what does not verify.
+    pub enabled: bool,
+    /// The station's key store (`shoal keys init`).
+    pub store: PathBuf,
+    /// A vehicle's bundle (`shoal keys export`).
+    pub bundle: PathBuf,
+    /// Publish access policy file; empty for the built-in policy.
+    pub policy: PathBuf,
+    /// Oldest signed sample accepted, seconds.
+    pub max_age_s: u32,
+    /// How far ahead of this host's clock a signed sample may be, seconds.
+    pub max_future_s: u32,
+    /// Seconds between re-reads of the revocation list at the station.
+    pub crl_check_s: u32,
+}
+
+impl Default for SecurityConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            store: PathBuf::from("shoal-data/keys"),
+            bundle: PathBuf::new(),
+            policy: PathBuf::new(),
+            max_age_s: 30,
+            max_future_s: 5,
+            crl_check_s: 5,
+        }
+    }
+}
+
+impl SecurityConfig {
+    /// Checks the values; the error names the key.
+    pub fn check(&self) -> Result<(), String> {
+        if !(1..=3600).contains(&self.max_age_s) {
+            return Err(format!(
+                "security.max_age_s = {} is outside [1, 3600]",
+                self.max_age_s
+            ));
+        }
+        if self.max_future_s > 600 {
+            return Err(format!(
+                "security.max_future_s = {} is above 600",
+                self.max_future_s
+            ));
+        }
+        if !(1..=3600).contains(&self.crl_check_s) {
+            return Err(format!(
+                "security.crl_check_s = {} is outside [1, 3600]",
+                self.crl_check_s
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// The `[fleet]` section: simulated vehicles for `shoal up`.
@@ -167,6 +228,10 @@ fn from_table(table: toml::Table) -> Result<ShoalConfig> {
         .history
         .check()
         .map_err(|e| anyhow::anyhow!("invalid configuration in [history]: {e}"))?;
+    config
+        .security
+        .check()
+        .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
     config
         .fleet
         .check()

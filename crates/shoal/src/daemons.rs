@@ -51,11 +51,41 @@ pub fn shutdown_signal(exit_on_stdin_close: bool) -> CancellationToken {
     token
 }
 
-fn dds(cfg: &ShoalConfig) -> Result<Arc<PubSub>> {
+fn warn_if_not_loopback(cfg: &ShoalConfig) {
     if !cfg.dds.is_loopback_only() {
         info!(interfaces = ?cfg.dds.interfaces, "DDS uses non-loopback interfaces: traffic may leave this host");
     }
-    Ok(Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?))
+}
+
+/// The station's participant (also the CDT's on the station side): with `[security]` on,
+/// signing as the station and admitting through its key store, revocations re-read live.
+fn station_dds(cfg: &ShoalConfig, shutdown: &CancellationToken) -> Result<Arc<PubSub>> {
+    warn_if_not_loopback(cfg);
+    if !cfg.security.enabled {
+        return Ok(Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?));
+    }
+    let keys = crate::keys::station(&cfg.security)?;
+    let dds = Arc::new(PubSub::new_secure(&cfg.dds, keys.security).context("cannot join DDS")?);
+    crate::keys::watch_revocations(
+        Arc::clone(&dds),
+        keys.anchor,
+        keys.crl_path,
+        Duration::from_secs(u64::from(cfg.security.crl_check_s)),
+        shutdown.clone(),
+    );
+    Ok(dds)
+}
+
+/// A vehicle's participant: with `[security]` on, signing with its bundle's certificate.
+fn vehicle_dds(cfg: &ShoalConfig, vehicle_id: &str) -> Result<Arc<PubSub>> {
+    warn_if_not_loopback(cfg);
+    let dds = if cfg.security.enabled {
+        let security = crate::keys::vehicle(&cfg.security, vehicle_id)?;
+        PubSub::new_secure(&cfg.dds, security)
+    } else {
+        PubSub::new(&cfg.dds)
+    };
+    Ok(Arc::new(dds.context("cannot join DDS")?))
 }
 
 /// `shoal station`.
@@ -70,7 +100,7 @@ pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> 
             cfg.history.path.display()
         )
     })?;
-    let dds = dds(&cfg)?;
+    let dds = station_dds(&cfg, &shutdown)?;
     let station =
         Station::new(cfg.station.clone(), dds, history).context("cannot start the station")?;
     let api = tokio::spawn(shoal_console::serve_with(
@@ -113,8 +143,9 @@ pub async fn vehicle(cfg: &ShoalConfig, spec: SimSpec, exit_on_stdin_close: bool
         .state(shoal_model::now_ms())
         .validate()
         .context("start position is invalid")?;
+    let dds = vehicle_dds(cfg, &spec.id)?;
     let shutdown = shutdown_signal(exit_on_stdin_close);
-    shoal_proxy::run_sim_with(spec, cfg.fleet.sim.clone(), dds(cfg)?, shutdown)
+    shoal_proxy::run_sim_with(spec, cfg.fleet.sim.clone(), dds, shutdown)
         .await
         .context("simulated vehicle failed")
 }
@@ -124,11 +155,18 @@ struct Child {
     child: tokio::process::Child,
 }
 
-fn spawn(exe: &Path, config: Option<&Path>, name: &str, args: &[String]) -> Result<Child> {
+fn spawn(
+    exe: &Path,
+    config: Option<&Path>,
+    env: &[(String, String)],
+    name: &str,
+    args: &[String],
+) -> Result<Child> {
     let mut cmd = tokio::process::Command::new(exe);
     if let Some(c) = config {
         cmd.arg("--config").arg(c);
     }
+    cmd.envs(env.iter().cloned());
     cmd.args(args)
         .arg("--exit-on-stdin-close")
         .stdin(Stdio::piped())
@@ -150,7 +188,14 @@ pub async fn acoustic_demo(cfg: &ShoalConfig, exit_on_stdin_close: bool) -> Resu
         vehicles = demo.vehicles.len(),
         "acoustic demo: submerged AUV -> emulated modem -> CDT on the relay -> station"
     );
-    shoal_converter::relay::run_acoustic_demo(demo, &cfg.dds, shutdown)
+    let cdt_dds = station_dds(cfg, &shutdown)?;
+    let keys = if cfg.security.enabled {
+        let ids: Vec<&str> = demo.vehicles.iter().map(|v| v.sim.id.as_str()).collect();
+        Some(crate::keys::acoustic_keys(&cfg.security, &ids)?)
+    } else {
+        None
+    };
+    shoal_converter::relay::run_acoustic_demo_with(demo, cdt_dds, keys, shutdown)
         .await
         .context("acoustic demo failed")
 }
@@ -168,12 +213,69 @@ async fn stop_child(mut c: Child) {
     }
 }
 
+/// What `shoal up` starts besides the station.
+#[derive(Debug, Clone, Copy)]
+pub struct UpOptions {
+    /// No simulated vehicles at all.
+    pub no_fleet: bool,
+    /// Security on.
+    pub secure: bool,
+    /// Lightweight vehicles in a `shoal swarm` process.
+    pub sim_vehicles: usize,
+}
+
+/// `shoal swarm`.
+pub async fn swarm(
+    cfg: &ShoalConfig,
+    spec: shoal_proxy::swarm::SwarmSpec,
+    exit_on_stdin_close: bool,
+) -> Result<()> {
+    if cfg.security.enabled {
+        bail!("shoal swarm does not sign: run it with security off (it is for scale tests)");
+    }
+    warn_if_not_loopback(cfg);
+    let dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?);
+    let shutdown = shutdown_signal(exit_on_stdin_close);
+    shoal_proxy::swarm::run_swarm(spec, dds, shutdown)
+        .await
+        .context("swarm failed")
+}
+
 /// `shoal up`: a station and the configured fleet, each its own process (its own DDS
 /// participant, as on real vehicles), stopped together.
-pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, no_fleet: bool) -> Result<()> {
+pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Result<()> {
+    let UpOptions {
+        no_fleet,
+        secure,
+        sim_vehicles,
+    } = opts;
+    if (secure || cfg.security.enabled) && sim_vehicles > 0 {
+        bail!("--sim-vehicles cannot be combined with security (swarm vehicles do not sign)");
+    }
     let exe = std::env::current_exe().context("cannot find the shoal executable")?;
     let shutdown = shutdown_signal(false);
-    let mut children = vec![spawn(&exe, config, "station", &["station".to_string()])?];
+    let secure = secure || cfg.security.enabled;
+    let mut station_env = Vec::new();
+    let mut bundles = std::collections::HashMap::new();
+    if secure {
+        let demo = shoal_converter::relay::AcousticDemoConfig::default();
+        let mut ids: Vec<&str> = Vec::new();
+        if !no_fleet {
+            ids.extend(cfg.fleet.vehicles.iter().map(|v| v.id.as_str()));
+            if cfg.fleet.acoustic_demo {
+                ids.extend(demo.vehicles.iter().map(|v| v.sim.id.as_str()));
+            }
+        }
+        bundles = crate::keys::prepare_fleet(&cfg.security, &ids)?;
+        station_env.push(("SHOAL_SECURITY__ENABLED".to_string(), "true".to_string()));
+    }
+    let mut children = vec![spawn(
+        &exe,
+        config,
+        &station_env,
+        "station",
+        &["station".to_string()],
+    )?];
     // Vehicles start once the API answers, so the station hears their announcements live.
     let addr = cfg.console.listen;
     let ready = async {
@@ -207,15 +309,36 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, no_fleet: bool) -> Res
                 "--rate".into(),
                 v.rate_hz.to_string(),
             ];
-            children.push(spawn(&exe, config, &v.id, &args)?);
+            let mut env = station_env.clone();
+            if let Some(dir) = bundles.get(&v.id) {
+                env.push((
+                    "SHOAL_SECURITY__BUNDLE".to_string(),
+                    dir.display().to_string(),
+                ));
+            }
+            children.push(spawn(&exe, config, &env, &v.id, &args)?);
         }
     }
     if cfg.fleet.acoustic_demo && !no_fleet {
         children.push(spawn(
             &exe,
             config,
+            &station_env,
             "acoustic demo",
             &["acoustic-demo".to_string()],
+        )?);
+    }
+    if sim_vehicles > 0 {
+        children.push(spawn(
+            &exe,
+            config,
+            &station_env,
+            "swarm",
+            &[
+                "swarm".to_string(),
+                "--count".into(),
+                sim_vehicles.to_string(),
+            ],
         )?);
     }
     info!(
@@ -340,7 +463,7 @@ pub async fn proxy(
             let adapter = mavlink::MavlinkAdapter::connect(c)
                 .await
                 .context("MAVLink proxy")?;
-            run_proxy(adapter, dds(cfg)?, options, shutdown)
+            run_proxy(adapter, vehicle_dds(cfg, &flags.id)?, options, shutdown)
                 .await
                 .context("MAVLink proxy stopped")
         }
@@ -355,7 +478,7 @@ pub async fn proxy(
             }
             info!(bind = %c.bind, vehicle = %c.vehicle, "IMC proxy starting");
             let adapter = imc::ImcAdapter::bind(c).await.context("IMC proxy")?;
-            run_proxy(adapter, dds(cfg)?, options, shutdown)
+            run_proxy(adapter, vehicle_dds(cfg, &flags.id)?, options, shutdown)
                 .await
                 .context("IMC proxy stopped")
         }
@@ -366,7 +489,7 @@ pub async fn proxy(
                 c.namespace = ns;
             }
             info!(namespace = %c.namespace, "ROS 2 proxy starting");
-            let participant = dds(cfg)?;
+            let participant = vehicle_dds(cfg, &flags.id)?;
             let adapter =
                 ros2::Ros2Adapter::new(Arc::clone(&participant), c).context("ROS 2 proxy")?;
             run_proxy(adapter, participant, options, shutdown)

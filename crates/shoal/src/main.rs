@@ -4,6 +4,7 @@ mod acoustic;
 mod bench;
 mod config;
 mod daemons;
+mod keys;
 mod query;
 
 use std::path::PathBuf;
@@ -31,6 +32,37 @@ enum Command {
         /// Start only the station, no simulated vehicles.
         #[arg(long)]
         no_fleet: bool,
+        /// Turn security on (as `[security] enabled = true`): create the key store if
+        /// missing, issue and export each vehicle's certificate, and sign everything.
+        #[arg(long)]
+        secure: bool,
+        /// Also start N lightweight simulated vehicles in one process (`shoal swarm`), for
+        /// scale tests; they report state at 1 Hz and take no tasks.
+        #[arg(long, value_name = "N", default_value_t = 0)]
+        sim_vehicles: usize,
+    },
+    /// Many lightweight simulated vehicles on one DDS participant (scale tests): each
+    /// announces itself and reports its state while circling its start point; they take
+    /// no tasks.
+    Swarm {
+        /// Number of vehicles.
+        #[arg(long, default_value_t = 100)]
+        count: usize,
+        /// State vectors per second per vehicle.
+        #[arg(long, default_value_t = 1.0)]
+        rate: f64,
+        /// Vehicle ids are PREFIX-1, PREFIX-2, ...
+        #[arg(long, default_value = "sw")]
+        prefix: String,
+        /// Centre of the swarm, latitude degrees.
+        #[arg(long, default_value_t = 63.44, allow_negative_numbers = true)]
+        lat: f64,
+        /// Centre of the swarm, longitude degrees.
+        #[arg(long, default_value_t = 10.30, allow_negative_numbers = true)]
+        lon: f64,
+        /// Stop when standard input closes (used by `shoal up`).
+        #[arg(long, hide = true)]
+        exit_on_stdin_close: bool,
     },
     /// Run the Command and Control Station: ingest, history, register, HTTP API.
     Station {
@@ -114,6 +146,9 @@ enum Command {
         #[arg(long, value_name = "ADDR")]
         station: Option<std::net::SocketAddr>,
     },
+    /// The station's key store: CA, station and vehicle certificates, acoustic keys,
+    /// revocations (see the operator guide, "Security").
+    Keys(keys::KeysArgs),
     /// Compact acoustic PDUs: encode JSON to hex, decode hex to JSON, print sizes.
     Pdu {
         #[command(subcommand)]
@@ -212,9 +247,11 @@ fn main() -> ExitCode {
         Command::Up { .. } => "up".to_string(),
         Command::Station { .. } => "station".to_string(),
         Command::Vehicle { id, .. } => id.clone(),
+        Command::Swarm { .. } => "swarm".to_string(),
         Command::AcousticDemo { .. } => "acoustic".to_string(),
         Command::Bench { .. } => "bench".to_string(),
         Command::Config { .. } => "config".to_string(),
+        Command::Keys(_) => "keys".to_string(),
         Command::Pdu { .. } => "pdu".to_string(),
         Command::Query { .. } => "query".to_string(),
         Command::ModemEmu(_) => "modem-emu".to_string(),
@@ -236,7 +273,38 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         .enable_all()
         .build()?;
     match cli.command {
-        Command::Up { no_fleet } => rt.block_on(daemons::up(cli.config.as_deref(), &cfg, no_fleet)),
+        Command::Up {
+            no_fleet,
+            secure,
+            sim_vehicles,
+        } => rt.block_on(daemons::up(
+            cli.config.as_deref(),
+            &cfg,
+            daemons::UpOptions {
+                no_fleet,
+                secure,
+                sim_vehicles,
+            },
+        )),
+        Command::Swarm {
+            count,
+            rate,
+            prefix,
+            lat,
+            lon,
+            exit_on_stdin_close,
+        } => {
+            let spec = shoal_proxy::swarm::SwarmSpec {
+                count,
+                prefix,
+                latitude_deg: lat,
+                longitude_deg: lon,
+                rate_hz: rate,
+                ..shoal_proxy::swarm::SwarmSpec::default()
+            };
+            rt.block_on(daemons::swarm(&cfg, spec, exit_on_stdin_close))
+        }
+        Command::Keys(args) => keys::run(args, &cfg.security),
         Command::Station {
             listen,
             db,

@@ -36,14 +36,32 @@ pub async fn run(sparql: &str, format: &str, station: SocketAddr) -> Result<()> 
 }
 
 async fn post(station: SocketAddr, format: &str, query: &str) -> Result<(u16, String)> {
+    request(
+        station,
+        "POST",
+        &format!("/api/sparql?format={format}"),
+        Some(("application/sparql-query", query)),
+    )
+    .await
+}
+
+/// One HTTP/1.1 request to the station's API (`Connection: close`); the status code and
+/// the body (de-chunked).
+pub(crate) async fn request(
+    station: SocketAddr,
+    method: &str,
+    path: &str,
+    body: Option<(&str, &str)>,
+) -> Result<(u16, String)> {
     let mut s = tokio::net::TcpStream::connect(station)
         .await
         .with_context(|| {
             format!("no station API at {station} (is `shoal station` or `shoal up` running?)")
         })?;
+    let (content_type, content) = body.unwrap_or(("text/plain", ""));
     let request = format!(
-        "POST /api/sparql?format={format} HTTP/1.1\r\nHost: {station}\r\nContent-Type: application/sparql-query\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{query}",
-        query.len()
+        "{method} {path} HTTP/1.1\r\nHost: {station}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{content}",
+        content.len()
     );
     s.write_all(request.as_bytes()).await?;
     let mut raw = Vec::new();

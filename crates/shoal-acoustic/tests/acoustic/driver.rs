@@ -177,3 +177,93 @@ async fn at_driver_reports_failed_and_canceled() {
         Outcome::Canceled
     );
 }
+
+/// Tagged frames over the emulator: the CDT's tagged driver seals what it sends (the
+/// vehicle opens it with the shared key) and opens what it receives; frames without a tag,
+/// tampered, replayed, sealed with another key or from an address without a key are
+/// refused and counted, and the genuine frames around them still arrive.
+#[tokio::test]
+async fn tagged_drivers_authenticate_frames_and_refuse_forgeries_and_replays() {
+    use shoal_acoustic::secure::TaggedDriver;
+    use shoal_security::{AcousticKey, AcousticTagger, RejectionReason, TagSize};
+
+    let emu = emulator(
+        vec![modem(1, 0.0), modem(2, 1500.0), modem(3, 800.0)],
+        |_| {},
+    )
+    .await;
+    let key = AcousticKey::from_bytes([7; 32]);
+    let mut cdt_tagger = AcousticTagger::new(2, TagSize::Bits64, 1000);
+    cdt_tagger.set_key(1, &key);
+    let cdt = TaggedDriver::new(
+        AtDriver::start(DriverConfig::new(emu.modems()[1].at).scaled(0.01)),
+        cdt_tagger,
+    );
+    assert_eq!(cdt.overhead(), 12);
+    assert_eq!(cdt.frame_budget(64), 52);
+    let refused = cdt.refused();
+    // The vehicle's side by hand: a plain driver and its own tagger.
+    let vehicle = AtDriver::start(DriverConfig::new(emu.modems()[0].at).scaled(0.01));
+    let mut own = AcousticTagger::new(1, TagSize::Bits64, 5000);
+    own.set_key(2, &key);
+
+    // CDT -> vehicle: sealed on the way out, authentic at the vehicle.
+    cdt.transmit(frame(1, b"task", true)).await.unwrap();
+    let rx = tokio::time::timeout(Duration::from_secs(5), vehicle.receive())
+        .await
+        .unwrap()
+        .unwrap();
+    assert_eq!(rx.data.len(), 4 + 12);
+    assert_eq!(own.open(2, 1, &rx.data).unwrap(), b"task");
+
+    let genuine = own.seal(2, b"state").unwrap();
+    let mut flipped = own.seal(2, b"state").unwrap();
+    flipped[0] ^= 0x01;
+    let mut stranger = AcousticTagger::new(1, TagSize::Bits64, 9000);
+    stranger.set_key(2, &AcousticKey::from_bytes([8; 32]));
+    let wrong_key = stranger.seal(2, b"abort").unwrap();
+    for data in [
+        genuine.clone(),
+        b"junk".to_vec(),
+        flipped,
+        genuine,
+        wrong_key,
+        own.seal(2, b"next").unwrap(),
+    ] {
+        vehicle.transmit(frame(2, &data, true)).await.unwrap();
+    }
+    // A modem whose address has no key.
+    let intruder = AtDriver::start(DriverConfig::new(emu.modems()[2].at).scaled(0.01));
+    intruder
+        .transmit(frame(2, &own.seal(2, b"x").unwrap(), true))
+        .await
+        .unwrap();
+
+    let mut got = Vec::new();
+    for _ in 0..2 {
+        let rx = tokio::time::timeout(Duration::from_secs(5), cdt.receive())
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(rx.src, 1);
+        got.push(rx.data);
+    }
+    assert_eq!(got, [b"state".to_vec(), b"next".to_vec()]);
+    // The intruder's frame arrives last; wait until it has been counted.
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
+    let counts = loop {
+        let c = refused.lock().unwrap().clone();
+        if c.total() >= 5 || tokio::time::Instant::now() > deadline {
+            break c;
+        }
+        tokio::select! {
+            _ = cdt.receive() => panic!("a refused frame was delivered"),
+            () = tokio::time::sleep(Duration::from_millis(50)) => {}
+        }
+    };
+    assert_eq!(counts.get(RejectionReason::FrameTooShort), 1, "{counts}");
+    assert_eq!(counts.get(RejectionReason::BadTag), 2, "{counts}");
+    assert_eq!(counts.get(RejectionReason::Replayed), 1, "{counts}");
+    assert_eq!(counts.get(RejectionReason::NoKey), 1, "{counts}");
+    assert_eq!(counts.total(), 5, "{counts}");
+}

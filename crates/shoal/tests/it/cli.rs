@@ -1,6 +1,8 @@
 //! The `shoal` binary: configuration errors and `shoal up`.
 
 use std::io::Read;
+
+use crate::common::http_get;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -24,6 +26,59 @@ fn an_invalid_config_file_gives_one_line_naming_the_key() {
     let lines: Vec<_> = err.lines().filter(|l| !l.trim().is_empty()).collect();
     assert_eq!(lines.len(), 1, "{err}");
     assert!(lines[0].contains("dds.domain_id"), "{err}");
+}
+
+/// `shoal vehicle --proxy`: bad flags and a bad settings file are named before anything
+/// starts, and the process exits with an error instead of panicking.
+#[test]
+fn proxy_flags_and_settings_errors_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        let out = shoal().arg("vehicle").args(args).output().unwrap();
+        assert!(!out.status.success(), "{args:?} succeeded");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = run(&[
+        "--proxy",
+        "imc",
+        "--id",
+        "v1",
+        "--address",
+        "not-an-address",
+    ]);
+    assert!(
+        err.contains("--address") && err.contains("HOST:PORT"),
+        "{err}"
+    );
+    let err = run(&["--proxy", "mavlink", "--id", "bad id!"]);
+    assert!(err.contains("--id"), "{err}");
+    let missing = dir.path().join("missing.toml");
+    let err = run(&[
+        "--proxy",
+        "ros2",
+        "--id",
+        "v1",
+        "--proxy-config",
+        missing.to_str().unwrap(),
+    ]);
+    assert!(err.contains("missing.toml"), "{err}");
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "lost_after_ms = \"soon\"\n").unwrap();
+    let err = run(&[
+        "--proxy",
+        "mavlink",
+        "--id",
+        "v1",
+        "--proxy-config",
+        bad.to_str().unwrap(),
+    ]);
+    assert!(
+        err.contains("bad.toml") && err.contains("lost_after_ms"),
+        "{err}"
+    );
+    let err = run(&["--sim", "auv", "--proxy", "imc", "--id", "v1"]);
+    assert!(err.contains("cannot be used with"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
 }
 
 #[test]
@@ -113,18 +168,4 @@ fn up_starts_the_station_and_fleet_and_stops_cleanly() {
     );
     assert!(log.contains("station stopped"), "{log}");
     assert!(dir.path().join("shoal-data/history.db").exists());
-}
-
-/// A minimal HTTP/1.0 GET over a plain socket, to keep an HTTP client out of the test deps.
-fn http_get(port: u16, path: &str) -> std::io::Result<String> {
-    use std::io::Write;
-    let mut s = std::net::TcpStream::connect(("127.0.0.1", port))?;
-    s.set_read_timeout(Some(Duration::from_secs(5)))?;
-    write!(s, "GET {path} HTTP/1.0\r\nHost: localhost\r\n\r\n")?;
-    let mut out = String::new();
-    s.read_to_string(&mut out)?;
-    Ok(out
-        .split_once("\r\n\r\n")
-        .map(|(_, b)| b.to_string())
-        .unwrap_or_default())
 }

@@ -6,8 +6,11 @@
 //!
 //! Where new tests go:
 //! - `station`: station + simulated vehicles in one process, the HTTP API, bad input.
+//! - `faults`: the station killed with SIGKILL and restarted.
 //! - `cli`: the `shoal` binary itself (`up`, configuration errors).
 //! - `proxies`: `shoal vehicle --proxy ...` against an independent vehicle implementation.
+//! - `security`: `[security]` on: signed fleet, refused intruders, revocation, start-up
+//!   errors.
 //! - `scenario`: the services end to end — missions on three vehicles, one acoustic.
 //! - `interop`: foreign DDS implementations (Cyclone DDS, RTI Connext, Fast DDS) against
 //!   the station, both directions; skipped with a reason when a peer is not installed.
@@ -15,7 +18,9 @@
 
 mod cli;
 mod common;
+mod faults;
 mod interop;
 mod proxies;
 mod scenario;
+mod security;
 mod station;

@@ -201,6 +201,59 @@ async fn the_api_explains_bad_requests_and_survives_them() {
     assert_eq!(status, StatusCode::NOT_FOUND);
     let (status, _) = call(&router, "GET", "/api/rejected?limit=abc", "").await;
     assert_eq!(status, StatusCode::BAD_REQUEST);
+
+    // The services' other inputs: each bad body is explained, nothing is registered.
+    let mut ann = crate::common::auv_announcement("auv-bad-reg");
+    ann.max_speed_mps = -1.0;
+    let (status, body) = call(
+        &router,
+        "POST",
+        "/api/vehicles",
+        &serde_json::to_string(&ann).unwrap(),
+    )
+    .await;
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
+    assert!(
+        body["error"].as_str().unwrap().contains("max_speed_mps"),
+        "{body}"
+    );
+    assert!(station.handle.vehicle("auv-bad-reg").is_none());
+    let (status, body) = call(&router, "POST", "/api/vehicles", "[1, 2]").await;
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
+    for bad_sub in [
+        r#"{"max_rate_hz": 0}"#,
+        r#"{"area": [{"latitude_deg": 1, "longitude_deg": 2}]}"#,
+        r#"{"property": 5}"#,
+        r#"{"colour": "red"}"#,
+    ] {
+        let (status, body) = call(&router, "POST", "/api/environment/subscriptions", bad_sub).await;
+        assert_eq!(status, StatusCode::BAD_REQUEST, "{bad_sub}: {body}");
+    }
+    assert!(station.handle.environment_subscriptions().is_empty());
+    let (status, body) = call(&router, "POST", "/api/abort-all", r#"{"confirm": false}"#).await;
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
+    assert!(
+        body["error"].as_str().unwrap().contains("confirm"),
+        "{body}"
+    );
+    let (status, _) = call(&router, "POST", "/api/missions", r#"{"mission_id": "m"}"#).await;
+    assert_eq!(status, StatusCode::BAD_REQUEST);
+    let empty = r#"{"mission_id": "m", "tasks": []}"#;
+    let (status, body) = call(&router, "POST", "/api/missions", empty).await;
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
+    assert!(body["error"].as_str().unwrap().contains("tasks"), "{body}");
+    let (status, _) = call(&router, "POST", "/api/missions/nope/start", "").await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+    let (status, _) = call(
+        &router,
+        "PATCH",
+        "/api/rules/builtin.low_battery",
+        r#"{"enabled": "yes"}"#,
+    )
+    .await;
+    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert!(station.handle.missions().is_empty());
+
     let (status, health) = call(&router, "GET", "/api/health", "").await;
     assert_eq!(status, StatusCode::OK);
     assert_eq!(health["status"], "ok");
@@ -837,7 +890,9 @@ async fn a_mission_resumes_after_the_station_restarts() {
     })
     .await;
     assert!(done.tasks.iter().all(|t| t.state == TaskState::Done));
-    // Every transition is in the history: sent by the station, then the vehicle's reports.
+    // Every transition is in the history: sent by the station, then the vehicle's reports
+    // (the writer commits in batches: wait for what was submitted).
+    tokio::task::block_in_place(|| h.flush_history(Duration::from_secs(10))).unwrap();
     let th = h.history().task_history("m-rs-2").unwrap();
     let states: Vec<TaskState> = th.statuses.iter().map(|s| s.state).collect();
     assert_eq!(states.first(), Some(&TaskState::Sent), "{states:?}");

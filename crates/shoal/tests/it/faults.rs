@@ -1,0 +1,148 @@
+//! Faults with the `shoal` binary: a station killed with SIGKILL under load loses no record
+//! it had committed, finds its vehicles again after a restart, and its Task Register picks
+//! up the task under way. Domain 54.
+
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use shoal_model::{Task, TaskAssignment, now_ms};
+
+use crate::common::{http_get, http_post};
+
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn station(dir: &std::path::Path, port: u16) -> Proc {
+    Proc(
+        Command::new(env!("CARGO_BIN_EXE_shoal"))
+            .args(["station", "--listen", &format!("127.0.0.1:{port}")])
+            .arg("--db")
+            .arg(dir.join("history.db"))
+            .current_dir(dir)
+            .env("SHOAL_DDS__DOMAIN_ID", "54")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    )
+}
+
+fn json(port: u16, path: &str) -> serde_json::Value {
+    http_get(port, path)
+        .ok()
+        .and_then(|b| serde_json::from_str(&b).ok())
+        .unwrap_or(serde_json::Value::Null)
+}
+
+fn alive(port: u16) -> usize {
+    json(port, "/api/fleet")
+        .as_array()
+        .map_or(0, |a| a.iter().filter(|v| v["contact"] == "alive").count())
+}
+
+fn wait_for(secs: u64, what: &str, mut check: impl FnMut() -> bool) -> Duration {
+    let start = Instant::now();
+    while start.elapsed() < Duration::from_secs(secs) {
+        if check() {
+            return start.elapsed();
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    panic!("timed out after {secs} s waiting for {what}");
+}
+
+#[test]
+fn a_station_killed_under_load_loses_no_committed_record_and_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap().port()
+    };
+    let first = station(dir.path(), port);
+    let ids = ["k-1", "k-2", "k-3"];
+    let _vehicles: Vec<Proc> = ids
+        .iter()
+        .map(|id| {
+            Proc(
+                Command::new(env!("CARGO_BIN_EXE_shoal"))
+                    .args(["vehicle", "--sim", "auv", "--id", id, "--rate", "20"])
+                    .arg("--lat")
+                    .arg("63.0")
+                    .arg("--lon")
+                    .arg("10.0")
+                    .env("SHOAL_DDS__DOMAIN_ID", "54")
+                    .stdout(Stdio::null())
+                    .stderr(Stdio::null())
+                    .spawn()
+                    .unwrap(),
+            )
+        })
+        .collect();
+    wait_for(60, "three vehicles alive", || alive(port) == 3);
+
+    // A long task under way when the station dies.
+    let task = TaskAssignment::new(
+        "t-kill",
+        "m-kill",
+        "k-1",
+        now_ms(),
+        &Task::Hold { duration_s: 3600.0 },
+    );
+    let (code, body) =
+        http_post(port, "/api/tasks", &serde_json::to_string(&task).unwrap()).unwrap();
+    assert_eq!(code, 202, "{body}");
+    wait_for(30, "the task running", || {
+        json(port, "/api/tasks/t-kill")["state"] == "running"
+    });
+
+    // Load for a while, then note what the history holds (reads see committed rows
+    // only) and kill the station at once.
+    std::thread::sleep(Duration::from_secs(3));
+    let committed: Vec<usize> = ids
+        .iter()
+        .map(|id| {
+            json(port, &format!("/api/vehicles/{id}/track?limit=10000"))
+                .as_array()
+                .map_or(0, Vec::len)
+        })
+        .collect();
+    let mut first = first;
+    first.0.kill().unwrap(); // SIGKILL
+    first.0.wait().unwrap();
+    assert!(committed.iter().all(|n| *n > 20), "{committed:?}");
+
+    let history = shoal_history::History::open(&shoal_history::HistoryConfig {
+        path: dir.path().join("history.db"),
+        ..shoal_history::HistoryConfig::default()
+    })
+    .unwrap();
+    for (id, before) in ids.iter().zip(&committed) {
+        let after = history.count_states(Some(id)).unwrap();
+        assert!(
+            after >= *before as u64,
+            "{id}: {before} rows committed before the kill, {after} after"
+        );
+    }
+    drop(history);
+
+    // Restarted on the same database: the vehicles are found again, and the task under way
+    // is back in the register, still running.
+    let _second = station(dir.path(), port);
+    let rediscovered = wait_for(60, "three vehicles alive after the restart", || {
+        alive(port) == 3
+    });
+    eprintln!("vehicles rediscovered {rediscovered:?} after the restart");
+    let t = json(port, "/api/tasks/t-kill");
+    assert_eq!(t["state"], "running", "{t}");
+    wait_for(30, "fresh state from k-1", || {
+        json(port, "/api/vehicles/k-1")["latest"]["timestamp_ms"]
+            .as_i64()
+            .is_some_and(|ts| now_ms() - ts < 5_000)
+    });
+}
