@@ -1,11 +1,11 @@
 //! Prints the semantic store benchmark.
 //!
 //! - `semantic_bench [vehicles] [updates_per_vehicle] [samples]`: fresh fleet, after a burst
-//!   of state mirrors with compaction disabled, after compaction.
-//! - `semantic_bench hour [vehicles] [seconds] [sample_every_s] [compact_after_removed_quads]`:
-//!   a simulated hour of traffic through the normal write path with automatic compaction,
-//!   the standard queries running in turn between the writes, printing their p50 and the
-//!   memory every `sample_every_s` simulated seconds.
+//!   of state mirrors, and the copy a write makes while a query snapshot is alive.
+//! - `semantic_bench hour [vehicles] [seconds] [sample_every_s]`: a simulated hour of
+//!   traffic through the normal write path, the standard queries running in turn between
+//!   the writes, printing their p50 and the memory every `sample_every_s` simulated
+//!   seconds.
 //!
 //! Run with `cargo run --release -p shoal-semantic --example semantic_bench -- ...`.
 
@@ -32,9 +32,9 @@ fn print_queries(title: &str, figures: &[QueryFigures]) {
 
 fn print_memory(title: &str, m: &MemoryFigures) {
     println!(
-        "{title}: quads {} garbage {} rss {} KiB",
+        "{title}: quads {} terms {} rss {} KiB",
         m.quads,
-        m.garbage_quads,
+        m.terms,
         m.rss_kib.map_or("?".into(), |r| r.to_string())
     );
 }
@@ -54,11 +54,12 @@ fn burst(args: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
         "update_state {:.0}/s, state mirrors {:.0}/s",
         r.update_state_per_s, r.flushes_per_s
     );
-    print_queries("after updates, before compaction", &r.after_updates);
+    print_queries("after updates", &r.after_updates);
     print_memory("after updates", &r.after_updates_memory);
-    println!("compaction: {:?}", r.compaction);
-    print_queries("after compaction", &r.after_compaction);
-    print_memory("after compaction", &r.after_compaction_memory);
+    println!(
+        "a write while a query snapshot is alive copies the model once: {:.1} ms",
+        ms(r.snapshot_copy)
+    );
     Ok(())
 }
 
@@ -70,25 +71,17 @@ fn hour(args: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
         sample_every_s: args.get(2).map_or(d.sample_every_s, |&s| s as u64),
         ..d
     };
-    let mut config = StoreConfig::default();
-    if let Some(&n) = args.get(3) {
-        config.compact_after_removed_quads = n as u64;
-    }
-    println!(
-        "{options:?}; compact_after_removed_quads {}",
-        config.compact_after_removed_quads
-    );
-    let r = bench::run_hour(options, config)?;
+    println!("{options:?}");
+    let r = bench::run_hour(options, StoreConfig::default())?;
     print_queries("fresh", &r.fresh);
     print_memory("fresh", &r.fresh_memory);
     let names: Vec<&str> = r.fresh.iter().map(|q| q.name).collect();
     println!(
-        "\n{:>6} {:>9} {:>5} {:>7} {:>8} {:>9} {:>8}  p50 ms: {}",
+        "\n{:>6} {:>9} {:>7} {:>8} {:>9} {:>8}  p50 ms: {}",
         "sim_s",
         "mirrors",
-        "comp",
         "quads",
-        "garbage",
+        "terms",
         "rss_KiB",
         "write_s",
         names
@@ -99,12 +92,11 @@ fn hour(args: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
     );
     for s in &r.series {
         println!(
-            "{:>6} {:>9} {:>5} {:>7} {:>8} {:>9} {:>8.1}  {}",
+            "{:>6} {:>9} {:>7} {:>8} {:>9} {:>8.1}  {}",
             s.sim_s,
             s.state_mirrors,
-            s.compactions,
             s.memory.quads,
-            s.memory.garbage_quads,
+            s.memory.terms,
             s.memory.rss_kib.map_or("?".into(), |r| r.to_string()),
             s.write_time.as_secs_f64(),
             s.queries
@@ -133,14 +125,10 @@ fn hour(args: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
         print_queries("\nduring the last interval, between writes", &last.queries);
         print_queries("at the end, back to back", &last.back_to_back);
     }
-    println!(
-        "events raised and added: {}; automatic compactions took {:.1} s in all",
-        r.events_raised,
-        r.compaction_time.as_secs_f64()
-    );
-    println!("final compaction: {:?}", r.final_compaction);
-    print_queries("after compaction", &r.after_compaction);
-    print_memory("after compaction", &r.after_compaction_memory);
+    println!("events raised and added: {}", r.events_raised);
+    if let Some(last) = r.series.last() {
+        print_memory("at the end", &last.memory);
+    }
     Ok(())
 }
 

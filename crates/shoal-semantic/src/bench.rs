@@ -1,8 +1,9 @@
 //! Benchmark of the standard queries at fleet scale, and the synthetic fleet it uses.
 //!
-//! [`run`] measures a fleet fresh, after a burst of state mirrors and after compaction;
-//! [`run_hour`] drives a simulated hour of fleet traffic through the normal write path
-//! (automatic compaction included) and samples query latency and memory along the way.
+//! [`run`] measures a fleet fresh and after a burst of state mirrors, and what a write
+//! pays when a query snapshot is alive; [`run_hour`] drives a simulated hour of fleet
+//! traffic through the normal write path and samples query latency and memory along the
+//! way.
 //! Both return figures and print nothing; `examples/semantic_bench.rs` prints them.
 //! [`populate_fleet`] is deterministic so the cross-check and the benchmark see the same
 //! kind of data.
@@ -14,9 +15,7 @@ use shoal_model::{
     TaskAssignment, TaskState, TaskStatus, VehicleAnnouncement, VehicleKind,
 };
 
-use crate::{
-    CompactionReport, QueryLimits, STANDARD_QUERIES, SemanticStore, StoreConfig, StoreError,
-};
+use crate::{QueryLimits, STANDARD_QUERIES, SemanticStore, StoreConfig, StoreError};
 
 /// First timestamp of the synthetic fleet: 2023-11-14T22:13:20Z.
 pub const T0_MS: i64 = 1_700_000_000_000;
@@ -288,10 +287,10 @@ pub struct QueryFigures {
 /// The memory picture at one point of the benchmark.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MemoryFigures {
-    /// Live quads in the store.
+    /// Quads in the store.
     pub quads: usize,
-    /// Removed quads the store still holds.
-    pub garbage_quads: u64,
+    /// Distinct terms the quads use.
+    pub terms: usize,
     /// Resident set size of the process in KiB (Linux only; None elsewhere).
     pub rss_kib: Option<u64>,
 }
@@ -311,16 +310,13 @@ pub struct BenchReport {
     pub update_state_per_s: f64,
     /// State mirrors written to RDF per second by `flush_dirty`.
     pub flushes_per_s: f64,
-    /// Standard queries after the updates, compaction disabled.
+    /// Standard queries after the updates.
     pub after_updates: Vec<QueryFigures>,
-    /// Memory after the updates, before compaction.
+    /// Memory after the updates.
     pub after_updates_memory: MemoryFigures,
-    /// The compaction.
-    pub compaction: CompactionReport,
-    /// Standard queries after compaction.
-    pub after_compaction: Vec<QueryFigures>,
-    /// Memory after compaction.
-    pub after_compaction_memory: MemoryFigures,
+    /// Time a write takes to copy the model because a query snapshot is alive (once per
+    /// snapshot: the station's queries take one each).
+    pub snapshot_copy: Duration,
 }
 
 /// Resident set size of this process in KiB, from `/proc/self/statm` (Linux).
@@ -334,7 +330,7 @@ fn memory(store: &SemanticStore) -> Result<MemoryFigures, StoreError> {
     let s = store.stats()?;
     Ok(MemoryFigures {
         quads: s.quads,
-        garbage_quads: s.garbage_quads,
+        terms: s.terms,
         rss_kib: rss_kib(),
     })
 }
@@ -375,14 +371,10 @@ fn figures(name: &'static str, rows: usize, times: &mut [Duration]) -> QueryFigu
     }
 }
 
-/// Builds a fleet, measures the standard queries fresh, after many flushed state updates
-/// without compaction, and after compaction.
+/// Builds a fleet, measures the standard queries fresh and after many flushed state
+/// updates, then the copy a write makes while a snapshot is alive.
 pub fn run(options: BenchOptions) -> Result<BenchReport, StoreError> {
-    let config = StoreConfig {
-        compact_after_removed_quads: u64::MAX,
-        ..StoreConfig::default()
-    };
-    let mut store = SemanticStore::new(config)?;
+    let mut store = SemanticStore::new(StoreConfig::default())?;
     let start = Instant::now();
     populate_fleet(&mut store, options.vehicles, 7)?;
     let populate = start.elapsed();
@@ -413,9 +405,15 @@ pub fn run(options: BenchOptions) -> Result<BenchReport, StoreError> {
     }
     let after_updates = measure_queries(&store, options.samples);
     let after_updates_memory = memory(&store)?;
-    let compaction = store.compact()?;
-    let after_compaction = measure_queries(&store, options.samples);
-    let after_compaction_memory = memory(&store)?;
+    let snapshot = store.snapshot();
+    let t = T0_MS + 20_000 + (options.updates_per_vehicle as i64) * 1000;
+    if let Some(id) = ids.first() {
+        store.update_state(&synthetic_state(&mut rng, id, t))?;
+    }
+    let before = store.stats()?.snapshot_copy_time;
+    store.flush_dirty(t)?;
+    let snapshot_copy = store.stats()?.snapshot_copy_time - before;
+    drop(snapshot);
     let per_s = |n: u64, d: Duration| {
         if d.is_zero() {
             0.0
@@ -432,9 +430,7 @@ pub fn run(options: BenchOptions) -> Result<BenchReport, StoreError> {
         flushes_per_s: per_s(flushes, flush_time),
         after_updates,
         after_updates_memory,
-        compaction,
-        after_compaction,
-        after_compaction_memory,
+        snapshot_copy,
     })
 }
 
@@ -448,8 +444,8 @@ pub struct HourOptions {
     /// Simulated seconds between two samples of the series.
     pub sample_every_s: u64,
     /// Standard queries run each simulated second, in turn, between the writes; the
-    /// series reports their latency over each interval, so every phase of the
-    /// compaction cycle is in it.
+    /// series reports their latency over each interval, with whatever the writes left
+    /// in the caches.
     pub queries_per_s: usize,
     /// Runs of each query for the measurements before and after the traffic.
     pub samples: usize,
@@ -476,8 +472,6 @@ pub struct HourSample {
     pub sim_s: u64,
     /// State mirrors written to RDF so far.
     pub state_mirrors: u64,
-    /// Automatic compactions so far.
-    pub compactions: u64,
     /// Memory at the sample.
     pub memory: MemoryFigures,
     /// The standard queries run during the interval that ends here, one at a time
@@ -486,7 +480,7 @@ pub struct HourSample {
     /// The standard queries run `samples` times each at the sample, back to back, as
     /// [`measure_queries`] does before and after the traffic.
     pub back_to_back: Vec<QueryFigures>,
-    /// Wall time spent writing (updates, mirrors, compactions, rules) since the previous sample.
+    /// Wall time spent writing (updates, mirrors, rules, events) since the previous sample.
     pub write_time: Duration,
 }
 
@@ -503,14 +497,6 @@ pub struct HourReport {
     pub series: Vec<HourSample>,
     /// Events the rules raised during the run, all added to the model as the station does.
     pub events_raised: u64,
-    /// Total time spent in automatic compactions.
-    pub compaction_time: Duration,
-    /// A compaction forced at the end.
-    pub final_compaction: CompactionReport,
-    /// Standard queries after that compaction.
-    pub after_compaction: Vec<QueryFigures>,
-    /// Memory after that compaction.
-    pub after_compaction_memory: MemoryFigures,
 }
 
 /// A vehicle moving and draining its battery smoothly, so rules fire at a realistic rate.
@@ -573,7 +559,7 @@ impl Motion {
 }
 
 /// Builds the fleet and drives `seconds` of traffic through the store's normal write
-/// path with automatic compaction: every vehicle reports a state each second (mirrored
+/// path: every vehicle reports a state each second (mirrored
 /// at the configured rate), one observation every 10 s, a few task reports a second,
 /// `tick` each second, and every event the rules raise is added to the model as the
 /// station does. Samples memory and the standard queries every `sample_every_s`.
@@ -668,7 +654,6 @@ pub fn run_hour(options: HourOptions, config: StoreConfig) -> Result<HourReport,
             series.push(HourSample {
                 sim_s: sec,
                 state_mirrors: st.state_flushes,
-                compactions: st.compactions,
                 memory: memory(&store)?,
                 queries,
                 back_to_back: measure_queries(&store, options.samples),
@@ -676,20 +661,12 @@ pub fn run_hour(options: HourOptions, config: StoreConfig) -> Result<HourReport,
             });
         }
     }
-    let compaction_time = store.stats()?.compaction_time;
-    let final_compaction = store.compact()?;
-    let after_compaction = measure_queries(&store, options.samples);
-    let after_compaction_memory = memory(&store)?;
     Ok(HourReport {
         options,
         fresh,
         fresh_memory,
         series,
         events_raised,
-        compaction_time,
-        final_compaction,
-        after_compaction,
-        after_compaction_memory,
     })
 }
 
@@ -706,17 +683,10 @@ mod tests {
         })
         .unwrap();
         assert_eq!(r.fresh.len(), 5);
-        assert_eq!(r.after_compaction.len(), 5);
-        assert_eq!(r.after_compaction_memory.garbage_quads, 0);
-        assert!(r.after_updates_memory.garbage_quads > 0);
-        // Compaction keeps every live quad.
-        assert_eq!(
-            r.after_compaction_memory.quads,
-            r.after_updates_memory.quads
-        );
-        for (a, b) in r.after_updates.iter().zip(&r.after_compaction) {
-            assert_eq!(a.rows, b.rows, "{}", a.name);
-        }
+        assert_eq!(r.after_updates.len(), 5);
+        // Updates replace values: the model keeps its size.
+        assert_eq!(r.after_updates_memory.quads, r.fresh_memory.quads);
+        assert!(r.snapshot_copy > Duration::ZERO);
     }
 
     #[test]
@@ -728,11 +698,7 @@ mod tests {
             queries_per_s: 1,
             samples: 2,
         };
-        let config = StoreConfig {
-            compact_after_removed_quads: 2_000,
-            ..StoreConfig::default()
-        };
-        let r = run_hour(options, config).unwrap();
+        let r = run_hour(options, StoreConfig::default()).unwrap();
         assert_eq!(
             r.series.iter().map(|s| s.sim_s).collect::<Vec<_>>(),
             [20, 40]
@@ -740,8 +706,6 @@ mod tests {
         let last = &r.series[1];
         // One mirror per vehicle per simulated second, after the fixture's own.
         assert_eq!(last.state_mirrors, 20 + 20 * 40);
-        assert!(last.compactions >= 1, "{last:?}");
-        assert!(last.memory.garbage_quads < 2_000 + 20 * 11, "{last:?}");
         // Traffic replaces values; it adds no entities, so the model stays the same size
         // (a few more events at most).
         assert!(
@@ -750,9 +714,13 @@ mod tests {
             last.memory.quads,
             r.fresh_memory.quads
         );
-        assert_eq!(r.after_compaction_memory.garbage_quads, 0);
-        for (a, b) in last.queries.iter().zip(&r.after_compaction) {
-            assert_eq!(a.rows, b.rows, "{}", a.name);
-        }
+        // Replaced values and timestamps are freed: the terms stay as few as the quads.
+        assert!(
+            last.memory.terms <= r.fresh_memory.terms + 200,
+            "{} vs {}",
+            last.memory.terms,
+            r.fresh_memory.terms
+        );
+        assert_eq!(last.back_to_back.len(), 5);
     }
 }

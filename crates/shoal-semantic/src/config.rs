@@ -27,12 +27,6 @@ pub struct StoreConfig {
     /// Least time between two RDF mirrors of one vehicle's state, ms; 0 mirrors every
     /// state (default 1000).
     pub min_state_interval_ms: i64,
-    /// Compact after this many quads were removed since the last compaction (default
-    /// 50 000). Removed quads slow the queries touching their subject until then, and a
-    /// compaction costs time proportional to the live model: a 1000-vehicle fleet
-    /// mirrored at 1 Hz removes about 9 000 quads a second, so the default compacts every
-    /// 5–6 s, about 0.5 s each.
-    pub compact_after_removed_quads: u64,
     /// Events kept in the RDF model, oldest dropped first (default 10 000; history keeps all).
     pub max_events: usize,
     /// Expected state period of a vehicle not told otherwise, ms (default 1000).
@@ -53,7 +47,6 @@ impl Default for StoreConfig {
     fn default() -> Self {
         Self {
             min_state_interval_ms: 1000,
-            compact_after_removed_quads: 50_000,
             max_events: 10_000,
             expected_state_period_ms: 1000,
             lost_contact_factor: 5.0,
@@ -116,9 +109,6 @@ impl StoreConfig {
                 ">= 0",
                 &self.min_state_interval_ms,
             ));
-        }
-        if self.compact_after_removed_quads == 0 {
-            return Err(out_of_range("compact_after_removed_quads", "> 0", &0));
         }
         if self.expected_state_period_ms <= 0 {
             return Err(out_of_range(
@@ -267,7 +257,6 @@ mod tests {
         );
         assert!(with(|c| c.min_state_interval_ms = -1).starts_with("min_state_interval_ms"));
         assert!(with(|c| c.task_deadline_ms = -5).starts_with("task_deadline_ms"));
-        assert!(with(|c| c.compact_after_removed_quads = 0).starts_with("compact_after"));
         assert!(with(|c| c.lost_contact_factor = 0.5).starts_with("lost_contact_factor"));
         assert!(with(|c| c.low_battery_pct = f64::NAN).starts_with("low_battery_pct"));
         assert_eq!(

@@ -42,9 +42,6 @@ pub enum StoreError {
         /// The parser's message.
         message: String,
     },
-    /// The RDF store failed.
-    #[error("RDF store: {0}")]
-    Storage(#[from] oxigraph::store::StorageError),
     /// A built-in rule cannot be set up from the configuration (e.g. a bad operating area).
     #[error("rule {rule_id}: {message}")]
     BuiltinRule {

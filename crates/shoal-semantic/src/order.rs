@@ -8,7 +8,7 @@
 //! `ORDER BY` on plain variables (optionally `LIMIT`/`OFFSET`), it runs the query without
 //! its solution modifiers and sorts the rows by reference.
 //!
-//! The order must be exactly SPARQL's (as Oxigraph implements it): unbound first, then
+//! The order must be exactly SPARQL's (as spareval implements it): unbound first, then
 //! blank nodes, IRIs and literals, literals by value where SPARQL compares them. Only
 //! columns whose literals are all of one kind that compares as a total order (plain or
 //! `xsd:string` strings, strings of one language, valid `xsd:double` except NaN, valid
@@ -18,7 +18,7 @@
 
 use std::cmp::Ordering;
 
-use oxigraph::model::{Term, Variable, vocab::rdf, vocab::xsd};
+use oxrdf::{Term, Variable, vocab::rdf, vocab::xsd};
 
 /// A query split into its body and the solution modifiers done here.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -281,7 +281,7 @@ enum Kind {
     Integer,
 }
 
-fn kind_of(l: &oxigraph::model::Literal) -> Option<Kind> {
+fn kind_of(l: &oxrdf::Literal) -> Option<Kind> {
     if let Some(lang) = l.language() {
         return Some(Kind::Lang(lang.to_owned()));
     }
@@ -493,19 +493,19 @@ mod tests {
 
     #[test]
     fn columns_mixing_literal_kinds_are_refused() {
-        use oxigraph::model::Literal;
+        use oxrdf::Literal;
         let v = [Variable::new_unchecked("x")];
         let keys = [(Variable::new_unchecked("x"), false)];
         let row = |t: Term| vec![Some(t)];
         let mut rows = vec![
             row(Literal::from(2.5).into()),
             row(Literal::from(-1.0).into()),
-            row(oxigraph::model::NamedNode::new_unchecked("http://x").into()),
+            row(oxrdf::NamedNode::new_unchecked("http://x").into()),
         ];
         assert!(sort(&mut rows, &v, &keys));
         assert_eq!(
             rows[0][0],
-            Some(oxigraph::model::NamedNode::new_unchecked("http://x").into())
+            Some(oxrdf::NamedNode::new_unchecked("http://x").into())
         );
         assert_eq!(rows[1][0], Some(Literal::from(-1.0).into()));
         rows.push(row(Literal::from("a").into()));

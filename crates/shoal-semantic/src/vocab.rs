@@ -4,8 +4,8 @@
 //! The namespaces sit under `example.invalid` (like the workspace's repository URL) until
 //! the project owns a persistent domain; changing them changes the IRIs in exports.
 
-use oxigraph::model::vocab::xsd;
-use oxigraph::model::{Literal, NamedNode};
+use oxrdf::vocab::xsd;
+use oxrdf::{Literal, NamedNode};
 
 /// Namespace of the Shoal ontology (classes and properties), prefix `shoal:`.
 pub const NS: &str = "https://example.invalid/shoal/ontology#";

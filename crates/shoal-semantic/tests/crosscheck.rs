@@ -8,7 +8,7 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-use oxigraph::model::Term;
+use oxrdf::Term;
 use shoal_semantic::{
     ExportFormat, ExportOptions, QueryLimits, QueryResult, STANDARD_QUERIES, SemanticStore,
     StoreConfig, bench,
