@@ -15,7 +15,10 @@
 //!   that every state value would have to maintain.
 //! - [`Dataset`] is plain data, `Clone`: the store keeps it in an `Arc`, a query snapshot
 //!   is a clone of the `Arc`, and a write while a snapshot is alive copies the dataset
-//!   once (`Arc::make_mut`), so queries never wait for writes nor see half of one.
+//!   once, so queries never wait for writes nor see half of one. The copy is shallow:
+//!   terms and index buckets are themselves behind `Arc`s, so it costs a reference-count
+//!   increment per term and per bucket, and a write then copies only the buckets it
+//!   changes (copy on write all the way down).
 
 use std::hash::{Hash, Hasher};
 use std::sync::Arc;
@@ -32,13 +35,18 @@ type Id = u32;
 /// The default graph, which has no term: never interned, never equal to an [`Id`] in use.
 const DEFAULT_GRAPH: Id = Id::MAX;
 
-/// An interned term and what it costs to keep.
-#[derive(Clone)]
-struct Slot {
+/// An interned term, shared between a dataset and its copies.
+struct Entry {
     term: Term,
     /// The evaluator's form of a typed literal, parsed once: FILTERs compare numbers and
     /// dates, and would otherwise parse the lexical form at every comparison.
     expression: Option<ExpressionTerm>,
+}
+
+/// A dictionary slot in use.
+#[derive(Clone)]
+struct Slot {
+    entry: Arc<Entry>,
     /// Quads using the term (once per position it takes in each).
     refs: u32,
 }
@@ -84,7 +92,9 @@ impl Dictionary {
         let slots = &self.slots;
         self.ids
             .find(term_hash(t), |&id| {
-                slots[id as usize].as_ref().is_some_and(|s| s.term.as_ref() == t)
+                slots[id as usize]
+                    .as_ref()
+                    .is_some_and(|s| s.entry.term.as_ref() == t)
             })
             .copied()
     }
@@ -105,8 +115,7 @@ impl Dictionary {
             _ => None,
         };
         let slot = Slot {
-            term,
-            expression,
+            entry: Arc::new(Entry { term, expression }),
             refs: 1,
         };
         let id = match self.free.pop() {
@@ -125,7 +134,7 @@ impl Dictionary {
         self.ids.insert_unique(term_hash(t), id, |&i| {
             slots[i as usize]
                 .as_ref()
-                .map_or(0, |s| term_hash(s.term.as_ref()))
+                .map_or(0, |s| term_hash(s.entry.term.as_ref()))
         });
         id
     }
@@ -139,7 +148,7 @@ impl Dictionary {
         if slot.refs > 0 {
             return;
         }
-        let hash = term_hash(slot.term.as_ref());
+        let hash = term_hash(slot.entry.term.as_ref());
         if let Ok(entry) = self.ids.find_entry(hash, |&i| i == id) {
             entry.remove();
         }
@@ -152,13 +161,20 @@ impl Dictionary {
     }
 }
 
+/// A subject's facts: (predicate, object, graph).
+type Facts = Arc<Vec<[Id; 3]>>;
+/// The holders of a (predicate, object): (subject, graph).
+type Holders = Arc<Vec<[Id; 2]>>;
+/// A predicate's objects and their holders.
+type ByObject = Arc<FxHashMap<Id, Holders>>;
+
 /// Quads as ids, indexed by subject and by predicate then object.
 #[derive(Clone, Default)]
 struct Index {
     /// Subject → (predicate, object, graph).
-    spo: FxHashMap<Id, Vec<[Id; 3]>>,
+    spo: FxHashMap<Id, Facts>,
     /// Predicate → object → (subject, graph).
-    pos: FxHashMap<Id, FxHashMap<Id, Vec<[Id; 2]>>>,
+    pos: FxHashMap<Id, ByObject>,
     /// Graph → quads in it, so listing graphs needs no scan.
     graphs: FxHashMap<Id, usize>,
     len: usize,
@@ -171,34 +187,32 @@ impl Index {
 
     /// Adds a quad known to be absent.
     fn insert_new(&mut self, [s, p, o, g]: [Id; 4]) {
-        self.spo.entry(s).or_default().push([p, o, g]);
-        self.pos
-            .entry(p)
-            .or_default()
-            .entry(o)
-            .or_default()
-            .push([s, g]);
+        Arc::make_mut(self.spo.entry(s).or_default()).push([p, o, g]);
+        let by_o = Arc::make_mut(self.pos.entry(p).or_default());
+        Arc::make_mut(by_o.entry(o).or_default()).push([s, g]);
         *self.graphs.entry(g).or_default() += 1;
         self.len += 1;
     }
 
     /// Removes a quad; false if it was not there.
     fn remove(&mut self, [s, p, o, g]: [Id; 4]) -> bool {
-        let Some(by_s) = self.spo.get_mut(&s) else {
+        let Some(facts) = self.spo.get_mut(&s) else {
             return false;
         };
-        let Some(i) = by_s.iter().position(|x| *x == [p, o, g]) else {
+        let Some(i) = facts.iter().position(|x| *x == [p, o, g]) else {
             return false;
         };
+        let by_s = Arc::make_mut(facts);
         by_s.swap_remove(i);
         if by_s.is_empty() {
             self.spo.remove(&s);
         }
         if let Some(by_o) = self.pos.get_mut(&p) {
+            let by_o = Arc::make_mut(by_o);
             if let Some(v) = by_o.get_mut(&o) {
                 // From the end: the state mirror removes values it added recently.
                 if let Some(i) = v.iter().rposition(|x| *x == [s, g]) {
-                    v.swap_remove(i);
+                    Arc::make_mut(v).swap_remove(i);
                 }
                 if v.is_empty() {
                     by_o.remove(&o);
@@ -314,7 +328,10 @@ impl Dataset {
     }
 
     fn term(&self, id: Id) -> Result<&Term, DanglingId> {
-        self.dict.slot(id).map(|s| &s.term).ok_or(DanglingId(id))
+        self.dict
+            .slot(id)
+            .map(|s| &s.entry.term)
+            .ok_or(DanglingId(id))
     }
 
     fn decode(&self, [s, p, o, g]: [Id; 4]) -> Result<Quad, DanglingId> {
@@ -407,6 +424,57 @@ fn bound(t: Option<&Encoded>) -> Result<Option<Id>, ()> {
     }
 }
 
+/// The quads matching a pattern; see [`QueryableDataset::internal_quads_for_pattern`].
+enum QuadIter<'a> {
+    Empty,
+    /// A subject's facts, filtered.
+    Subject {
+        s: Id,
+        p: Option<Id>,
+        o: Option<Id>,
+        graph: GraphFilter,
+        facts: std::slice::Iter<'a, [Id; 3]>,
+    },
+    /// The holders of a (predicate, object).
+    Holders {
+        p: Id,
+        o: Id,
+        graph: GraphFilter,
+        holders: std::slice::Iter<'a, [Id; 2]>,
+    },
+    Boxed(Box<dyn Iterator<Item = QuadResult> + 'a>),
+}
+
+impl Iterator for QuadIter<'_> {
+    type Item = QuadResult;
+
+    fn next(&mut self) -> Option<QuadResult> {
+        match self {
+            Self::Empty => None,
+            Self::Subject {
+                s,
+                p,
+                o,
+                graph,
+                facts,
+            } => facts
+                .find(|[fp, fo, fg]| {
+                    p.is_none_or(|p| p == *fp) && o.is_none_or(|o| o == *fo) && graph.accepts(*fg)
+                })
+                .map(|&[fp, fo, fg]| internal(*s, fp, fo, fg)),
+            Self::Holders {
+                p,
+                o,
+                graph,
+                holders,
+            } => holders
+                .find(|[_, g]| graph.accepts(*g))
+                .map(|&[s, g]| internal(s, *p, *o, g)),
+            Self::Boxed(b) => b.next(),
+        }
+    }
+}
+
 impl<'a> QueryableDataset<'a> for &'a Dataset {
     type InternalTerm = Encoded;
     type Error = DanglingId;
@@ -419,69 +487,69 @@ impl<'a> QueryableDataset<'a> for &'a Dataset {
         graph_name: Option<Option<&Encoded>>,
     ) -> impl Iterator<Item = QuadResult> + use<'a> {
         let data: &'a Dataset = self;
-        let empty: Box<dyn Iterator<Item = QuadResult> + 'a> = Box::new(std::iter::empty());
         let (Ok(s), Ok(p), Ok(o)) = (bound(subject), bound(predicate), bound(object)) else {
-            return empty;
+            return QuadIter::Empty;
         };
         let graph = match graph_name {
             None => GraphFilter::AnyNamed,
             Some(None) => GraphFilter::Default,
             Some(Some(Encoded::Id(g))) => GraphFilter::Named(*g),
-            Some(Some(Encoded::Other(_))) => return empty,
+            Some(Some(Encoded::Other(_))) => return QuadIter::Empty,
         };
+        // The shapes joins ask for thousands of times (subject bound; predicate and object
+        // bound) get an iterator without an allocation; the rare ones are boxed.
         if let Some(s) = s {
-            let Some(facts) = data.index.spo.get(&s) else {
-                return empty;
+            return match data.index.spo.get(&s) {
+                Some(facts) => QuadIter::Subject {
+                    s,
+                    p,
+                    o,
+                    graph,
+                    facts: facts.iter(),
+                },
+                None => QuadIter::Empty,
             };
-            return Box::new(
-                facts
-                    .iter()
-                    .filter(move |[fp, fo, fg]| {
-                        p.is_none_or(|p| p == *fp)
-                            && o.is_none_or(|o| o == *fo)
-                            && graph.accepts(*fg)
-                    })
-                    .map(move |&[p, o, g]| internal(s, p, o, g)),
-            );
         }
         if let Some(p) = p {
             let Some(by_o) = data.index.pos.get(&p) else {
-                return empty;
+                return QuadIter::Empty;
             };
             if let Some(o) = o {
-                return Box::new(
-                    by_o.get(&o)
-                        .into_iter()
-                        .flatten()
-                        .filter(move |[_, g]| graph.accepts(*g))
-                        .map(move |&[s, g]| internal(s, p, o, g)),
-                );
+                return match by_o.get(&o) {
+                    Some(holders) => QuadIter::Holders {
+                        p,
+                        o,
+                        graph,
+                        holders: holders.iter(),
+                    },
+                    None => QuadIter::Empty,
+                };
             }
-            return Box::new(by_o.iter().flat_map(move |(&o, v)| {
+            return QuadIter::Boxed(Box::new(by_o.iter().flat_map(move |(&o, v)| {
                 v.iter()
                     .filter(move |[_, g]| graph.accepts(*g))
                     .map(move |&[s, g]| internal(s, p, o, g))
-            }));
+            })));
         }
         if let Some(o) = o {
-            return Box::new(data.index.pos.iter().flat_map(move |(&p, by_o)| {
-                by_o.get(&o)
-                    .into_iter()
-                    .flatten()
-                    .filter(move |[_, g]| graph.accepts(*g))
-                    .map(move |&[s, g]| internal(s, p, o, g))
-            }));
+            return QuadIter::Boxed(Box::new(data.index.pos.iter().flat_map(
+                move |(&p, by_o)| {
+                    by_o.get(&o)
+                        .into_iter()
+                        .flat_map(|v| v.iter())
+                        .filter(move |[_, g]| graph.accepts(*g))
+                        .map(move |&[s, g]| internal(s, p, o, g))
+                },
+            )));
         }
-        Box::new(data.index.spo.iter().flat_map(move |(&s, v)| {
+        QuadIter::Boxed(Box::new(data.index.spo.iter().flat_map(move |(&s, v)| {
             v.iter()
                 .filter(move |[_, _, g]| graph.accepts(*g))
                 .map(move |&[p, o, g]| internal(s, p, o, g))
-        }))
+        })))
     }
 
-    fn internal_named_graphs(
-        &self,
-    ) -> impl Iterator<Item = Result<Encoded, DanglingId>> + use<'a> {
+    fn internal_named_graphs(&self) -> impl Iterator<Item = Result<Encoded, DanglingId>> + use<'a> {
         let data: &'a Dataset = self;
         data.index
             .graphs
@@ -515,9 +583,9 @@ impl<'a> QueryableDataset<'a> for &'a Dataset {
         match term {
             Encoded::Id(id) => {
                 let slot = self.dict.slot(id).ok_or(DanglingId(id))?;
-                Ok(match &slot.expression {
+                Ok(match &slot.entry.expression {
                     Some(e) => e.clone(),
-                    None => slot.term.clone().into(),
+                    None => slot.entry.term.clone().into(),
                 })
             }
             Encoded::Other(t) => Ok(Arc::unwrap_or_clone(t).into()),
@@ -542,7 +610,7 @@ mod tests {
     }
 
     fn quad(s: u8, p: u8, o: u8, g: u8) -> Quad {
-        let object: Term = if o % 3 == 0 {
+        let object: Term = if o.is_multiple_of(3) {
             Literal::from(f64::from(o) / 2.0).into()
         } else {
             iri(&format!("o{o}")).into()
@@ -605,7 +673,10 @@ mod tests {
         }
         all.sort_by_key(ToString::to_string);
         all.dedup();
-        let named: Vec<&Quad> = all.iter().filter(|q| !q.graph_name.is_default_graph()).collect();
+        let named: Vec<&Quad> = all
+            .iter()
+            .filter(|q| !q.graph_name.is_default_graph())
+            .collect();
         let expect = |f: &dyn Fn(&Quad) -> bool| -> HashSet<Vec<Option<Term>>> {
             named
                 .iter()
@@ -628,15 +699,24 @@ mod tests {
             expect(&|_| true)
         );
         assert_eq!(
-            select(&d, &format!("SELECT ?s ?p ?o WHERE {{ BIND({s} AS ?s) ?s ?p ?o }}")),
+            select(
+                &d,
+                &format!("SELECT ?s ?p ?o WHERE {{ BIND({s} AS ?s) ?s ?p ?o }}")
+            ),
             expect(&|q| q.subject == s.clone().into())
         );
         assert_eq!(
-            select(&d, &format!("SELECT ?s ?p ?o WHERE {{ BIND({p} AS ?p) ?s ?p ?o }}")),
+            select(
+                &d,
+                &format!("SELECT ?s ?p ?o WHERE {{ BIND({p} AS ?p) ?s ?p ?o }}")
+            ),
             expect(&|q| q.predicate == p)
         );
         assert_eq!(
-            select(&d, &format!("SELECT ?s ?p ?o WHERE {{ BIND({o} AS ?o) ?s ?p ?o }}")),
+            select(
+                &d,
+                &format!("SELECT ?s ?p ?o WHERE {{ BIND({o} AS ?o) ?s ?p ?o }}")
+            ),
             expect(&|q| q.object == o)
         );
         assert_eq!(
@@ -649,7 +729,10 @@ mod tests {
         // Named graphs only: the default graph is not part of the union.
         let graphs = select(&d, "SELECT DISTINCT ?g WHERE { GRAPH ?g { ?s ?p ?o } }");
         assert_eq!(graphs.len(), 2);
-        let in_g1 = select(&d, "SELECT ?s ?p ?o WHERE { GRAPH <http://x/g1> { ?s ?p ?o } }");
+        let in_g1 = select(
+            &d,
+            "SELECT ?s ?p ?o WHERE { GRAPH <http://x/g1> { ?s ?p ?o } }",
+        );
         assert_eq!(
             in_g1,
             expect(&|q| q.graph_name == GraphName::from(iri("g1")))

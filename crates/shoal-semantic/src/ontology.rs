@@ -5,8 +5,8 @@
 
 use std::collections::HashMap;
 
-use oxrdfio::{RdfFormat, RdfParser};
 use oxrdf::{GraphNameRef, NamedNode, NamedOrBlankNode, Quad, Term};
+use oxrdfio::{RdfFormat, RdfParser};
 
 use crate::error::StoreError;
 use crate::reasoner::TBox;

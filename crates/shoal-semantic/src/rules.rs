@@ -17,8 +17,8 @@ use std::str::FromStr;
 use std::sync::Arc;
 
 use oxrdf::NamedNode;
-use spargebra::{Query, SparqlParser};
 use shoal_model::{Event, EventKind, GeoPoint, MAX_TEXT_LEN, Severity, StateVector};
+use spargebra::{Query, SparqlParser};
 
 use crate::error::RuleError;
 use crate::vocab::{self, GEO, shoal};

@@ -33,11 +33,11 @@ use std::time::{Duration, Instant};
 
 use oxrdf::{GraphName, GraphNameRef, Literal, NamedNode, QuadRef, Triple};
 use oxrdfio::{RdfFormat, RdfSerializer};
-use spareval::{CancellationToken, QueryResults};
 use shoal_model::{
     EnvironmentObservation, Event, EventKind, GeoPoint, LinkKind, Severity, StateVector, Task,
     TaskAssignment, TaskKind, TaskState, TaskStatus, Validate, VehicleAnnouncement, VehicleKind,
 };
+use spareval::{CancellationToken, QueryResults};
 
 use crate::config::StoreConfig;
 use crate::dataset::Dataset;
@@ -2012,7 +2012,11 @@ mod tests {
         drop(snapshot);
         s.update_state(&state("v0002", T + 80_000, 11.0)).unwrap();
         s.flush_dirty(T + 80_000).unwrap();
-        assert_eq!(s.stats().unwrap().snapshot_copies, 1, "no snapshot, no copy");
+        assert_eq!(
+            s.stats().unwrap().snapshot_copies,
+            1,
+            "no snapshot, no copy"
+        );
     }
 
     #[test]
