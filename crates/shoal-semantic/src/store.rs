@@ -3,15 +3,17 @@
 //! Writes go through typed methods, never through SPARQL UPDATE. Each entity (a vehicle's
 //! registration, its latest state, a task, an event, an observation) is written as a whole:
 //! the store diffs its new facts, and the facts the reasoner derives from them, against
-//! what the entity contributed before, and applies the difference in one transaction, so
-//! a query never sees half an entity.
+//! what the entity contributed before, and applies the difference within one `&mut self`
+//! call, so a query never sees half an entity (queries borrow the store, or run on a
+//! snapshot that a write never touches).
 //!
 //! Facts are reference-counted across entities and stored once, in the first graph of
 //! ontology ([`crate::vocab::GRAPH_ONTOLOGY`]) > asserted model
 //! ([`crate::vocab::GRAPH_MODEL`]) > derived ([`crate::vocab::GRAPH_INFERRED`]) that
-//! holds them. Oxigraph's union default graph is a multiset, so a triple stored in two
-//! graphs (a vehicle typed `shoal:Vehicle` by its class and by the range of every task's
-//! `shoal:assignedTo`) would answer a query twice; the cross-check with rdflib caught it.
+//! holds them. SPARQL's union default graph (spareval's, as Oxigraph's) is a multiset, so
+//! a triple stored in two graphs (a vehicle typed `shoal:Vehicle` by its class and by the
+//! range of every task's `shoal:assignedTo`) would answer a query twice; the cross-check
+//! with rdflib caught it.
 //!
 //! State vectors are the high-rate stream: [`SemanticStore::update_state`] only validates,
 //! keeps the newest state in a typed map and runs the native rules; the RDF mirror is
@@ -403,7 +405,7 @@ impl SemanticStore {
     // ---------------------------------------------------------------------------------
 
     /// Makes `key`'s contribution exactly `asserted` (in `layer`) plus `derived`, applying
-    /// the difference in one transaction; returns the predicates whose stored triples changed.
+    /// the difference at once; returns the predicates whose stored triples changed.
     fn set_entity(
         &mut self,
         kind: EntityKind,
@@ -661,7 +663,7 @@ impl SemanticStore {
     /// bookkeeping: a vehicle's state properties are stated by nothing else (other
     /// entities use `geo:lat` and `shoal:depth` on their own subjects), so they need no
     /// reference counts, and the previous mirror, kept typed, says exactly which quads to
-    /// replace. All due vehicles go in one transaction. No inference either: the state's
+    /// replace. All due vehicles are written in this one call. No inference either: the state's
     /// only entailments are `shoal:stateProperty` copies of each value, which no query
     /// needs and which would double the churn.
     pub fn flush_dirty(&mut self, now_ms: i64) -> Result<Vec<Event>, StoreError> {
@@ -1618,7 +1620,7 @@ mod tests {
         assert_eq!(select_ids(&s, q), ["auv-2"]);
     }
 
-    /// Oxigraph's union default graph is a multiset: a vehicle typed by two graphs was
+    /// The union default graph is a multiset: a vehicle typed by two graphs was
     /// listed once per task (found by the rdflib cross-check).
     #[test]
     fn a_vehicle_with_several_tasks_is_listed_once() {
