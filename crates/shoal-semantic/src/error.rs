@@ -31,6 +31,9 @@ pub enum StoreError {
         /// Vehicle that reported.
         reporter: String,
     },
+    /// The configuration is unusable; nothing was built.
+    #[error("semantic store configuration: {0}")]
+    Config(#[from] crate::config::ConfigError),
     /// A compiled-in ontology file failed to parse (a build defect, caught by the tests).
     #[error("ontology file {file} does not parse: {message}")]
     Ontology {
@@ -39,9 +42,6 @@ pub enum StoreError {
         /// The parser's message.
         message: String,
     },
-    /// The RDF store failed.
-    #[error("RDF store: {0}")]
-    Storage(#[from] oxigraph::store::StorageError),
     /// A built-in rule cannot be set up from the configuration (e.g. a bad operating area).
     #[error("rule {rule_id}: {message}")]
     BuiltinRule {

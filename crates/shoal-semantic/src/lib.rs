@@ -1,12 +1,13 @@
 //! Shoal's semantic core: the Common Information Model of the swarm, kept live in RDF.
 //!
-//! - [`SemanticStore`]: an Oxigraph in-memory store holding the ontology (`ontology/`) and
-//!   the live model: vehicles ([`SemanticStore::upsert_vehicle`]), their latest state
+//! - [`SemanticStore`]: the ontology (`ontology/`) and the live model in an in-memory,
+//!   integer-coded quad index of our own (`dataset`, the storage layer spareval leaves
+//!   to its user): vehicles ([`SemanticStore::upsert_vehicle`]), their latest state
 //!   ([`SemanticStore::update_state`] is cheap and typed; [`SemanticStore::flush_dirty`]
 //!   mirrors it into RDF at a bounded rate per vehicle), tasks
 //!   ([`SemanticStore::upsert_task`], [`SemanticStore::task_status`]), events and
-//!   environment observations. It compacts itself because Oxigraph's memory store never
-//!   frees removed quads ([`SemanticStore::compact`]).
+//!   environment observations. Removed facts are freed at once, so the model stays the
+//!   same size and speed under continuous updates.
 //! - Semantic Reasoner ([`reasoner::TBox`]): RDFS-lite closure and capability inference
 //!   from sensors, materialised per entity into graphs of derived facts when the model
 //!   changes, never per telemetry update.
@@ -15,35 +16,42 @@
 //!   thresholds and areas, SPARQL ASK/SELECT otherwise) and in [`SemanticStore::tick`]
 //!   for time-driven ones; every firing is a [`shoal_model::Event`] handed back to the
 //!   caller to publish and store.
-//! - Semantic Query ([`SemanticStore::query`]): read-only SPARQL with [`QueryLimits`];
-//!   [`QueryResult`] serialises as SPARQL JSON/CSV/TSV/XML.
+//! - Semantic Query ([`SemanticStore::query`], [`QuerySnapshot`]): read-only SPARQL with
+//!   [`QueryLimits`], parsed by `spargebra` and evaluated by `spareval` (Oxigraph's
+//!   parser and evaluator); [`QueryResult`] serialises as SPARQL JSON/CSV/TSV/XML
+//!   (`sparesults`). A trailing `ORDER BY` on projected variables is applied to the
+//!   materialised rows, which is much cheaper than the evaluator's own sort.
 //! - Export ([`SemanticStore::export`]) as N-Quads/TriG/Turtle/N-Triples, and the five
 //!   standard queries ([`STANDARD_QUERIES`]) cross-checked against rdflib.
-//! - [`bench`]: figures for the standard queries at fleet scale.
+//! - [`bench`]: figures for the standard queries at fleet scale, fresh and through a
+//!   simulated hour of traffic, with memory.
+//! - [`StoreConfig`]: the store's tuning, deserialisable from the station's TOML, checked
+//!   by [`StoreConfig::check`].
 //!
 //! The crate is synchronous and runtime-free; the one thread it may start is the query
 //! watchdog that cancels queries at their timeout. It is not `Sync`-shared by itself: the
 //! station owns it behind its Data Access Manager (a `Mutex`/`RwLock` around it).
 
 pub mod bench;
+mod config;
+mod dataset;
 mod error;
 pub mod ontology;
+mod order;
 mod query;
 pub mod reasoner;
 mod rules;
 mod store;
 pub mod vocab;
 
+pub use config::{ConfigError, StoreConfig};
 pub use error::{QueryError, RuleError, StoreError};
 pub use query::{QueryLimits, QueryResult, QuerySnapshot, ResultFormat};
 pub use rules::{
     Comparison, Condition, MAX_RULE_ID_LEN, RuleInfo, RuleSpec, StateField, Threshold, builtin,
     outside,
 };
-pub use store::{
-    Availability, CompactionReport, ExportFormat, ExportOptions, SemanticStore, StoreConfig,
-    StoreStats,
-};
+pub use store::{Availability, ExportFormat, ExportOptions, SemanticStore, StoreStats};
 
 /// The five standard queries (name, SPARQL), from `ontology/queries/`; the cross-check
 /// runs the same files with rdflib.

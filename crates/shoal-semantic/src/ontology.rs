@@ -5,8 +5,8 @@
 
 use std::collections::HashMap;
 
-use oxigraph::io::{RdfFormat, RdfParser};
-use oxigraph::model::{GraphNameRef, NamedNode, NamedOrBlankNode, Quad, Term};
+use oxrdf::{GraphNameRef, NamedNode, NamedOrBlankNode, Quad, Term};
+use oxrdfio::{RdfFormat, RdfParser};
 
 use crate::error::StoreError;
 use crate::reasoner::TBox;

@@ -15,7 +15,7 @@
 
 use std::collections::{BTreeSet, HashMap, HashSet};
 
-use oxigraph::model::{NamedNode, NamedOrBlankNode, Quad, Term, Triple};
+use oxrdf::{NamedNode, NamedOrBlankNode, Quad, Term, Triple};
 
 use crate::vocab::{self, RDFS, SOSA, shoal};
 
@@ -327,7 +327,7 @@ mod tests {
         let asserted = vec![Triple::new(
             v.clone(),
             shoal("batteryLevel"),
-            oxigraph::model::Literal::from(50.0),
+            oxrdf::Literal::from(50.0),
         )];
         let derived = t.infer(&asserted);
         assert!(!derived.is_empty());

@@ -16,10 +16,9 @@ use std::fmt;
 use std::str::FromStr;
 use std::sync::Arc;
 
-use oxigraph::model::NamedNode;
-use oxigraph::sparql::{PreparedSparqlQuery, QueryResults, SparqlEvaluator};
-use oxigraph::store::Store;
+use oxrdf::NamedNode;
 use shoal_model::{Event, EventKind, GeoPoint, MAX_TEXT_LEN, Severity, StateVector};
+use spargebra::{Query, SparqlParser};
 
 use crate::error::RuleError;
 use crate::vocab::{self, GEO, shoal};
@@ -313,7 +312,7 @@ pub(crate) struct Compiled {
     pub(crate) id: Arc<str>,
     pub(crate) info: RuleInfo,
     /// Parsed query of a SPARQL rule (parsed once, at creation).
-    pub(crate) prepared: Option<PreparedSparqlQuery>,
+    pub(crate) prepared: Option<Query>,
     /// Expanded IRIs of the properties a SPARQL rule watches.
     pub(crate) watches: Vec<String>,
 }
@@ -346,15 +345,16 @@ pub(crate) struct Rules {
     seq: u32,
 }
 
-pub(crate) fn sparql_evaluator() -> SparqlEvaluator {
-    let mut e = SparqlEvaluator::new();
+/// A SPARQL parser that knows the default prefixes ([`vocab::PREFIXES`]).
+pub(crate) fn sparql_parser() -> SparqlParser {
+    let mut parser = SparqlParser::new();
     for (prefix, iri) in vocab::PREFIXES {
         // The prefixes are constants known to be valid IRIs.
-        if let Ok(next) = e.clone().with_prefix(prefix, iri) {
-            e = next;
+        if let Ok(next) = parser.clone().with_prefix(prefix, iri) {
+            parser = next;
         }
     }
-    e
+    parser
 }
 
 fn check_id(id: &str) -> Result<(), RuleError> {
@@ -403,7 +403,7 @@ pub(crate) fn compile(info: RuleInfo) -> Result<Compiled, RuleError> {
             return Err(RuleError::Invalid("grace must not be negative".into()));
         }
         Condition::Sparql { query, watches: w } => {
-            let q = sparql_evaluator()
+            let q = sparql_parser()
                 .parse_query(query)
                 .map_err(|e| RuleError::Parse(e.to_string()))?;
             if !(query.contains("?this") || query.contains("$this")) {
@@ -411,17 +411,10 @@ pub(crate) fn compile(info: RuleInfo) -> Result<Compiled, RuleError> {
                     "a SPARQL rule must use ?this, the entity that changed".into(),
                 ));
             }
-            // The cheapest way to learn the query form without a second parser: run it on
-            // an empty dataset once.
-            let empty = Store::new().map_err(|e| RuleError::Invalid(e.to_string()))?;
-            match q.clone().on_store(&empty).execute() {
-                Ok(QueryResults::Boolean(_) | QueryResults::Solutions(_)) => {}
-                Ok(QueryResults::Graph(_)) => {
-                    return Err(RuleError::Invalid(
-                        "a rule must be an ASK or SELECT query".into(),
-                    ));
-                }
-                Err(e) => return Err(RuleError::Invalid(e.to_string())),
+            if matches!(q, Query::Construct { .. } | Query::Describe { .. }) {
+                return Err(RuleError::Invalid(
+                    "a rule must be an ASK or SELECT query".into(),
+                ));
             }
             if w.is_empty() {
                 return Err(RuleError::Invalid(

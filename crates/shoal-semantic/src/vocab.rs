@@ -4,8 +4,8 @@
 //! The namespaces sit under `example.invalid` (like the workspace's repository URL) until
 //! the project owns a persistent domain; changing them changes the IRIs in exports.
 
-use oxigraph::model::vocab::xsd;
-use oxigraph::model::{Literal, NamedNode};
+use oxrdf::vocab::xsd;
+use oxrdf::{Literal, NamedNode};
 
 /// Namespace of the Shoal ontology (classes and properties), prefix `shoal:`.
 pub const NS: &str = "https://example.invalid/shoal/ontology#";
@@ -96,8 +96,6 @@ pub(crate) enum EntityKind {
     Ontology,
     /// A vehicle's registration (announcement) facts.
     Vehicle,
-    /// A vehicle's latest state, mirrored at a bounded rate.
-    State,
     /// A vehicle's availability.
     Availability,
     /// A task and its state.

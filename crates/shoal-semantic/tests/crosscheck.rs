@@ -1,5 +1,5 @@
-//! Cross-check: the five standard queries answered by Shoal (Oxigraph + Shoal's reasoner)
-//! and by rdflib on the same exported data must agree.
+//! Cross-check: the five standard queries answered by Shoal (spareval over Shoal's store,
+//! with Shoal's reasoner) and by rdflib on the same exported data must agree.
 //!
 //! Runs `tests/semantic/crosscheck.py` with the workspace's `.venv` Python (or
 //! `SHOAL_PYTHON`). Skipped, saying why, when that Python lacks rdflib, unless
@@ -8,7 +8,7 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-use oxigraph::model::Term;
+use oxrdf::Term;
 use shoal_semantic::{
     ExportFormat, ExportOptions, QueryLimits, QueryResult, STANDARD_QUERIES, SemanticStore,
     StoreConfig, bench,
@@ -53,7 +53,7 @@ fn cell(t: Option<&Term>) -> Option<String> {
 fn same_cell(a: &Option<String>, b: &Option<String>) -> bool {
     match (a, b) {
         (Some(a), Some(b)) => match (a.parse::<f64>(), b.parse::<f64>()) {
-            // Oxigraph writes canonical xsd:double ("1.95E1"), rdflib keeps the input lexical form.
+            // oxrdf writes canonical xsd:double ("1.95E1"), rdflib keeps the input lexical form.
             (Ok(x), Ok(y)) => x == y,
             _ => a == b,
         },
