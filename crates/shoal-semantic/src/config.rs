@@ -5,7 +5,7 @@
 //! area is a list of `{ latitude_deg, longitude_deg }` tables:
 //!
 //! ```toml
-//! [semantic]
+//! [station.semantic]
 //! min_state_interval_ms = 1000
 //! operating_area = [
 //!     { latitude_deg = 43.0, longitude_deg = 5.8 },

@@ -22,6 +22,8 @@ pub struct StationConfig {
     pub recent_events: usize,
     /// The Data Pre-Processor's plausibility checks against each vehicle's history.
     pub plausibility: PlausibilityConfig,
+    /// The semantic model: mirroring rate, built-in rule thresholds, the operating area.
+    pub semantic: shoal_semantic::StoreConfig,
     /// Seconds a task sent over IP may wait for its vehicle's acknowledgement before it
     /// expires.
     pub task_ack_timeout_s: f64,
@@ -46,6 +48,7 @@ impl Default for StationConfig {
             require_announcement: true,
             recent_events: 500,
             plausibility: PlausibilityConfig::default(),
+            semantic: shoal_semantic::StoreConfig::default(),
             task_ack_timeout_s: 60.0,
             acoustic_task_ack_timeout_s: 900.0,
             acoustic_task_retries: 2,
@@ -79,6 +82,9 @@ impl StationConfig {
         if !(0.0..=100.0).contains(&self.min_dispatch_battery_pct) {
             return Err("station.min_dispatch_battery_pct must be within [0, 100]".into());
         }
+        self.semantic
+            .check()
+            .map_err(|e| format!("station.semantic: {e}"))?;
         self.plausibility.check()
     }
 }

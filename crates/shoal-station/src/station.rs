@@ -15,7 +15,7 @@ use shoal_model::{
     EnvironmentObservation, Event, EventKind, Severity, StateVector, TaskAssignment, TaskKind,
     TaskStatus, Validate, VehicleAnnouncement, now_ms,
 };
-use shoal_semantic::{QueryLimits, QueryResult, QuerySnapshot, SemanticStore, StoreConfig};
+use shoal_semantic::{QueryLimits, QueryResult, QuerySnapshot, SemanticStore};
 use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
 
@@ -187,7 +187,7 @@ impl Station {
         for a in reader.vehicles().map_err(StationError::History)? {
             fleet.register(a);
         }
-        let mut semantic = SemanticStore::new(StoreConfig::default())
+        let mut semantic = SemanticStore::new(config.semantic.clone())
             .map_err(|e| StationError::Semantic(e.to_string()))?;
         // Contact loss is the station's own alarm (it also covers acoustic vehicles heard
         // through a CDT); the semantic rule would raise it a second time.

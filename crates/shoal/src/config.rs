@@ -299,5 +299,30 @@ mod tests {
                 .unwrap_err()
                 .to_string();
         assert!(e.contains("station.lost_after_s"), "{e}");
+        let e = from_table(
+            parse_table(
+                "[station.semantic]\noperating_area = [{ latitude_deg = 1.0, longitude_deg = 2.0 }]\n",
+            )
+            .unwrap(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("station.semantic: operating_area"), "{e}");
+        let e = from_table(parse_table("[security]\nmax_age_s = 0\n").unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("security.max_age_s"), "{e}");
+    }
+
+    #[test]
+    fn an_operating_area_in_the_file_reaches_the_semantic_model() {
+        let c = from_table(
+            parse_table(
+                "[station.semantic]\noperating_area = [\n { latitude_deg = 63.4, longitude_deg = 10.2 },\n { latitude_deg = 63.4, longitude_deg = 10.5 },\n { latitude_deg = 63.5, longitude_deg = 10.5 },\n]\n",
+            )
+            .unwrap(),
+        )
+        .unwrap();
+        assert_eq!(c.station.semantic.operating_area.len(), 3);
     }
 }
