@@ -1638,6 +1638,14 @@ async fn suite(
     domain: u16,
 ) -> Result<()> {
     let started = Instant::now();
+    // Figures on a shared machine mean little without its load: note it before and after.
+    let load = || {
+        std::fs::read_to_string("/proc/loadavg")
+            .ok()
+            .and_then(|l| l.split_whitespace().next().map(str::to_string))
+            .unwrap_or_else(|| "?".into())
+    };
+    let load_before = load();
     let mut rows = Vec::new();
 
     eprintln!("suite 1/6: bus (Shoal vs Cyclone DDS ddsperf)");
@@ -1735,12 +1743,9 @@ async fn suite(
     }
 
     eprintln!("suite 5/6: acoustic (PDU sizes, channel use)");
-    let ac = shoal_converter::bench::run(&shoal_converter::bench::BenchOptions {
-        time_scale: 0.02,
-        ..Default::default()
-    })
-    .await
-    .context("acoustic benchmark")?;
+    let ac = shoal_converter::bench::run(&shoal_converter::bench::BenchOptions::default())
+        .await
+        .context("acoustic benchmark")?;
     let key = ac
         .sizes
         .rows
@@ -1791,10 +1796,11 @@ async fn suite(
 
     let table = suite_table(&rows);
     let header = format!(
-        "# shoal bench suite — {} — {}\n\nRelease build, loopback only, {:.0} s in all. Peers measured in the same run on the same host.\n\n",
+        "# shoal bench suite — {} — {}\n\nRelease build, loopback only, {:.0} s in all, load average {load_before} before and {} after. Peers measured in the same run on the same host.\n\n",
         date(),
         machine(),
-        started.elapsed().as_secs_f64()
+        started.elapsed().as_secs_f64(),
+        load()
     );
     println!("{header}{table}");
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
