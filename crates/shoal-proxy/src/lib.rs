@@ -18,6 +18,7 @@
 
 pub mod adapter;
 pub mod imc;
+mod link;
 pub mod mavlink;
 mod proxy;
 pub mod ros2;

@@ -6,7 +6,8 @@
 //! NavSatFix, Odometry and BatteryState become valid state vectors; a `/rosout` warning
 //! becomes an event; a goto reaches the vehicle as a PoseStamped in the ENU goal frame
 //! and its progress and arrival come back as task updates; surfacing; a vehicle that goes
-//! silent is reported lost.
+//! silent is reported lost. A vehicle whose process dies is reported lost and picked up
+//! again when a new one starts (domain 52; the drive test uses 171).
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
@@ -15,7 +16,7 @@ mod common;
 use std::sync::Arc;
 use std::time::Duration;
 
-use common::{eventually, start_peer};
+use common::{eventually, restart_peer, start_peer};
 use shoal_dds::{DdsConfig, PubSub};
 use shoal_model::{EventKind, GeoPoint, Severity, Task, TaskState, Validate, now_ms};
 use shoal_proxy::ros2::mapping::EnuFrame;
@@ -82,10 +83,6 @@ async fn submit_when_matched(adapter: &mut Ros2Adapter, id: &str, task: Task) ->
     }
 }
 
-// Cyclone DDS (like every DDS) matches only endpoints of the same keyedness, and ROS 2
-// message types are unkeyed, while shoal-dds creates every topic keyed: until shoal-dds
-// can create unkeyed topics (`TopicType::KEYED`, see the `ros2` module docs), no sample
-// crosses. With that change this test passes (checked against a patched shoal-dds).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_cyclonedds_ros2_vehicle_is_driven_through_the_ros2_adapter() {
     let args: Vec<String> = ["--domain", &DOMAIN.to_string(), "--namespace", "bluerov"]
@@ -205,4 +202,77 @@ async fn a_cyclonedds_ros2_vehicle_is_driven_through_the_ros2_adapter() {
     let e = next_event(&mut adapter, EventKind::CommLost, 20).await;
     assert_eq!(e.severity, Severity::Alarm);
     assert!(adapter.state().is_none());
+}
+
+/// Everything the adapter has already queued, without waiting.
+async fn drain(adapter: &mut Ros2Adapter) -> Vec<VehicleOutput> {
+    let mut out = Vec::new();
+    while let Ok(Ok(o)) = tokio::time::timeout(Duration::ZERO, adapter.next_output()).await {
+        out.push(o);
+    }
+    out
+}
+
+fn is_comm_lost(o: &VehicleOutput, severity: Severity) -> bool {
+    matches!(o, VehicleOutput::Event(e) if e.kind == EventKind::CommLost && e.severity == severity)
+}
+
+// ROS 2 has no connection to lose: the adapter can only tell a vehicle is gone from the
+// silence of its topics (`lost_after_ms`), and that it is back from samples of a new
+// participant on the same topics.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_ros2_vehicle_that_dies_is_reported_lost_and_picked_up_when_it_returns() {
+    const DOMAIN: u16 = 52;
+    let args: Vec<String> = ["--domain", &DOMAIN.to_string(), "--namespace", "auv7"]
+        .iter()
+        .map(ToString::to_string)
+        .collect();
+    let Some(mut peer) = start_peer("ros2_vehicle_peer.py", "cyclonedds", &args) else {
+        return;
+    };
+    let dds = Arc::new(
+        PubSub::new(&DdsConfig {
+            domain_id: DOMAIN,
+            ..DdsConfig::default()
+        })
+        .unwrap(),
+    );
+    let mut adapter = Ros2Adapter::new(
+        dds,
+        Ros2Config {
+            vehicle_id: "auv7".into(),
+            namespace: "auv7".into(),
+            lost_after_ms: 3000,
+            ..Ros2Config::default()
+        },
+    )
+    .unwrap();
+    peer.expect("ready", 30).await;
+    let s = eventually(60, "a state vector", || adapter.state()).await;
+    assert_eq!(s.validate(), Ok(()));
+    assert!(adapter.is_connected());
+
+    // The vehicle dies: after lost_after_ms of silence, lost, and no stale state.
+    peer.kill().await;
+    eventually(60, "the vehicle reported lost", || {
+        (!adapter.is_connected()).then_some(())
+    })
+    .await;
+    assert!(adapter.state().is_none());
+    let before = drain(&mut adapter).await;
+    assert!(
+        before.iter().any(|o| is_comm_lost(o, Severity::Alarm)),
+        "a comm_lost alarm: {before:?}"
+    );
+
+    // A new vehicle process on the same topics: heard again, state again.
+    let mut peer = restart_peer("ros2_vehicle_peer.py", "cyclonedds", &args);
+    peer.expect("ready", 30).await;
+    let e = next_event(&mut adapter, EventKind::CommLost, 60).await;
+    assert_eq!(e.severity, Severity::Info, "{e:?}");
+    assert!(e.text.starts_with("ROS 2 topics heard again"), "{e:?}");
+    let s = eventually(30, "a state vector again", || adapter.state()).await;
+    assert_eq!(s.validate(), Ok(()));
+    assert!(adapter.is_connected());
+    peer.kill().await;
 }

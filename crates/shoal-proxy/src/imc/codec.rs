@@ -558,6 +558,140 @@ pub fn name_of(mgid: u16) -> Option<&'static str> {
     })
 }
 
+// ------------------------------------------------------------------ fields
+
+/// A type of IMC field, written and read the same way in every message: so each
+/// message's fields are listed once, in IMC.xml order, for both directions
+/// ([`imc_fields!`]), and encoding and decoding cannot drift apart.
+trait Field: Sized {
+    /// Appends the field; `what` (`Message.field`) names it in a [`EncodeError::TooLong`].
+    fn put(&self, w: &mut Writer, what: &'static str, depth: usize) -> Result<(), EncodeError>;
+    /// Reads the field.
+    fn get(r: &mut Reader<'_>, depth: usize) -> Result<Self, DecodeError>;
+}
+
+/// Numbers: their bytes in the packet's byte order.
+macro_rules! number_fields {
+    ($($t:ty),*) => {$(
+        impl Field for $t {
+            fn put(&self, w: &mut Writer, _: &'static str, _: usize) -> Result<(), EncodeError> {
+                w.bytes(self.to_le_bytes(), self.to_be_bytes());
+                Ok(())
+            }
+            fn get(r: &mut Reader<'_>, _: usize) -> Result<Self, DecodeError> {
+                let b = r.take()?;
+                Ok(match r.order {
+                    ByteOrder::Little => <$t>::from_le_bytes(b),
+                    ByteOrder::Big => <$t>::from_be_bytes(b),
+                })
+            }
+        }
+    )*};
+}
+number_fields!(u8, u16, u32, i32, f32, f64);
+
+impl Field for String {
+    fn put(&self, w: &mut Writer, what: &'static str, _: usize) -> Result<(), EncodeError> {
+        w.text(self, what)
+    }
+    fn get(r: &mut Reader<'_>, _: usize) -> Result<Self, DecodeError> {
+        r.text()
+    }
+}
+
+/// An inline message, or none.
+impl Field for Option<Box<Message>> {
+    fn put(&self, w: &mut Writer, _: &'static str, depth: usize) -> Result<(), EncodeError> {
+        w.inline(self.as_deref(), depth)
+    }
+    fn get(r: &mut Reader<'_>, depth: usize) -> Result<Self, DecodeError> {
+        r.inline(depth)
+    }
+}
+
+/// A message list.
+impl Field for Vec<Message> {
+    fn put(&self, w: &mut Writer, what: &'static str, depth: usize) -> Result<(), EncodeError> {
+        w.list(self.iter(), depth, what)
+    }
+    fn get(r: &mut Reader<'_>, depth: usize) -> Result<Self, DecodeError> {
+        r.list(depth)
+    }
+}
+
+/// A message list whose entries must all be one message (a plan's maneuvers, its
+/// transitions).
+macro_rules! typed_list_fields {
+    ($($t:ident: $variant:ident, $mgid:expr, $detail:literal;)*) => {$(
+        impl Field for Vec<$t> {
+            fn put(&self, w: &mut Writer, what: &'static str, depth: usize) -> Result<(), EncodeError> {
+                w.typed_list(self, $mgid, depth, what, |w, m, d| m.put_fields(w, d))
+            }
+            fn get(r: &mut Reader<'_>, depth: usize) -> Result<Self, DecodeError> {
+                r.typed_list(
+                    depth,
+                    |m| match m {
+                        Message::$variant(x) => Some(x),
+                        _ => None,
+                    },
+                    $detail,
+                )
+            }
+        }
+    )*};
+}
+typed_list_fields! {
+    PlanManeuver: PlanManeuver, id::PLAN_MANEUVER, "maneuvers must be PlanManeuver";
+    PlanTransition: PlanTransition, id::PLAN_TRANSITION, "transitions must be PlanTransition";
+}
+
+/// A message's payload: its fields in order.
+trait Fields: Sized {
+    fn put_fields(&self, w: &mut Writer, depth: usize) -> Result<(), EncodeError>;
+    fn get_fields(r: &mut Reader<'_>, depth: usize) -> Result<Self, DecodeError>;
+}
+
+/// Lists each message's fields once, in IMC.xml (wire) order, for both directions.
+macro_rules! imc_fields {
+    ($($t:ident { $($f:ident),* $(,)? })*) => {$(
+        impl Fields for $t {
+            fn put_fields(&self, w: &mut Writer, depth: usize) -> Result<(), EncodeError> {
+                $( Field::put(&self.$f, w, concat!(stringify!($t), ".", stringify!($f)), depth)?; )*
+                Ok(())
+            }
+            fn get_fields(r: &mut Reader<'_>, depth: usize) -> Result<Self, DecodeError> {
+                // Struct fields are evaluated in the order written: the wire order.
+                Ok(Self { $( $f: Field::get(r, depth)?, )* })
+            }
+        }
+    )*};
+}
+imc_fields! {
+    Header { timestamp, src, src_ent, dst, dst_ent }
+    Announce { sys_name, sys_type, owner, lat, lon, height, services }
+    LogBookEntry { kind, htime, context, text }
+    FuelLevel { value, confidence, opmodes }
+    EstimatedState {
+        lat, lon, height, x, y, z, phi, theta, psi, u, v, w, vx, vy, vz, p, q, r, depth, alt,
+    }
+    Goto { timeout, lat, lon, z, z_units, speed, speed_units, roll, pitch, yaw, custom }
+    StationKeeping { lat, lon, z, z_units, radius, duration, speed, speed_units, custom }
+    VehicleState {
+        op_mode, error_count, error_ents, maneuver_type, maneuver_stime, maneuver_eta,
+        control_loops, flags, last_error, last_error_time,
+    }
+    PlanSpecification {
+        plan_id, description, vnamespace, variables, start_man_id, maneuvers, transitions,
+        start_actions, end_actions,
+    }
+    PlanManeuver { maneuver_id, data, start_actions, end_actions }
+    PlanTransition { source_man, dest_man, conditions, actions }
+    PlanControl { kind, op, request_id, plan_id, flags, arg, info }
+    PlanControlState {
+        state, plan_id, plan_eta, plan_progress, man_id, man_type, man_eta, last_outcome,
+    }
+}
+
 // ------------------------------------------------------------------ encoding
 
 /// Appends values in one byte order.
@@ -573,22 +707,7 @@ impl Writer {
             ByteOrder::Big => self.out.extend_from_slice(&be),
         }
     }
-    fn u8(&mut self, v: u8) {
-        self.out.push(v);
-    }
     fn u16(&mut self, v: u16) {
-        self.bytes(v.to_le_bytes(), v.to_be_bytes());
-    }
-    fn u32(&mut self, v: u32) {
-        self.bytes(v.to_le_bytes(), v.to_be_bytes());
-    }
-    fn i32(&mut self, v: i32) {
-        self.bytes(v.to_le_bytes(), v.to_be_bytes());
-    }
-    fn f32(&mut self, v: f32) {
-        self.bytes(v.to_le_bytes(), v.to_be_bytes());
-    }
-    fn f64(&mut self, v: f64) {
         self.bytes(v.to_le_bytes(), v.to_be_bytes());
     }
     fn len16(&mut self, len: usize, what: &'static str) -> Result<(), EncodeError> {
@@ -650,143 +769,20 @@ impl Writer {
             return Err(EncodeError::TooDeep);
         }
         match m {
-            Message::Heartbeat | Message::Abort => {}
-            Message::Announce(a) => {
-                self.text(&a.sys_name, "Announce.sys_name")?;
-                self.u8(a.sys_type);
-                self.u16(a.owner);
-                self.f64(a.lat);
-                self.f64(a.lon);
-                self.f32(a.height);
-                self.text(&a.services, "Announce.services")?;
-            }
-            Message::LogBookEntry(l) => {
-                self.u8(l.kind);
-                self.f64(l.htime);
-                self.text(&l.context, "LogBookEntry.context")?;
-                self.text(&l.text, "LogBookEntry.text")?;
-            }
-            Message::FuelLevel(f) => {
-                self.f32(f.value);
-                self.f32(f.confidence);
-                self.text(&f.opmodes, "FuelLevel.opmodes")?;
-            }
-            Message::EstimatedState(e) => {
-                self.f64(e.lat);
-                self.f64(e.lon);
-                for v in [
-                    e.height, e.x, e.y, e.z, e.phi, e.theta, e.psi, e.u, e.v, e.w, e.vx, e.vy,
-                    e.vz, e.p, e.q, e.r, e.depth, e.alt,
-                ] {
-                    self.f32(v);
-                }
-            }
-            Message::Goto(g) => {
-                self.u16(g.timeout);
-                self.f64(g.lat);
-                self.f64(g.lon);
-                self.f32(g.z);
-                self.u8(g.z_units);
-                self.f32(g.speed);
-                self.u8(g.speed_units);
-                self.f64(g.roll);
-                self.f64(g.pitch);
-                self.f64(g.yaw);
-                self.text(&g.custom, "Goto.custom")?;
-            }
-            Message::StationKeeping(s) => {
-                self.f64(s.lat);
-                self.f64(s.lon);
-                self.f32(s.z);
-                self.u8(s.z_units);
-                self.f32(s.radius);
-                self.u16(s.duration);
-                self.f32(s.speed);
-                self.u8(s.speed_units);
-                self.text(&s.custom, "StationKeeping.custom")?;
-            }
-            Message::VehicleState(v) => {
-                self.u8(v.op_mode);
-                self.u8(v.error_count);
-                self.text(&v.error_ents, "VehicleState.error_ents")?;
-                self.u16(v.maneuver_type);
-                self.f64(v.maneuver_stime);
-                self.u16(v.maneuver_eta);
-                self.u32(v.control_loops);
-                self.u8(v.flags);
-                self.text(&v.last_error, "VehicleState.last_error")?;
-                self.f64(v.last_error_time);
-            }
-            Message::PlanSpecification(p) => self.plan_specification(p, depth)?,
-            Message::PlanManeuver(p) => self.plan_maneuver(p, depth)?,
-            Message::PlanTransition(t) => self.plan_transition(t, depth)?,
-            Message::PlanControl(p) => {
-                self.u8(p.kind);
-                self.u8(p.op);
-                self.u16(p.request_id);
-                self.text(&p.plan_id, "PlanControl.plan_id")?;
-                self.u16(p.flags);
-                self.inline(p.arg.as_deref(), depth)?;
-                self.text(&p.info, "PlanControl.info")?;
-            }
-            Message::PlanControlState(s) => {
-                self.u8(s.state);
-                self.text(&s.plan_id, "PlanControlState.plan_id")?;
-                self.i32(s.plan_eta);
-                self.f32(s.plan_progress);
-                self.text(&s.man_id, "PlanControlState.man_id")?;
-                self.u16(s.man_type);
-                self.i32(s.man_eta);
-                self.u8(s.last_outcome);
-            }
+            Message::Heartbeat | Message::Abort => Ok(()),
+            Message::Announce(a) => a.put_fields(self, depth),
+            Message::LogBookEntry(l) => l.put_fields(self, depth),
+            Message::FuelLevel(f) => f.put_fields(self, depth),
+            Message::EstimatedState(e) => e.put_fields(self, depth),
+            Message::Goto(g) => g.put_fields(self, depth),
+            Message::StationKeeping(s) => s.put_fields(self, depth),
+            Message::VehicleState(v) => v.put_fields(self, depth),
+            Message::PlanSpecification(p) => p.put_fields(self, depth),
+            Message::PlanManeuver(p) => p.put_fields(self, depth),
+            Message::PlanTransition(t) => t.put_fields(self, depth),
+            Message::PlanControl(p) => p.put_fields(self, depth),
+            Message::PlanControlState(s) => s.put_fields(self, depth),
         }
-        Ok(())
-    }
-
-    fn plan_specification(
-        &mut self,
-        p: &PlanSpecification,
-        depth: usize,
-    ) -> Result<(), EncodeError> {
-        self.text(&p.plan_id, "PlanSpecification.plan_id")?;
-        self.text(&p.description, "PlanSpecification.description")?;
-        self.text(&p.vnamespace, "PlanSpecification.vnamespace")?;
-        self.list(p.variables.iter(), depth, "PlanSpecification.variables")?;
-        self.text(&p.start_man_id, "PlanSpecification.start_man_id")?;
-        self.typed_list(
-            &p.maneuvers,
-            id::PLAN_MANEUVER,
-            depth,
-            "PlanSpecification.maneuvers",
-            |w, m, d| w.plan_maneuver(m, d),
-        )?;
-        self.typed_list(
-            &p.transitions,
-            id::PLAN_TRANSITION,
-            depth,
-            "PlanSpecification.transitions",
-            |w, t, d| w.plan_transition(t, d),
-        )?;
-        self.list(
-            p.start_actions.iter(),
-            depth,
-            "PlanSpecification.start_actions",
-        )?;
-        self.list(p.end_actions.iter(), depth, "PlanSpecification.end_actions")
-    }
-
-    fn plan_maneuver(&mut self, p: &PlanManeuver, depth: usize) -> Result<(), EncodeError> {
-        self.text(&p.maneuver_id, "PlanManeuver.maneuver_id")?;
-        self.inline(p.data.as_deref(), depth)?;
-        self.list(p.start_actions.iter(), depth, "PlanManeuver.start_actions")?;
-        self.list(p.end_actions.iter(), depth, "PlanManeuver.end_actions")
-    }
-
-    fn plan_transition(&mut self, t: &PlanTransition, depth: usize) -> Result<(), EncodeError> {
-        self.text(&t.source_man, "PlanTransition.source_man")?;
-        self.text(&t.dest_man, "PlanTransition.dest_man")?;
-        self.text(&t.conditions, "PlanTransition.conditions")?;
-        self.list(t.actions.iter(), depth, "PlanTransition.actions")
     }
 }
 
@@ -807,15 +803,10 @@ pub fn encode_with(packet: &Packet, order: ByteOrder) -> Result<Vec<u8>, EncodeE
         out: Vec::with_capacity(HEADER_LEN + body.out.len() + FOOTER_LEN),
         order,
     };
-    let h = &packet.header;
     w.u16(SYNC);
     w.u16(packet.message.id());
     w.u16(size);
-    w.f64(h.timestamp);
-    w.u16(h.src);
-    w.u8(h.src_ent);
-    w.u16(h.dst);
-    w.u8(h.dst_ent);
+    packet.header.put_fields(&mut w, 0)?;
     w.out.extend_from_slice(&body.out);
     let crc = crc16(&w.out);
     w.u16(crc);
@@ -849,43 +840,8 @@ impl<'a> Reader<'a> {
         self.pos = end;
         Ok(a)
     }
-    fn u8(&mut self) -> Result<u8, DecodeError> {
-        Ok(self.take::<1>()?[0])
-    }
     fn u16(&mut self) -> Result<u16, DecodeError> {
-        let b = self.take()?;
-        Ok(match self.order {
-            ByteOrder::Little => u16::from_le_bytes(b),
-            ByteOrder::Big => u16::from_be_bytes(b),
-        })
-    }
-    fn u32(&mut self) -> Result<u32, DecodeError> {
-        let b = self.take()?;
-        Ok(match self.order {
-            ByteOrder::Little => u32::from_le_bytes(b),
-            ByteOrder::Big => u32::from_be_bytes(b),
-        })
-    }
-    fn i32(&mut self) -> Result<i32, DecodeError> {
-        let b = self.take()?;
-        Ok(match self.order {
-            ByteOrder::Little => i32::from_le_bytes(b),
-            ByteOrder::Big => i32::from_be_bytes(b),
-        })
-    }
-    fn f32(&mut self) -> Result<f32, DecodeError> {
-        let b = self.take()?;
-        Ok(match self.order {
-            ByteOrder::Little => f32::from_le_bytes(b),
-            ByteOrder::Big => f32::from_be_bytes(b),
-        })
-    }
-    fn f64(&mut self) -> Result<f64, DecodeError> {
-        let b = self.take()?;
-        Ok(match self.order {
-            ByteOrder::Little => f64::from_le_bytes(b),
-            ByteOrder::Big => f64::from_be_bytes(b),
-        })
+        u16::get(self, 0)
     }
     fn text(&mut self) -> Result<String, DecodeError> {
         let n = usize::from(self.u16()?);
@@ -951,143 +907,22 @@ impl<'a> Reader<'a> {
     }
 
     fn fields(&mut self, mgid: u16, depth: usize) -> Result<Message, DecodeError> {
+        let d = depth;
         Ok(match mgid {
             id::HEARTBEAT => Message::Heartbeat,
             id::ABORT => Message::Abort,
-            id::ANNOUNCE => Message::Announce(Announce {
-                sys_name: self.text()?,
-                sys_type: self.u8()?,
-                owner: self.u16()?,
-                lat: self.f64()?,
-                lon: self.f64()?,
-                height: self.f32()?,
-                services: self.text()?,
-            }),
-            id::LOG_BOOK_ENTRY => Message::LogBookEntry(LogBookEntry {
-                kind: self.u8()?,
-                htime: self.f64()?,
-                context: self.text()?,
-                text: self.text()?,
-            }),
-            id::FUEL_LEVEL => Message::FuelLevel(FuelLevel {
-                value: self.f32()?,
-                confidence: self.f32()?,
-                opmodes: self.text()?,
-            }),
-            id::ESTIMATED_STATE => Message::EstimatedState(EstimatedState {
-                lat: self.f64()?,
-                lon: self.f64()?,
-                height: self.f32()?,
-                x: self.f32()?,
-                y: self.f32()?,
-                z: self.f32()?,
-                phi: self.f32()?,
-                theta: self.f32()?,
-                psi: self.f32()?,
-                u: self.f32()?,
-                v: self.f32()?,
-                w: self.f32()?,
-                vx: self.f32()?,
-                vy: self.f32()?,
-                vz: self.f32()?,
-                p: self.f32()?,
-                q: self.f32()?,
-                r: self.f32()?,
-                depth: self.f32()?,
-                alt: self.f32()?,
-            }),
-            id::GOTO => Message::Goto(Goto {
-                timeout: self.u16()?,
-                lat: self.f64()?,
-                lon: self.f64()?,
-                z: self.f32()?,
-                z_units: self.u8()?,
-                speed: self.f32()?,
-                speed_units: self.u8()?,
-                roll: self.f64()?,
-                pitch: self.f64()?,
-                yaw: self.f64()?,
-                custom: self.text()?,
-            }),
-            id::STATION_KEEPING => Message::StationKeeping(StationKeeping {
-                lat: self.f64()?,
-                lon: self.f64()?,
-                z: self.f32()?,
-                z_units: self.u8()?,
-                radius: self.f32()?,
-                duration: self.u16()?,
-                speed: self.f32()?,
-                speed_units: self.u8()?,
-                custom: self.text()?,
-            }),
-            id::VEHICLE_STATE => Message::VehicleState(VehicleState {
-                op_mode: self.u8()?,
-                error_count: self.u8()?,
-                error_ents: self.text()?,
-                maneuver_type: self.u16()?,
-                maneuver_stime: self.f64()?,
-                maneuver_eta: self.u16()?,
-                control_loops: self.u32()?,
-                flags: self.u8()?,
-                last_error: self.text()?,
-                last_error_time: self.f64()?,
-            }),
-            id::PLAN_SPECIFICATION => Message::PlanSpecification(PlanSpecification {
-                plan_id: self.text()?,
-                description: self.text()?,
-                vnamespace: self.text()?,
-                variables: self.list(depth)?,
-                start_man_id: self.text()?,
-                maneuvers: self.typed_list(
-                    depth,
-                    |m| match m {
-                        Message::PlanManeuver(p) => Some(p),
-                        _ => None,
-                    },
-                    "maneuvers must be PlanManeuver",
-                )?,
-                transitions: self.typed_list(
-                    depth,
-                    |m| match m {
-                        Message::PlanTransition(t) => Some(t),
-                        _ => None,
-                    },
-                    "transitions must be PlanTransition",
-                )?,
-                start_actions: self.list(depth)?,
-                end_actions: self.list(depth)?,
-            }),
-            id::PLAN_MANEUVER => Message::PlanManeuver(PlanManeuver {
-                maneuver_id: self.text()?,
-                data: self.inline(depth)?,
-                start_actions: self.list(depth)?,
-                end_actions: self.list(depth)?,
-            }),
-            id::PLAN_TRANSITION => Message::PlanTransition(PlanTransition {
-                source_man: self.text()?,
-                dest_man: self.text()?,
-                conditions: self.text()?,
-                actions: self.list(depth)?,
-            }),
-            id::PLAN_CONTROL => Message::PlanControl(PlanControl {
-                kind: self.u8()?,
-                op: self.u8()?,
-                request_id: self.u16()?,
-                plan_id: self.text()?,
-                flags: self.u16()?,
-                arg: self.inline(depth)?,
-                info: self.text()?,
-            }),
-            id::PLAN_CONTROL_STATE => Message::PlanControlState(PlanControlState {
-                state: self.u8()?,
-                plan_id: self.text()?,
-                plan_eta: self.i32()?,
-                plan_progress: self.f32()?,
-                man_id: self.text()?,
-                man_type: self.u16()?,
-                man_eta: self.i32()?,
-                last_outcome: self.u8()?,
-            }),
+            id::ANNOUNCE => Message::Announce(Fields::get_fields(self, d)?),
+            id::LOG_BOOK_ENTRY => Message::LogBookEntry(Fields::get_fields(self, d)?),
+            id::FUEL_LEVEL => Message::FuelLevel(Fields::get_fields(self, d)?),
+            id::ESTIMATED_STATE => Message::EstimatedState(Fields::get_fields(self, d)?),
+            id::GOTO => Message::Goto(Fields::get_fields(self, d)?),
+            id::STATION_KEEPING => Message::StationKeeping(Fields::get_fields(self, d)?),
+            id::VEHICLE_STATE => Message::VehicleState(Fields::get_fields(self, d)?),
+            id::PLAN_SPECIFICATION => Message::PlanSpecification(Fields::get_fields(self, d)?),
+            id::PLAN_MANEUVER => Message::PlanManeuver(Fields::get_fields(self, d)?),
+            id::PLAN_TRANSITION => Message::PlanTransition(Fields::get_fields(self, d)?),
+            id::PLAN_CONTROL => Message::PlanControl(Fields::get_fields(self, d)?),
+            id::PLAN_CONTROL_STATE => Message::PlanControlState(Fields::get_fields(self, d)?),
             other => return Err(DecodeError::UnknownMessage(other)),
         })
     }
@@ -1131,13 +966,7 @@ pub fn decode(bytes: &[u8]) -> Result<(Packet, ByteOrder, usize), DecodeError> {
     };
     let mgid = h.u16()?;
     let size = usize::from(h.u16()?);
-    let header = Header {
-        timestamp: h.f64()?,
-        src: h.u16()?,
-        src_ent: h.u8()?,
-        dst: h.u16()?,
-        dst_ent: h.u8()?,
-    };
+    let header = Header::get_fields(&mut h, 0)?;
     let total = HEADER_LEN + size + FOOTER_LEN;
     if bytes.len() < total {
         return Err(truncated(total));

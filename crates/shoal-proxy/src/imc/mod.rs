@@ -28,7 +28,7 @@ pub mod codec;
 pub mod mapping;
 
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
@@ -44,9 +44,9 @@ use tokio::time::{Instant, MissedTickBehavior};
 use tracing::{debug, info, warn};
 
 use crate::adapter::{
-    Acceptance, Refusal, TaskOrder, TaskUpdate, VehicleAdapter, VehicleEvent, VehicleOutput,
-    capability_of,
+    Acceptance, Refusal, TaskOrder, VehicleAdapter, VehicleOutput, capability_of,
 };
+use crate::link::{Liveness, Outputs, bump};
 use crate::sim::{distance, lawnmower};
 use codec::{
     ANY_ENTITY, ANY_SYSTEM, Announce, DecodeError, Header, Message, Packet, PlanControl,
@@ -55,8 +55,6 @@ use codec::{
 
 /// Largest UDP payload (IPv4).
 const MAX_DATAGRAM: usize = 65_507;
-/// Outputs buffered for the proxy before new ones are dropped (and counted).
-const OUTPUT_QUEUE: usize = 1024;
 /// `SystemType` of a CCU, as this proxy announces itself.
 const SYSTEM_CCU: u8 = 0;
 /// How often silence and unanswered requests are checked.
@@ -144,72 +142,31 @@ pub enum ImcError {
     LinkStopped(String),
 }
 
-/// What the link has seen so far; a snapshot from [`ImcAdapter::counters`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
-pub struct ImcCounters {
-    /// Datagrams received.
-    pub datagrams: u64,
-    /// Packets decoded and used.
-    pub packets: u64,
-    /// Bytes skipped looking for a synchronisation number.
-    pub garbage_bytes: u64,
-    /// Packets cut short.
-    pub truncated: u64,
-    /// Packets whose CRC did not match.
-    pub bad_crc: u64,
-    /// Well-formed packets with a message id the proxy does not use.
-    pub unknown_message: u64,
-    /// Packets whose fields did not fit their message.
-    pub malformed: u64,
-    /// Messages whose values were out of range (e.g. latitude beyond 90°).
-    pub out_of_range: u64,
-    /// Packets from other IMC systems or addressed to others.
-    pub foreign: u64,
-    /// Packets sent.
-    pub sent: u64,
-    /// Packets that could not be sent.
-    pub send_errors: u64,
-    /// Outputs dropped because the proxy was not reading them.
-    pub outputs_dropped: u64,
-}
-
-#[derive(Debug, Default)]
-struct Counters {
-    datagrams: AtomicU64,
-    packets: AtomicU64,
-    garbage_bytes: AtomicU64,
-    truncated: AtomicU64,
-    bad_crc: AtomicU64,
-    unknown_message: AtomicU64,
-    malformed: AtomicU64,
-    out_of_range: AtomicU64,
-    foreign: AtomicU64,
-    sent: AtomicU64,
-    send_errors: AtomicU64,
-    outputs_dropped: AtomicU64,
-}
-
-fn bump(c: &AtomicU64) {
-    c.fetch_add(1, Ordering::Relaxed);
-}
-
-impl Counters {
-    fn snapshot(&self) -> ImcCounters {
-        let g = |c: &AtomicU64| c.load(Ordering::Relaxed);
-        ImcCounters {
-            datagrams: g(&self.datagrams),
-            packets: g(&self.packets),
-            garbage_bytes: g(&self.garbage_bytes),
-            truncated: g(&self.truncated),
-            bad_crc: g(&self.bad_crc),
-            unknown_message: g(&self.unknown_message),
-            malformed: g(&self.malformed),
-            out_of_range: g(&self.out_of_range),
-            foreign: g(&self.foreign),
-            sent: g(&self.sent),
-            send_errors: g(&self.send_errors),
-            outputs_dropped: g(&self.outputs_dropped),
-        }
+crate::link::link_counters! {
+    /// What the link has seen so far; a snapshot from [`ImcAdapter::counters`].
+    pub struct ImcCounters {
+        /// Datagrams received.
+        datagrams,
+        /// Packets decoded and used.
+        packets,
+        /// Bytes skipped looking for a synchronisation number.
+        garbage_bytes,
+        /// Packets cut short.
+        truncated,
+        /// Packets whose CRC did not match.
+        bad_crc,
+        /// Well-formed packets with a message id the proxy does not use.
+        unknown_message,
+        /// Packets whose fields did not fit their message.
+        malformed,
+        /// Messages whose values were out of range (e.g. latitude beyond 90°).
+        out_of_range,
+        /// Packets from other IMC systems or addressed to others.
+        foreign,
+        /// Packets sent.
+        sent,
+        /// Packets that could not be sent.
+        send_errors,
     }
 }
 
@@ -282,7 +239,7 @@ impl ImcAdapter {
         let shared = Arc::new(Mutex::new(Shared::default()));
         let counters = Arc::new(Counters::default());
         let (commands, command_rx) = mpsc::unbounded_channel();
-        let (output_tx, outputs) = mpsc::channel(OUTPUT_QUEUE);
+        let (output_tx, outputs) = Outputs::channel(Arc::clone(&counters.outputs_dropped));
         let link = Link {
             config: config.clone(),
             socket,
@@ -291,8 +248,7 @@ impl ImcAdapter {
             counters: Arc::clone(&counters),
             outputs: output_tx,
             vehicle_imc_id: config.vehicle_imc_id,
-            last_heard: None,
-            lost_since: None,
+            liveness: Liveness::new(config.lost_after_ms),
             plan: None,
             abort: None,
             next_request: 1,
@@ -663,10 +619,9 @@ struct Link {
     local: SocketAddr,
     shared: Arc<Mutex<Shared>>,
     counters: Arc<Counters>,
-    outputs: mpsc::Sender<VehicleOutput>,
+    outputs: Outputs,
     vehicle_imc_id: Option<u16>,
-    last_heard: Option<Instant>,
-    lost_since: Option<Instant>,
+    liveness: Liveness,
     plan: Option<LivePlan>,
     abort: Option<LiveAbort>,
     next_request: u16,
@@ -749,28 +704,6 @@ impl Link {
                 debug!(message = name, error = %e, "IMC send failed");
             }
         }
-    }
-
-    fn output(&self, out: VehicleOutput) {
-        if self.outputs.try_send(out).is_err() {
-            bump(&self.counters.outputs_dropped);
-        }
-    }
-
-    fn task_update(&self, task_id: &str, state: TaskState, progress: f64, message: &str) {
-        self.output(VehicleOutput::Task(TaskUpdate::new(
-            task_id, state, progress, message,
-        )));
-    }
-
-    fn event(&self, severity: Severity, kind: EventKind, task_id: &str, text: String) {
-        self.output(VehicleOutput::Event(VehicleEvent {
-            timestamp_ms: now_ms(),
-            severity,
-            kind,
-            task_id: task_id.to_string(),
-            text,
-        }));
     }
 
     fn on_datagram(&mut self, mut bytes: &[u8], from: SocketAddr) {
@@ -871,21 +804,16 @@ impl Link {
     }
 
     fn heard(&mut self) {
-        self.last_heard = Some(Instant::now());
-        let was_lost = {
+        let heard = self.liveness.heard();
+        {
             let mut s = lock(&self.shared);
-            let was = s.lost;
             s.heard = true;
             s.lost = false;
-            was
-        };
-        if was_lost {
-            let silent = self
-                .lost_since
-                .take()
-                .map_or(0.0, |t| t.elapsed().as_secs_f64());
+        }
+        if let Some(silent) = heard.back_after {
+            let silent = silent.as_secs_f64();
             info!(vehicle = %self.config.vehicle_id, "IMC link restored");
-            self.event(
+            self.outputs.event(
                 Severity::Info,
                 EventKind::CommLost,
                 "",
@@ -929,14 +857,14 @@ impl Link {
             } else {
                 vs.last_error.clone()
             };
-            self.event(
+            self.outputs.event(
                 Severity::Alarm,
                 EventKind::Fault,
                 "",
                 format!("vehicle in ERROR mode: {what}"),
             );
         } else if previous == Some(op_mode::ERROR) {
-            self.event(
+            self.outputs.event(
                 Severity::Info,
                 EventKind::Fault,
                 "",
@@ -959,7 +887,7 @@ impl Link {
             plan_control::SUCCESS if !plan.confirmed => {
                 plan.confirmed = true;
                 let task = plan.task_id.clone();
-                self.task_update(
+                self.outputs.task(
                     &task,
                     TaskState::Running,
                     0.0,
@@ -973,7 +901,7 @@ impl Link {
                     } else {
                         pc.info.clone()
                     };
-                    self.task_update(
+                    self.outputs.task(
                         &plan.task_id,
                         TaskState::Failed,
                         0.0,
@@ -989,7 +917,7 @@ impl Link {
         lock(&self.shared).plan_engine = Some(pcs.state);
         let running = matches!(pcs.state, plan_state::EXECUTING | plan_state::INITIALIZING);
         if !running && let Some(abort) = self.abort.take() {
-            self.task_update(
+            self.outputs.task(
                 &abort.task_id,
                 TaskState::Done,
                 100.0,
@@ -1011,17 +939,17 @@ impl Link {
                 if moved {
                     plan.last_progress = progress;
                 }
-                let p = plan.last_progress.clamp(0.0, 100.0);
+                let p = plan.last_progress;
                 let task = plan.task_id.clone();
-                self.task_update(&task, TaskState::Running, p, "executing");
+                self.outputs.task(&task, TaskState::Running, p, "executing");
             }
         } else if running && plan.confirmed {
             // Someone else (an operator console) started another plan over ours.
             if let Some(plan) = self.plan.take() {
-                self.task_update(
+                self.outputs.task(
                     &plan.task_id,
                     TaskState::Aborted,
-                    plan.last_progress.clamp(0.0, 100.0),
+                    plan.last_progress,
                     &format!("the vehicle is executing plan {:?} instead", pcs.plan_id),
                 );
             }
@@ -1047,7 +975,7 @@ impl Link {
                     "plan stopped".into(),
                 ),
             };
-            self.task_update(&plan.task_id, state, progress.clamp(0.0, 100.0), &message);
+            self.outputs.task(&plan.task_id, state, progress, &message);
         }
     }
 
@@ -1068,19 +996,15 @@ impl Link {
         } else {
             format!("{}: {}", l.context, l.text)
         };
-        self.event(severity, kind, "", text);
+        self.outputs.event(severity, kind, "", text);
     }
 
     async fn on_command(&mut self, command: Command) {
         match command {
             Command::Plan { task_id, plan } => {
                 if let Some(old) = self.plan.take() {
-                    self.task_update(
-                        &old.task_id,
-                        TaskState::Aborted,
-                        old.last_progress.clamp(0.0, 100.0),
-                        &format!("superseded by task {task_id}"),
-                    );
+                    self.outputs
+                        .replaced(&old.task_id, old.last_progress, false, &task_id, false);
                 }
                 let request_id = self.next_request;
                 self.next_request = self.next_request.wrapping_add(1);
@@ -1115,7 +1039,7 @@ impl Link {
                             last_progress: 0.0,
                         });
                     }
-                    Err(e) => self.task_update(
+                    Err(e) => self.outputs.task(
                         &task_id,
                         TaskState::Failed,
                         0.0,
@@ -1127,22 +1051,19 @@ impl Link {
                 self.send(Message::Abort).await;
                 info!(task = %task_id, "IMC abort sent");
                 if let Some(plan) = self.plan.take() {
-                    self.task_update(
-                        &plan.task_id,
-                        TaskState::Aborted,
-                        plan.last_progress.clamp(0.0, 100.0),
-                        &format!("aborted by task {task_id}"),
-                    );
+                    self.outputs
+                        .replaced(&plan.task_id, plan.last_progress, false, &task_id, true);
                 }
                 if let Some(old) = self.abort.take() {
-                    self.task_update(
+                    self.outputs.task(
                         &old.task_id,
                         TaskState::Done,
                         100.0,
                         &format!("superseded by abort {task_id}"),
                     );
                 }
-                self.task_update(&task_id, TaskState::Running, 0.0, "Abort sent");
+                self.outputs
+                    .task(&task_id, TaskState::Running, 0.0, "Abort sent");
                 self.abort = Some(LiveAbort {
                     task_id,
                     sent_at: Instant::now(),
@@ -1153,15 +1074,11 @@ impl Link {
     }
 
     async fn on_watch(&mut self) {
-        let lost_after = Duration::from_millis(self.config.lost_after_ms);
-        if let Some(t) = self.last_heard
-            && t.elapsed() > lost_after
-            && self.lost_since.is_none()
-        {
-            self.lost_since = Some(t);
+        if self.liveness.check() {
+            let lost_after = self.liveness.lost_after();
             lock(&self.shared).lost = true;
             warn!(vehicle = %self.config.vehicle_id, "IMC link lost");
-            self.event(
+            self.outputs.event(
                 Severity::Alarm,
                 EventKind::CommLost,
                 "",
@@ -1183,7 +1100,7 @@ impl Link {
                 plan.sent_at = Instant::now();
                 resend = Some(plan.packet.clone());
             } else if let Some(plan) = self.plan.take() {
-                self.task_update(
+                self.outputs.task(
                     &plan.task_id,
                     TaskState::Failed,
                     0.0,
@@ -1203,7 +1120,7 @@ impl Link {
                 abort.sent_at = Instant::now();
                 resend_abort = true;
             } else if let Some(abort) = self.abort.take() {
-                self.task_update(
+                self.outputs.task(
                     &abort.task_id,
                     TaskState::Failed,
                     0.0,

@@ -11,6 +11,7 @@ use super::codec::{
     VehicleState, plan_control, plan_state,
 };
 use super::*;
+use crate::adapter::TaskUpdate;
 
 const VEHICLE: u16 = 0x0017;
 

@@ -36,7 +36,7 @@ pub mod mapping;
 
 use std::collections::VecDeque;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
@@ -58,15 +58,13 @@ use tokio::time::{Instant, MissedTickBehavior};
 use tracing::{debug, info, warn};
 
 use crate::adapter::{
-    Acceptance, Refusal, TaskOrder, TaskUpdate, VehicleAdapter, VehicleEvent, VehicleOutput,
-    capability_of,
+    Acceptance, Refusal, TaskOrder, VehicleAdapter, VehicleOutput, capability_of,
 };
+use crate::link::{Liveness, Outputs, bump};
 use crate::sim::{distance, lawnmower};
 use frame::Frame;
 use mapping::sub_mode;
 
-/// Outputs buffered for the proxy before new ones are dropped (and counted).
-const OUTPUT_QUEUE: usize = 1024;
 /// How often silence, timeouts and task goals are checked.
 const WATCH_EVERY: Duration = Duration::from_millis(200);
 /// Least progress change worth a report, percent.
@@ -191,76 +189,33 @@ pub enum MavlinkError {
     LinkStopped(String),
 }
 
-/// What the link has seen so far; a snapshot from [`MavlinkAdapter::counters`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
-pub struct MavlinkCounters {
-    /// Datagrams received.
-    pub datagrams: u64,
-    /// Frames decoded and used.
-    pub frames: u64,
-    /// Of those, MAVLink 1 frames.
-    pub v1_frames: u64,
-    /// Bytes that were not MAVLink.
-    pub garbage_bytes: u64,
-    /// Frames cut short.
-    pub truncated: u64,
-    /// Frames whose CRC did not match.
-    pub bad_crc: u64,
-    /// Frames with a message id outside the ardupilotmega dialect.
-    pub unknown_message: u64,
-    /// Frames whose payload did not parse, or with unknown incompatibility flags.
-    pub malformed: u64,
-    /// Messages whose values were out of range (e.g. latitude beyond 90°).
-    pub out_of_range: u64,
-    /// Frames from other systems.
-    pub foreign: u64,
-    /// Frames sent.
-    pub sent: u64,
-    /// Frames that could not be sent.
-    pub send_errors: u64,
-    /// Outputs dropped because the proxy was not reading them.
-    pub outputs_dropped: u64,
-}
-
-#[derive(Debug, Default)]
-struct Counters {
-    datagrams: AtomicU64,
-    frames: AtomicU64,
-    v1_frames: AtomicU64,
-    garbage_bytes: AtomicU64,
-    truncated: AtomicU64,
-    bad_crc: AtomicU64,
-    unknown_message: AtomicU64,
-    malformed: AtomicU64,
-    out_of_range: AtomicU64,
-    foreign: AtomicU64,
-    sent: AtomicU64,
-    send_errors: AtomicU64,
-    outputs_dropped: AtomicU64,
-}
-
-fn bump(c: &AtomicU64) {
-    c.fetch_add(1, Ordering::Relaxed);
-}
-
-impl Counters {
-    fn snapshot(&self) -> MavlinkCounters {
-        let g = |c: &AtomicU64| c.load(Ordering::Relaxed);
-        MavlinkCounters {
-            datagrams: g(&self.datagrams),
-            frames: g(&self.frames),
-            v1_frames: g(&self.v1_frames),
-            garbage_bytes: g(&self.garbage_bytes),
-            truncated: g(&self.truncated),
-            bad_crc: g(&self.bad_crc),
-            unknown_message: g(&self.unknown_message),
-            malformed: g(&self.malformed),
-            out_of_range: g(&self.out_of_range),
-            foreign: g(&self.foreign),
-            sent: g(&self.sent),
-            send_errors: g(&self.send_errors),
-            outputs_dropped: g(&self.outputs_dropped),
-        }
+crate::link::link_counters! {
+    /// What the link has seen so far; a snapshot from [`MavlinkAdapter::counters`].
+    pub struct MavlinkCounters {
+        /// Datagrams received.
+        datagrams,
+        /// Frames decoded and used.
+        frames,
+        /// Of those, MAVLink 1 frames.
+        v1_frames,
+        /// Bytes that were not MAVLink.
+        garbage_bytes,
+        /// Frames cut short.
+        truncated,
+        /// Frames whose CRC did not match.
+        bad_crc,
+        /// Frames with a message id outside the ardupilotmega dialect.
+        unknown_message,
+        /// Frames whose payload did not parse, or with unknown incompatibility flags.
+        malformed,
+        /// Messages whose values were out of range (e.g. latitude beyond 90°).
+        out_of_range,
+        /// Frames from other systems.
+        foreign,
+        /// Frames sent.
+        sent,
+        /// Frames that could not be sent.
+        send_errors,
     }
 }
 
@@ -442,7 +397,7 @@ impl MavlinkAdapter {
         let shared = Arc::new(Mutex::new(Shared::default()));
         let counters = Arc::new(Counters::default());
         let (commands, command_rx) = mpsc::unbounded_channel();
-        let (output_tx, outputs) = mpsc::channel(OUTPUT_QUEUE);
+        let (output_tx, outputs) = Outputs::channel(Arc::clone(&counters.outputs_dropped));
         let link = Link {
             vehicle: config.vehicle_system_id.map(|s| (s, AUTOPILOT_COMPONENT)),
             config: config.clone(),
@@ -453,8 +408,7 @@ impl MavlinkAdapter {
             counters: Arc::clone(&counters),
             outputs: output_tx,
             sequence: 0,
-            last_heard: None,
-            lost_since: None,
+            liveness: Liveness::new(config.lost_after_ms),
             job: None,
         };
         let link = tokio::spawn(link.run(command_rx));
@@ -843,12 +797,11 @@ struct Link {
     fixed_remote: bool,
     shared: Arc<Mutex<Shared>>,
     counters: Arc<Counters>,
-    outputs: mpsc::Sender<VehicleOutput>,
+    outputs: Outputs,
     /// The vehicle's system and component ids, once known.
     vehicle: Option<(u8, u8)>,
     sequence: u8,
-    last_heard: Option<Instant>,
-    lost_since: Option<Instant>,
+    liveness: Liveness,
     job: Option<Job>,
 }
 
@@ -930,31 +883,6 @@ impl Link {
 
     fn target(&self) -> (u8, u8) {
         self.vehicle.unwrap_or((1, AUTOPILOT_COMPONENT))
-    }
-
-    fn output(&self, out: VehicleOutput) {
-        if self.outputs.try_send(out).is_err() {
-            bump(&self.counters.outputs_dropped);
-        }
-    }
-
-    fn task_update(&self, task_id: &str, state: TaskState, progress: f64, message: &str) {
-        self.output(VehicleOutput::Task(TaskUpdate::new(
-            task_id,
-            state,
-            progress.clamp(0.0, 100.0),
-            message,
-        )));
-    }
-
-    fn event(&self, severity: Severity, kind: EventKind, task_id: &str, text: String) {
-        self.output(VehicleOutput::Event(VehicleEvent {
-            timestamp_ms: now_ms(),
-            severity,
-            kind,
-            task_id: task_id.to_string(),
-            text,
-        }));
     }
 
     async fn on_datagram(&mut self, mut bytes: &[u8], from: SocketAddr) {
@@ -1099,7 +1027,7 @@ impl Link {
                         } else {
                             String::new()
                         };
-                        self.event(severity, kind, &task, text);
+                        self.outputs.event(severity, kind, &task, text);
                     }
                 }
             }
@@ -1130,25 +1058,19 @@ impl Link {
     }
 
     async fn heard(&mut self) {
-        let first = self.last_heard.is_none();
-        self.last_heard = Some(Instant::now());
-        let was_lost = {
+        let heard = self.liveness.heard();
+        {
             let mut s = lock(&self.shared);
-            let was = s.lost;
             s.heard = true;
             s.lost = false;
-            was
-        };
-        if first || was_lost {
+        }
+        if heard.first || heard.back_after.is_some() {
             self.request_streams().await;
         }
-        if was_lost {
-            let silent = self
-                .lost_since
-                .take()
-                .map_or(0.0, |t| t.elapsed().as_secs_f64());
+        if let Some(silent) = heard.back_after {
+            let silent = silent.as_secs_f64();
             info!(vehicle = %self.config.vehicle_id, "MAVLink link restored");
-            self.event(
+            self.outputs.event(
                 Severity::Info,
                 EventKind::CommLost,
                 "",
@@ -1192,7 +1114,7 @@ impl Link {
         };
         let before = lock(&self.shared).heartbeat.replace(now);
         let Some(before) = before else {
-            self.event(
+            self.outputs.event(
                 Severity::Info,
                 EventKind::Other,
                 "",
@@ -1211,10 +1133,11 @@ impl Link {
             } else {
                 "vehicle disarmed"
             };
-            self.event(Severity::Info, EventKind::Other, "", text.into());
+            self.outputs
+                .event(Severity::Info, EventKind::Other, "", text.into());
         }
         if before.mode != now.mode {
-            self.event(
+            self.outputs.event(
                 Severity::Info,
                 EventKind::Other,
                 "",
@@ -1227,13 +1150,13 @@ impl Link {
         }
         if before.status != now.status {
             match now.status {
-                MavState::MAV_STATE_CRITICAL => self.event(
+                MavState::MAV_STATE_CRITICAL => self.outputs.event(
                     Severity::Alarm,
                     EventKind::Fault,
                     "",
                     "the vehicle reports a CRITICAL state (failsafe)".into(),
                 ),
-                MavState::MAV_STATE_EMERGENCY => self.event(
+                MavState::MAV_STATE_EMERGENCY => self.outputs.event(
                     Severity::Critical,
                     EventKind::Fault,
                     "",
@@ -1261,7 +1184,7 @@ impl Link {
                 && !hb.armed
                 && let Some(job) = self.job.take()
             {
-                self.task_update(
+                self.outputs.task(
                     &job.task_id,
                     TaskState::Aborted,
                     job.last_progress,
@@ -1275,7 +1198,7 @@ impl Link {
             return;
         }
         if let Some(job) = self.job.take() {
-            self.task_update(
+            self.outputs.task(
                 &job.task_id,
                 TaskState::Aborted,
                 job.last_progress,
@@ -1293,21 +1216,13 @@ impl Link {
         if let Some(old) = self.job.take() {
             let held_until_next =
                 matches!(old.goal, Goal::Hold { duration: None }) && old.running_since.is_some();
-            if held_until_next && !abort {
-                self.task_update(
-                    &old.task_id,
-                    TaskState::Done,
-                    100.0,
-                    "held until the next task",
-                );
-            } else {
-                let why = if abort {
-                    format!("aborted by task {}", job.task_id)
-                } else {
-                    format!("superseded by task {}", job.task_id)
-                };
-                self.task_update(&old.task_id, TaskState::Aborted, old.last_progress, &why);
-            }
+            self.outputs.replaced(
+                &old.task_id,
+                old.last_progress,
+                held_until_next,
+                &job.task_id,
+                abort,
+            );
         }
         info!(task = %job.task_id, steps = job.steps.len(), "MAVLink task started");
         self.job = Some(job);
@@ -1327,7 +1242,7 @@ impl Link {
             let Some(step) = job.steps.pop_front() else {
                 job.running_since = Some(Instant::now());
                 let (task, note) = (job.task_id.clone(), job.note.clone());
-                self.task_update(&task, TaskState::Running, 0.0, &note);
+                self.outputs.task(&task, TaskState::Running, 0.0, &note);
                 let hb = lock(&self.shared).heartbeat;
                 if let Some(hb) = hb {
                     self.check_mode(hb);
@@ -1411,7 +1326,8 @@ impl Link {
     fn fail(&mut self, why: &str) {
         if let Some(job) = self.job.take() {
             warn!(task = %job.task_id, why, "MAVLink task failed");
-            self.task_update(&job.task_id, TaskState::Failed, job.last_progress, why);
+            self.outputs
+                .task(&job.task_id, TaskState::Failed, job.last_progress, why);
         }
     }
 
@@ -1525,7 +1441,8 @@ impl Link {
         };
         if reached && seq >= last_seq {
             if let Some(job) = self.job.take() {
-                self.task_update(&job.task_id, TaskState::Done, 100.0, "mission complete");
+                self.outputs
+                    .task(&job.task_id, TaskState::Done, 100.0, "mission complete");
             }
             return;
         }
@@ -1535,7 +1452,7 @@ impl Link {
         if (progress - job.last_progress).abs() >= PROGRESS_STEP {
             job.last_progress = progress;
             let task = job.task_id.clone();
-            self.task_update(
+            self.outputs.task(
                 &task,
                 TaskState::Running,
                 progress,
@@ -1611,22 +1528,19 @@ impl Link {
                     Goal::Surface => "at the surface",
                     _ => "held for the duration",
                 };
-                self.task_update(&job.task_id, TaskState::Done, 100.0, message);
+                self.outputs
+                    .task(&job.task_id, TaskState::Done, 100.0, message);
             }
         } else if (progress - job.last_progress).abs() >= PROGRESS_STEP {
             job.last_progress = progress.clamp(0.0, 100.0);
             let (task, p) = (job.task_id.clone(), job.last_progress);
-            self.task_update(&task, TaskState::Running, p, "under way");
+            self.outputs.task(&task, TaskState::Running, p, "under way");
         }
     }
 
     async fn on_watch(&mut self) {
-        let lost_after = Duration::from_millis(self.config.lost_after_ms);
-        if let Some(t) = self.last_heard
-            && t.elapsed() > lost_after
-            && self.lost_since.is_none()
-        {
-            self.lost_since = Some(t);
+        if self.liveness.check() {
+            let lost_after = self.liveness.lost_after();
             lock(&self.shared).lost = true;
             warn!(vehicle = %self.config.vehicle_id, "MAVLink link lost");
             let task = self
@@ -1634,7 +1548,7 @@ impl Link {
                 .as_ref()
                 .map(|j| j.task_id.clone())
                 .unwrap_or_default();
-            self.event(
+            self.outputs.event(
                 Severity::Alarm,
                 EventKind::CommLost,
                 &task,
@@ -1647,7 +1561,7 @@ impl Link {
         self.check_goal().await;
         let timeout = Duration::from_millis(self.config.command_timeout_ms);
         let attempts = self.config.attempts;
-        let lost = self.lost_since.is_some();
+        let lost = self.liveness.is_lost();
         let Some(job) = self.job.as_mut() else {
             return;
         };

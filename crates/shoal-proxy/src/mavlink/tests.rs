@@ -16,6 +16,7 @@ use shoal_model::{GeoPoint, Task, TaskState};
 use tokio::net::UdpSocket;
 
 use super::*;
+use crate::adapter::{TaskUpdate, VehicleEvent};
 
 struct FakeVehicle {
     socket: UdpSocket,

@@ -24,11 +24,14 @@
 //!
 //! **Keyedness.** ROS 2 message types have no key, and DDS implementations match a writer
 //! and a reader only if both are keyed or both unkeyed (Cyclone DDS, rmw_cyclonedds'
-//! middleware, ignores a mismatched endpoint without a word). `shoal_dds` creates every
-//! topic keyed today, so a real ROS 2 graph and this adapter discover each other but
-//! exchange nothing until `shoal_dds::TopicType` can declare a type unkeyed (and the
-//! types of [`msgs`] do). Against another Shoal participant (both sides keyed) it works
-//! as is.
+//! middleware, ignores a mismatched endpoint without a word), so the types of [`msgs`]
+//! declare themselves unkeyed (`TopicType::KEYED`) while Shoal's own topics stay keyed.
+//!
+//! **Loss.** ROS 2 topics have no connection to lose: the vehicle counts as lost when none
+//! of its topics (fix, odometry, battery) has delivered a sample for
+//! [`Ros2Config::lost_after_ms`] (a `comm_lost` alarm, and no state vector until it is
+//! heard again), and as back with the first sample after that, from whichever participant
+//! (a restarted vehicle process is a new one).
 //!
 //! Tasks become goals: `goto_waypoint` one, `survey_area` one per lawnmower point (the
 //! next published when the vehicle reaches the last), `hold` one at the current position
@@ -41,7 +44,6 @@
 pub mod mapping;
 pub mod msgs;
 
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
@@ -60,9 +62,9 @@ use tokio::time::{Instant, MissedTickBehavior};
 use tracing::{debug, info, warn};
 
 use crate::adapter::{
-    Acceptance, Refusal, TaskOrder, TaskUpdate, VehicleAdapter, VehicleEvent, VehicleOutput,
-    capability_of,
+    Acceptance, Refusal, TaskOrder, VehicleAdapter, VehicleOutput, capability_of,
 };
+use crate::link::{Liveness, Outputs, bump};
 use crate::sim::{distance, distance_bearing, lawnmower};
 use mapping::EnuFrame;
 use msgs::{
@@ -70,8 +72,6 @@ use msgs::{
     log_level,
 };
 
-/// Outputs buffered for the proxy before new ones are dropped (and counted).
-const OUTPUT_QUEUE: usize = 1024;
 /// How often silence and goals are checked.
 const WATCH_EVERY: Duration = Duration::from_millis(200);
 /// Least progress change worth a report, percent.
@@ -176,56 +176,23 @@ pub enum Ros2Error {
     LinkStopped(String),
 }
 
-/// What the link has seen so far; a snapshot from [`Ros2Adapter::counters`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
-pub struct Ros2Counters {
-    /// Samples received and used.
-    pub samples: u64,
-    /// Samples that did not decode as their ROS type.
-    pub malformed: u64,
-    /// Samples that failed their wire checks (e.g. oversized strings).
-    pub invalid: u64,
-    /// Fixes without a fix (`status` -1).
-    pub no_fix: u64,
-    /// Values out of range (NaN position, battery fraction above 1, ...).
-    pub out_of_range: u64,
-    /// Goals published.
-    pub goals_sent: u64,
-    /// Goals that could not be published.
-    pub goal_errors: u64,
-    /// Outputs dropped because the proxy was not reading them.
-    pub outputs_dropped: u64,
-}
-
-#[derive(Debug, Default)]
-struct Counters {
-    samples: AtomicU64,
-    malformed: AtomicU64,
-    invalid: AtomicU64,
-    no_fix: AtomicU64,
-    out_of_range: AtomicU64,
-    goals_sent: AtomicU64,
-    goal_errors: AtomicU64,
-    outputs_dropped: AtomicU64,
-}
-
-fn bump(c: &AtomicU64) {
-    c.fetch_add(1, Ordering::Relaxed);
-}
-
-impl Counters {
-    fn snapshot(&self) -> Ros2Counters {
-        let g = |c: &AtomicU64| c.load(Ordering::Relaxed);
-        Ros2Counters {
-            samples: g(&self.samples),
-            malformed: g(&self.malformed),
-            invalid: g(&self.invalid),
-            no_fix: g(&self.no_fix),
-            out_of_range: g(&self.out_of_range),
-            goals_sent: g(&self.goals_sent),
-            goal_errors: g(&self.goal_errors),
-            outputs_dropped: g(&self.outputs_dropped),
-        }
+crate::link::link_counters! {
+    /// What the link has seen so far; a snapshot from [`Ros2Adapter::counters`].
+    pub struct Ros2Counters {
+        /// Samples received and used.
+        samples,
+        /// Samples that did not decode as their ROS type.
+        malformed,
+        /// Samples that failed their wire checks (e.g. oversized strings).
+        invalid,
+        /// Fixes without a fix (`status` -1).
+        no_fix,
+        /// Values out of range (NaN position, battery fraction above 1, ...).
+        out_of_range,
+        /// Goals published.
+        goals_sent,
+        /// Goals that could not be published.
+        goal_errors,
     }
 }
 
@@ -433,7 +400,7 @@ impl Ros2Adapter {
         }));
         let counters = Arc::new(Counters::default());
         let (commands, command_rx) = mpsc::unbounded_channel();
-        let (output_tx, outputs) = mpsc::channel(OUTPUT_QUEUE);
+        let (output_tx, outputs) = Outputs::channel(Arc::clone(&counters.outputs_dropped));
         let link = Link {
             logger_prefix: format!("{}.", config.namespace.trim_matches('/').replace('/', ".")),
             config: config.clone(),
@@ -441,8 +408,7 @@ impl Ros2Adapter {
             counters: Arc::clone(&counters),
             goals: Arc::clone(&goals),
             outputs: output_tx,
-            last_heard: None,
-            lost_since: None,
+            liveness: Liveness::new(config.lost_after_ms),
             job: None,
         };
         let link = runtime.spawn(link.run(topics, command_rx));
@@ -605,10 +571,9 @@ struct Link {
     shared: Arc<Mutex<Shared>>,
     counters: Arc<Counters>,
     goals: Arc<Writer<PoseStamped>>,
-    outputs: mpsc::Sender<VehicleOutput>,
+    outputs: Outputs,
     logger_prefix: String,
-    last_heard: Option<Instant>,
-    lost_since: Option<Instant>,
+    liveness: Liveness,
     job: Option<Job>,
 }
 
@@ -666,49 +631,20 @@ impl Link {
         }
     }
 
-    fn output(&self, out: VehicleOutput) {
-        if self.outputs.try_send(out).is_err() {
-            bump(&self.counters.outputs_dropped);
-        }
-    }
-
-    fn task_update(&self, task_id: &str, state: TaskState, progress: f64, message: &str) {
-        self.output(VehicleOutput::Task(TaskUpdate::new(
-            task_id,
-            state,
-            progress.clamp(0.0, 100.0),
-            message,
-        )));
-    }
-
-    fn event(&self, severity: Severity, kind: EventKind, text: String) {
-        self.output(VehicleOutput::Event(VehicleEvent {
-            timestamp_ms: now_ms(),
-            severity,
-            kind,
-            task_id: String::new(),
-            text,
-        }));
-    }
-
     fn heard(&mut self) {
-        self.last_heard = Some(Instant::now());
-        let was_lost = {
+        let heard = self.liveness.heard();
+        {
             let mut s = lock(&self.shared);
-            let was = s.lost;
             s.heard = true;
             s.lost = false;
-            was
-        };
-        if was_lost {
-            let silent = self
-                .lost_since
-                .take()
-                .map_or(0.0, |t| t.elapsed().as_secs_f64());
+        }
+        if let Some(silent) = heard.back_after {
+            let silent = silent.as_secs_f64();
             info!(vehicle = %self.config.vehicle_id, "ROS 2 topics heard again");
-            self.event(
+            self.outputs.event(
                 Severity::Info,
                 EventKind::CommLost,
+                "",
                 format!("ROS 2 topics heard again after {silent:.1} s of silence"),
             );
         }
@@ -787,34 +723,27 @@ impl Link {
             l if l >= log_level::ERROR => (Severity::Alarm, EventKind::Fault),
             _ => (Severity::Warning, EventKind::Other),
         };
-        self.event(severity, kind, format!("{}: {}", log.name, log.msg));
+        self.outputs
+            .event(severity, kind, "", format!("{}: {}", log.name, log.msg));
     }
 
     async fn on_command(&mut self, command: Command) {
         let Command { job, abort } = command;
         if let Some(old) = self.job.take() {
             let held_until_next = matches!(old.hold, Some(None)) && old.held_since.is_some();
-            if held_until_next && !abort {
-                self.task_update(
-                    &old.task_id,
-                    TaskState::Done,
-                    100.0,
-                    "held until the next task",
-                );
-            } else {
-                let why = if abort {
-                    format!("aborted by task {}", job.task_id)
-                } else {
-                    format!("superseded by task {}", job.task_id)
-                };
-                self.task_update(&old.task_id, TaskState::Aborted, old.last_progress, &why);
-            }
+            self.outputs.replaced(
+                &old.task_id,
+                old.last_progress,
+                held_until_next,
+                &job.task_id,
+                abort,
+            );
         }
         self.job = Some(job);
         if self.publish_leg().await {
             if let Some(job) = &self.job {
                 let n = job.legs.len();
-                self.task_update(
+                self.outputs.task(
                     &job.task_id,
                     TaskState::Running,
                     0.0,
@@ -889,7 +818,8 @@ impl Link {
     fn fail(&mut self, why: &str) {
         if let Some(job) = self.job.take() {
             warn!(task = %job.task_id, why, "ROS 2 task failed");
-            self.task_update(&job.task_id, TaskState::Failed, job.last_progress, why);
+            self.outputs
+                .task(&job.task_id, TaskState::Failed, job.last_progress, why);
         }
     }
 
@@ -912,7 +842,7 @@ impl Link {
                 && since.elapsed() >= d
                 && let Some(job) = self.job.take()
             {
-                self.task_update(
+                self.outputs.task(
                     &job.task_id,
                     TaskState::Done,
                     100.0,
@@ -939,7 +869,8 @@ impl Link {
             if (progress - job.last_progress).abs() >= PROGRESS_STEP {
                 job.last_progress = progress;
                 let task = job.task_id.clone();
-                self.task_update(&task, TaskState::Running, progress, "under way");
+                self.outputs
+                    .task(&task, TaskState::Running, progress, "under way");
             }
             return;
         }
@@ -951,7 +882,7 @@ impl Link {
             job.last_progress = progress;
             let (task, i) = (job.task_id.clone(), job.index);
             if self.publish_leg().await {
-                self.task_update(
+                self.outputs.task(
                     &task,
                     TaskState::Running,
                     progress,
@@ -965,7 +896,7 @@ impl Link {
                 job.held_since = Some(Instant::now());
                 if hold.is_none() {
                     let task = job.task_id.clone();
-                    self.task_update(
+                    self.outputs.task(
                         &task,
                         TaskState::Running,
                         100.0,
@@ -980,24 +911,22 @@ impl Link {
                     } else {
                         "arrived"
                     };
-                    self.task_update(&job.task_id, TaskState::Done, 100.0, message);
+                    self.outputs
+                        .task(&job.task_id, TaskState::Done, 100.0, message);
                 }
             }
         }
     }
 
     async fn on_watch(&mut self) {
-        let lost_after = Duration::from_millis(self.config.lost_after_ms);
-        if let Some(t) = self.last_heard
-            && t.elapsed() > lost_after
-            && self.lost_since.is_none()
-        {
-            self.lost_since = Some(t);
+        if self.liveness.check() {
+            let lost_after = self.liveness.lost_after();
             lock(&self.shared).lost = true;
             warn!(vehicle = %self.config.vehicle_id, "ROS 2 topics silent");
-            self.event(
+            self.outputs.event(
                 Severity::Alarm,
                 EventKind::CommLost,
+                "",
                 format!(
                     "no data on the vehicle's ROS 2 topics for {:.1} s: link lost",
                     lost_after.as_secs_f64()
