@@ -1402,10 +1402,12 @@ impl StationHandle {
         }
         self.register_task(&task);
         let id = task.task_id;
-        tokio::task::block_in_place(|| self.send_registered(&id));
-        match lock(&self.shared.register).task(&id).map(|t| t.state) {
-            Some(shoal_model::TaskState::Sent) => Ok(()),
-            _ => Err(DispatchError::Dds("the task could not be published".into())),
+        // The outcome of the write itself: reading the register afterwards would race the
+        // vehicle, whose acceptance may already have moved the task past `sent`.
+        if tokio::task::block_in_place(|| self.send_registered(&id)) {
+            Ok(())
+        } else {
+            Err(DispatchError::Dds("the task could not be published".into()))
         }
     }
 
@@ -1422,12 +1424,13 @@ impl StationHandle {
     /// CDT that hears a submerged vehicle forwards it acoustically (retransmitting until
     /// its TTL). The station records which link it expects to carry the task, which sets
     /// how long it waits for an acknowledgement before the task expires.
-    fn send_registered(&self, task_id: &str) {
+    /// Sends a registered task; true when it was published.
+    fn send_registered(&self, task_id: &str) -> bool {
         let Some(task) = lock(&self.shared.register)
             .task(task_id)
             .map(|t| t.assignment.clone())
         else {
-            return;
+            return false;
         };
         // Checked again when a mission's next task comes due: things change.
         if let Err(e) = self.check_task(&task) {
@@ -1444,7 +1447,7 @@ impl StationHandle {
                 shoal_model::TaskState::Failed,
                 &format!("not sent: {e}"),
             );
-            return;
+            return false;
         }
         let link = lock(&self.shared.fleet)
             .vehicles
@@ -1464,6 +1467,7 @@ impl StationHandle {
                 lock(&self.shared.register).sent(task_id, link, now_ms());
                 self.record_transitions();
                 self.push_task(task_id);
+                true
             }
             Err(e) => {
                 warn!(task = task_id, error = %e, "task not published");
@@ -1474,6 +1478,7 @@ impl StationHandle {
                     now_ms(),
                 );
                 self.record_transitions();
+                false
             }
         }
     }
