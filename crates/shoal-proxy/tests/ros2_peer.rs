@@ -16,7 +16,7 @@ mod common;
 use std::sync::Arc;
 use std::time::Duration;
 
-use common::{eventually, restart_peer, start_peer};
+use common::{Peer, eventually, restart_peer, start_peer};
 use shoal_dds::{DdsConfig, PubSub};
 use shoal_model::{EventKind, GeoPoint, Severity, Task, TaskState, Validate, now_ms};
 use shoal_proxy::ros2::mapping::EnuFrame;
@@ -67,6 +67,31 @@ async fn next_event(adapter: &mut Ros2Adapter, kind: EventKind, secs: u64) -> Ve
     }
 }
 
+/// Starts the Cyclone DDS vehicle on `domain`, in the configuration's namespace, and an
+/// adapter for it on a participant of its own; also returns the peer's arguments (to start
+/// it again). `None` when the peer cannot run here.
+fn start(domain: u16, config: Ros2Config) -> Option<(Peer, Ros2Adapter, Vec<String>)> {
+    let args: Vec<String> = [
+        "--domain",
+        &domain.to_string(),
+        "--namespace",
+        &config.namespace,
+    ]
+    .iter()
+    .map(ToString::to_string)
+    .collect();
+    let peer = start_peer("ros2_vehicle_peer.py", "cyclonedds", &args)?;
+    let dds = Arc::new(
+        PubSub::new(&DdsConfig {
+            domain_id: domain,
+            ..DdsConfig::default()
+        })
+        .unwrap(),
+    );
+    let adapter = Ros2Adapter::new(dds, config).unwrap();
+    Some((peer, adapter, args))
+}
+
 /// Submits until the goal writer has matched the vehicle's subscriber (discovery takes a
 /// moment), then returns the acceptance note.
 async fn submit_when_matched(adapter: &mut Ros2Adapter, id: &str, task: Task) -> String {
@@ -85,33 +110,18 @@ async fn submit_when_matched(adapter: &mut Ros2Adapter, id: &str, task: Task) ->
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_cyclonedds_ros2_vehicle_is_driven_through_the_ros2_adapter() {
-    let args: Vec<String> = ["--domain", &DOMAIN.to_string(), "--namespace", "bluerov"]
-        .iter()
-        .map(ToString::to_string)
-        .collect();
-    let Some(mut peer) = start_peer("ros2_vehicle_peer.py", "cyclonedds", &args) else {
+    let config = Ros2Config {
+        vehicle_id: "auv-ros".into(),
+        namespace: "bluerov".into(),
+        datum: Some(Datum {
+            latitude_deg: DATUM.0,
+            longitude_deg: DATUM.1,
+        }),
+        ..Ros2Config::default()
+    };
+    let Some((mut peer, mut adapter, _)) = start(DOMAIN, config) else {
         return;
     };
-    let dds = Arc::new(
-        PubSub::new(&DdsConfig {
-            domain_id: DOMAIN,
-            ..DdsConfig::default()
-        })
-        .unwrap(),
-    );
-    let mut adapter = Ros2Adapter::new(
-        dds,
-        Ros2Config {
-            vehicle_id: "auv-ros".into(),
-            namespace: "bluerov".into(),
-            datum: Some(Datum {
-                latitude_deg: DATUM.0,
-                longitude_deg: DATUM.1,
-            }),
-            ..Ros2Config::default()
-        },
-    )
-    .unwrap();
     peer.expect("ready", 20).await;
     let frame = EnuFrame::new(GeoPoint {
         latitude_deg: DATUM.0,
@@ -222,31 +232,15 @@ fn is_comm_lost(o: &VehicleOutput, severity: Severity) -> bool {
 // participant on the same topics.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_ros2_vehicle_that_dies_is_reported_lost_and_picked_up_when_it_returns() {
-    const DOMAIN: u16 = 52;
-    let args: Vec<String> = ["--domain", &DOMAIN.to_string(), "--namespace", "auv7"]
-        .iter()
-        .map(ToString::to_string)
-        .collect();
-    let Some(mut peer) = start_peer("ros2_vehicle_peer.py", "cyclonedds", &args) else {
+    let config = Ros2Config {
+        vehicle_id: "auv7".into(),
+        namespace: "auv7".into(),
+        lost_after_ms: 3000,
+        ..Ros2Config::default()
+    };
+    let Some((mut peer, mut adapter, args)) = start(52, config) else {
         return;
     };
-    let dds = Arc::new(
-        PubSub::new(&DdsConfig {
-            domain_id: DOMAIN,
-            ..DdsConfig::default()
-        })
-        .unwrap(),
-    );
-    let mut adapter = Ros2Adapter::new(
-        dds,
-        Ros2Config {
-            vehicle_id: "auv7".into(),
-            namespace: "auv7".into(),
-            lost_after_ms: 3000,
-            ..Ros2Config::default()
-        },
-    )
-    .unwrap();
     peer.expect("ready", 30).await;
     let s = eventually(60, "a state vector", || adapter.state()).await;
     assert_eq!(s.validate(), Ok(()));
