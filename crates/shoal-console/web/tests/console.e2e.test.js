@@ -395,10 +395,14 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     await form.locator('input[name=kind][value=survey_area]').check();
     await form.locator('select[name=payload]').selectOption('sidescan_survey');
     const offered = async () => form.locator('select[name=vehicle] option').evaluateAll((os) => os.map((o) => o.value).filter(Boolean));
-    // The AUVs carry a side-scan sonar: the semantic model infers the capability.
+    // The AUVs carry a side-scan sonar: the semantic model infers the capability. Wait for
+    // the side-scan answer itself (the USV listed as unable), not a list the editor showed
+    // for the previous choice (seen in CI: the USV still offered for "any survey").
     await page.waitForFunction(() => {
       const vals = [...document.querySelectorAll('#mission-form select[name=vehicle] option')].map((o) => o.value);
-      return vals.includes('auv-1') && vals.includes('auv-2') && document.querySelector('#vehicle-why li[data-vehicle="rov-1"]');
+      return vals.includes('auv-1') && vals.includes('auv-2') && !vals.includes('usv-1')
+        && document.querySelector('#vehicle-why li[data-vehicle="rov-1"]')
+        && document.querySelector('#vehicle-why li[data-vehicle="usv-1"]');
     }, null, { timeout: 15000 });
     let ids = await offered();
     assert.ok(!ids.includes('usv-1') && !ids.includes('rov-1'), `offered: ${ids}`);
