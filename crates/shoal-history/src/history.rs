@@ -581,10 +581,11 @@ mod tests {
             for i in 0..2500 {
                 w.submit(state("auv-1", T + i)).unwrap();
             }
-            assert_eq!(
-                h.committed(),
-                0,
-                "the writer lingers, nothing is committed yet"
+            // Full batches (1000) go at once; the last 500 linger until `close`.
+            assert!(
+                h.committed() <= 2000,
+                "the writer lingers over a partial batch, yet {} are committed",
+                h.committed()
             );
             let stats = h.close().unwrap();
             assert_eq!((stats.committed_rows, stats.queue_len), (2500, 0));
