@@ -53,6 +53,34 @@ impl Default for SwarmSpec {
     }
 }
 
+impl SwarmSpec {
+    /// Checks the values; the error names the flag.
+    pub fn check(&self) -> Result<(), String> {
+        if !(1..=100_000).contains(&self.count) {
+            return Err(format!("--count {} is outside 1..=100000", self.count));
+        }
+        if !(self.rate_hz > 0.0 && self.rate_hz <= 10.0) {
+            return Err(format!(
+                "--rate {} is outside (0, 10] state vectors per second",
+                self.rate_hz
+            ));
+        }
+        if !(self.latitude_deg.abs() <= 85.0 && self.longitude_deg.abs() <= 180.0) {
+            return Err(format!(
+                "--lat {} --lon {}: the swarm's centre must be within ±85° latitude, ±180° longitude",
+                self.latitude_deg, self.longitude_deg
+            ));
+        }
+        if !shoal_model::is_identifier(&format!("{}-{}", self.prefix, self.count), 32) {
+            return Err(format!(
+                "--prefix {:?} does not make valid vehicle ids (letters, digits, '_', '-', '.'; at most 32 with the number)",
+                self.prefix
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// One lightweight vehicle: a point on a circle.
 #[derive(Debug, Clone)]
 struct Lite {
@@ -161,24 +189,7 @@ pub async fn run_swarm(
     dds: Arc<PubSub>,
     shutdown: CancellationToken,
 ) -> Result<(), SwarmError> {
-    if !(1..=100_000).contains(&spec.count) {
-        return Err(SwarmError::Spec(format!(
-            "swarm count {} is outside 1..=100000",
-            spec.count
-        )));
-    }
-    if !(spec.rate_hz > 0.0 && spec.rate_hz <= 10.0) {
-        return Err(SwarmError::Spec(format!(
-            "swarm rate {} is outside (0, 10] per second",
-            spec.rate_hz
-        )));
-    }
-    if !shoal_model::is_identifier(&format!("{}-{}", spec.prefix, spec.count), 32) {
-        return Err(SwarmError::Spec(format!(
-            "swarm prefix {:?} does not make valid vehicle ids",
-            spec.prefix
-        )));
-    }
+    spec.check().map_err(SwarmError::Spec)?;
     let announce = dds.writer::<VehicleAnnouncement>(WriterOptions::new(Priority::Control))?;
     let states = dds.writer::<StateVector>(WriterOptions::new(Priority::Telemetry))?;
     let mut vehicles: Vec<Lite> = (0..spec.count).map(|i| Lite::new(&spec, i)).collect();
@@ -270,5 +281,20 @@ mod tests {
             assert!(b.battery_pct < a.battery_pct);
         }
         assert_eq!(Lite::new(&spec, 9_999).id, "sw-10000");
+    }
+
+    #[test]
+    fn a_bad_swarm_spec_names_the_flag() {
+        let bad = |f: fn(&mut SwarmSpec)| {
+            let mut s = SwarmSpec::default();
+            f(&mut s);
+            s.check().unwrap_err()
+        };
+        assert!(bad(|s| s.count = 0).starts_with("--count 0"));
+        assert!(bad(|s| s.rate_hz = f64::NAN).starts_with("--rate NaN"));
+        assert!(bad(|s| s.latitude_deg = 91.0).starts_with("--lat 91"));
+        assert!(bad(|s| s.prefix = "a b".into()).starts_with("--prefix"));
+        assert!(bad(|s| s.prefix = "x".repeat(40)).starts_with("--prefix"));
+        SwarmSpec::default().check().unwrap();
     }
 }

@@ -233,6 +233,7 @@ pub async fn swarm(
     if cfg.security.enabled {
         bail!("shoal swarm does not sign: run it with security off (it is for scale tests)");
     }
+    spec.check().map_err(anyhow::Error::msg)?;
     warn_if_not_loopback(cfg);
     let dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?);
     let shutdown = shutdown_signal(exit_on_stdin_close);

@@ -166,3 +166,58 @@ fn up_starts_the_station_and_fleet_and_stops_cleanly() {
     assert!(log.contains("station stopped"), "{log}");
     assert!(dir.path().join("shoal-data/history.db").exists());
 }
+
+/// The commands this project added take bad input with one clear line and an error exit,
+/// before anything joins DDS or touches a key store: `shoal keys` (no store, a bad vehicle
+/// id, an unknown vehicle, a store twice), `shoal swarm` (out-of-range flags), and
+/// `shoal up` asked for unsigned swarm vehicles with security on.
+#[test]
+fn keys_swarm_and_up_refuse_bad_input_with_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        let out = shoal()
+            .args(args)
+            .current_dir(dir.path())
+            .env("SHOAL_DDS__DOMAIN_ID", "54")
+            .output()
+            .unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let refused = |args: &[&str], needle: &str| {
+        let (ok, err) = run(args);
+        assert!(!ok, "shoal {args:?} succeeded");
+        let last = err.lines().last().unwrap_or_default();
+        assert!(last.starts_with("shoal: error: "), "{err}");
+        assert!(last.contains(needle), "{needle:?} not in {last}");
+        assert!(!err.contains("panicked"), "{err}");
+    };
+    refused(&["keys", "list"], "shoal-data/keys: missing");
+    refused(
+        &["keys", "--dir", "/nonexistent/keys", "issue", "auv-1"],
+        "/nonexistent/keys",
+    );
+    let (ok, err) = run(&["keys", "init"]);
+    assert!(ok, "{err}");
+    refused(&["keys", "init"], "already holds a key store");
+    refused(&["keys", "issue", "bad id"], "not an identifier");
+    refused(&["keys", "revoke", "auv-404"], "auv-404");
+    refused(&["keys", "export", "auv-404", "out"], "auv-404");
+    let (ok, err) = run(&["keys", "issue", "auv-1"]);
+    assert!(ok, "{err}");
+    refused(
+        &["keys", "issue", "auv-1"],
+        "already has an active certificate",
+    );
+
+    refused(&["swarm", "--count", "0"], "--count 0");
+    refused(&["swarm", "--rate", "50"], "--rate 50");
+    refused(&["swarm", "--prefix", "no spaces"], "--prefix");
+    refused(&["swarm", "--lat", "95"], "--lat 95");
+    refused(
+        &["up", "--secure", "--sim-vehicles", "10"],
+        "--sim-vehicles",
+    );
+}
