@@ -256,8 +256,8 @@ pub struct SemanticStore {
     tbox: TBox,
     vocabulary: Vocabulary,
     vehicles: HashMap<String, VehicleEntry>,
-    /// Vehicles with a state newer than their RDF mirror, each listed once.
-    dirty: Vec<String>,
+    /// Vehicles with a state newer than their RDF mirror, each listed once, oldest first.
+    dirty: VecDeque<String>,
     tasks: HashMap<String, TaskEntry>,
     events: VecDeque<String>,
     observations: HashSet<(String, String)>,
@@ -301,7 +301,7 @@ impl SemanticStore {
             tbox,
             vocabulary,
             vehicles: HashMap::new(),
-            dirty: Vec::new(),
+            dirty: VecDeque::new(),
             tasks: HashMap::new(),
             events: VecDeque::new(),
             observations: HashSet::new(),
@@ -600,7 +600,7 @@ impl SemanticStore {
         let regained = std::mem::take(&mut entry.lost);
         if !entry.dirty {
             entry.dirty = true;
-            self.dirty.push(s.vehicle_id.clone());
+            self.dirty.push_back(s.vehicle_id.clone());
         }
         let mut events = Vec::new();
         // Fast path: only rules watching a field that changed run.
@@ -663,15 +663,35 @@ impl SemanticStore {
     /// bookkeeping: a vehicle's state properties are stated by nothing else (other
     /// entities use `geo:lat` and `shoal:depth` on their own subjects), so they need no
     /// reference counts, and the previous mirror, kept typed, says exactly which quads to
-    /// replace. All due vehicles are written in this one call. No inference either: the state's
+    /// replace. All due vehicles are written in this one call (see
+    /// [`Self::flush_dirty_at_most`] to spread them). No inference either: the state's
     /// only entailments are `shoal:stateProperty` copies of each value, which no query
     /// needs and which would double the churn.
     pub fn flush_dirty(&mut self, now_ms: i64) -> Result<Vec<Event>, StoreError> {
+        self.flush_dirty_at_most(now_ms, usize::MAX)
+    }
+
+    /// Vehicles waiting in the dirty list (each listed once).
+    pub fn dirty_len(&self) -> usize {
+        self.dirty.len()
+    }
+
+    /// [`Self::flush_dirty`] for at most `max` entries of the dirty list, oldest first, so
+    /// that a caller sharing the store behind a lock can release it between parts: a
+    /// thousand mirrors at once hold it for tens of milliseconds, which every state vector
+    /// arriving meanwhile would wait for. Entries not yet due go to the back of the list,
+    /// so a caller that visits [`Self::dirty_len`] entries in parts visits each once.
+    pub fn flush_dirty_at_most(
+        &mut self,
+        now_ms: i64,
+        max: usize,
+    ) -> Result<Vec<Event>, StoreError> {
         let interval = self.config.min_state_interval_ms;
         let mut keep = Vec::new();
         let mut flushed: Vec<(String, Changed, i64)> = Vec::new();
         let watched = !self.rules.by_property.is_empty();
-        for id in std::mem::take(&mut self.dirty) {
+        let part: Vec<String> = self.dirty.drain(..max.min(self.dirty.len())).collect();
+        for id in part {
             let Some(e) = self.vehicles.get_mut(&id) else {
                 continue;
             };
@@ -1668,6 +1688,50 @@ mod tests {
         s.flush_dirty(T + 2000).unwrap();
         assert_eq!(battery_of(&s, "auv-1"), 60.0);
         assert_eq!(s.latest_state("auv-1").unwrap().battery_pct, 60.0);
+    }
+
+    /// Flushing in parts of the dirty list visits each vehicle once: the due ones are
+    /// mirrored, the ones not yet due wait at the back, and a state arriving between two
+    /// parts waits for the next round.
+    #[test]
+    fn a_flush_in_parts_mirrors_each_due_vehicle_once() {
+        let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
+        for v in 0..5 {
+            s.update_state(&state(&format!("v{v}"), T, 50.0)).unwrap();
+        }
+        s.flush_dirty(T).unwrap();
+        // v0 and v1 are mirrored again later, so at T + 1500 only v2..v4 are due.
+        for v in 0..2 {
+            s.update_state(&state(&format!("v{v}"), T + 100, 45.0))
+                .unwrap();
+        }
+        s.flush_dirty(T + 1000).unwrap();
+        for v in 0..5 {
+            s.update_state(&state(&format!("v{v}"), T + 1100 + v, 40.0))
+                .unwrap();
+        }
+        let now = T + 1500;
+        let due = |v: i64| v >= 2;
+        let mut left = s.dirty_len();
+        assert_eq!(left, 5);
+        let mut parts = 0;
+        while left > 0 {
+            let n = left.min(2);
+            s.flush_dirty_at_most(now, n).unwrap();
+            left -= n;
+            parts += 1;
+            if parts == 1 {
+                // Arrives between two parts: listed once, mirrored next round.
+                s.update_state(&state("v9", T + 1200, 30.0)).unwrap();
+            }
+        }
+        assert_eq!(parts, 3);
+        for v in 0..5 {
+            let expected = if due(v) { 40.0 } else { 45.0 };
+            assert_eq!(battery_of(&s, &format!("v{v}")), expected, "v{v}");
+        }
+        assert_eq!(s.stats().unwrap().state_flushes, 5 + 2 + 3);
+        assert_eq!(s.dirty_len(), 3, "v0, v1 not yet due, v9 new");
     }
 
     #[test]

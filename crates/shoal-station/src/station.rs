@@ -1046,15 +1046,20 @@ impl StationHandle {
     }
 
     /// Once a second: mirror dirty states into RDF (coalesced) and run time-based rules.
+    /// The mirrors are written a few vehicles per hold of the model's lock: ingest takes
+    /// the same lock for every state vector, and a thousand mirrors at once would make
+    /// the state vectors arriving meanwhile wait for tens of milliseconds.
     fn semantic_tick(&self) {
+        const MIRRORS_PER_LOCK: usize = 32;
         let now = now_ms();
-        let fired = {
-            let mut sem = lock(&self.shared.semantic);
-            sem.flush_dirty(now).and_then(|mut a| {
-                a.extend(sem.tick(now)?);
-                Ok(a)
-            })
-        };
+        let mut left = lock(&self.shared.semantic).dirty_len();
+        while left > 0 {
+            let part = left.min(MIRRORS_PER_LOCK);
+            let fired = lock(&self.shared.semantic).flush_dirty_at_most(now, part);
+            left -= part;
+            self.emit_fired(fired);
+        }
+        let fired = lock(&self.shared.semantic).tick(now);
         self.emit_fired(fired);
     }
 

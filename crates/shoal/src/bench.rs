@@ -1320,6 +1320,39 @@ struct ScaleFigures {
     peak_rss_mb: f64,
 }
 
+/// Runs each standard SPARQL query once against the station's endpoint, as an operator's
+/// console would, and returns the round-trip times in ms (HTTP included).
+async fn standard_query_times(api: std::net::SocketAddr) -> Result<Vec<f64>> {
+    let mut times = Vec::with_capacity(shoal_semantic::STANDARD_QUERIES.len());
+    for (name, q) in shoal_semantic::STANDARD_QUERIES {
+        let t = Instant::now();
+        let (status, body) = crate::query::request(
+            api,
+            "POST",
+            "/api/sparql?format=json",
+            Some(("application/sparql-query", q)),
+        )
+        .await?;
+        if status != 200 {
+            bail!("{name} answered {status}: {body}");
+        }
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok(times)
+}
+
+/// The median of each column of `rows`.
+fn column_medians(rows: &[Vec<f64>]) -> Vec<f64> {
+    let width = rows.first().map_or(0, Vec::len);
+    (0..width)
+        .map(|c| {
+            let mut col: Vec<f64> = rows.iter().map(|r| r[c]).collect();
+            col.sort_by(f64::total_cmp);
+            col[col.len() / 2]
+        })
+        .collect()
+}
+
 async fn scale(vehicles: usize, rate: f64, seconds: u64, domain: u16) -> Result<()> {
     scale_figures(vehicles, rate, seconds, domain)
         .await
@@ -1358,7 +1391,7 @@ async fn scale_figures(
         "scale: {vehicles} vehicles x {rate} Hz, station and swarm in separate processes, domain {domain}"
     );
     println!(
-        "{:>6} {:>7} {:>12} {:>10} {:>12} {:>10}",
+        "{:>6} {:>7} {:>12} {:>10} {:>12} {:>10}  SPARQL ms (q1..q5, HTTP round trip)",
         "t (s)", "alive", "accepted/s", "rejected", "station MB", "swarm MB"
     );
     let start = Instant::now();
@@ -1376,21 +1409,26 @@ async fn scale_figures(
         let per_s = (s.accepted - last.1) as f64 / now.duration_since(last.0).as_secs_f64();
         last = (now, s.accepted);
         let (st, sw) = (rss_mb_of(&station_pid), rss_mb_of(&swarm_pid));
+        let q = standard_query_times(api).await?;
         println!(
-            "{:>6.0} {:>7} {:>12.0} {:>10} {:>12.1} {:>10.1}",
+            "{:>6.0} {:>7} {:>12.0} {:>10} {:>12.1} {:>10.1}  {}",
             start.elapsed().as_secs_f64(),
             s.alive,
             per_s,
             s.rejected,
             st,
-            sw
+            sw,
+            q.iter()
+                .map(|t| format!("{t:>6.2}"))
+                .collect::<Vec<_>>()
+                .join(" ")
         );
         if all_alive_at.is_none() && s.alive >= vehicles {
             all_alive_at = Some(start.elapsed());
             first_rss = Some(st);
         }
         if all_alive_at.is_some() {
-            rows.push((per_s, st));
+            rows.push((per_s, st, q));
         }
         let deadline =
             all_alive_at.unwrap_or(Duration::from_secs(120)) + Duration::from_secs(seconds);
@@ -1407,6 +1445,30 @@ async fn scale_figures(
     #[allow(clippy::cast_precision_loss)]
     let mean = steady.iter().sum::<f64>() / steady.len().max(1) as f64;
     let peak = rows.iter().map(|r| r.1).fold(0.0, f64::max);
+    // Flatness: the first and last tenth of the steady run (at least one sample each).
+    let tenth = (rows.len() / 10).max(1);
+    if rows.len() >= 2 {
+        let column = |part: &[(f64, f64, Vec<f64>)]| {
+            column_medians(&part.iter().map(|r| r.2.clone()).collect::<Vec<_>>())
+        };
+        let (first, last) = (column(&rows[..tenth]), column(&rows[rows.len() - tenth..]));
+        let show = |v: &[f64]| {
+            v.iter()
+                .map(|t| format!("{t:.2}"))
+                .collect::<Vec<_>>()
+                .join(" / ")
+        };
+        println!(
+            "SPARQL median ms (q1 / q2 / q3 / q4 / q5), first tenth of the run: {}; last tenth: {}",
+            show(&first),
+            show(&last)
+        );
+        println!(
+            "station RSS first tenth {:.1} MB, last tenth {:.1} MB",
+            rows[..tenth].iter().map(|r| r.1).sum::<f64>() / tenth as f64,
+            rows[rows.len() - tenth..].iter().map(|r| r.1).sum::<f64>() / tenth as f64
+        );
+    }
     match all_alive_at {
         Some(t) => {
             println!(
