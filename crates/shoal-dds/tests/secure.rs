@@ -226,3 +226,112 @@ async fn a_revoked_vehicle_is_refused_once_the_station_has_the_new_revocation_li
             >= 1
     );
 }
+
+/// A foreign writer on a signed twin: a sample that is not a `SignedSample` at all, and
+/// one whose envelope is garbage. Both are reported (malformed CDR; refused as
+/// `malformed` and counted), and a good signed sample behind them still arrives.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn garbage_on_a_signed_topic_is_refused_and_counted_and_good_samples_still_arrive() {
+    use rustdds::{DomainParticipantBuilder, Keyed, QosPolicyBuilder, TopicKind};
+    #[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
+    struct Wire {
+        key: String,
+        envelope: Vec<u8>,
+    }
+    impl Keyed for Wire {
+        type K = String;
+        fn key(&self) -> String {
+            self.key.clone()
+        }
+    }
+    #[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
+    struct Short {
+        key: String,
+    }
+    impl Keyed for Short {
+        type K = String;
+        fn key(&self) -> String {
+            self.key.clone()
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut store = KeyStore::init(&dir.path().join("keys"), "ccs").unwrap();
+    store.issue_vehicle("auv-1").unwrap();
+    let station = PubSub::new_secure(&config(46), station_security(&store)).unwrap();
+    let mut states = station.subscribe::<StateVector>().unwrap();
+
+    let foreign = DomainParticipantBuilder::new(46)
+        .with_only_networks([std::net::Ipv4Addr::LOCALHOST])
+        .build()
+        .unwrap();
+    let qos = QosPolicyBuilder::new()
+        .reliable(rustdds::Duration::from_secs(1))
+        .history(rustdds::policy::History::KeepLast { depth: 16 })
+        .build();
+    let topic = foreign
+        .create_topic(
+            "shoal/state_vector/signed".into(),
+            "shoal::SignedSample".into(),
+            &qos,
+            TopicKind::WithKey,
+        )
+        .unwrap();
+    let publisher = foreign.create_publisher(&qos).unwrap();
+    let garbage = publisher
+        .create_datawriter_cdr::<Wire>(&topic, None)
+        .unwrap();
+    let short = publisher
+        .create_datawriter_cdr::<Short>(&topic, None)
+        .unwrap();
+
+    // The good vehicle first, so every participant has discovered every other.
+    let auv1 = PubSub::new_secure(&config(46), vehicle_security(&store, "auv-1")).unwrap();
+    let w1 = auv1
+        .writer::<StateVector>(WriterOptions::new(Priority::Telemetry))
+        .unwrap();
+    let (got, _) = send_until(&w1, state("auv-1"), &mut states).await.unwrap();
+    assert_eq!(got.vehicle_id, "auv-1");
+    tokio::time::sleep(Duration::from_millis(500)).await;
+
+    let (mut refused, mut malformed, mut good_after) = (0, 0, false);
+    for round in 0..100 {
+        garbage
+            .write(
+                Wire {
+                    key: "auv-9".into(),
+                    envelope: vec![0xff; 40 + round],
+                },
+                None,
+            )
+            .unwrap();
+        short.write(Short { key: "x".into() }, None).unwrap();
+        w1.write(state("auv-1")).await.unwrap();
+        while let Ok(Some(item)) =
+            tokio::time::timeout(Duration::from_millis(100), states.next()).await
+        {
+            match item {
+                Ok((s, _)) => {
+                    assert_eq!(s.vehicle_id, "auv-1");
+                    good_after = refused > 0;
+                }
+                Err(ReadError::Refused {
+                    reason: "malformed",
+                    ..
+                }) => refused += 1,
+                Err(ReadError::Malformed { .. }) => malformed += 1,
+                Err(other) => panic!("unexpected {other}"),
+            }
+        }
+        if refused > 0 && malformed > 0 && good_after {
+            break;
+        }
+    }
+    assert!(refused > 0, "the garbage envelope was never refused");
+    assert!(malformed > 0, "the short sample was never reported");
+    assert!(good_after, "no good sample arrived after the garbage");
+    let counts = station.security_counts().unwrap();
+    assert!(
+        counts.refused.get(RejectionReason::Malformed) >= 1,
+        "{counts:?}"
+    );
+}

@@ -61,13 +61,14 @@ fn a_secure_fleet_works_and_unsigned_or_revoked_senders_are_refused() {
         ("SHOAL_CONSOLE__LISTEN", format!("127.0.0.1:{port}")),
         ("SHOAL_SECURITY__CRL_CHECK_S", "1".to_string()),
     ];
+    let log_path = dir.path().join("up.log");
     let up = KillOnDrop(
         shoal()
             .args(["up", "--secure"])
             .current_dir(dir.path())
             .envs(env.iter().cloned())
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
+            .stderr(std::fs::File::create(&log_path).unwrap())
             .spawn()
             .unwrap(),
     );
@@ -106,6 +107,23 @@ fn a_secure_fleet_works_and_unsigned_or_revoked_senders_are_refused() {
     drop(intruder);
     let fleet = http_get(port, "/api/fleet").unwrap();
     assert!(!fleet.contains("intruder"), "{fleet}");
+
+    // A revocation list damaged on disk is logged and ignored: the list in force stays,
+    // and nobody is refused because of it.
+    let crl = dir.path().join("shoal-data/keys/revoked.crl");
+    let good = std::fs::read(&crl).unwrap();
+    std::fs::write(&crl, b"-----BEGIN X509 CRL-----\nnot a list\n").unwrap();
+    let log = || std::fs::read_to_string(&log_path).unwrap_or_default();
+    assert!(
+        wait_for(15, || log().contains("new revocation list ignored")),
+        "the damaged list was not reported: {}",
+        log()
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    assert_eq!(rejected(port, "security:revoked"), 0);
+    let fleet = http_get(port, "/api/fleet").unwrap();
+    assert_eq!(fleet.matches("\"contact\":\"alive\"").count(), 5, "{fleet}");
+    std::fs::write(&crl, good).unwrap();
 
     // Revoking a vehicle takes effect in the running station.
     let out = shoal()
