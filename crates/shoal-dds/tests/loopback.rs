@@ -8,30 +8,14 @@
 use std::time::Duration;
 
 use futures::StreamExt;
-use shoal_dds::{DdsConfig, Priority, PubSub, ReadError, WriterOptions};
+use shoal_dds::{Priority, PubSub, ReadError, WriterOptions};
 use shoal_model::{StateVector, Task, TaskAssignment, TaskKind};
 
-fn config(domain_id: u16) -> DdsConfig {
-    DdsConfig {
-        domain_id,
-        ..DdsConfig::default()
-    }
-}
+mod common;
+use common::{Foreign, config};
 
 fn state(i: u32) -> StateVector {
-    StateVector {
-        vehicle_id: "auv-7".into(),
-        timestamp_ms: 1_700_000_000_000 + i64::from(i),
-        latitude_deg: 43.0,
-        longitude_deg: 5.9,
-        depth_m: 10.0,
-        altitude_m: -1.0,
-        speed_mps: 1.0,
-        yaw_deg: 90.0,
-        pitch_deg: 0.0,
-        roll_deg: 0.0,
-        battery_pct: 80.0,
-    }
+    common::state_at("auv-7", 1_700_000_000_000 + i64::from(i))
 }
 
 async fn wait_matched<T: shoal_dds::TopicType>(w: &shoal_dds::Writer<T>) {
@@ -118,7 +102,7 @@ async fn a_late_joining_reader_still_gets_transient_local_tasks() {
 /// A foreign writer with another idea of the type: the reader reports it and goes on.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn malformed_foreign_samples_are_reported_and_do_not_block_good_ones() {
-    use rustdds::{DomainParticipantBuilder, Keyed, QosPolicyBuilder, TopicKind};
+    use rustdds::Keyed;
     #[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
     struct Truncated {
         vehicle_id: String,
@@ -133,25 +117,10 @@ async fn malformed_foreign_samples_are_reported_and_do_not_block_good_ones() {
     let station = PubSub::new(&config(43)).unwrap();
     let mut sub = station.subscribe::<StateVector>().unwrap();
 
-    let foreign = DomainParticipantBuilder::new(43)
-        .with_only_networks([std::net::Ipv4Addr::LOCALHOST])
-        .build()
-        .unwrap();
-    let qos = QosPolicyBuilder::new()
-        .reliable(rustdds::Duration::from_secs(1))
-        .history(rustdds::policy::History::KeepLast { depth: 16 })
-        .build();
-    let topic = foreign
-        .create_topic(
-            "shoal/state_vector".into(),
-            "shoal::StateVector".into(),
-            &qos,
-            TopicKind::WithKey,
-        )
-        .unwrap();
-    let publisher = foreign.create_publisher(&qos).unwrap();
-    let bad_writer = publisher
-        .create_datawriter_cdr::<Truncated>(&topic, None)
+    let foreign = Foreign::new(43, "shoal/state_vector", "shoal::StateVector");
+    let bad_writer = foreign
+        .publisher
+        .create_datawriter_cdr::<Truncated>(&foreign.topic, None)
         .unwrap();
     let good = PubSub::new(&config(43)).unwrap();
     let good_writer = good
@@ -170,8 +139,9 @@ async fn malformed_foreign_samples_are_reported_and_do_not_block_good_ones() {
         }
     }
     // A NaN cannot go through a Shoal writer (it validates), so a raw writer sends it.
-    let raw_writer = publisher
-        .create_datawriter_cdr::<Raw>(&topic, None)
+    let raw_writer = foreign
+        .publisher
+        .create_datawriter_cdr::<Raw>(&foreign.topic, None)
         .unwrap();
 
     bad_writer

@@ -7,31 +7,15 @@
 use std::time::Duration;
 
 use futures::StreamExt;
-use shoal_dds::{DdsConfig, Priority, PubSub, ReadError, Security, WriterOptions};
+use shoal_dds::{Priority, PubSub, ReadError, Security, WriterOptions};
 use shoal_model::{StateVector, Task, TaskAssignment};
 use shoal_security::{Gate, KeyStore, Policy, RejectionReason, RevokeReason, VerifierConfig};
 
-fn config(domain_id: u16) -> DdsConfig {
-    DdsConfig {
-        domain_id,
-        ..DdsConfig::default()
-    }
-}
+mod common;
+use common::{Foreign, config};
 
 fn state(id: &str) -> StateVector {
-    StateVector {
-        vehicle_id: id.into(),
-        timestamp_ms: shoal_model::now_ms(),
-        latitude_deg: 43.0,
-        longitude_deg: 5.9,
-        depth_m: 10.0,
-        altitude_m: -1.0,
-        speed_mps: 1.0,
-        yaw_deg: 90.0,
-        pitch_deg: 0.0,
-        roll_deg: 0.0,
-        battery_pct: 80.0,
-    }
+    common::state_at(id, shoal_model::now_ms())
 }
 
 fn station_security(store: &KeyStore) -> Security {
@@ -232,7 +216,7 @@ async fn a_revoked_vehicle_is_refused_once_the_station_has_the_new_revocation_li
 /// `malformed` and counted), and a good signed sample behind them still arrives.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn garbage_on_a_signed_topic_is_refused_and_counted_and_good_samples_still_arrive() {
-    use rustdds::{DomainParticipantBuilder, Keyed, QosPolicyBuilder, TopicKind};
+    use rustdds::Keyed;
     #[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
     struct Wire {
         key: String,
@@ -260,28 +244,14 @@ async fn garbage_on_a_signed_topic_is_refused_and_counted_and_good_samples_still
     let station = PubSub::new_secure(&config(46), station_security(&store)).unwrap();
     let mut states = station.subscribe::<StateVector>().unwrap();
 
-    let foreign = DomainParticipantBuilder::new(46)
-        .with_only_networks([std::net::Ipv4Addr::LOCALHOST])
-        .build()
+    let foreign = Foreign::new(46, "shoal/state_vector/signed", "shoal::SignedSample");
+    let garbage = foreign
+        .publisher
+        .create_datawriter_cdr::<Wire>(&foreign.topic, None)
         .unwrap();
-    let qos = QosPolicyBuilder::new()
-        .reliable(rustdds::Duration::from_secs(1))
-        .history(rustdds::policy::History::KeepLast { depth: 16 })
-        .build();
-    let topic = foreign
-        .create_topic(
-            "shoal/state_vector/signed".into(),
-            "shoal::SignedSample".into(),
-            &qos,
-            TopicKind::WithKey,
-        )
-        .unwrap();
-    let publisher = foreign.create_publisher(&qos).unwrap();
-    let garbage = publisher
-        .create_datawriter_cdr::<Wire>(&topic, None)
-        .unwrap();
-    let short = publisher
-        .create_datawriter_cdr::<Short>(&topic, None)
+    let short = foreign
+        .publisher
+        .create_datawriter_cdr::<Short>(&foreign.topic, None)
         .unwrap();
 
     // The good vehicle first, so every participant has discovered every other.
