@@ -1,7 +1,7 @@
 //! Security on the Publish/Subscribe Manager over real RTPS on loopback: a station and
 //! vehicles with certificates from one key store exchange signed samples; unsigned,
 //! impersonating, unauthorised and revoked senders are refused, counted by reason, and
-//! never delivered. Domains 44–45; run inside the test network namespace.
+//! never delivered. Domains 44–46; run inside the test network namespace.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use std::time::Duration;
