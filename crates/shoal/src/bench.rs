@@ -129,6 +129,10 @@ pub enum BenchCommand {
         /// First DDS domain (the suite uses the next eight).
         #[arg(long, default_value_t = 30)]
         domain: u16,
+        /// Simulated seconds of fleet traffic through the semantic store before the
+        /// queries are measured again (0 skips it; an hour takes about 2 minutes).
+        #[arg(long, default_value_t = 3600)]
+        semantic_hour_s: u64,
     },
     /// End-to-end latency, vehicle -> station -> console: N lightweight vehicles in another
     /// process (`shoal swarm`, each state stamped when sent) and a WebSocket client on the
@@ -221,7 +225,8 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             scale_vehicles,
             out,
             domain,
-        } => suite(cfg, seconds, scale_vehicles, &out, domain).await,
+            semantic_hour_s,
+        } => suite(cfg, seconds, scale_vehicles, &out, domain, semantic_hour_s).await,
         BenchCommand::Scale {
             vehicles,
             rate,
@@ -1672,6 +1677,14 @@ impl SuiteRow {
         self.ratio = format!("{ratio:.2}×");
         self
     }
+
+    /// [`Self::with_peer`] when the peer could be measured.
+    fn with_peer_if(self, peer: Option<(String, f64)>) -> Self {
+        match peer {
+            Some((p, ratio)) => self.with_peer(p, ratio),
+            None => self,
+        }
+    }
 }
 
 fn suite_table(rows: &[SuiteRow]) -> String {
@@ -1698,6 +1711,7 @@ async fn suite(
     scale_vehicles: usize,
     out: &std::path::Path,
     domain: u16,
+    semantic_hour_s: u64,
 ) -> Result<()> {
     let started = Instant::now();
     // Figures on a shared machine mean little without its load: note it before and after.
@@ -1713,45 +1727,48 @@ async fn suite(
     eprintln!("suite 1/6: bus (Shoal vs Cyclone DDS ddsperf)");
     let bus = bus_figures(cfg, domain, seconds, false).await?;
     let peer = bus.peer.as_ref();
-    let mut rt = SuiteRow::new(
-        "bus round trip p50",
-        format!("{:.0} µs", bus.rt.p50_us),
-        "≤ 2× Cyclone",
-        peer.map(|p| bus.rt.p50_us <= 2.0 * p.p50_us),
+    rows.push(
+        SuiteRow::new(
+            "bus round trip p50",
+            format!("{:.0} µs", bus.rt.p50_us),
+            "≤ 2× Cyclone",
+            peer.map(|p| bus.rt.p50_us <= 2.0 * p.p50_us),
+        )
+        .with_peer_if(peer.map(|p| {
+            (
+                format!("Cyclone {:.0} µs", p.p50_us),
+                bus.rt.p50_us / p.p50_us,
+            )
+        })),
     );
-    if let Some(p) = peer {
-        rt = rt.with_peer(
-            format!("Cyclone {:.0} µs", p.p50_us),
-            bus.rt.p50_us / p.p50_us,
-        );
-    }
-    rows.push(rt);
-    let mut rt99 = SuiteRow::new(
-        "bus round trip p99",
-        format!("{:.0} µs", bus.rt.p99_us),
-        "-",
-        None,
+    rows.push(
+        SuiteRow::new(
+            "bus round trip p99",
+            format!("{:.0} µs", bus.rt.p99_us),
+            "-",
+            None,
+        )
+        .with_peer_if(peer.map(|p| {
+            (
+                format!("Cyclone {:.0} µs", p.p99_us),
+                bus.rt.p99_us / p.p99_us,
+            )
+        })),
     );
-    if let Some(p) = peer {
-        rt99 = rt99.with_peer(
-            format!("Cyclone {:.0} µs", p.p99_us),
-            bus.rt.p99_us / p.p99_us,
-        );
-    }
-    rows.push(rt99);
-    let mut thr = SuiteRow::new(
-        "bus throughput, reliable, no loss",
-        format!("≥ {:.0} k/s", bus.throughput / 1000.0),
-        "-",
-        None,
+    rows.push(
+        SuiteRow::new(
+            "bus throughput, reliable, no loss",
+            format!("≥ {:.0} k/s", bus.throughput / 1000.0),
+            "-",
+            None,
+        )
+        .with_peer_if(peer.map(|p| {
+            (
+                format!("Cyclone {:.0} k/s", p.throughput / 1000.0),
+                bus.throughput / p.throughput,
+            )
+        })),
     );
-    if let Some(p) = peer {
-        thr = thr.with_peer(
-            format!("Cyclone {:.0} k/s", p.throughput / 1000.0),
-            bus.throughput / p.throughput,
-        );
-    }
-    rows.push(thr);
 
     eprintln!("suite 2/6: ingest pipeline (Shoal vs raw batched SQLite insert)");
     let pf = pipeline_figures(cfg, domain + 4, 1000, 300_000).await?;
@@ -1797,11 +1814,61 @@ async fn suite(
     for q in &sem.fresh {
         let ms = q.p50.as_secs_f64() * 1e3;
         rows.push(SuiteRow::new(
-            &format!("SPARQL p50 {} (1000 vehicles)", q.name),
+            &format!("SPARQL p50 {} (1000 vehicles, fresh)", q.name),
             format!("{ms:.2} ms"),
             "≤ 2 ms",
             Some(ms <= 2.0),
         ));
+    }
+    if semantic_hour_s > 0 {
+        eprintln!(
+            "suite 4/6: SPARQL after {semantic_hour_s} simulated seconds of 1000 vehicles' traffic"
+        );
+        let hour = tokio::task::spawn_blocking(move || {
+            shoal_semantic::bench::run_hour(
+                shoal_semantic::bench::HourOptions {
+                    seconds: semantic_hour_s,
+                    sample_every_s: semantic_hour_s,
+                    ..shoal_semantic::bench::HourOptions::default()
+                },
+                shoal_semantic::StoreConfig::default(),
+            )
+        })
+        .await?
+        .context("semantic hour benchmark")?;
+        if let Some(last) = hour.series.last() {
+            for (after, between) in last.back_to_back.iter().zip(&last.queries) {
+                let ms = after.p50.as_secs_f64() * 1e3;
+                rows.push(SuiteRow::new(
+                    &format!(
+                        "SPARQL p50 {} after {semantic_hour_s} s of updates (between writes: {:.2} ms)",
+                        after.name,
+                        between.p50.as_secs_f64() * 1e3
+                    ),
+                    format!("{ms:.2} ms"),
+                    "≤ 2 ms",
+                    Some(ms <= 2.0),
+                ));
+            }
+            #[allow(clippy::cast_precision_loss)]
+            let (fresh_kib, end_kib) = (
+                hour.fresh_memory.rss_kib.unwrap_or(0) as f64,
+                last.memory.rss_kib.unwrap_or(0) as f64,
+            );
+            if fresh_kib > 0.0 {
+                rows.push(SuiteRow::new(
+                    &format!("semantic store process RSS growth over {semantic_hour_s} s"),
+                    format!(
+                        "{:+.1} % ({:.0} → {:.0} MB)",
+                        100.0 * (end_kib / fresh_kib - 1.0),
+                        fresh_kib / 1024.0,
+                        end_kib / 1024.0
+                    ),
+                    "flat (< 10 %)",
+                    Some(end_kib < 1.1 * fresh_kib),
+                ));
+            }
+        }
     }
 
     eprintln!("suite 5/6: acoustic (PDU sizes, channel use)");
