@@ -237,9 +237,10 @@ pub async fn run_swarm(
             }
             last_announce = Some(tokio::time::Instant::now());
         }
-        let t = now_ms();
         for v in vehicles.iter_mut().skip(slice).step_by(SLICES) {
-            match states.write(v.step(period.as_secs_f64(), t)).await {
+            // Stamped as it is written, as a vehicle stamps its own sample: a stamp shared
+            // by the slice would count the slice's earlier writes as transport latency.
+            match states.write(v.step(period.as_secs_f64(), now_ms())).await {
                 Ok(()) => sent += 1,
                 Err(_) => failed += 1,
             }

@@ -1120,38 +1120,64 @@ impl StationHandle {
         }
     }
 
+    /// Logs the fleet: a line per vehicle for a small fleet, counts by contact for a large
+    /// one (ten thousand lines every few seconds help nobody). The lines are formatted
+    /// after the fleet's lock is released, since ingest takes it for every state vector.
     fn log_summary(&self) {
+        const VEHICLE_LINES_UP_TO: usize = 20;
         let now = now_ms();
+        let (mut lines, mut counts) = (Vec::new(), [0usize; 4]);
         let fleet = lock(&self.shared.fleet);
-        if fleet.vehicles.is_empty() {
-            info!("no vehicles yet");
+        let total = fleet.vehicles.len();
+        if total <= VEHICLE_LINES_UP_TO {
+            for (id, e) in &fleet.vehicles {
+                lines.push((
+                    id.clone(),
+                    e.announcement.kind.as_str(),
+                    e.contact,
+                    e.latest.clone(),
+                    e.last_contact_ms,
+                    e.states_accepted,
+                ));
+            }
+        } else {
+            for e in fleet.vehicles.values() {
+                counts[match e.contact {
+                    Contact::Alive => 0,
+                    Contact::Stale => 1,
+                    Contact::Lost => 2,
+                    Contact::Silent => 3,
+                }] += 1;
+            }
         }
-        for (id, e) in &fleet.vehicles {
+        drop(fleet);
+        if total == 0 {
+            info!("no vehicles yet");
+        } else if lines.is_empty() {
+            let [alive, stale, lost, silent] = counts;
+            info!(vehicles = total, alive, stale, lost, silent, "fleet");
+        }
+        lines.sort_by(|a, b| a.0.cmp(&b.0));
+        for (id, kind, contact, latest, last_contact_ms, n) in lines {
             #[allow(clippy::cast_precision_loss)]
-            let ago = e.last_contact_ms.map_or_else(
+            let ago = last_contact_ms.map_or_else(
                 || "never".to_string(),
                 |t| format!("{:.1}s ago", (now - t) as f64 / 1000.0),
             );
-            match &e.latest {
+            match latest {
                 Some(s) => info!(
                     "{id:<10} {kind:<6} {contact:<6} lat {lat:>9.5} lon {lon:>10.5} depth {depth:>6.1} m speed {speed:>4.1} m/s heading {yaw:>5.1} battery {batt:>5.1}% last {ago} states {n}",
-                    kind = e.announcement.kind.as_str(),
-                    contact = format!("{:?}", e.contact).to_lowercase(),
+                    contact = format!("{contact:?}").to_lowercase(),
                     lat = s.latitude_deg,
                     lon = s.longitude_deg,
                     depth = s.depth_m,
                     speed = s.speed_mps,
                     yaw = s.yaw_deg,
                     batt = s.battery_pct,
-                    n = e.states_accepted,
                 ),
-                None => info!(
-                    "{id:<10} {:<6} announced, no state yet",
-                    e.announcement.kind.as_str()
-                ),
+                None => info!("{id:<10} {kind:<6} announced, no state yet"),
             }
         }
-        drop(fleet);
         let stats = self.stats();
         info!(
             accepted = stats.states_accepted,
