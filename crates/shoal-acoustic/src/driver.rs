@@ -410,6 +410,8 @@ async fn run<W: Wire + Default>(
                 continue;
             }
         };
+        // Commands and replies are short lines: never hold one back for Nagle.
+        let _ = stream.set_nodelay(true);
         info!(proto = W::NAME, addr = %cfg.addr, "connected to modem");
         status.connected.store(true, Ordering::Relaxed);
         wire.reset();

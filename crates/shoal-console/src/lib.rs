@@ -250,6 +250,14 @@ pub async fn serve_with(
         }
         info!(%addr, "console: http://{addr}/  API: http://{addr}/api/fleet");
     }
+    // Live updates are small writes: with Nagle's algorithm on, each one after an
+    // unacknowledged one waited for the client's delayed ACK (40 ms on Linux), which was
+    // the whole tail of the vehicle → console latency.
+    let listener = axum::serve::ListenerExt::tap_io(listener, |tcp| {
+        if let Err(e) = tcp.set_nodelay(true) {
+            warn!(error = %e, "cannot set TCP_NODELAY on a console connection");
+        }
+    });
     axum::serve(listener, console_router(station, Arc::new(auth)))
         .with_graceful_shutdown(shutdown.cancelled_owned())
         .await?;

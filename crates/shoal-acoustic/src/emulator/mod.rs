@@ -374,6 +374,10 @@ async fn accept_loop(
             r = listener.accept() => match r {
                 Ok((stream, peer)) => {
                     debug!(node, nl, %peer, "client connected");
+                    // Replies and notifications (OK, then DELIVERED or RECV) are short
+                    // lines in quick succession: Nagle would hold the second for the
+                    // client's delayed ACK.
+                    let _ = stream.set_nodelay(true);
                     conns.spawn(serve(stream, sea.clone(), node, nl, stop.clone()));
                 }
                 Err(e) => warn!(error = %e, "accept failed"),
