@@ -14,7 +14,7 @@ pub struct StationConfig {
     pub stale_after_s: f64,
     /// Seconds without a state vector after which a vehicle is lost (a CommLost alarm).
     pub lost_after_s: f64,
-    /// Seconds between the one-line-per-vehicle summaries in the log (0 = never).
+    /// Seconds between fleet summaries in the log (a line per vehicle up to 20, counts beyond; 0 = never).
     pub summary_interval_s: f64,
     /// Accept state vectors only from vehicles that announced themselves first.
     pub require_announcement: bool,
