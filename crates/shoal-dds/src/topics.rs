@@ -43,95 +43,70 @@ pub trait TopicType:
     }
 }
 
-impl TopicType for StateVector {
-    const TOPIC: &'static str = "shoal/state_vector";
-    const TYPE_NAME: &'static str = "shoal::StateVector";
-    const PROFILE: QosProfile = QosProfile::State;
-    const DEFAULT_PRIORITY: Priority = Priority::Telemetry;
-    type Key = String;
-    fn key(&self) -> String {
-        self.vehicle_id.clone()
-    }
-    const SIGNED: bool = true;
-    fn owner_vehicle(&self) -> Option<&str> {
-        Some(&self.vehicle_id)
-    }
-    fn key_text(&self) -> String {
-        self.vehicle_id.clone()
-    }
+/// A Shoal topic keyed by one of its string fields and owned by the vehicle it names in
+/// `vehicle_id` (the publish policy checks that owner when security is on).
+macro_rules! string_keyed_topic {
+    ($ty:ty, $topic:literal, $type_name:literal, $profile:ident, $priority:ident, $key:ident) => {
+        impl TopicType for $ty {
+            const TOPIC: &'static str = $topic;
+            const TYPE_NAME: &'static str = $type_name;
+            const PROFILE: QosProfile = QosProfile::$profile;
+            const DEFAULT_PRIORITY: Priority = Priority::$priority;
+            type Key = String;
+            fn key(&self) -> String {
+                self.$key.clone()
+            }
+            const SIGNED: bool = true;
+            fn owner_vehicle(&self) -> Option<&str> {
+                Some(&self.vehicle_id)
+            }
+            fn key_text(&self) -> String {
+                self.$key.clone()
+            }
+        }
+    };
 }
 
-impl TopicType for VehicleAnnouncement {
-    const TOPIC: &'static str = "shoal/vehicle_announcement";
-    const TYPE_NAME: &'static str = "shoal::VehicleAnnouncement";
-    const PROFILE: QosProfile = QosProfile::Announcements;
-    const DEFAULT_PRIORITY: Priority = Priority::Control;
-    type Key = String;
-    fn key(&self) -> String {
-        self.vehicle_id.clone()
-    }
-    const SIGNED: bool = true;
-    fn owner_vehicle(&self) -> Option<&str> {
-        Some(&self.vehicle_id)
-    }
-    fn key_text(&self) -> String {
-        self.vehicle_id.clone()
-    }
-}
-
-impl TopicType for TaskAssignment {
-    const TOPIC: &'static str = "shoal/task_assignment";
-    const TYPE_NAME: &'static str = "shoal::TaskAssignment";
-    const PROFILE: QosProfile = QosProfile::Tasks;
-    const DEFAULT_PRIORITY: Priority = Priority::Control;
-    type Key = String;
-    fn key(&self) -> String {
-        self.task_id.clone()
-    }
-    const SIGNED: bool = true;
-    fn owner_vehicle(&self) -> Option<&str> {
-        Some(&self.vehicle_id)
-    }
-    fn key_text(&self) -> String {
-        self.task_id.clone()
-    }
-}
-
-impl TopicType for TaskStatus {
-    const TOPIC: &'static str = "shoal/task_status";
-    const TYPE_NAME: &'static str = "shoal::TaskStatus";
-    const PROFILE: QosProfile = QosProfile::TaskStatus;
-    const DEFAULT_PRIORITY: Priority = Priority::Control;
-    type Key = String;
-    fn key(&self) -> String {
-        self.task_id.clone()
-    }
-    const SIGNED: bool = true;
-    fn owner_vehicle(&self) -> Option<&str> {
-        Some(&self.vehicle_id)
-    }
-    fn key_text(&self) -> String {
-        self.task_id.clone()
-    }
-}
-
-impl TopicType for Event {
-    const TOPIC: &'static str = "shoal/event";
-    const TYPE_NAME: &'static str = "shoal::Event";
-    const PROFILE: QosProfile = QosProfile::Events;
-    const DEFAULT_PRIORITY: Priority = Priority::Control;
-    type Key = String;
-    fn key(&self) -> String {
-        self.event_id.clone()
-    }
-    const SIGNED: bool = true;
-    fn owner_vehicle(&self) -> Option<&str> {
-        Some(&self.vehicle_id)
-    }
-    fn key_text(&self) -> String {
-        self.event_id.clone()
-    }
-}
+string_keyed_topic!(
+    StateVector,
+    "shoal/state_vector",
+    "shoal::StateVector",
+    State,
+    Telemetry,
+    vehicle_id
+);
+string_keyed_topic!(
+    VehicleAnnouncement,
+    "shoal/vehicle_announcement",
+    "shoal::VehicleAnnouncement",
+    Announcements,
+    Control,
+    vehicle_id
+);
+string_keyed_topic!(
+    TaskAssignment,
+    "shoal/task_assignment",
+    "shoal::TaskAssignment",
+    Tasks,
+    Control,
+    task_id
+);
+string_keyed_topic!(
+    TaskStatus,
+    "shoal/task_status",
+    "shoal::TaskStatus",
+    TaskStatus,
+    Control,
+    task_id
+);
+string_keyed_topic!(
+    Event,
+    "shoal/event",
+    "shoal::Event",
+    Events,
+    Control,
+    event_id
+);
 
 /// Key of an environment observation: (`vehicle_id`, `property`), in IDL order.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
