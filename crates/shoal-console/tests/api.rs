@@ -105,6 +105,25 @@ async fn call(
     (status, headers, bytes)
 }
 
+/// [`call`], asserting the status; the body.
+async fn expect(
+    router: &Router,
+    method: &str,
+    uri: &str,
+    auth: Option<(header::HeaderName, String)>,
+    body: Option<Value>,
+    status: StatusCode,
+) -> Vec<u8> {
+    let (got, _, bytes) = call(router, method, uri, auth, body).await;
+    assert_eq!(
+        got,
+        status,
+        "{method} {uri}: {}",
+        String::from_utf8_lossy(&bytes)
+    );
+    bytes
+}
+
 fn json_of(bytes: &[u8]) -> Value {
     serde_json::from_slice(bytes).unwrap_or_else(|e| {
         panic!("not JSON ({e}): {}", String::from_utf8_lossy(bytes));
@@ -176,11 +195,9 @@ async fn roles_decide_who_may_read_dispatch_and_manage() {
     let r = &f.router;
 
     // Nothing without credentials, but the page, health and the API description.
-    let (status, _, body) = call(r, "GET", "/api/fleet", None, None).await;
-    assert_eq!(status, StatusCode::UNAUTHORIZED);
+    let body = expect(r, "GET", "/api/fleet", None, None, StatusCode::UNAUTHORIZED).await;
     assert!(json_of(&body)["error"].as_str().unwrap().contains("log in"));
-    let (status, _, _) = call(r, "GET", "/api/ws", None, None).await;
-    assert_eq!(status, StatusCode::UNAUTHORIZED);
+    expect(r, "GET", "/api/ws", None, None, StatusCode::UNAUTHORIZED).await;
     let (status, headers, _) = call(r, "GET", "/", None, None).await;
     assert_eq!(status, StatusCode::OK);
     assert!(
@@ -193,21 +210,20 @@ async fn roles_decide_who_may_read_dispatch_and_manage() {
         call(r, "GET", "/api/health", None, None).await.0,
         StatusCode::OK
     );
-    let (status, _, body) = call(r, "GET", "/api/auth/session", None, None).await;
-    assert_eq!(status, StatusCode::OK);
+    let body = expect(r, "GET", "/api/auth/session", None, None, StatusCode::OK).await;
     assert_eq!(json_of(&body)["enabled"], true);
     assert_eq!(json_of(&body)["user"], Value::Null);
 
     // Wrong password: 401, explained.
-    let (status, _, body) = call(
+    let body = expect(
         r,
         "POST",
         "/api/auth/login",
         None,
         Some(json!({"user": "admin", "password": "nope"})),
+        StatusCode::UNAUTHORIZED,
     )
     .await;
-    assert_eq!(status, StatusCode::UNAUTHORIZED);
     assert!(json_of(&body)["error"].as_str().unwrap().contains("wrong"));
 
     // The admin's token makes users; the admin's login works.
@@ -240,15 +256,15 @@ async fn roles_decide_who_may_read_dispatch_and_manage() {
     let mission = json!({"mission_id": "m-viewer", "tasks": [{"vehicle_id": "auv-9",
         "task": {"kind": "goto_waypoint", "target": {"latitude_deg": 63.46, "longitude_deg": 10.37},
                  "depth_m": 5.0, "speed_mps": 1.0}}]});
-    let (status, _, body) = call(
+    let body = expect(
         r,
         "POST",
         "/api/missions?start=true",
         viewer.clone(),
         Some(mission.clone()),
+        StatusCode::FORBIDDEN,
     )
     .await;
-    assert_eq!(status, StatusCode::FORBIDDEN);
     assert!(
         json_of(&body)["error"]
             .as_str()
@@ -273,15 +289,15 @@ async fn roles_decide_who_may_read_dispatch_and_manage() {
         assert_eq!(status, StatusCode::FORBIDDEN, "{method} {uri} as a viewer");
     }
     // An operator dispatches but does not manage rules or vehicles.
-    let (status, _, _) = call(
+    expect(
         r,
         "POST",
         "/api/rules",
         operator.clone(),
         Some(json!({"id": "r1", "condition": {"type": "threshold", "expr": "battery_pct < 5"}})),
+        StatusCode::FORBIDDEN,
     )
     .await;
-    assert_eq!(status, StatusCode::FORBIDDEN);
     let (status, _, body) = call(r, "POST", "/api/missions", operator.clone(), Some(mission)).await;
     // Past the guard: the station itself refuses an unknown vehicle.
     assert_eq!(
@@ -291,24 +307,26 @@ async fn roles_decide_who_may_read_dispatch_and_manage() {
         String::from_utf8_lossy(&body)
     );
     // An admin manages rules.
-    let (status, _, body) = call(
+    expect(
         r,
         "POST",
         "/api/rules",
         admin.clone(),
         Some(json!({"id": "r1", "condition": {"type": "threshold", "expr": "battery_pct < 5"}})),
+        StatusCode::CREATED,
     )
     .await;
-    assert_eq!(
-        status,
-        StatusCode::CREATED,
-        "{}",
-        String::from_utf8_lossy(&body)
-    );
 
     // Logging out ends the session.
-    let (status, _, _) = call(r, "POST", "/api/auth/logout", viewer.clone(), None).await;
-    assert_eq!(status, StatusCode::NO_CONTENT);
+    expect(
+        r,
+        "POST",
+        "/api/auth/logout",
+        viewer.clone(),
+        None,
+        StatusCode::NO_CONTENT,
+    )
+    .await;
     assert_eq!(
         call(r, "GET", "/api/fleet", viewer, None).await.0,
         StatusCode::UNAUTHORIZED
@@ -332,38 +350,28 @@ async fn a_missions_log_exports_as_csv_and_geojson() {
     let r = &f.router;
     let token = bearer(&f.admin_token);
     let h = &f.handle;
-    let (status, _, body) = call(
+    expect(
         r,
         "POST",
         "/api/vehicles",
         token.clone(),
         Some(serde_json::to_value(announcement("auv-x")).unwrap()),
+        StatusCode::CREATED,
     )
     .await;
-    assert_eq!(
-        status,
-        StatusCode::CREATED,
-        "{}",
-        String::from_utf8_lossy(&body)
-    );
     h.ingest_state(state("auv-x", now_ms(), 63.46)).unwrap();
     let spec = json!({"mission_id": "m-exp", "name": "export", "tasks": [{"vehicle_id": "auv-x",
         "task": {"kind": "goto_waypoint", "target": {"latitude_deg": 63.461, "longitude_deg": 10.37},
                  "depth_m": 5.0, "speed_mps": 1.0}}]});
-    let (status, _, body) = call(
+    expect(
         r,
         "POST",
         "/api/missions?start=true",
         token.clone(),
         Some(spec),
+        StatusCode::CREATED,
     )
     .await;
-    assert_eq!(
-        status,
-        StatusCode::CREATED,
-        "{}",
-        String::from_utf8_lossy(&body)
-    );
     // States stamped after the start (and not after now) are in the running mission's window.
     tokio::time::sleep(Duration::from_millis(400)).await;
     let t0 = now_ms() - 300;
@@ -399,36 +407,42 @@ async fn a_missions_log_exports_as_csv_and_geojson() {
     assert!(rows.len() >= 3, "{csv}");
     assert!(rows.iter().all(|l| l.starts_with("m-exp,auv-x,")));
 
-    let (status, _, body) = call(
+    let body = expect(
         r,
         "GET",
         "/api/missions/m-exp/export.geojson",
         token.clone(),
         None,
+        StatusCode::OK,
     )
     .await;
-    assert_eq!(status, StatusCode::OK);
     let g = json_of(&body);
     assert_eq!(g["mission"]["mission_id"], "m-exp");
     assert_eq!(g["features"][0]["geometry"]["type"], "LineString");
     assert_eq!(g["features"][1]["properties"]["feature"], "task");
 
-    let (status, _, body) = call(
+    let body = expect(
         r,
         "GET",
         "/api/missions/nope/export.csv",
         token.clone(),
         None,
+        StatusCode::NOT_FOUND,
     )
     .await;
-    assert_eq!(status, StatusCode::NOT_FOUND);
     assert!(json_of(&body)["error"].as_str().unwrap().contains("nope"));
     // Unknown API paths answer JSON, the status page stays reachable without JavaScript.
-    let (status, _, body) = call(r, "GET", "/api/no-such-thing", token.clone(), None).await;
-    assert_eq!(status, StatusCode::NOT_FOUND);
+    let body = expect(
+        r,
+        "GET",
+        "/api/no-such-thing",
+        token.clone(),
+        None,
+        StatusCode::NOT_FOUND,
+    )
+    .await;
     assert!(json_of(&body)["error"].is_string());
-    let (status, _, body) = call(r, "GET", "/status.html", None, None).await;
-    assert_eq!(status, StatusCode::OK);
+    let body = expect(r, "GET", "/status.html", None, None, StatusCode::OK).await;
     assert!(String::from_utf8_lossy(&body).contains("/api/fleet"));
     f.shutdown.cancel();
 }
@@ -517,15 +531,15 @@ async fn capable_vehicles_come_from_the_semantic_model() {
         h.ingest_state(s).unwrap();
     }
 
-    let (status, _, body) = call(
+    let body = expect(
         r,
         "GET",
         "/api/fleet/capable?kind=survey_area&capability=sidescan_survey",
         token.clone(),
         None,
+        StatusCode::OK,
     )
     .await;
-    assert_eq!(status, StatusCode::OK, "{}", String::from_utf8_lossy(&body));
     let a = json_of(&body);
     assert_eq!(a["kind"], "survey_area");
     let req: Vec<(&str, &str)> = a["requires"]
@@ -597,15 +611,15 @@ async fn capable_vehicles_come_from_the_semantic_model() {
 
     // A capability alone: the sonar also enables seabed imaging. Without a task kind the
     // station's task checks do not apply, only contact.
-    let (status, _, body) = call(
+    let body = expect(
         r,
         "GET",
         "/api/fleet/capable?capability=seabed_imaging",
         token.clone(),
         None,
+        StatusCode::OK,
     )
     .await;
-    assert_eq!(status, StatusCode::OK);
     let a = json_of(&body);
     assert_eq!(a["kind"], Value::Null);
     for (id, capable) in [
@@ -619,15 +633,15 @@ async fn capable_vehicles_come_from_the_semantic_model() {
         assert_eq!(v["dispatchable"], capable, "{v}");
     }
     // A task kind that needs nothing of the ontology (abort): every vehicle, even incapable.
-    let (status, _, body) = call(
+    let body = expect(
         r,
         "GET",
         "/api/fleet/capable?kind=abort",
         token.clone(),
         None,
+        StatusCode::OK,
     )
     .await;
-    assert_eq!(status, StatusCode::OK);
     let a = json_of(&body);
     assert_eq!(a["requires"], json!([]));
     assert!(
@@ -660,8 +674,15 @@ async fn capable_vehicles_come_from_the_semantic_model() {
         assert!(msg.contains(expect), "{uri}: {msg}");
     }
     // A viewer may ask.
-    let (status, _, _) = call(r, "GET", "/api/fleet/capable?kind=hold", None, None).await;
-    assert_eq!(status, StatusCode::UNAUTHORIZED);
+    expect(
+        r,
+        "GET",
+        "/api/fleet/capable?kind=hold",
+        None,
+        None,
+        StatusCode::UNAUTHORIZED,
+    )
+    .await;
     f.shutdown.cancel();
 }
 
@@ -671,7 +692,7 @@ async fn a_rule_is_edited_in_place_and_checked_like_a_new_one() {
     let r = &f.router;
     let token = bearer(&f.admin_token);
     let rule = |body: &[u8]| json_of(body);
-    let (status, _, body) = call(
+    expect(
         r,
         "POST",
         "/api/rules",
@@ -680,17 +701,12 @@ async fn a_rule_is_edited_in_place_and_checked_like_a_new_one() {
             json!({"id": "r-edit", "description": "deep", "severity": "info",
                     "condition": {"type": "threshold", "expr": "depth_m > 900"}}),
         ),
+        StatusCode::CREATED,
     )
     .await;
-    assert_eq!(
-        status,
-        StatusCode::CREATED,
-        "{}",
-        String::from_utf8_lossy(&body)
-    );
 
     // A new condition and severity; the description stays.
-    let (status, _, body) = call(
+    let body = expect(
         r,
         "PATCH",
         "/api/rules/r-edit",
@@ -698,9 +714,9 @@ async fn a_rule_is_edited_in_place_and_checked_like_a_new_one() {
         Some(
             json!({"severity": "alarm", "condition": {"type": "threshold", "expr": "depth_m > 3"}}),
         ),
+        StatusCode::OK,
     )
     .await;
-    assert_eq!(status, StatusCode::OK, "{}", String::from_utf8_lossy(&body));
     let doc = rule(&body);
     assert_eq!(doc["condition"]["expr"], "depth_m > 3");
     assert_eq!(doc["severity"], "alarm");
@@ -779,26 +795,22 @@ async fn a_rule_is_edited_in_place_and_checked_like_a_new_one() {
     );
 
     // Switching alone still works; a later redefinition keeps it off.
-    let (status, _, body) = call(
+    let body = expect(
         r,
         "PATCH",
         "/api/rules/r-edit",
         token.clone(),
         Some(json!({"enabled": false})),
+        StatusCode::OK,
     )
     .await;
-    assert_eq!(status, StatusCode::OK);
     assert_eq!(rule(&body)["enabled"], false);
-    let (status, _, body) = call(
-        r,
+    let body = expect(r,
         "PATCH",
         "/api/rules/r-edit",
         token.clone(),
         Some(json!({"description": "deeper", "condition": {"type": "sparql",
-            "query": "ASK { ?this shoal:batteryLevel ?b FILTER(?b < 15) }", "watches": ["shoal:batteryLevel"]}})),
-    )
-    .await;
-    assert_eq!(status, StatusCode::OK, "{}", String::from_utf8_lossy(&body));
+            "query": "ASK { ?this shoal:batteryLevel ?b FILTER(?b < 15) }", "watches": ["shoal:batteryLevel"]}})), StatusCode::OK).await;
     let doc = rule(&body);
     assert_eq!(
         (doc["enabled"].as_bool(), doc["condition"]["type"].as_str()),
@@ -806,15 +818,15 @@ async fn a_rule_is_edited_in_place_and_checked_like_a_new_one() {
     );
     assert_eq!(doc["description"], "deeper");
     // The whole document as GET gave it can be sent back.
-    let (status, _, _) = call(
+    expect(
         r,
         "PATCH",
         "/api/rules/r-edit",
         token.clone(),
         Some(doc.clone()),
+        StatusCode::OK,
     )
     .await;
-    assert_eq!(status, StatusCode::OK);
 
     // What cannot be done is explained.
     for (uri, body, want, text) in [
@@ -872,15 +884,15 @@ async fn a_rule_is_edited_in_place_and_checked_like_a_new_one() {
         assert!(msg.contains(text), "{uri} {body}: {msg}");
     }
     // Built-in rules are still switched.
-    let (status, _, body) = call(
+    let body = expect(
         r,
         "PATCH",
         "/api/rules/builtin.low_battery",
         token.clone(),
         Some(json!({"enabled": false})),
+        StatusCode::OK,
     )
     .await;
-    assert_eq!(status, StatusCode::OK, "{}", String::from_utf8_lossy(&body));
     assert_eq!(rule(&body)["enabled"], false);
     f.shutdown.cancel();
 }
@@ -920,15 +932,15 @@ async fn contact_changes_reach_the_live_feed() {
     }
     assert_eq!(seen, ["alive", "stale", "lost"]);
     // The editor is told why it is not offered.
-    let (status, _, body) = call(
+    let body = expect(
         &f.router,
         "GET",
         "/api/fleet/capable?kind=goto_waypoint",
         bearer(&f.admin_token),
         None,
+        StatusCode::OK,
     )
     .await;
-    assert_eq!(status, StatusCode::OK);
     let a = json_of(&body);
     let q = candidate(&a, "auv-q");
     assert_eq!(
