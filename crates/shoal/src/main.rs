@@ -128,8 +128,8 @@ enum Command {
         #[arg(long)]
         exit_on_stdin_close: bool,
     },
-    /// Measure: `bus` (round trip and throughput against Cyclone DDS's ddsperf), `ingest`
-    /// (station ingest rate from simulated vehicles), `soak` (memory over many writes).
+    /// Benchmarks that print figures: `suite` runs every target in one table beside its
+    /// peer (Cyclone DDS, raw SQLite, DCCL); the others measure one part each.
     Bench {
         #[command(subcommand)]
         which: bench::BenchCommand,
