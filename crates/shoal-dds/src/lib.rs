@@ -20,6 +20,7 @@ mod manager;
 mod qos;
 mod secure;
 mod topics;
+mod watchdog;
 
 pub use config::DdsConfig;
 pub use error::{CreateError, ReadError, WriteError};
@@ -27,6 +28,7 @@ pub use manager::{ParticipantEvent, PubSub, SampleMeta, Subscription, Writer};
 pub use qos::{Priority, QosProfile, WriterOptions};
 pub use secure::{SIGNED_TYPE_NAME, Security, SecurityCounts, signed_topic};
 pub use topics::{ALL_TOPICS, ObservationKey, TopicType};
+pub use watchdog::failure;
 
 /// Serialises a sample exactly as it goes on the wire: a 4-byte encapsulation header
 /// (CDR little endian, RTPS 10.5) followed by XCDR1 plain CDR. For interop checks and tools.

@@ -34,6 +34,8 @@ fn dds_err(what: impl Into<String>, e: impl std::fmt::Display) -> CreateError {
 
 /// Owns the process's DDS participant, its publisher and subscriber, and the topics.
 pub struct PubSub {
+    /// Counted by the watchdog while the participant lives (see [`crate::failure`]).
+    _registration: crate::watchdog::Registration,
     participant: DomainParticipant,
     publisher: Publisher,
     subscriber: Subscriber,
@@ -93,6 +95,7 @@ impl PubSub {
             "DDS participant joined"
         );
         Ok(Self {
+            _registration: crate::watchdog::Registration::new(),
             participant,
             publisher,
             subscriber,
@@ -671,8 +674,12 @@ where
                 return Ok(());
             }
         }
-        // The timeout bounds how long a dropped subscription keeps its thread.
-        poll.poll(&mut events, Some(std::time::Duration::from_millis(200)))?;
+        // The timeout bounds how long a dropped subscription keeps its thread. EINTR (the
+        // process was stopped and resumed, or a signal landed here) is no reason to stop.
+        match poll.poll(&mut events, Some(std::time::Duration::from_millis(200))) {
+            Err(e) if e.kind() != std::io::ErrorKind::Interrupted => return Err(e),
+            _ => {}
+        }
     }
 }
 

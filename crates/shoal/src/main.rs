@@ -272,7 +272,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
-    match cli.command {
+    let result = match cli.command {
         Command::Up {
             no_fleet,
             secure,
@@ -382,5 +382,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             Ok(())
         }
+    };
+    // A daemon whose DDS died stopped on it (see `shutdown_signal`): say why, and fail.
+    match shoal_dds::failure() {
+        Some(why) => result.and(Err(anyhow::anyhow!("{why}"))),
+        None => result,
     }
 }

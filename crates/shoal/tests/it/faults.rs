@@ -1,6 +1,7 @@
 //! Faults with the `shoal` binary: a station killed with SIGKILL under load loses no record
 //! it had committed, finds its vehicles again after a restart, and its Task Register picks
-//! up the task under way. Domain 54.
+//! up the task under way (domain 54); a process whose DDS died after a stop and resume
+//! exits and says why (domain 90).
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -142,4 +143,61 @@ fn a_station_killed_under_load_loses_no_committed_record_and_resumes() {
             .as_i64()
             .is_some_and(|ts| now_ms() - ts < 5_000)
     });
+}
+
+/// A vehicle process stopped and resumed (SIGSTOP/SIGCONT, as Ctrl-Z then `fg`, or a
+/// suspend) loses RustDDS's threads to EINTR: it must not stay up deaf and mute, but stop
+/// with an error that says why, so a supervisor restarts it. Domain 90.
+#[test]
+fn a_process_whose_dds_died_after_a_stop_and_resume_exits_and_says_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("vehicle.log");
+    let mut vehicle = Proc(
+        Command::new(env!("CARGO_BIN_EXE_shoal"))
+            .args(["vehicle", "--sim", "auv", "--id", "auv-z"])
+            .current_dir(dir.path())
+            .env("SHOAL_DDS__DOMAIN_ID", "90")
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap(),
+    );
+    let text = || std::fs::read_to_string(&log).unwrap_or_default();
+    wait_for(20, "the vehicle to join", || {
+        text().contains("vehicle joined")
+    });
+    let pid = vehicle.0.id().to_string();
+    let signal = |sig: &str| {
+        let ok = Command::new("kill")
+            .args([sig, &pid])
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(ok, "kill {sig} {pid}");
+    };
+    // A thread that is not inside a system call at that instant gets no EINTR: stop and
+    // resume until the process notices (the first time, nearly always).
+    let mut status = None;
+    for _ in 0..5 {
+        signal("-STOP");
+        std::thread::sleep(Duration::from_millis(300));
+        signal("-CONT");
+        let start = Instant::now();
+        while status.is_none() && start.elapsed() < Duration::from_secs(8) {
+            status = vehicle.0.try_wait().unwrap();
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        if status.is_some() {
+            break;
+        }
+    }
+    let status = status.unwrap_or_else(|| panic!("still running after 5 stops: {}", text()));
+    assert!(!status.success(), "{status:?}");
+    let err = text();
+    let last = err.lines().last().unwrap_or_default();
+    assert!(
+        last.starts_with("shoal: error: DDS stopped in this process"),
+        "{err}"
+    );
+    assert!(last.contains("restart the process"), "{last}");
+    assert!(!err.contains("panicked"), "{err}");
 }
