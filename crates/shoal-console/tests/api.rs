@@ -805,12 +805,18 @@ async fn a_rule_is_edited_in_place_and_checked_like_a_new_one() {
     )
     .await;
     assert_eq!(rule(&body)["enabled"], false);
-    let body = expect(r,
+    let redefined = json!({"description": "deeper", "condition": {"type": "sparql",
+        "query": "ASK { ?this shoal:batteryLevel ?b FILTER(?b < 15) }",
+        "watches": ["shoal:batteryLevel"]}});
+    let body = expect(
+        r,
         "PATCH",
         "/api/rules/r-edit",
         token.clone(),
-        Some(json!({"description": "deeper", "condition": {"type": "sparql",
-            "query": "ASK { ?this shoal:batteryLevel ?b FILTER(?b < 15) }", "watches": ["shoal:batteryLevel"]}})), StatusCode::OK).await;
+        Some(redefined),
+        StatusCode::OK,
+    )
+    .await;
     let doc = rule(&body);
     assert_eq!(
         (doc["enabled"].as_bool(), doc["condition"]["type"].as_str()),
