@@ -171,3 +171,69 @@ pub async fn within<F: Future>(secs: u64, what: &str, fut: F) -> F::Output {
         .await
         .unwrap_or_else(|_| panic!("timed out after {secs} s waiting for {what}"))
 }
+
+/// A simulated AUV behind a VDT on `vehicle_domain`, a CDT relaying it onto
+/// `station_domain`, and the station's participant there, once the AUV's announcement has
+/// crossed the acoustic link.
+pub struct AcousticAuv {
+    /// The station side's participant.
+    pub station: Arc<PubSub>,
+    /// Task status as the station hears it.
+    pub status: shoal_dds::Subscription<shoal_model::TaskStatus>,
+    /// The CDT, which ends when `shutdown` is cancelled.
+    pub cdt: tokio::task::JoinHandle<Result<(), shoal_converter::ConverterError>>,
+}
+
+impl AcousticAuv {
+    /// Starts it all over EvoLogics AT modems at `auv_at` and `cdt_at`, at `time_scale`.
+    pub async fn start(
+        (vehicle_domain, station_domain): (u16, u16),
+        (cdt_at, auv_at): (SocketAddr, SocketAddr),
+        time_scale: f64,
+        shutdown: &tokio_util::sync::CancellationToken,
+    ) -> Self {
+        use shoal_model::{TaskStatus, VehicleAnnouncement};
+        let station = participant(station_domain);
+        let mut announcements = station.subscribe::<VehicleAnnouncement>().unwrap();
+        let status = station.subscribe::<TaskStatus>().unwrap();
+        tokio::spawn(shoal_proxy::run_sim(
+            auv(),
+            participant(vehicle_domain),
+            shutdown.clone(),
+        ));
+        let vdt = VdtConfig {
+            time_scale,
+            ..vdt_config(ModemKind::EvologicsAt, auv_at)
+        };
+        let driver = shoal_converter::Modem::start(&vdt.modem, time_scale);
+        tokio::spawn(shoal_converter::run_vdt(
+            vdt,
+            participant(vehicle_domain),
+            driver,
+            shutdown.clone(),
+        ));
+        let cdt = CdtConfig {
+            time_scale,
+            ..cdt_config(ModemKind::EvologicsAt, cdt_at)
+        };
+        let driver = shoal_converter::Modem::start(&cdt.modem, time_scale);
+        let cdt = tokio::spawn(shoal_converter::run_cdt(
+            cdt,
+            participant(station_domain),
+            driver,
+            shutdown.clone(),
+        ));
+        wait_for(
+            &mut announcements,
+            60,
+            "announcement",
+            |a: &VehicleAnnouncement, _| a.vehicle_id == "auv-1",
+        )
+        .await;
+        Self {
+            station,
+            status,
+            cdt,
+        }
+    }
+}

@@ -6,9 +6,8 @@
 use std::time::Duration;
 
 use shoal_acoustic::emulator::{Emulator, EmulatorConfig};
-use shoal_converter::{Modem, ModemKind, run_cdt, run_vdt};
 use shoal_dds::{Priority, WriterOptions};
-use shoal_model::{TaskAssignment, TaskState, TaskStatus, VehicleAnnouncement};
+use shoal_model::{TaskAssignment, TaskState};
 use tokio_util::sync::CancellationToken;
 
 use crate::common::*;
@@ -31,33 +30,11 @@ async fn tasks_sent_during_a_ten_minute_outage_are_all_delivered_afterwards() {
     .unwrap();
     let (cdt_modem, auv_modem) = (emu.modems()[0].clone(), emu.modems()[1].clone());
     let shutdown = CancellationToken::new();
-    let sim_dds = participant(107);
-    let vdt_dds = participant(107);
-    let cdt_dds = participant(108);
-    let station = participant(108);
-    let mut b_ann = station.subscribe::<VehicleAnnouncement>().unwrap();
-    let mut b_status = station.subscribe::<TaskStatus>().unwrap();
-
-    tokio::spawn(shoal_proxy::run_sim(auv(), sim_dds, shutdown.clone()));
-    let vdt_cfg = shoal_converter::VdtConfig {
-        time_scale: FAST,
-        ..vdt_config(ModemKind::EvologicsAt, auv_modem.at)
-    };
-    let driver = Modem::start(&vdt_cfg.modem, FAST);
-    tokio::spawn(run_vdt(vdt_cfg, vdt_dds, driver, shutdown.clone()));
-    let cdt_cfg = shoal_converter::CdtConfig {
-        time_scale: FAST,
-        ..cdt_config(ModemKind::EvologicsAt, cdt_modem.at)
-    };
-    let driver = Modem::start(&cdt_cfg.modem, FAST);
-    tokio::spawn(run_cdt(cdt_cfg, cdt_dds, driver, shutdown.clone()));
-    wait_for(
-        &mut b_ann,
-        60,
-        "announcement",
-        |a: &VehicleAnnouncement, _| a.vehicle_id == "auv-1",
-    )
-    .await;
+    let AcousticAuv {
+        station,
+        status: mut b_status,
+        ..
+    } = AcousticAuv::start((107, 108), (cdt_modem.at, auv_modem.at), FAST, &shutdown).await;
 
     // The AUV goes 100 km away: far beyond any acoustic range.
     let home = emu.position(AUV).unwrap();

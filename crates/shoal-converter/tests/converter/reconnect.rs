@@ -1,9 +1,8 @@
 //! The modem connection drops (the emulator stops) and comes back on the same ports: the
 //! converters reconnect and a task queued meanwhile is still delivered. Domains 103, 104.
 
-use shoal_converter::{Modem, ModemKind, run_cdt, run_vdt};
 use shoal_dds::{Priority, WriterOptions};
-use shoal_model::{TaskAssignment, TaskState, TaskStatus, VehicleAnnouncement};
+use shoal_model::{TaskAssignment, TaskState, TaskStatus};
 use tokio_util::sync::CancellationToken;
 
 use crate::common::*;
@@ -14,27 +13,11 @@ async fn a_task_queued_while_the_modem_is_gone_is_delivered_after_it_returns() {
     let emu = emulator(ports).await;
     let (cdt_modem, auv_modem) = (emu.modems()[0].clone(), emu.modems()[1].clone());
     let shutdown = CancellationToken::new();
-    let sim_dds = participant(103);
-    let vdt_dds = participant(103);
-    let cdt_dds = participant(104);
-    let station = participant(104);
-    let mut b_ann = station.subscribe::<VehicleAnnouncement>().unwrap();
-    let mut b_status = station.subscribe::<TaskStatus>().unwrap();
-
-    tokio::spawn(shoal_proxy::run_sim(auv(), sim_dds, shutdown.clone()));
-    let vdt_cfg = vdt_config(ModemKind::EvologicsAt, auv_modem.at);
-    let driver = Modem::start(&vdt_cfg.modem, SCALE);
-    tokio::spawn(run_vdt(vdt_cfg, vdt_dds, driver, shutdown.clone()));
-    let cdt_cfg = cdt_config(ModemKind::EvologicsAt, cdt_modem.at);
-    let driver = Modem::start(&cdt_cfg.modem, SCALE);
-    let cdt = tokio::spawn(run_cdt(cdt_cfg, cdt_dds, driver, shutdown.clone()));
-    wait_for(
-        &mut b_ann,
-        60,
-        "announcement",
-        |a: &VehicleAnnouncement, _| a.vehicle_id == "auv-1",
-    )
-    .await;
+    let AcousticAuv {
+        station,
+        status: mut b_status,
+        cdt,
+    } = AcousticAuv::start((103, 104), (cdt_modem.at, auv_modem.at), SCALE, &shutdown).await;
 
     // The sea goes away: every modem connection drops.
     emu.shutdown();
