@@ -106,9 +106,25 @@ fn participant(domain: u16) -> DomainParticipant {
 }
 
 fn main() {
-    let mut args = std::env::args().skip(1);
-    let seconds: u64 = args.next().and_then(|a| a.parse().ok()).unwrap_or(5);
-    let domain: u16 = args.next().and_then(|a| a.parse().ok()).unwrap_or(27);
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let arg = |i: usize, name: &str, default: u64, (min, max): (u64, u64)| -> u64 {
+        let Some(text) = args.get(i) else {
+            return default;
+        };
+        match text.parse::<u64>() {
+            Ok(v) if (min..=max).contains(&v) => v,
+            _ => {
+                eprintln!(
+                    "rustdds_round_trip: {name} must be a whole number from {min} to {max}, not {text:?}"
+                );
+                eprintln!("usage: rustdds_round_trip [seconds] [domain]");
+                std::process::exit(2);
+            }
+        }
+    };
+    let seconds = arg(0, "seconds", 5, (1, 3600));
+    // RTPS ports overflow above domain 232.
+    let domain = u16::try_from(arg(1, "domain", 27, (0, 232))).unwrap_or(27);
 
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let pong_stop = stop.clone();
