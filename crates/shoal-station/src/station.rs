@@ -1126,7 +1126,7 @@ impl StationHandle {
     fn log_summary(&self) {
         const VEHICLE_LINES_UP_TO: usize = 20;
         let now = now_ms();
-        let (mut lines, mut counts) = (Vec::new(), [0usize; 4]);
+        let (mut lines, mut counts) = (Vec::new(), None);
         let fleet = lock(&self.shared.fleet);
         let total = fleet.vehicles.len();
         if total <= VEHICLE_LINES_UP_TO {
@@ -1141,20 +1141,22 @@ impl StationHandle {
                 ));
             }
         } else {
-            for e in fleet.vehicles.values() {
-                counts[match e.contact {
-                    Contact::Alive => 0,
-                    Contact::Stale => 1,
-                    Contact::Lost => 2,
-                    Contact::Silent => 3,
-                }] += 1;
-            }
+            let count = |c| fleet.vehicles.values().filter(|e| e.contact == c).count();
+            counts = Some(
+                [
+                    Contact::Alive,
+                    Contact::Stale,
+                    Contact::Lost,
+                    Contact::Silent,
+                ]
+                .map(count),
+            );
         }
         drop(fleet);
         if total == 0 {
             info!("no vehicles yet");
-        } else if lines.is_empty() {
-            let [alive, stale, lost, silent] = counts;
+        }
+        if let Some([alive, stale, lost, silent]) = counts {
             info!(vehicles = total, alive, stale, lost, silent, "fleet");
         }
         lines.sort_by(|a, b| a.0.cmp(&b.0));
