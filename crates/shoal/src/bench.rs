@@ -1331,13 +1331,7 @@ async fn standard_query_times(api: std::net::SocketAddr) -> Result<Vec<f64>> {
     let mut times = Vec::with_capacity(shoal_semantic::STANDARD_QUERIES.len());
     for (name, q) in shoal_semantic::STANDARD_QUERIES {
         let t = Instant::now();
-        let (status, body) = crate::query::request(
-            api,
-            "POST",
-            "/api/sparql?format=json",
-            Some(("application/sparql-query", q)),
-        )
-        .await?;
+        let (status, body) = crate::query::post(api, "json", q).await?;
         if status != 200 {
             bail!("{name} answered {status}: {body}");
         }
@@ -1353,7 +1347,7 @@ fn column_medians(rows: &[Vec<f64>]) -> Vec<f64> {
         .map(|c| {
             let mut col: Vec<f64> = rows.iter().map(|r| r[c]).collect();
             col.sort_by(f64::total_cmp);
-            col[col.len() / 2]
+            percentile(&col, 50.0)
         })
         .collect()
 }

@@ -35,7 +35,8 @@ pub async fn run(sparql: &str, format: &str, station: SocketAddr) -> Result<()> 
     bail!("the station answered {status}: {message}")
 }
 
-async fn post(station: SocketAddr, format: &str, query: &str) -> Result<(u16, String)> {
+/// POSTs `query` to the station's SPARQL endpoint; the status code and the body.
+pub(crate) async fn post(station: SocketAddr, format: &str, query: &str) -> Result<(u16, String)> {
     request(
         station,
         "POST",
