@@ -10,6 +10,10 @@
 //! Run with `cargo run --release -p shoal-semantic --example semantic_bench -- ...`.
 
 use shoal_semantic::StoreConfig;
+
+/// The allocator the `shoal` binary runs the store with.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 use shoal_semantic::bench::{self, BenchOptions, HourOptions, MemoryFigures, QueryFigures};
 
 fn ms(d: std::time::Duration) -> f64 {
