@@ -51,6 +51,8 @@ pub use rules::{
     Comparison, Condition, MAX_RULE_ID_LEN, RuleInfo, RuleSpec, StateField, Threshold, builtin,
     outside,
 };
+/// A row of [`QueryResult::Solutions`].
+pub use sparesults::QuerySolution;
 pub use store::{Availability, ExportFormat, ExportOptions, SemanticStore, StoreStats};
 
 /// The five standard queries (name, SPARQL), from `ontology/queries/`; the cross-check

@@ -347,11 +347,28 @@ fn xsd_integer(s: &str) -> Option<i64> {
     s.parse().ok()
 }
 
+/// A row of terms, one cell per projected variable (`None` = unbound).
+pub(crate) trait Cells {
+    fn cells(&self) -> &[Option<Term>];
+}
+
+impl Cells for Vec<Option<Term>> {
+    fn cells(&self) -> &[Option<Term>] {
+        self
+    }
+}
+
+impl Cells for sparesults::QuerySolution {
+    fn cells(&self) -> &[Option<Term>] {
+        self.values()
+    }
+}
+
 /// Sorts `rows` (cells in `variables` order) by `keys` as SPARQL `ORDER BY` does; `false`,
 /// leaving `rows` untouched, when a key is not projected or a column holds literals this
 /// module does not compare.
-pub(crate) fn sort(
-    rows: &mut [Vec<Option<Term>>],
+pub(crate) fn sort<R: Cells>(
+    rows: &mut [R],
     variables: &[Variable],
     keys: &[(Variable, bool)],
 ) -> bool {
@@ -362,7 +379,7 @@ pub(crate) fn sort(
         };
         let mut kind: Option<Kind> = None;
         for row in rows.iter() {
-            if let Some(Term::Literal(l)) = row.get(c).and_then(Option::as_ref) {
+            if let Some(Term::Literal(l)) = row.cells().get(c).and_then(Option::as_ref) {
                 let Some(k) = kind_of(l) else { return false };
                 match &kind {
                     None => kind = Some(k),
@@ -376,8 +393,8 @@ pub(crate) fn sort(
     rows.sort_unstable_by(|a, b| {
         for &(c, desc) in &columns {
             let o = cmp_terms(
-                a.get(c).and_then(Option::as_ref),
-                b.get(c).and_then(Option::as_ref),
+                a.cells().get(c).and_then(Option::as_ref),
+                b.cells().get(c).and_then(Option::as_ref),
             );
             let o = if desc { o.reverse() } else { o };
             if o != Ordering::Equal {

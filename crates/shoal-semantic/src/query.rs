@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use oxrdf::{Term, Triple, Variable};
 use oxrdfio::{RdfFormat, RdfSerializer};
-use sparesults::{QueryResultsFormat, QueryResultsSerializer};
+use sparesults::{QueryResultsFormat, QueryResultsSerializer, QuerySolution};
 use spareval::{
     CancellationToken, QueryEvaluationError, QueryEvaluator, QueryResults, QuerySolutionIter,
 };
@@ -51,7 +51,7 @@ impl Default for QueryLimits {
 }
 
 /// The answer to a query, fully materialised (bounded by [`QueryLimits::max_rows`]).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, PartialEq)]
 #[non_exhaustive]
 pub enum QueryResult {
     /// ASK.
@@ -60,8 +60,10 @@ pub enum QueryResult {
     Solutions {
         /// Projected variables, in order.
         variables: Vec<Variable>,
-        /// One row per solution, one cell per variable (None = unbound).
-        rows: Vec<Vec<Option<Term>>>,
+        /// One row per solution (its `values()` hold one cell per variable, `None` when
+        /// unbound), as the evaluator produced them: keeping them saves a copy of every
+        /// term.
+        rows: Vec<QuerySolution>,
         /// True when rows were cut at `max_rows`.
         truncated: bool,
     },
@@ -123,13 +125,7 @@ impl QueryResult {
                     .serialize_solutions_to_writer(writer, variables.clone())
                     .map_err(ser)?;
                 for row in rows {
-                    out.serialize(
-                        variables
-                            .iter()
-                            .zip(row)
-                            .filter_map(|(v, t)| Some((v, t.as_ref()?))),
-                    )
-                    .map_err(ser)?;
+                    out.serialize(row).map_err(ser)?;
                 }
                 out.finish().map_err(ser)
             }
@@ -285,7 +281,7 @@ impl QuerySnapshot {
 }
 
 /// Solutions as [`QueryResult::Solutions`] holds them.
-type Rows = Vec<Vec<Option<Term>>>;
+type Rows = Vec<QuerySolution>;
 
 /// Rows the sorted path materialises before it leaves a huge result to the engine,
 /// whose own sort keeps rows in a more compact form.
@@ -430,11 +426,7 @@ fn collect(
         if rows.len() >= max {
             return Ok((rows, true));
         }
-        rows.push(
-            s.map_err(|e| evaluation_error(e, limits))?
-                .values()
-                .to_vec(),
-        );
+        rows.push(s.map_err(|e| evaluation_error(e, limits))?);
         if rows.len().is_multiple_of(DEADLINE_EVERY) {
             check_deadline(deadline, limits)?;
         }
@@ -596,11 +588,11 @@ mod tests {
         q: &str,
         keys: &[usize],
     ) -> (Vec<Vec<String>>, Vec<Vec<String>>) {
-        let pick = |rows: Vec<Vec<Option<Term>>>| -> Vec<Vec<String>> {
+        let pick = |rows: Vec<QuerySolution>| -> Vec<Vec<String>> {
             rows.into_iter()
                 .map(|r| {
                     keys.iter()
-                        .map(|k| r[*k].as_ref().map_or("UNBOUND".into(), Term::to_string))
+                        .map(|k| r.get(*k).map_or("UNBOUND".into(), Term::to_string))
                         .collect()
                 })
                 .collect()
@@ -615,7 +607,7 @@ mod tests {
         else {
             panic!("{q}")
         };
-        let theirs = solutions.map(|r| r.unwrap().values().to_vec()).collect();
+        let theirs = solutions.map(Result::unwrap).collect();
         (pick(rows), pick(theirs))
     }
 

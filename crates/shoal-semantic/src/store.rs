@@ -1579,7 +1579,7 @@ mod tests {
         match s.query(q, &QueryLimits::default()).unwrap() {
             QueryResult::Solutions { rows, .. } => rows
                 .into_iter()
-                .map(|r| match &r[0] {
+                .map(|r| match r.get(0) {
                     Some(oxrdf::Term::NamedNode(n)) => {
                         n.as_str().rsplit('/').next().unwrap_or("").to_owned()
                     }
@@ -1598,7 +1598,7 @@ mod tests {
         match s.query(&q, &QueryLimits::default()).unwrap() {
             QueryResult::Solutions { rows, .. } => {
                 assert_eq!(rows.len(), 1, "exactly one battery value");
-                match &rows[0][0] {
+                match rows[0].get(0) {
                     Some(oxrdf::Term::Literal(l)) => l.value().parse().unwrap(),
                     other => panic!("{other:?}"),
                 }

@@ -110,7 +110,7 @@ fn standard_queries_agree_with_rdflib() {
         };
         let ours = sorted(
             rows.iter()
-                .map(|r| r.iter().map(|t| cell(t.as_ref())).collect())
+                .map(|r| r.values().iter().map(|t| cell(t.as_ref())).collect())
                 .collect(),
         );
         assert!(
