@@ -36,6 +36,8 @@ fn dds_err(what: impl Into<String>, e: impl std::fmt::Display) -> CreateError {
 pub struct PubSub {
     /// Counted by the watchdog while the participant lives (see [`crate::failure`]).
     _registration: crate::watchdog::Registration,
+    /// The reader threads, stopped before the participant goes (see `Drop`).
+    readers: Mutex<Vec<ReaderThread>>,
     participant: DomainParticipant,
     publisher: Publisher,
     subscriber: Subscriber,
@@ -51,6 +53,32 @@ impl std::fmt::Debug for PubSub {
             .field("domain_id", &self.config.domain_id)
             .field("interfaces", &self.config.interfaces)
             .finish_non_exhaustive()
+    }
+}
+
+impl Drop for PubSub {
+    /// Stops the reader threads and waits for them (half a second at most) before the
+    /// participant goes: a RustDDS reader dropped after its participant's event loop has
+    /// ended logs an error, which every station shutdown showed once per topic.
+    fn drop(&mut self) {
+        let readers = std::mem::take(
+            self.readers
+                .get_mut()
+                .unwrap_or_else(std::sync::PoisonError::into_inner),
+        );
+        for r in &readers {
+            r.stop.store(true, Ordering::Relaxed);
+            // A failed wake leaves the thread to its poll timeout.
+            let _ = r.waker.wake();
+        }
+        let deadline = std::time::Instant::now() + std::time::Duration::from_millis(500);
+        for r in readers {
+            // Disconnected once the thread has ended; a timeout leaves it behind (a thread
+            // blocked on a consumer that no longer reads).
+            let _ = r
+                .exited
+                .recv_timeout(deadline.saturating_duration_since(std::time::Instant::now()));
+        }
     }
 }
 
@@ -96,6 +124,7 @@ impl PubSub {
         );
         Ok(Self {
             _registration: crate::watchdog::Registration::new(),
+            readers: Mutex::new(Vec::new()),
             participant,
             publisher,
             subscriber,
@@ -249,13 +278,13 @@ impl PubSub {
                 .create_datareader_cdr::<SignedWire>(&signed, Some(qos.clone()))
                 .map_err(err)?;
             let sec = Arc::clone(security);
-            spawn_reader(
+            self.keep(spawn_reader(
                 &name,
                 reader,
                 tx.clone(),
                 Arc::clone(&stop),
                 move |w, info| open_signed::<T>(&sec, &w, info),
-            )?;
+            )?);
         }
         let unsigned = security.cloned();
         let plain = move |Wire(value): Wire<T>, info: &rustdds::SampleInfo| match &unsigned {
@@ -270,15 +299,37 @@ impl PubSub {
                 .subscriber
                 .create_datareader_cdr::<Wire<T>>(&topic, Some(qos))
                 .map_err(err)?;
-            spawn_reader(topic_name, reader, tx, Arc::clone(&stop), plain)?;
+            self.keep(spawn_reader(
+                topic_name,
+                reader,
+                tx,
+                Arc::clone(&stop),
+                plain,
+            )?);
         } else {
             let reader = self
                 .subscriber
                 .create_datareader_no_key_cdr::<Wire<T>>(&topic, Some(qos))
                 .map_err(err)?;
-            spawn_reader(topic_name, reader, tx, Arc::clone(&stop), plain)?;
+            self.keep(spawn_reader(
+                topic_name,
+                reader,
+                tx,
+                Arc::clone(&stop),
+                plain,
+            )?);
         }
         Ok(Subscription { rx, stop })
+    }
+
+    /// Remembers a reader thread, forgetting those that have ended.
+    fn keep(&self, thread: ReaderThread) {
+        let mut readers = self
+            .readers
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        readers.retain(ReaderThread::running);
+        readers.push(thread);
     }
 
     /// Discovery events that happened since the last call (never blocks).
@@ -591,34 +642,72 @@ where
     }
 }
 
+/// A reader thread as its [`PubSub`] sees it.
+struct ReaderThread {
+    stop: Arc<AtomicBool>,
+    /// Wakes the thread's poll, so a stop is seen at once.
+    waker: Arc<rustdds::mio1::Waker>,
+    /// Disconnected when the thread ends.
+    exited: std::sync::mpsc::Receiver<()>,
+}
+
+impl ReaderThread {
+    fn running(&self) -> bool {
+        matches!(
+            self.exited.try_recv(),
+            Err(std::sync::mpsc::TryRecvError::Empty)
+        )
+    }
+}
+
+/// Token of the reader in its thread's poll; the waker has the other.
+const READER: rustdds::mio1::Token = rustdds::mio1::Token(0);
+const WAKER: rustdds::mio1::Token = rustdds::mio1::Token(1);
+
 /// Starts a reader thread turning each sample of `reader` into a stream item with `convert`.
 fn spawn_reader<T, D, R, F>(
     topic_name: &str,
-    reader: R,
+    mut reader: R,
     tx: Tx<T>,
     stop: Arc<AtomicBool>,
     convert: F,
-) -> Result<(), CreateError>
+) -> Result<ReaderThread, CreateError>
 where
     T: TopicType,
     R: TakeBatch<D>,
     F: FnMut(D, &rustdds::SampleInfo) -> Result<(T, SampleMeta), ReadError> + Send + 'static,
 {
+    use rustdds::mio1::{Interest, Poll as MioPoll, Waker};
     let name = format!("dds-reader {topic_name}");
     let topic: &'static str = T::TOPIC;
+    // mio 1 readiness: RustDDS drains this event source inside `take`, so an edge is never
+    // lost (its mio 0.6 channel is never drained by `take` and goes silent once full).
+    let poll = MioPoll::new().map_err(|e| dds_err(&name, e))?;
+    poll.registry()
+        .register(&mut reader, READER, Interest::READABLE)
+        .map_err(|e| dds_err(&name, e))?;
+    let waker = Arc::new(Waker::new(poll.registry(), WAKER).map_err(|e| dds_err(&name, e))?);
+    let (exit_tx, exited) = std::sync::mpsc::channel::<()>();
+    let thread_stop = Arc::clone(&stop);
     std::thread::Builder::new()
         .name(name.chars().take(15).collect())
         .spawn(move || {
-            if let Err(e) = reader_loop(reader, &tx, &stop, convert) {
+            let _exit = exit_tx;
+            if let Err(e) = reader_loop(reader, poll, &tx, &thread_stop, convert) {
                 warn!(topic, error = %e, "DDS reader thread stopped");
             }
         })
         .map_err(|e| dds_err(name, e))?;
-    Ok(())
+    Ok(ReaderThread {
+        stop,
+        waker,
+        exited,
+    })
 }
 
 fn reader_loop<T, D, R, F>(
     mut reader: R,
+    mut poll: rustdds::mio1::Poll,
     tx: &Tx<T>,
     stop: &AtomicBool,
     mut convert: F,
@@ -628,12 +717,7 @@ where
     R: TakeBatch<D>,
     F: FnMut(D, &rustdds::SampleInfo) -> Result<(T, SampleMeta), ReadError>,
 {
-    use rustdds::mio1::{Events, Interest, Poll as MioPoll, Token};
-    // mio 1 readiness: RustDDS drains this event source inside `take`, so an edge is never
-    // lost (its mio 0.6 channel is never drained by `take` and goes silent once full).
-    let mut poll = MioPoll::new()?;
-    poll.registry()
-        .register(&mut reader, Token(0), Interest::READABLE)?;
+    use rustdds::mio1::Events;
     let mut events = Events::with_capacity(4);
     loop {
         // Edge-triggered: drain everything before waiting again.
