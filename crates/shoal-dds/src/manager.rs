@@ -294,31 +294,20 @@ impl PubSub {
             }
             None => validated(value, info),
         };
-        if T::KEYED {
+        let thread = if T::KEYED {
             let reader = self
                 .subscriber
                 .create_datareader_cdr::<Wire<T>>(&topic, Some(qos))
                 .map_err(err)?;
-            self.keep(spawn_reader(
-                topic_name,
-                reader,
-                tx,
-                Arc::clone(&stop),
-                plain,
-            )?);
+            spawn_reader(topic_name, reader, tx, Arc::clone(&stop), plain)?
         } else {
             let reader = self
                 .subscriber
                 .create_datareader_no_key_cdr::<Wire<T>>(&topic, Some(qos))
                 .map_err(err)?;
-            self.keep(spawn_reader(
-                topic_name,
-                reader,
-                tx,
-                Arc::clone(&stop),
-                plain,
-            )?);
-        }
+            spawn_reader(topic_name, reader, tx, Arc::clone(&stop), plain)?
+        };
+        self.keep(thread);
         Ok(Subscription { rx, stop })
     }
 
