@@ -1,6 +1,6 @@
 //! Shoal's Publish/Subscribe Manager: the only crate that talks to the DDS library.
 //!
-//! - [`PubSub`] owns the process's one DDS participant (RustDDS), confined to the
+//! - [`PubSub`] owns the process's one DDS participant (Eclipse Cyclone DDS), confined to the
 //!   interfaces in [`DdsConfig`] (loopback by default), and creates typed endpoints.
 //! - [`Writer<T>`] publishes validated samples in a [`Priority`] class; a failed write hands
 //!   the sample back ([`WriteError`]).
@@ -12,15 +12,18 @@
 //! - With [`Security`] ([`PubSub::new_secure`]) Shoal's topics travel signed on twin
 //!   topics and only what the station CA and the publish policy vouch for is delivered.
 //!
-//! DDS threads stay inside RustDDS; what comes out is `futures` streams, usable from tokio.
+//! DDS threads stay inside Cyclone; what comes out is `futures` streams, usable from tokio:
+//! a reader's data-available listener wakes the stream's task, which takes the samples
+//! itself, so a sample crosses one thread boundary between the socket and async code.
 
 mod config;
+mod cyclone;
 mod error;
 mod manager;
 mod qos;
 mod secure;
+mod shape;
 mod topics;
-mod watchdog;
 
 pub use config::DdsConfig;
 pub use error::{CreateError, ReadError, WriteError};
@@ -28,13 +31,12 @@ pub use manager::{ParticipantEvent, PubSub, SampleMeta, Subscription, Writer};
 pub use qos::{Priority, QosProfile, WriterOptions};
 pub use secure::{SIGNED_TYPE_NAME, Security, SecurityCounts, signed_topic};
 pub use topics::{ALL_TOPICS, ObservationKey, TopicType};
-pub use watchdog::failure;
 
 /// Serialises a sample exactly as it goes on the wire: a 4-byte encapsulation header
 /// (CDR little endian, RTPS 10.5) followed by XCDR1 plain CDR. For interop checks and tools.
-pub fn to_cdr_le<T: TopicType>(sample: &T) -> Result<Vec<u8>, String> {
+pub fn to_cdr_le<T: serde::Serialize>(sample: &T) -> Result<Vec<u8>, String> {
     let mut out = vec![0x00, 0x01, 0x00, 0x00];
-    let body = rustdds::cdr_encoding::to_vec::<T, byteorder::LittleEndian>(sample)
+    let body = cdr_encoding::to_vec::<T, byteorder::LittleEndian>(sample)
         .map_err(|e| e.to_string())?;
     out.extend_from_slice(&body);
     Ok(out)
@@ -49,8 +51,8 @@ pub fn from_cdr<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, Strin
         )
     })?;
     let decoded = match [header[0], header[1]] {
-        [0x00, 0x01] => rustdds::cdr_encoding::from_bytes::<T, byteorder::LittleEndian>(body),
-        [0x00, 0x00] => rustdds::cdr_encoding::from_bytes::<T, byteorder::BigEndian>(body),
+        [0x00, 0x01] => cdr_encoding::from_bytes::<T, byteorder::LittleEndian>(body),
+        [0x00, 0x00] => cdr_encoding::from_bytes::<T, byteorder::BigEndian>(body),
         other => return Err(format!("unsupported CDR encapsulation {other:02x?}")),
     };
     decoded.map(|(v, _)| v).map_err(|e| e.to_string())

@@ -1,48 +1,94 @@
 //! The Publish/Subscribe Manager: one DDS participant per process and typed endpoints.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
+use std::marker::PhantomData;
 use std::pin::Pin;
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-
 use futures::Stream;
-use rustdds::with_key::{DataReader, DataWriter, Sample};
-use rustdds::{
-    CDRDeserializerAdapter, CDRSerializerAdapter, DomainParticipant, DomainParticipantBuilder,
-    DomainParticipantStatusEvent, DomainParticipantStatusListener, Publisher, ReadCondition,
-    StatusEvented, Subscriber, Topic, TopicKind,
-};
+use futures::task::AtomicWaker;
 use tracing::{debug, info, warn};
 
 use crate::config::DdsConfig;
+use crate::cyclone::{self, Entity, QosReports, ReaderHandle, SerType, TopicRef};
 use crate::error::{CreateError, ReadError, WriteError};
-use crate::qos::{QosProfile, WriterOptions};
+use crate::qos::WriterOptions;
 use crate::secure::{
     Refused, SIGNED_TYPE_NAME, Security, SecurityCounts, SignedWire, signed_topic,
 };
-use crate::topics::{TopicType, Wire};
+use crate::shape::Shape;
+use crate::topics::TopicType;
 
-fn dds_err(what: impl Into<String>, e: impl std::fmt::Display) -> CreateError {
+fn dds_err(what: impl Into<String>, detail: impl std::fmt::Display) -> CreateError {
     CreateError::Dds {
         what: what.into(),
-        detail: e.to_string(),
+        detail: detail.to_string(),
     }
 }
 
-/// Owns the process's DDS participant, its publisher and subscriber, and the topics.
-pub struct PubSub {
-    /// Counted by the watchdog while the participant lives (see [`crate::failure`]).
-    _registration: crate::watchdog::Registration,
-    /// The reader threads, stopped before the participant goes (see `Drop`).
-    readers: Mutex<Vec<ReaderThread>>,
-    participant: DomainParticipant,
-    publisher: Publisher,
-    subscriber: Subscriber,
+/// The participant and its topics, shared by the [`PubSub`] and every endpoint made from
+/// it: the participant (and the topic types samples are serialised with) stays until the
+/// last of them is gone. Fields drop in order: topics, then the participant, then what
+/// its listener points at.
+struct Participant {
     topics: Mutex<HashMap<String, Topic>>,
-    status: DomainParticipantStatusListener,
+    builtin: Entity,
+    entity: Entity,
+    guid: cyclone::Guid,
+    _reports: Arc<QosReports>,
+}
+
+/// A topic and the type its samples are serialised with.
+struct Topic {
+    entity: Entity,
+    sertype: SerType,
+    type_name: String,
+}
+
+impl Participant {
+    /// The topic `name` of type `type_name` with `shape`'s layout, created on first use.
+    fn topic(
+        &self,
+        name: &str,
+        type_name: &str,
+        shape: impl FnOnce() -> Result<Shape, String>,
+    ) -> Result<(TopicRef, SerType), CreateError> {
+        let mut topics = self
+            .topics
+            .lock()
+            .map_err(|_| CreateError::Config("topic table lock poisoned".into()))?;
+        if let Some(t) = topics.get(name) {
+            if t.type_name != type_name {
+                return Err(dds_err(
+                    format!("topic {name}"),
+                    format!("it already carries {}, not {type_name}", t.type_name),
+                ));
+            }
+            return Ok((t.entity.topic_ref(), t.sertype));
+        }
+        let shape = shape().map_err(|e| dds_err(format!("topic {name}"), e))?;
+        let qos = cyclone::Qos::new();
+        let entity = cyclone::topic(&self.entity, name, &shape, &qos)
+            .map_err(|e| dds_err(format!("topic {name}"), e))?;
+        let sertype = cyclone::sertype(&entity).map_err(|e| dds_err(format!("topic {name}"), e))?;
+        let shared = entity.topic_ref();
+        topics.insert(
+            name.to_string(),
+            Topic {
+                entity,
+                sertype,
+                type_name: type_name.to_string(),
+            },
+        );
+        Ok((shared, sertype))
+    }
+}
+
+/// Owns the process's DDS participant and creates typed endpoints on it.
+pub struct PubSub {
+    participant: Arc<Participant>,
     config: DdsConfig,
     security: Option<Arc<Security>>,
 }
@@ -53,32 +99,6 @@ impl std::fmt::Debug for PubSub {
             .field("domain_id", &self.config.domain_id)
             .field("interfaces", &self.config.interfaces)
             .finish_non_exhaustive()
-    }
-}
-
-impl Drop for PubSub {
-    /// Stops the reader threads and waits for them (half a second at most) before the
-    /// participant goes: a RustDDS reader dropped after its participant's event loop has
-    /// ended logs an error, which every station shutdown showed once per topic.
-    fn drop(&mut self) {
-        let readers = std::mem::take(
-            self.readers
-                .get_mut()
-                .unwrap_or_else(std::sync::PoisonError::into_inner),
-        );
-        for r in &readers {
-            r.stop.store(true, Ordering::Relaxed);
-            // A failed wake leaves the thread to its poll timeout.
-            let _ = r.waker.wake();
-        }
-        let deadline = std::time::Instant::now() + std::time::Duration::from_millis(500);
-        for r in readers {
-            // Disconnected once the thread has ended; a timeout leaves it behind (a thread
-            // blocked on a consumer that no longer reads).
-            let _ = r
-                .exited
-                .recv_timeout(deadline.saturating_duration_since(std::time::Instant::now()));
-        }
     }
 }
 
@@ -102,34 +122,29 @@ impl PubSub {
                 "dds.topic_cache_samples must be at least 1".into(),
             ));
         }
-        let participant = DomainParticipantBuilder::new(config.domain_id)
-            .with_only_networks(config.interfaces.iter().copied())
-            .same_host_loopback(config.same_host_loopback)
-            .socket_receive_buffer_size(config.socket_receive_buffer)
-            .build()
-            .map_err(|e| dds_err("the domain participant", e))?;
-        let default_qos = rustdds::QosPolicyBuilder::new().build();
-        let publisher = participant
-            .create_publisher(&default_qos)
-            .map_err(|e| dds_err("the publisher", e))?;
-        let subscriber = participant
-            .create_subscriber(&default_qos)
-            .map_err(|e| dds_err("the subscriber", e))?;
-        let status = participant.status_listener();
+        cyclone::domain(config).map_err(|e| dds_err("the domain", e))?;
+        let name = format!("shoal {}", std::process::id());
+        let entity =
+            cyclone::participant(config.domain_id, &name).map_err(|e| dds_err("the participant", e))?;
+        let reports = Arc::new(QosReports::default());
+        cyclone::listen_for_qos(&entity, &reports);
+        let builtin = cyclone::participant_reader(&entity)
+            .map_err(|e| dds_err("the participant discovery reader", e))?;
+        let guid = cyclone::guid(&entity);
         info!(
             domain = config.domain_id,
             interfaces = ?config.interfaces,
-            guid = ?rustdds::RTPSEntity::guid(&participant),
+            participant = %cyclone::hex(&guid[..12]),
             "DDS participant joined"
         );
         Ok(Self {
-            _registration: crate::watchdog::Registration::new(),
-            readers: Mutex::new(Vec::new()),
-            participant,
-            publisher,
-            subscriber,
-            topics: Mutex::new(HashMap::new()),
-            status,
+            participant: Arc::new(Participant {
+                topics: Mutex::new(HashMap::new()),
+                builtin,
+                entity,
+                guid,
+                _reports: reports,
+            }),
             config: config.clone(),
             security: None,
         })
@@ -160,44 +175,28 @@ impl PubSub {
         &self.config
     }
 
-    /// This participant's GUID prefix, as text, for logs and link metadata.
+    /// This participant's GUID prefix, as hex text, for logs and link metadata; the same
+    /// text as [`SampleMeta::participant`] of its own samples.
     pub fn participant_id(&self) -> String {
-        format!("{:?}", rustdds::RTPSEntity::guid(&self.participant).prefix)
+        cyclone::hex(&self.participant.guid[..12])
     }
 
-    fn topic<T: TopicType>(&self, name: &str) -> Result<Topic, CreateError> {
-        self.topic_raw(name, T::TYPE_NAME, T::PROFILE, T::KEYED)
-    }
-
-    fn topic_raw(
-        &self,
-        name: &str,
-        type_name: &str,
-        profile: QosProfile,
-        keyed: bool,
-    ) -> Result<Topic, CreateError> {
-        let mut topics = self
-            .topics
-            .lock()
-            .map_err(|_| CreateError::Config("topic table lock poisoned".into()))?;
-        if let Some(t) = topics.get(name) {
-            return Ok(t.clone());
+    fn model_topic<T: TopicType>(&self, name: &str) -> Result<(TopicRef, SerType), CreateError> {
+        if T::KEYED && T::KEY_FIELDS.is_empty() {
+            return Err(CreateError::Config(format!(
+                "{} is keyed but names no key fields",
+                T::TYPE_NAME
+            )));
         }
-        let t = self
-            .participant
-            .create_topic(
-                name.to_string(),
-                type_name.to_string(),
-                &profile.topic_qos(self.config.topic_cache_samples),
-                if keyed {
-                    TopicKind::WithKey
-                } else {
-                    TopicKind::NoKey
-                },
-            )
-            .map_err(|e| dds_err(format!("topic {name}"), e))?;
-        topics.insert(name.to_string(), t.clone());
-        Ok(t)
+        let keys = if T::KEYED { T::KEY_FIELDS } else { &[] };
+        self.participant
+            .topic(name, T::TYPE_NAME, || Shape::of::<T>(T::TYPE_NAME, keys))
+    }
+
+    fn signed_topic(&self, name: &str) -> Result<(TopicRef, SerType), CreateError> {
+        self.participant.topic(name, SIGNED_TYPE_NAME, || {
+            Shape::of::<SignedWire>(SIGNED_TYPE_NAME, SignedWire::KEY_FIELDS)
+        })
     }
 
     /// A writer for `T` in the given priority class. Each call creates a distinct DDS
@@ -218,41 +217,27 @@ impl PubSub {
         topic_name: &str,
         options: WriterOptions,
     ) -> Result<Writer<T>, CreateError> {
-        let qos = T::PROFILE.writer_qos(&options);
-        let err = |e| dds_err(format!("a writer on {}", T::TOPIC), e);
-        let inner = if let Some(security) = self.security.as_ref().filter(|_| T::SIGNED) {
-            let name = signed_topic(topic_name);
-            let topic = self.topic_raw(&name, SIGNED_TYPE_NAME, T::PROFILE, true)?;
-            WriterInner::Signed(
-                self.publisher
-                    .create_datawriter_cdr::<SignedWire>(&topic, Some(qos))
-                    .map_err(err)?,
-                Arc::clone(security),
-            )
-        } else if T::KEYED {
-            let topic = self.topic::<T>(topic_name)?;
-            WriterInner::Keyed(
-                self.publisher
-                    .create_datawriter_cdr::<Wire<T>>(&topic, Some(qos))
-                    .map_err(err)?,
-            )
+        let qos = T::PROFILE.writer_qos(&options).to_qos();
+        let security = self.security.as_ref().filter(|_| T::SIGNED).cloned();
+        let (topic, sertype) = if security.is_some() {
+            self.signed_topic(&signed_topic(topic_name))?
         } else {
-            let topic = self.topic::<T>(topic_name)?;
-            WriterInner::Unkeyed(
-                self.publisher
-                    .create_datawriter_no_key_cdr::<Wire<T>>(&topic, Some(qos))
-                    .map_err(err)?,
-            )
+            self.model_topic::<T>(topic_name)?
         };
+        let entity = cyclone::writer(&self.participant.entity, topic, &qos)
+            .map_err(|e| dds_err(format!("a writer on {topic_name}"), e))?;
         debug!(
-            topic = T::TOPIC,
+            topic = topic_name,
             priority = options.priority.as_str(),
             "writer created"
         );
         Ok(Writer {
-            inner,
+            entity,
+            sertype,
+            security,
             options,
-            matched: Mutex::new(0),
+            _participant: Arc::clone(&self.participant),
+            _type: PhantomData,
         })
     }
 
@@ -264,69 +249,86 @@ impl PubSub {
         &self,
         topic_name: &str,
     ) -> Result<Subscription<T>, CreateError> {
-        let qos = T::PROFILE.reader_qos(self.config.topic_cache_samples);
-        let err = |e| dds_err(format!("a reader on {topic_name}"), e);
-        let (tx, rx) = tokio::sync::mpsc::channel(CHANNEL);
-        let stop = Arc::new(AtomicBool::new(false));
-        let topic = self.topic::<T>(topic_name)?;
+        let qos = T::PROFILE
+            .reader_qos(self.config.topic_cache_samples)
+            .to_qos();
+        let signal = Arc::new(Signal::default());
+        let reader = |topic: TopicRef| {
+            cyclone::reader(&self.participant.entity, topic, &qos, Arc::clone(&signal))
+                .map_err(|e| dds_err(format!("a reader on {topic_name}"), e))
+        };
+        let mut readers = Vec::new();
         let security = self.security.as_ref().filter(|_| T::SIGNED);
         if let Some(security) = security {
             let name = signed_topic(topic_name);
-            let signed = self.topic_raw(&name, SIGNED_TYPE_NAME, T::PROFILE, true)?;
-            let reader = self
-                .subscriber
-                .create_datareader_cdr::<SignedWire>(&signed, Some(qos.clone()))
-                .map_err(err)?;
-            let sec = Arc::clone(security);
-            self.keep(spawn_reader(
-                &name,
-                reader,
-                tx.clone(),
-                Arc::clone(&stop),
-                move |w, info| open_signed::<T>(&sec, &w, info),
-            )?);
+            let (topic, _) = self.signed_topic(&name)?;
+            readers.push(Source {
+                reader: reader(topic)?,
+                topic: name,
+                decode: Decode::Signed(Arc::clone(security)),
+                writers: HashMap::new(),
+            });
         }
-        let unsigned = security.cloned();
-        let plain = move |Wire(value): Wire<T>, info: &rustdds::SampleInfo| match &unsigned {
-            Some(sec) => {
-                sec.count_unsigned(T::TOPIC);
-                Err(ReadError::Unsigned { topic: T::TOPIC })
-            }
-            None => validated(value, info),
-        };
-        let thread = if T::KEYED {
-            let reader = self
-                .subscriber
-                .create_datareader_cdr::<Wire<T>>(&topic, Some(qos))
-                .map_err(err)?;
-            spawn_reader(topic_name, reader, tx, Arc::clone(&stop), plain)?
-        } else {
-            let reader = self
-                .subscriber
-                .create_datareader_no_key_cdr::<Wire<T>>(&topic, Some(qos))
-                .map_err(err)?;
-            spawn_reader(topic_name, reader, tx, Arc::clone(&stop), plain)?
-        };
-        self.keep(thread);
-        Ok(Subscription { rx, stop })
-    }
-
-    /// Remembers a reader thread, forgetting those that have ended.
-    fn keep(&self, thread: ReaderThread) {
-        let mut readers = self
-            .readers
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        readers.retain(ReaderThread::running);
-        readers.push(thread);
+        let (topic, _) = self.model_topic::<T>(topic_name)?;
+        readers.push(Source {
+            reader: reader(topic)?,
+            topic: topic_name.to_string(),
+            decode: match security {
+                Some(s) => Decode::Unsigned(Arc::clone(s)),
+                None => Decode::Plain,
+            },
+            writers: HashMap::new(),
+        });
+        let watch: Arc<dyn cyclone::Wake> = signal.clone();
+        cyclone::watch_malformed(Arc::downgrade(&watch));
+        let malformed_seen = readers
+            .iter()
+            .map(|r| cyclone::malformed_since(&r.topic).0)
+            .collect();
+        Ok(Subscription {
+            readers,
+            malformed_seen,
+            buffer: VecDeque::new(),
+            signal,
+            _participant: Arc::clone(&self.participant),
+            _type: PhantomData,
+        })
     }
 
     /// Discovery events that happened since the last call (never blocks).
     pub fn participant_events(&self) -> Vec<ParticipantEvent> {
-        let mut out = Vec::new();
-        while let Some(e) = self.status.try_recv_status() {
-            if let Some(ev) = ParticipantEvent::from_dds(e) {
-                out.push(ev);
+        let own = &self.participant.guid[..12];
+        let mut out: Vec<ParticipantEvent> = cyclone::take_participants(&self.participant.builtin)
+            .into_iter()
+            .filter(|p| p.guid[..12] != *own)
+            .map(|p| {
+                let participant = cyclone::hex(&p.guid[..12]);
+                if p.alive {
+                    ParticipantEvent::Discovered {
+                        participant,
+                        name: p.name,
+                    }
+                } else {
+                    ParticipantEvent::Lost {
+                        participant,
+                        reason: "left the domain or its lease expired".into(),
+                    }
+                }
+            })
+            .collect();
+        if let Ok(mut reports) = self.participant._reports.events.lock() {
+            for (guid, requested, policy) in reports.drain(..) {
+                out.push(if requested {
+                    ParticipantEvent::IncompatibleWriter {
+                        writer: guid,
+                        detail: format!("our reader requests more {policy} than a writer offers"),
+                    }
+                } else {
+                    ParticipantEvent::IncompatibleReader {
+                        reader: guid,
+                        detail: format!("a reader requests more {policy} than our writer offers"),
+                    }
+                });
             }
         }
         out
@@ -353,112 +355,30 @@ pub enum ParticipantEvent {
     },
     /// A remote writer's QoS cannot serve one of our readers: it will never deliver.
     IncompatibleWriter {
-        /// The remote writer's GUID.
+        /// Our reader's GUID (DDS names the local side of the failed match).
         writer: String,
-        /// The requested and offered QoS, for the operator.
+        /// The policy that did not match, for the operator.
         detail: String,
     },
     /// A remote reader's QoS cannot be served by one of our writers.
     IncompatibleReader {
-        /// The remote reader's GUID.
+        /// Our writer's GUID (DDS names the local side of the failed match).
         reader: String,
-        /// The requested and offered QoS, for the operator.
+        /// The policy that did not match, for the operator.
         detail: String,
     },
 }
 
-impl ParticipantEvent {
-    fn from_dds(e: DomainParticipantStatusEvent) -> Option<Self> {
-        match e {
-            DomainParticipantStatusEvent::ParticipantDiscovered { dpd } => Some(Self::Discovered {
-                participant: format!("{:?}", dpd.guid.prefix),
-                name: dpd.entity_name,
-            }),
-            DomainParticipantStatusEvent::ParticipantLost { id, reason } => Some(Self::Lost {
-                participant: format!("{id:?}"),
-                reason: format!("{reason:?}"),
-            }),
-            DomainParticipantStatusEvent::RemoteWriterQosIncompatible {
-                remote_writer,
-                requested_qos,
-                offered_qos,
-                ..
-            } => Some(Self::IncompatibleWriter {
-                writer: format!("{remote_writer:?}"),
-                detail: format!("requested {requested_qos:?}, offered {offered_qos:?}"),
-            }),
-            DomainParticipantStatusEvent::RemoteReaderQosIncompatible {
-                remote_reader,
-                requested_qos,
-                offered_qos,
-                ..
-            } => Some(Self::IncompatibleReader {
-                reader: format!("{remote_reader:?}"),
-                detail: format!("requested {requested_qos:?}, offered {offered_qos:?}"),
-            }),
-            _ => None,
-        }
-    }
-}
-
-/// A DDS writer of a keyed, an unkeyed or a signed topic.
-enum WriterInner<T: TopicType> {
-    Keyed(DataWriter<Wire<T>, CDRSerializerAdapter<Wire<T>>>),
-    Unkeyed(rustdds::no_key::DataWriter<Wire<T>, CDRSerializerAdapter<Wire<T>>>),
-    Signed(
-        DataWriter<SignedWire, CDRSerializerAdapter<SignedWire>>,
-        Arc<Security>,
-    ),
-}
-
-/// A DDS write failure in words (the sample itself is handed back by the caller).
-fn describe<D>(e: rustdds::dds::result::WriteError<D>) -> String {
-    use rustdds::dds::result::WriteError as E;
-    match e {
-        E::Serialization { reason, .. } | E::Poisoned { reason, .. } => reason,
-        E::WouldBlock { .. } => "reliable history full: readers are not acknowledging".into(),
-        E::Io(e) => e.to_string(),
-        E::Internal { reason } => reason,
-    }
-}
-
-impl<T: TopicType> WriterInner<T> {
-    async fn async_write(&self, sample: T) -> Result<(), String> {
-        match self {
-            Self::Keyed(w) => w.async_write(Wire(sample), None).await.map_err(describe),
-            Self::Unkeyed(w) => w.async_write(Wire(sample), None).await.map_err(describe),
-            Self::Signed(w, security) => {
-                let wire = security.seal(&sample)?;
-                w.async_write(wire, None).await.map_err(describe)
-            }
-        }
-    }
-
-    fn write(&self, sample: T) -> Result<(), String> {
-        match self {
-            Self::Keyed(w) => w.write(Wire(sample), None).map_err(describe),
-            Self::Unkeyed(w) => w.write(Wire(sample), None).map_err(describe),
-            Self::Signed(w, security) => {
-                let wire = security.seal(&sample)?;
-                w.write(wire, None).map_err(describe)
-            }
-        }
-    }
-
-    fn try_recv_status(&self) -> Option<rustdds::DataWriterStatus> {
-        match self {
-            Self::Keyed(w) => w.try_recv_status(),
-            Self::Unkeyed(w) => w.try_recv_status(),
-            Self::Signed(w, _) => w.try_recv_status(),
-        }
-    }
-}
 
 /// A typed DDS writer in one priority class.
 pub struct Writer<T: TopicType> {
-    inner: WriterInner<T>,
+    entity: Entity,
+    sertype: SerType,
+    /// Set when samples go signed on the topic's twin.
+    security: Option<Arc<Security>>,
     options: WriterOptions,
-    matched: Mutex<i32>,
+    _participant: Arc<Participant>,
+    _type: PhantomData<fn(T)>,
 }
 
 impl<T: TopicType> std::fmt::Debug for Writer<T> {
@@ -478,47 +398,47 @@ impl<T: TopicType> Writer<T> {
         }
     }
 
+    fn send(&self, sample: &T) -> Result<(), String> {
+        let mut cdr = match &self.security {
+            Some(security) => crate::to_cdr_le(&security.seal(sample)?)?,
+            None => crate::to_cdr_le(sample)?,
+        };
+        cyclone::write_cdr(&self.entity, self.sertype, &mut cdr).map_err(|code| {
+            if code == cyclone::TIMEOUT {
+                "reliable history full: readers are not acknowledging".to_string()
+            } else {
+                cyclone::retcode(code)
+            }
+        })
+    }
+
+    fn send_or_return(&self, sample: T) -> Result<(), WriteError<T>> {
+        self.send(&sample)
+            .map_err(|detail| WriteError::Dds { detail, sample })
+    }
+
     /// Validates and publishes one sample; on failure the sample comes back in the error.
+    ///
+    /// DDS sends at once from the calling thread; only a reliable writer whose history is
+    /// full of unacknowledged samples waits, for the writer's `max_blocking` at most.
     pub async fn write(&self, sample: T) -> Result<(), WriteError<T>> {
-        let sample = Self::check(sample)?;
-        self.write_unchecked(sample).await
+        self.send_or_return(Self::check(sample)?)
     }
 
     /// Publishes a sample WITHOUT validating it: for fault-injection tests and tools that
     /// must reproduce what a faulty foreign writer sends. Never use it for real data.
     pub async fn write_unchecked(&self, sample: T) -> Result<(), WriteError<T>> {
-        let backup = sample.clone();
-        self.inner
-            .async_write(sample)
-            .await
-            .map_err(|detail| WriteError::Dds {
-                detail,
-                sample: backup,
-            })
+        self.send_or_return(sample)
     }
 
-    /// Like [`Writer::write`] but synchronous (blocks at most the writer's `max_blocking`).
+    /// Like [`Writer::write`], for code that is not async.
     pub fn write_blocking(&self, sample: T) -> Result<(), WriteError<T>> {
-        let sample = Self::check(sample)?;
-        let backup = sample.clone();
-        self.inner.write(sample).map_err(|detail| WriteError::Dds {
-            detail,
-            sample: backup,
-        })
+        self.send_or_return(Self::check(sample)?)
     }
 
-    /// How many remote readers are matched now, from the writer's status events (RustDDS's
-    /// `get_matched_subscriptions` is a placeholder that panics, so it is never called).
+    /// How many readers are matched now.
     pub fn matched_readers(&self) -> i32 {
-        let Ok(mut matched) = self.matched.lock() else {
-            return 0;
-        };
-        while let Some(status) = self.inner.try_recv_status() {
-            if let rustdds::DataWriterStatus::PublicationMatched { current, .. } = status {
-                *matched = current.count();
-            }
-        }
-        *matched
+        cyclone::matched_readers(&self.entity)
     }
 
     /// The options this writer was created with.
@@ -539,16 +459,96 @@ pub struct SampleMeta {
     pub source_timestamp_ms: Option<i64>,
 }
 
+/// Wakes a subscription's task when its readers have data (or a malformed report).
+#[derive(Debug, Default)]
+struct Signal {
+    waker: AtomicWaker,
+    ready: AtomicBool,
+}
+
+impl cyclone::Wake for Signal {
+    fn wake(&self) {
+        self.ready.store(true, Ordering::Release);
+        self.waker.wake();
+    }
+}
+
+/// How a reader's samples become stream items.
+enum Decode {
+    /// Plain samples of `T`, validated.
+    Plain,
+    /// Plain samples while security is on: counted and refused.
+    Unsigned(Arc<Security>),
+    /// Signed samples, opened by the gate.
+    Signed(Arc<Security>),
+}
+
+/// One DDS reader of a subscription.
+struct Source {
+    reader: ReaderHandle<Signal>,
+    topic: String,
+    decode: Decode,
+    /// Writer GUIDs by their instance handle in this reader.
+    writers: HashMap<u64, cyclone::Guid>,
+}
+
+impl Source {
+    fn meta(&mut self, taken: &cyclone::Taken) -> SampleMeta {
+        let reader = self.reader.entity();
+        let guid = *self
+            .writers
+            .entry(taken.publication)
+            .or_insert_with(|| cyclone::publication_guid(reader, taken.publication).unwrap_or_default());
+        SampleMeta {
+            writer: format!("{}.{}", cyclone::hex(&guid[..12]), cyclone::hex(&guid[12..])),
+            participant: cyclone::hex(&guid[..12]),
+            source_timestamp_ms: (taken.source_timestamp_ns > 0)
+                .then(|| taken.source_timestamp_ns / 1_000_000),
+        }
+    }
+
+    fn item<T: TopicType>(&mut self, taken: &cyclone::Taken) -> Result<(T, SampleMeta), ReadError> {
+        let malformed = |detail: String| {
+            warn!(topic = T::TOPIC, %detail, "malformed sample dropped");
+            ReadError::Malformed {
+                topic: T::TOPIC,
+                detail,
+            }
+        };
+        match &self.decode {
+            Decode::Plain => {
+                let value: T = crate::from_cdr(&taken.cdr).map_err(malformed)?;
+                let meta = self.meta(taken);
+                validated(value, meta)
+            }
+            Decode::Unsigned(security) => {
+                security.count_unsigned(T::TOPIC);
+                Err(ReadError::Unsigned { topic: T::TOPIC })
+            }
+            Decode::Signed(security) => {
+                let security = Arc::clone(security);
+                let wire: SignedWire = crate::from_cdr(&taken.cdr).map_err(malformed)?;
+                let meta = self.meta(taken);
+                open_signed::<T>(&security, &wire, meta)
+            }
+        }
+    }
+}
+
 /// A typed, validated stream of samples from one topic.
 ///
-/// A dedicated thread per subscription waits on the DDS reader (mio readiness) and takes
-/// samples in batches: RustDDS's own async stream takes one sample per call and scans the
-/// reader's whole cache each time, which turns a backlog into quadratic work. Samples cross
-/// to async code through a bounded channel, so a slow consumer slows the reader instead of
-/// growing memory.
+/// Each DDS reader has a data-available listener that wakes the stream's task, which then
+/// takes the samples in batches itself. Samples wait in the reader's cache, bounded by its
+/// history and resource limits, until the consumer asks for them, so a slow consumer
+/// slows acknowledgements (and so the reliable writer) instead of growing memory.
 pub struct Subscription<T: TopicType> {
-    rx: tokio::sync::mpsc::Receiver<Result<(T, SampleMeta), ReadError>>,
-    stop: Arc<AtomicBool>,
+    readers: Vec<Source>,
+    /// Malformed-sample reports already turned into errors, per reader.
+    malformed_seen: Vec<u64>,
+    buffer: VecDeque<Result<(T, SampleMeta), ReadError>>,
+    signal: Arc<Signal>,
+    _participant: Arc<Participant>,
+    _type: PhantomData<fn() -> T>,
 }
 
 impl<T: TopicType> std::fmt::Debug for Subscription<T> {
@@ -559,9 +559,37 @@ impl<T: TopicType> std::fmt::Debug for Subscription<T> {
     }
 }
 
-impl<T: TopicType> Drop for Subscription<T> {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
+// Nothing in a subscription is pinned: it is only ever moved whole.
+impl<T: TopicType> Unpin for Subscription<T> {}
+
+/// Samples taken per reader per call.
+const BATCH: usize = 64;
+
+impl<T: TopicType> Subscription<T> {
+    /// Moves what the readers hold (and new malformed reports) into the buffer.
+    fn fill(&mut self) {
+        let mut taken = Vec::new();
+        for (i, source) in self.readers.iter_mut().enumerate() {
+            let (count, last) = cyclone::malformed_since(&source.topic);
+            while self.malformed_seen[i] < count {
+                self.malformed_seen[i] += 1;
+                self.buffer.push_back(Err(ReadError::Malformed {
+                    topic: T::TOPIC,
+                    detail: last.clone(),
+                }));
+            }
+            taken.clear();
+            if let Err(detail) = cyclone::take_cdr(source.reader.entity(), BATCH, &mut taken) {
+                self.buffer.push_back(Err(ReadError::Dds {
+                    topic: T::TOPIC,
+                    detail,
+                }));
+                continue;
+            }
+            for t in &taken {
+                self.buffer.push_back(source.item::<T>(t));
+            }
+        }
     }
 }
 
@@ -571,196 +599,21 @@ impl<T: TopicType> Stream for Subscription<T> {
     type Item = Result<(T, SampleMeta), ReadError>;
 
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
-        self.rx.poll_recv(cx)
-    }
-}
-
-/// Samples a reader thread takes per call.
-const BATCH: usize = 1024;
-/// Samples buffered between the reader thread and the async consumer.
-const CHANNEL: usize = 4096;
-
-type Tx<T> = tokio::sync::mpsc::Sender<Result<(T, SampleMeta), ReadError>>;
-
-/// A DDS reader reduced to what the reader thread needs: readiness and "take a batch".
-trait TakeBatch<D>: rustdds::mio1::event::Source + Send + 'static {
-    /// Up to [`BATCH`] unread samples; `None` values are disposals.
-    fn take_batch(
-        &mut self,
-    ) -> Result<Vec<(Option<D>, rustdds::SampleInfo)>, rustdds::dds::result::ReadError>;
-}
-
-impl<D> TakeBatch<D> for DataReader<D, CDRDeserializerAdapter<D>>
-where
-    D: rustdds::Keyed + serde::de::DeserializeOwned + Send + 'static,
-    D::K: rustdds::Key + serde::de::DeserializeOwned + Send,
-{
-    fn take_batch(
-        &mut self,
-    ) -> Result<Vec<(Option<D>, rustdds::SampleInfo)>, rustdds::dds::result::ReadError> {
-        Ok(self
-            .take(BATCH, ReadCondition::not_read())?
-            .into_iter()
-            .map(|s| {
-                let info = s.sample_info().clone();
-                match s.into_value() {
-                    Sample::Value(v) => (Some(v), info),
-                    // Disposals carry no data for Shoal: instances end by being superseded.
-                    Sample::Dispose(_) => (None, info),
-                }
-            })
-            .collect())
-    }
-}
-
-impl<D> TakeBatch<D> for rustdds::no_key::DataReader<D, CDRDeserializerAdapter<D>>
-where
-    D: serde::de::DeserializeOwned + Send + 'static,
-{
-    fn take_batch(
-        &mut self,
-    ) -> Result<Vec<(Option<D>, rustdds::SampleInfo)>, rustdds::dds::result::ReadError> {
-        Ok(self
-            .take(BATCH, ReadCondition::not_read())?
-            .into_iter()
-            .map(|s| {
-                let info = s.sample_info().clone();
-                (Some(s.into_value()), info)
-            })
-            .collect())
-    }
-}
-
-/// A reader thread as its [`PubSub`] sees it.
-struct ReaderThread {
-    stop: Arc<AtomicBool>,
-    /// Wakes the thread's poll, so a stop is seen at once.
-    waker: Arc<rustdds::mio1::Waker>,
-    /// Disconnected when the thread ends.
-    exited: std::sync::mpsc::Receiver<()>,
-}
-
-impl ReaderThread {
-    fn running(&self) -> bool {
-        matches!(
-            self.exited.try_recv(),
-            Err(std::sync::mpsc::TryRecvError::Empty)
-        )
-    }
-}
-
-/// Token of the reader in its thread's poll; the waker has the other.
-const READER: rustdds::mio1::Token = rustdds::mio1::Token(0);
-const WAKER: rustdds::mio1::Token = rustdds::mio1::Token(1);
-
-/// Starts a reader thread turning each sample of `reader` into a stream item with `convert`.
-fn spawn_reader<T, D, R, F>(
-    topic_name: &str,
-    mut reader: R,
-    tx: Tx<T>,
-    stop: Arc<AtomicBool>,
-    convert: F,
-) -> Result<ReaderThread, CreateError>
-where
-    T: TopicType,
-    R: TakeBatch<D>,
-    F: FnMut(D, &rustdds::SampleInfo) -> Result<(T, SampleMeta), ReadError> + Send + 'static,
-{
-    use rustdds::mio1::{Interest, Poll as MioPoll, Waker};
-    let name = format!("dds-reader {topic_name}");
-    let topic: &'static str = T::TOPIC;
-    // mio 1 readiness: RustDDS drains this event source inside `take`, so an edge is never
-    // lost (its mio 0.6 channel is never drained by `take` and goes silent once full).
-    let poll = MioPoll::new().map_err(|e| dds_err(&name, e))?;
-    poll.registry()
-        .register(&mut reader, READER, Interest::READABLE)
-        .map_err(|e| dds_err(&name, e))?;
-    let waker = Arc::new(Waker::new(poll.registry(), WAKER).map_err(|e| dds_err(&name, e))?);
-    let (exit_tx, exited) = std::sync::mpsc::channel::<()>();
-    let thread_stop = Arc::clone(&stop);
-    std::thread::Builder::new()
-        .name(name.chars().take(15).collect())
-        .spawn(move || {
-            let _exit = exit_tx;
-            if let Err(e) = reader_loop(reader, poll, &tx, &thread_stop, convert) {
-                warn!(topic, error = %e, "DDS reader thread stopped");
-            }
-        })
-        .map_err(|e| dds_err(name, e))?;
-    Ok(ReaderThread {
-        stop,
-        waker,
-        exited,
-    })
-}
-
-fn reader_loop<T, D, R, F>(
-    mut reader: R,
-    mut poll: rustdds::mio1::Poll,
-    tx: &Tx<T>,
-    stop: &AtomicBool,
-    mut convert: F,
-) -> std::io::Result<()>
-where
-    T: TopicType,
-    R: TakeBatch<D>,
-    F: FnMut(D, &rustdds::SampleInfo) -> Result<(T, SampleMeta), ReadError>,
-{
-    use rustdds::mio1::Events;
-    let mut events = Events::with_capacity(4);
-    loop {
-        // Edge-triggered: drain everything before waiting again.
         loop {
-            if stop.load(Ordering::Relaxed) || tx.is_closed() {
-                return Ok(());
+            if let Some(item) = self.buffer.pop_front() {
+                return Poll::Ready(Some(item));
             }
-            let item = match reader.take_batch() {
-                Ok(batch) if batch.is_empty() => break,
-                Ok(batch) => {
-                    for (value, info) in batch {
-                        if let Some(value) = value
-                            && tx.blocking_send(convert(value, &info)).is_err()
-                        {
-                            return Ok(());
-                        }
-                    }
-                    continue;
-                }
-                // The reader has moved past the bad sample; report it and go on.
-                Err(rustdds::dds::result::ReadError::Deserialization { reason }) => {
-                    warn!(topic = T::TOPIC, %reason, "malformed sample dropped");
-                    Err(ReadError::Malformed {
-                        topic: T::TOPIC,
-                        detail: reason,
-                    })
-                }
-                Err(rustdds::dds::result::ReadError::UnknownKey { .. }) => continue,
-                Err(e) => {
-                    std::thread::sleep(std::time::Duration::from_millis(100));
-                    Err(ReadError::Dds {
-                        topic: T::TOPIC,
-                        detail: e.to_string(),
-                    })
-                }
-            };
-            if tx.blocking_send(item).is_err() {
-                return Ok(());
+            self.signal.ready.store(false, Ordering::Release);
+            self.fill();
+            if !self.buffer.is_empty() {
+                continue;
+            }
+            self.signal.waker.register(cx.waker());
+            // Data that arrived between the take and the registration woke no one.
+            if !self.signal.ready.load(Ordering::Acquire) {
+                return Poll::Pending;
             }
         }
-        // The timeout bounds how long a dropped subscription keeps its thread. EINTR (the
-        // process was stopped and resumed, or a signal landed here) is no reason to stop.
-        match poll.poll(&mut events, Some(std::time::Duration::from_millis(200))) {
-            Err(e) if e.kind() != std::io::ErrorKind::Interrupted => return Err(e),
-            _ => {}
-        }
-    }
-}
-
-fn meta(info: &rustdds::SampleInfo) -> SampleMeta {
-    SampleMeta {
-        writer: format!("{:?}", info.writer_guid()),
-        participant: format!("{:?}", info.writer_guid().prefix),
-        source_timestamp_ms: info.source_timestamp().map(timestamp_ms),
     }
 }
 
@@ -768,10 +621,10 @@ fn meta(info: &rustdds::SampleInfo) -> SampleMeta {
 fn open_signed<T: TopicType>(
     security: &Security,
     wire: &SignedWire,
-    info: &rustdds::SampleInfo,
+    meta: SampleMeta,
 ) -> Result<(T, SampleMeta), ReadError> {
     match security.open::<T>(wire) {
-        Ok(sample) => Ok((sample, meta(info))),
+        Ok(sample) => Ok((sample, meta)),
         Err(Refused::Gate(reason, detail)) => {
             debug!(topic = T::TOPIC, reason, %detail, "signed sample refused");
             Err(ReadError::Refused {
@@ -788,24 +641,13 @@ fn open_signed<T: TopicType>(
     }
 }
 
-fn validated<T: TopicType>(
-    value: T,
-    info: &rustdds::SampleInfo,
-) -> Result<(T, SampleMeta), ReadError> {
+fn validated<T: TopicType>(value: T, meta: SampleMeta) -> Result<(T, SampleMeta), ReadError> {
     match value.validate() {
-        Ok(()) => Ok((value, meta(info))),
+        Ok(()) => Ok((value, meta)),
         Err(error) => Err(ReadError::Invalid {
             topic: T::TOPIC,
             error,
             payload: serde_json::to_string(&value).unwrap_or_else(|e| format!("\"{e}\"")),
         }),
     }
-}
-
-/// RTPS time (9.3.2): 32-bit seconds since 1970 and a 32-bit binary fraction.
-fn timestamp_ms(t: rustdds::Timestamp) -> i64 {
-    let ticks = t.to_ticks();
-    let seconds = i64::try_from(ticks >> 32).unwrap_or(0);
-    let fraction_ms = i64::try_from(((ticks & 0xFFFF_FFFF) * 1000) >> 32).unwrap_or(0);
-    seconds * 1000 + fraction_ms
 }

@@ -8,9 +8,9 @@
 
 use std::time::Duration;
 
-use rustdds::policy::{Deadline, Durability, History, Liveliness, Reliability, ResourceLimits};
-use rustdds::{QosPolicies, QosPolicyBuilder};
 use serde::{Deserialize, Serialize};
+
+use crate::cyclone::{self, Reliability};
 
 /// The QoS profile of a topic.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -59,10 +59,6 @@ impl Priority {
     }
 }
 
-fn dds_duration(d: Duration) -> rustdds::Duration {
-    rustdds::Duration::from_frac_seconds(d.as_secs_f64())
-}
-
 /// Options a writer is created with.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WriterOptions {
@@ -85,68 +81,88 @@ impl WriterOptions {
     }
 }
 
+/// The policies Shoal sets on an endpoint; everything else is the DDS default.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Policies {
+    pub(crate) reliability: Reliability,
+    pub(crate) transient_local: bool,
+    /// Keep-last depth per instance.
+    pub(crate) depth: i32,
+    pub(crate) deadline: Option<Duration>,
+    pub(crate) liveliness_lease: Option<Duration>,
+    /// (samples, instances, samples per instance); `None` is unlimited.
+    pub(crate) limits: Option<(i32, i32, i32)>,
+}
+
+impl Policies {
+    /// The Cyclone QoS object for these policies.
+    pub(crate) fn to_qos(self) -> cyclone::Qos {
+        let mut q = cyclone::Qos::new();
+        q.reliability(self.reliability);
+        q.transient_local(self.transient_local);
+        q.keep_last(self.depth);
+        if let Some(d) = self.deadline {
+            q.deadline(d);
+        }
+        if let Some(lease) = self.liveliness_lease {
+            q.automatic_liveliness(lease);
+        }
+        if let Some((samples, instances, per_instance)) = self.limits {
+            q.resource_limits(samples, instances, per_instance);
+        }
+        q
+    }
+}
+
 impl QosProfile {
-    fn base(self) -> QosPolicyBuilder {
-        let b = QosPolicyBuilder::new();
+    /// Durability and writer history depth of the profile.
+    fn base(self) -> (bool, i32) {
         match self {
-            Self::State => b
-                .durability(Durability::Volatile)
-                .history(History::KeepLast { depth: 64 }),
-            Self::Tasks | Self::Announcements | Self::Events => b
-                .durability(Durability::TransientLocal)
-                .history(History::KeepLast { depth: 1 }),
-            Self::TaskStatus => b
-                .durability(Durability::TransientLocal)
-                .history(History::KeepLast { depth: 16 }),
-            Self::Environment => b
-                .durability(Durability::Volatile)
-                .history(History::KeepLast { depth: 8 }),
+            Self::State => (false, 64),
+            Self::Tasks | Self::Announcements | Self::Events => (true, 1),
+            Self::TaskStatus => (true, 16),
+            Self::Environment => (false, 8),
         }
     }
 
     /// QoS of Shoal's writers on this topic.
-    pub fn writer_qos(self, options: &WriterOptions) -> QosPolicies {
-        let mut b = self.base().reliability(Reliability::Reliable {
-            max_blocking_time: dds_duration(options.max_blocking),
-        });
-        if let Some(deadline) = options.deadline {
-            b = b.deadline(Deadline(dds_duration(deadline)));
+    pub(crate) fn writer_qos(self, options: &WriterOptions) -> Policies {
+        let (transient_local, depth) = self.base();
+        Policies {
+            reliability: Reliability::Reliable(options.max_blocking),
+            transient_local,
+            depth,
+            deadline: options.deadline,
+            liveliness_lease: (self == Self::State).then_some(Duration::from_secs(10)),
+            limits: None,
         }
-        if self == Self::State {
-            b = b.liveliness(Liveliness::Automatic {
-                lease_duration: rustdds::Duration::from_secs(10),
-            });
-        }
-        b.build()
     }
 
     /// QoS of Shoal's readers on this topic; `cache_samples` bounds the reader's cache.
-    pub fn reader_qos(self, cache_samples: i32) -> QosPolicies {
-        let b = match self {
+    pub(crate) fn reader_qos(self, cache_samples: i32) -> Policies {
+        let (transient_local, depth) = self.base();
+        let reliability = match self {
             // Best effort accepts every writer, reliable or not: environment data is bulk.
-            Self::Environment => self.base().best_effort(),
-            _ => self.base().reliable(rustdds::Duration::ZERO),
+            Self::Environment => Reliability::BestEffort,
+            _ => Reliability::Reliable(Duration::ZERO),
         };
-        let b = match self {
-            Self::State => b.history(History::KeepLast { depth: 256 }),
-            Self::TaskStatus | Self::Environment => b,
+        let depth = match self {
+            Self::State => 256,
+            Self::TaskStatus | Self::Environment => depth,
             // Late joiners get the history the writer kept; keep several per instance so a
             // re-issued task or a burst of announcements is not collapsed before we read.
-            Self::Tasks | Self::Announcements | Self::Events => {
-                b.history(History::KeepLast { depth: 4 })
-            }
+            Self::Tasks | Self::Announcements | Self::Events => 4,
         };
-        b.resource_limits(ResourceLimits {
-            max_samples: cache_samples,
-            max_instances: cache_samples,
-            max_samples_per_instance: cache_samples,
-        })
-        .build()
-    }
-
-    /// QoS of the topic object, which sizes RustDDS's per-topic cache.
-    pub fn topic_qos(self, cache_samples: i32) -> QosPolicies {
-        self.reader_qos(cache_samples)
+        let cache = cache_samples.max(1);
+        Policies {
+            reliability,
+            transient_local,
+            // DDS requires the depth to fit the per-instance limit.
+            depth: depth.min(cache),
+            deadline: None,
+            liveliness_lease: None,
+            limits: Some((cache, cache, cache)),
+        }
     }
 }
 
@@ -157,23 +173,43 @@ mod tests {
     #[test]
     fn tasks_are_reliable_and_transient_local_for_late_joiners() {
         let q = QosProfile::Tasks.writer_qos(&WriterOptions::new(Priority::Control));
-        assert!(q.is_reliable());
-        assert_eq!(q.durability(), Some(Durability::TransientLocal));
+        assert!(matches!(q.reliability, Reliability::Reliable(_)));
+        assert!(q.transient_local);
         let r = QosProfile::Tasks.reader_qos(1000);
-        assert_eq!(r.durability(), Some(Durability::TransientLocal));
+        assert!(r.transient_local && matches!(r.reliability, Reliability::Reliable(_)));
     }
 
     #[test]
     fn reader_cache_is_bounded_by_configuration_not_the_library_default() {
         let r = QosProfile::State.reader_qos(5000);
-        assert_eq!(r.resource_limits().map(|l| l.max_samples), Some(5000));
+        assert_eq!(r.limits, Some((5000, 5000, 5000)));
+        // A cache smaller than the history depth shrinks the depth, which DDS requires.
+        assert_eq!(QosProfile::State.reader_qos(10).depth, 10);
     }
 
     #[test]
     fn station_readers_request_no_deadline_so_any_writer_matches() {
         for p in [QosProfile::State, QosProfile::Tasks, QosProfile::Events] {
-            assert_eq!(p.reader_qos(10).deadline(), None);
+            assert_eq!(p.reader_qos(10).deadline, None);
+            assert_eq!(p.reader_qos(10).liveliness_lease, None);
         }
+    }
+
+    #[test]
+    fn environment_readers_accept_best_effort_writers() {
+        assert_eq!(
+            QosProfile::Environment.reader_qos(10).reliability,
+            Reliability::BestEffort
+        );
+    }
+
+    #[test]
+    fn writers_offer_their_deadline() {
+        let mut o = WriterOptions::new(Priority::Telemetry);
+        o.deadline = Some(Duration::from_secs(3));
+        let q = QosProfile::State.writer_qos(&o);
+        assert_eq!(q.deadline, Some(Duration::from_secs(3)));
+        assert_eq!(q.liveliness_lease, Some(Duration::from_secs(10)));
     }
 
     #[test]

@@ -36,11 +36,9 @@ pub(crate) struct SignedWire {
     pub(crate) envelope: Vec<u8>,
 }
 
-impl rustdds::Keyed for SignedWire {
-    type K = String;
-    fn key(&self) -> String {
-        self.key.clone()
-    }
+impl SignedWire {
+    /// The key field, as `idl/shoal.idl` declares it.
+    pub(crate) const KEY_FIELDS: &'static [&'static str] = &["key"];
 }
 
 /// Refusals of a secure participant so far.

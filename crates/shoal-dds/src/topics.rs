@@ -1,6 +1,5 @@
 //! The six Shoal topics: names, type names, keys and QoS profiles.
 
-use rustdds::cdr_encoding_size::{CdrEncodingMaxSize, CdrEncodingSize};
 use serde::{Deserialize, Serialize, de::DeserializeOwned};
 use shoal_model::{
     EnvironmentObservation, Event, StateVector, TaskAssignment, TaskStatus, Validate,
@@ -22,9 +21,12 @@ pub trait TopicType:
     /// Priority class used when the caller does not choose one.
     const DEFAULT_PRIORITY: Priority;
     /// The instance key type (the IDL's `@key` fields in order).
-    type Key: rustdds::Key + DeserializeOwned + Send + Sync + std::fmt::Debug;
+    type Key: std::fmt::Debug;
     /// The instance key of this sample.
     fn key(&self) -> Self::Key;
+    /// The names of the key fields, in order (empty for an unkeyed type). DDS computes
+    /// each sample's instance from these fields of its serialised form.
+    const KEY_FIELDS: &'static [&'static str] = &[];
     /// Whether the topic has a key (RTPS WITH_KEY endpoints). Foreign types without one,
     /// such as ROS 2 messages, set `false`: DDS implementations match only endpoints of the
     /// same keyedness (Cyclone DDS drops the others silently).
@@ -56,6 +58,7 @@ macro_rules! string_keyed_topic {
             fn key(&self) -> String {
                 self.$key.clone()
             }
+            const KEY_FIELDS: &'static [&'static str] = &[stringify!($key)];
             const SIGNED: bool = true;
             fn owner_vehicle(&self) -> Option<&str> {
                 Some(&self.vehicle_id)
@@ -117,23 +120,13 @@ pub struct ObservationKey {
     pub property: String,
 }
 
-impl CdrEncodingSize for ObservationKey {
-    fn cdr_encoding_max_size() -> CdrEncodingMaxSize {
-        // Strings are unbounded to RustDDS, which makes the key hash the MD5 digest that
-        // RTPS 9.6.3.8 prescribes for keys longer than 16 bytes: what other vendors compute
-        // for `string<32>` + `string<64>` too.
-        CdrEncodingMaxSize::Unbounded
-    }
-}
-
-impl rustdds::Key for ObservationKey {}
-
 impl TopicType for EnvironmentObservation {
     const TOPIC: &'static str = "shoal/environment";
     const TYPE_NAME: &'static str = "shoal::EnvironmentObservation";
     const PROFILE: QosProfile = QosProfile::Environment;
     const DEFAULT_PRIORITY: Priority = Priority::Bulk;
     type Key = ObservationKey;
+    const KEY_FIELDS: &'static [&'static str] = &["vehicle_id", "property"];
     fn key(&self) -> ObservationKey {
         ObservationKey {
             vehicle_id: self.vehicle_id.clone(),
@@ -149,21 +142,6 @@ impl TopicType for EnvironmentObservation {
     }
 }
 
-/// The wire form of a topic sample: the model type itself, serialised field by field.
-///
-/// A newtype because the DDS library's `Keyed` trait and the model types live in other
-/// crates; `serde(transparent)` keeps the bytes exactly those of the model type.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(transparent)]
-pub(crate) struct Wire<T>(pub(crate) T);
-
-impl<T: TopicType> rustdds::Keyed for Wire<T> {
-    type K = T::Key;
-    fn key(&self) -> T::Key {
-        self.0.key()
-    }
-}
-
 /// Every topic's name and type name, for tools and documentation.
 pub const ALL_TOPICS: [(&str, &str); 6] = [
     (StateVector::TOPIC, StateVector::TYPE_NAME),
@@ -176,3 +154,29 @@ pub const ALL_TOPICS: [(&str, &str); 6] = [
         EnvironmentObservation::TYPE_NAME,
     ),
 ];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shape::Shape;
+
+    fn traced<T: TopicType>() -> Shape {
+        Shape::of::<T>(T::TYPE_NAME, T::KEY_FIELDS)
+            .unwrap_or_else(|e| unreachable!("{}: {e}", T::TYPE_NAME))
+    }
+
+    #[test]
+    fn every_topic_type_has_a_layout_dds_can_carry_and_its_key_fields() {
+        traced::<StateVector>();
+        traced::<VehicleAnnouncement>();
+        traced::<TaskAssignment>();
+        traced::<TaskStatus>();
+        traced::<Event>();
+        traced::<EnvironmentObservation>();
+    }
+
+    #[test]
+    fn a_key_field_the_type_lacks_is_an_error() {
+        assert!(Shape::of::<StateVector>("shoal::StateVector", &["nope"]).is_err());
+    }
+}

@@ -122,13 +122,6 @@ async fn malformed_foreign_samples_are_reported_and_do_not_block_good_ones() {
         .publisher
         .create_datawriter_cdr::<Truncated>(&foreign.topic, None)
         .unwrap();
-    let good = PubSub::new(&config(43)).unwrap();
-    let good_writer = good
-        .writer::<StateVector>(WriterOptions::new(Priority::Telemetry))
-        .unwrap();
-    wait_matched(&good_writer).await;
-    tokio::time::sleep(Duration::from_millis(500)).await;
-
     #[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
     #[serde(transparent)]
     struct Raw(StateVector);
@@ -138,11 +131,19 @@ async fn malformed_foreign_samples_are_reported_and_do_not_block_good_ones() {
             self.0.vehicle_id.clone()
         }
     }
-    // A NaN cannot go through a Shoal writer (it validates), so a raw writer sends it.
+    // A NaN cannot go through a Shoal writer (it validates), so a raw writer sends it; it
+    // is created before discovery is awaited, or its volatile sample would find no reader.
     let raw_writer = foreign
         .publisher
         .create_datawriter_cdr::<Raw>(&foreign.topic, None)
         .unwrap();
+
+    let good = PubSub::new(&config(43)).unwrap();
+    let good_writer = good
+        .writer::<StateVector>(WriterOptions::new(Priority::Telemetry))
+        .unwrap();
+    wait_matched(&good_writer).await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
 
     bad_writer
         .write(

@@ -452,8 +452,8 @@ async fn shoal_throughput(cfg: &ShoalConfig, domain: u16) -> Result<(f64, Vec<(f
                 break;
             }
         }
-        // No report in 10 s: the reader fell behind and RustDDS's reliable reader stalled
-        // waiting for samples the writer's keep-last history had already replaced.
+        // No report in 10 s: the reader fell behind and lost samples the writer's
+        // keep-last history had already replaced.
         let received = received.unwrap_or(0);
         results.push((achieved, n, received));
         if received == n && achieved >= rate * 0.9 {
@@ -615,7 +615,7 @@ async fn bus_figures(
     seconds: u64,
     no_peer: bool,
 ) -> Result<BusFigures> {
-    eprintln!("bus: {seconds} s of Shoal round trips (RustDDS, two processes, state vectors)...");
+    eprintln!("bus: {seconds} s of Shoal round trips (Cyclone DDS, two processes, state vectors)...");
     let rt = shoal_round_trip(cfg, domain, seconds).await?;
     eprintln!("bus: Shoal throughput, stepping the offered rate up until samples are lost...");
     let (thr, steps) = shoal_throughput(cfg, domain + 3).await?;
@@ -1309,7 +1309,7 @@ fn child(args: &[&str], domain: u16) -> Result<tokio::process::Child> {
         .args(args)
         .arg("--exit-on-stdin-close")
         .env("SHOAL_DDS__DOMAIN_ID", domain.to_string())
-        .env("RUST_LOG", "warn,rustdds=error")
+        .env("RUST_LOG", "warn,cyclonedds=error")
         .stdin(Stdio::piped())
         .stdout(Stdio::null())
         .stderr(Stdio::inherit())

@@ -41,18 +41,10 @@ pub fn shutdown_signal(exit_on_stdin_close: bool) -> CancellationToken {
                 std::future::pending::<()>().await;
             }
         };
-        // RustDDS may stop under us (see `shoal_dds::failure`): a daemon that can no longer
-        // send or receive stops, and says why on exit, rather than serve stale data.
-        let dds_stopped = async {
-            while shoal_dds::failure().is_none() {
-                tokio::time::sleep(Duration::from_secs(1)).await;
-            }
-        };
         tokio::select! {
             _ = tokio::signal::ctrl_c() => info!("Ctrl-C: stopping"),
             _ = term.recv() => info!("SIGTERM: stopping"),
             () = stdin_closed => info!("parent went away: stopping"),
-            () = dds_stopped => warn!("DDS stopped: stopping"),
         }
         t.cancel();
     });

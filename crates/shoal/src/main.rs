@@ -230,7 +230,7 @@ where
 fn init_logging(label: &str) {
     use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,rustdds=warn"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,cyclonedds=warn"));
     let ansi = std::io::stderr().is_terminal();
     let format = tracing_subscriber::fmt::format()
         .with_target(false)
@@ -388,9 +388,5 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
     };
-    // A daemon whose DDS died stopped on it (see `shutdown_signal`): say why, and fail.
-    match shoal_dds::failure() {
-        Some(why) => result.and(Err(anyhow::anyhow!("{why}"))),
-        None => result,
-    }
+    result
 }

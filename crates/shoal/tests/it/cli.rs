@@ -164,9 +164,11 @@ fn up_starts_the_station_and_fleet_and_stops_cleanly() {
         "shoal up did not stop cleanly; log:\n{log}"
     );
     assert!(log.contains("station stopped"), "{log}");
-    // RustDDS logs this for each reader dropped after its participant's event loop ended;
-    // the participant stops its reader threads first.
-    assert!(!log.contains("Cannot remove Reader"), "{log}");
+    // An error the DDS library logs (at shutdown or before) is a fault of Shoal's use of it.
+    assert!(
+        !log.lines().any(|l| l.contains("ERROR") && l.contains("cyclonedds")),
+        "{log}"
+    );
     assert!(dir.path().join("shoal-data/history.db").exists());
 }
 

@@ -1,7 +1,7 @@
 //! Faults with the `shoal` binary: a station killed with SIGKILL under load loses no record
 //! it had committed, finds its vehicles again after a restart, and its Task Register picks
-//! up the task under way (domain 54); a process whose DDS died after a stop and resume
-//! exits and says why (domain 90).
+//! up the task under way (domain 54); processes stopped and resumed (SIGSTOP/SIGCONT) go
+//! on exchanging data (domain 90).
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -20,13 +20,17 @@ impl Drop for Proc {
 }
 
 fn station(dir: &std::path::Path, port: u16) -> Proc {
+    station_on(dir, port, 54)
+}
+
+fn station_on(dir: &std::path::Path, port: u16, domain: u16) -> Proc {
     Proc(
         Command::new(env!("CARGO_BIN_EXE_shoal"))
             .args(["station", "--listen", &format!("127.0.0.1:{port}")])
             .arg("--db")
             .arg(dir.join("history.db"))
             .current_dir(dir)
-            .env("SHOAL_DDS__DOMAIN_ID", "54")
+            .env("SHOAL_DDS__DOMAIN_ID", domain.to_string())
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()
@@ -145,12 +149,14 @@ fn a_station_killed_under_load_loses_no_committed_record_and_resumes() {
     });
 }
 
-/// A vehicle process stopped and resumed (SIGSTOP/SIGCONT, as Ctrl-Z then `fg`, or a
-/// suspend) loses RustDDS's threads to EINTR: it must not stay up deaf and mute, but stop
-/// with an error that says why, so a supervisor restarts it. Domain 90.
+/// Processes stopped and resumed (SIGSTOP/SIGCONT, as Ctrl-Z then `fg`, or a suspend)
+/// get EINTR in whatever system call they were in; their DDS must carry on, not go deaf
+/// and mute (RustDDS, Shoal's earlier DDS library, lost its threads to it). Domain 90.
 #[test]
-fn a_process_whose_dds_died_after_a_stop_and_resume_exits_and_says_why() {
+fn processes_stopped_and_resumed_go_on_exchanging_data() {
     let dir = tempfile::tempdir().unwrap();
+    let port = crate::common::free_port();
+    let station = station_on(dir.path(), port, 90);
     let log = dir.path().join("vehicle.log");
     let mut vehicle = Proc(
         Command::new(env!("CARGO_BIN_EXE_shoal"))
@@ -163,41 +169,34 @@ fn a_process_whose_dds_died_after_a_stop_and_resume_exits_and_says_why() {
             .unwrap(),
     );
     let text = || std::fs::read_to_string(&log).unwrap_or_default();
-    wait_for(20, "the vehicle to join", || {
-        text().contains("vehicle joined")
-    });
-    let pid = vehicle.0.id().to_string();
-    let signal = |sig: &str| {
+    let fresh_since = |t0: i64| {
+        json(port, "/api/vehicles/auv-z")["latest"]["timestamp_ms"]
+            .as_i64()
+            .is_some_and(|ts| ts > t0)
+    };
+    wait_for(30, "state from auv-z", || fresh_since(0));
+    let signal = |pid: u32, sig: &str| {
         let ok = Command::new("kill")
-            .args([sig, &pid])
+            .args([sig, &pid.to_string()])
             .status()
             .is_ok_and(|s| s.success());
         assert!(ok, "kill {sig} {pid}");
     };
-    // A thread that is not inside a system call at that instant gets no EINTR: stop and
-    // resume until the process notices (the first time, nearly always).
-    let mut status = None;
-    for _ in 0..5 {
-        signal("-STOP");
-        std::thread::sleep(Duration::from_millis(300));
-        signal("-CONT");
-        let start = Instant::now();
-        while status.is_none() && start.elapsed() < Duration::from_secs(8) {
-            status = vehicle.0.try_wait().unwrap();
-            std::thread::sleep(Duration::from_millis(100));
-        }
-        if status.is_some() {
-            break;
+    // Several times each, so that some stop lands inside a blocking call.
+    for pid in [vehicle.0.id(), station.0.id()] {
+        for _ in 0..5 {
+            signal(pid, "-STOP");
+            std::thread::sleep(Duration::from_millis(300));
+            signal(pid, "-CONT");
+            std::thread::sleep(Duration::from_millis(200));
         }
     }
-    let status = status.unwrap_or_else(|| panic!("still running after 5 stops: {}", text()));
-    assert!(!status.success(), "{status:?}");
-    let err = text();
-    let last = err.lines().last().unwrap_or_default();
+    let resumed = now_ms();
+    wait_for(15, "state sent after the last resume", || fresh_since(resumed));
     assert!(
-        last.starts_with("shoal: error: DDS stopped in this process"),
-        "{err}"
+        vehicle.0.try_wait().unwrap().is_none(),
+        "the vehicle exited: {}",
+        text()
     );
-    assert!(last.contains("restart the process"), "{last}");
-    assert!(!err.contains("panicked"), "{err}");
+    assert!(!text().contains("panicked"), "{}", text());
 }

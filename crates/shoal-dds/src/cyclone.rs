@@ -1,0 +1,733 @@
+//! The one place Shoal calls Cyclone DDS's C API; everything above it is safe Rust.
+//!
+//! - [`Entity`] owns a Cyclone entity handle and deletes it (and its children) on drop.
+//! - [`Qos`] owns a QoS object.
+//! - [`domain`] creates each DDS domain once per process, with the XML configuration
+//!   made from [`DdsConfig`] (interfaces, multicast for discovery only, socket buffers).
+//! - [`write_cdr`] and [`take_cdr`] move samples as serialised CDR, so Shoal's serde types
+//!   never need a C layout: Cyclone checks ("normalises") every incoming sample against the
+//!   topic's type before it is delivered, and computes keys from the bytes.
+//! - Cyclone's log goes to `tracing`; samples it could not deserialise are counted per
+//!   topic ([`malformed_since`]), since the library drops them before any reader sees them.
+#![allow(unsafe_code)]
+
+use std::collections::HashMap;
+use std::ffi::{CStr, CString, c_void};
+use std::ptr::{null, null_mut};
+use std::sync::{Arc, Mutex, OnceLock};
+
+use cyclors as c;
+
+use crate::config::DdsConfig;
+
+/// A Cyclone return code in words.
+pub(crate) fn retcode(ret: i32) -> String {
+    // SAFETY: dds_strretcode returns a pointer to a static string for any value.
+    let s = unsafe { CStr::from_ptr(c::dds_strretcode(ret)) };
+    s.to_string_lossy().into_owned()
+}
+
+/// A Cyclone entity (participant, topic, reader, writer), deleted with its children on drop.
+#[derive(Debug)]
+pub(crate) struct Entity(c::dds_entity_t);
+
+impl Entity {
+    /// Wraps a handle a `dds_create_*` call returned; negative values are error codes.
+    pub(crate) fn new(handle: c::dds_entity_t) -> Result<Self, String> {
+        if handle < 0 {
+            Err(retcode(handle))
+        } else {
+            Ok(Self(handle))
+        }
+    }
+
+    /// A handle to pass where the entity is only used (a topic for its endpoints).
+    pub(crate) fn topic_ref(&self) -> TopicRef {
+        TopicRef(self.0)
+    }
+}
+
+/// A topic used by reference; the topic itself is owned elsewhere and outlives the use.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct TopicRef(c::dds_entity_t);
+
+impl Drop for Entity {
+    fn drop(&mut self) {
+        // SAFETY: deleting a handle is safe whatever its state: one already deleted (with
+        // its parent) returns an error, which is of no interest here. Cyclone waits for
+        // listener calls on the entity in progress before it returns.
+        unsafe {
+            c::dds_delete(self.0);
+        }
+    }
+}
+
+/// A 16-byte DDS GUID (12-byte participant prefix, 4-byte entity id).
+pub(crate) type Guid = [u8; 16];
+
+/// The GUID of an entity.
+pub(crate) fn guid(entity: &Entity) -> Guid {
+    let mut g = c::dds_guid_t { v: [0; 16] };
+    // SAFETY: `g` is a valid out-parameter; a failure leaves it zero.
+    unsafe {
+        c::dds_get_guid(entity.0, &raw mut g);
+    }
+    g.v
+}
+
+/// Hex text of GUID bytes.
+pub(crate) fn hex(bytes: &[u8]) -> String {
+    use std::fmt::Write;
+    bytes.iter().fold(String::new(), |mut s, b| {
+        let _ = write!(s, "{b:02x}");
+        s
+    })
+}
+
+/// Reliability of an endpoint.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Reliability {
+    /// Best effort.
+    BestEffort,
+    /// Reliable; a write may block this long when the history is full of unacknowledged data.
+    Reliable(std::time::Duration),
+}
+
+fn ns(d: std::time::Duration) -> i64 {
+    i64::try_from(d.as_nanos()).unwrap_or(i64::MAX)
+}
+
+/// A Cyclone QoS object, freed on drop.
+#[derive(Debug)]
+pub(crate) struct Qos(*mut c::dds_qos_t);
+
+impl Qos {
+    /// An empty QoS (every policy at Cyclone's default).
+    pub(crate) fn new() -> Self {
+        // SAFETY: allocation; never null (Cyclone aborts on out of memory).
+        Self(unsafe { c::dds_create_qos() })
+    }
+
+    pub(crate) fn reliability(&mut self, r: Reliability) {
+        // SAFETY: self.0 is a live QoS object.
+        unsafe {
+            match r {
+                Reliability::BestEffort => c::dds_qset_reliability(
+                    self.0,
+                    c::dds_reliability_kind_DDS_RELIABILITY_BEST_EFFORT,
+                    0,
+                ),
+                Reliability::Reliable(max_blocking) => c::dds_qset_reliability(
+                    self.0,
+                    c::dds_reliability_kind_DDS_RELIABILITY_RELIABLE,
+                    ns(max_blocking),
+                ),
+            }
+        }
+    }
+
+    pub(crate) fn transient_local(&mut self, yes: bool) {
+        let kind = if yes {
+            c::dds_durability_kind_DDS_DURABILITY_TRANSIENT_LOCAL
+        } else {
+            c::dds_durability_kind_DDS_DURABILITY_VOLATILE
+        };
+        // SAFETY: self.0 is a live QoS object.
+        unsafe { c::dds_qset_durability(self.0, kind) }
+    }
+
+    pub(crate) fn keep_last(&mut self, depth: i32) {
+        // SAFETY: self.0 is a live QoS object.
+        unsafe { c::dds_qset_history(self.0, c::dds_history_kind_DDS_HISTORY_KEEP_LAST, depth) }
+    }
+
+    pub(crate) fn deadline(&mut self, d: std::time::Duration) {
+        // SAFETY: self.0 is a live QoS object.
+        unsafe { c::dds_qset_deadline(self.0, ns(d)) }
+    }
+
+    pub(crate) fn automatic_liveliness(&mut self, lease: std::time::Duration) {
+        // SAFETY: self.0 is a live QoS object.
+        unsafe {
+            c::dds_qset_liveliness(
+                self.0,
+                c::dds_liveliness_kind_DDS_LIVELINESS_AUTOMATIC,
+                ns(lease),
+            );
+        }
+    }
+
+    pub(crate) fn resource_limits(&mut self, samples: i32, instances: i32, per_instance: i32) {
+        // SAFETY: self.0 is a live QoS object.
+        unsafe { c::dds_qset_resource_limits(self.0, samples, instances, per_instance) }
+    }
+
+    pub(crate) fn entity_name(&mut self, name: &str) {
+        if let Ok(name) = CString::new(name) {
+            // SAFETY: self.0 is a live QoS object; Cyclone copies the string.
+            unsafe { c::dds_qset_entity_name(self.0, name.as_ptr()) }
+        }
+    }
+
+    fn ptr(&self) -> *const c::dds_qos_t {
+        self.0
+    }
+}
+
+impl Drop for Qos {
+    fn drop(&mut self) {
+        // SAFETY: self.0 came from dds_create_qos and is freed once.
+        unsafe { c::dds_delete_qos(self.0) }
+    }
+}
+
+// A QoS object is plain data owned by this value.
+// SAFETY: nothing else holds the pointer.
+unsafe impl Send for Qos {}
+
+/// The DDS domains this process has created: one configuration per domain id.
+static DOMAINS: Mutex<Vec<(u16, String, Entity)>> = Mutex::new(Vec::new());
+
+/// The Cyclone XML configuration of `config`'s domain.
+pub(crate) fn domain_xml(config: &DdsConfig) -> String {
+    let interfaces: String = config
+        .interfaces
+        .iter()
+        .map(|a| {
+            // Cyclone treats loopback as unable to multicast unless told otherwise, and
+            // discovery on loopback (every test, the default) needs it.
+            let multicast = if a.is_loopback() { "true" } else { "default" };
+            format!(r#"<NetworkInterface address="{a}" multicast="{multicast}"/>"#)
+        })
+        .collect();
+    format!(
+        "<CycloneDDS><Domain id=\"any\"><General><Interfaces>{interfaces}</Interfaces>\
+         <AllowMulticast>spdp</AllowMulticast></General>\
+         <Internal><SocketReceiveBufferSize min=\"{}B\"/></Internal></Domain></CycloneDDS>",
+        config.socket_receive_buffer
+    )
+}
+
+/// Creates `config`'s domain unless this process already has it; a second configuration
+/// for the same domain id is an error (Cyclone has one per domain and process).
+pub(crate) fn domain(config: &DdsConfig) -> Result<(), String> {
+    install_log_sink();
+    let xml = domain_xml(config);
+    let mut domains = DOMAINS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    if let Some((_, existing, _)) = domains.iter().find(|(id, _, _)| *id == config.domain_id) {
+        return if *existing == xml {
+            Ok(())
+        } else {
+            Err(format!(
+                "domain {} is already open in this process with other interfaces or buffers",
+                config.domain_id
+            ))
+        };
+    }
+    let cxml = CString::new(xml.clone()).map_err(|e| e.to_string())?;
+    // SAFETY: a valid C string; Cyclone parses it and copies what it needs.
+    let handle = unsafe { c::dds_create_domain(u32::from(config.domain_id), cxml.as_ptr()) };
+    let entity = Entity::new(handle)?;
+    domains.push((config.domain_id, xml, entity));
+    Ok(())
+}
+
+/// Joins `domain_id` (created with [`domain`]) as a participant named `name`.
+pub(crate) fn participant(domain_id: u16, name: &str) -> Result<Entity, String> {
+    let mut qos = Qos::new();
+    qos.entity_name(name);
+    // SAFETY: the domain exists; QoS is live for the call; no listener.
+    Entity::new(unsafe {
+        c::dds_create_participant(u32::from(domain_id), qos.ptr(), null())
+    })
+}
+
+/// Writers' and readers' incompatible-QoS reports, as the participant's listener saw them.
+#[derive(Debug, Default)]
+pub(crate) struct QosReports {
+    /// (reader or writer GUID hex, "requested"/"offered", the policy's name).
+    pub(crate) events: Mutex<Vec<(String, bool, &'static str)>>,
+}
+
+fn policy_name(id: u32) -> &'static str {
+    match id {
+        2 => "durability",
+        4 => "deadline",
+        5 => "latency budget",
+        6 => "ownership",
+        8 => "liveliness",
+        11 => "reliability",
+        12 => "destination order",
+        13 => "history",
+        14 => "resource limits",
+        23 => "data representation",
+        _ => "a policy",
+    }
+}
+
+unsafe extern "C" fn on_requested_incompatible(
+    reader: c::dds_entity_t,
+    status: c::dds_requested_incompatible_qos_status_t,
+    arg: *mut c_void,
+) {
+    // SAFETY: arg is the Arc<QosReports> the participant's listener was created with; the
+    // participant is deleted (which ends listener calls) before that Arc is released.
+    let reports = unsafe { &*(arg as *const QosReports) };
+    let id = hex(&guid(&std::mem::ManuallyDrop::new(Entity(reader))).map(|b| b));
+    if let Ok(mut e) = reports.events.lock() {
+        e.push((id, true, policy_name(status.last_policy_id)));
+    }
+}
+
+unsafe extern "C" fn on_offered_incompatible(
+    writer: c::dds_entity_t,
+    status: c::dds_offered_incompatible_qos_status_t,
+    arg: *mut c_void,
+) {
+    // SAFETY: as in on_requested_incompatible.
+    let reports = unsafe { &*(arg as *const QosReports) };
+    let id = hex(&guid(&std::mem::ManuallyDrop::new(Entity(writer))));
+    if let Ok(mut e) = reports.events.lock() {
+        e.push((id, false, policy_name(status.last_policy_id)));
+    }
+}
+
+/// A listener object, freed on drop (Cyclone copies it into the entities it is given to).
+struct Listener(*mut c::dds_listener_t);
+
+impl Listener {
+    fn new(arg: *const c_void) -> Self {
+        // SAFETY: allocation; every callback starts unset (handled by the parent entity).
+        Self(unsafe { c::dds_create_listener(arg.cast_mut()) })
+    }
+}
+
+impl Drop for Listener {
+    fn drop(&mut self) {
+        // SAFETY: self.0 came from dds_create_listener and is freed once.
+        unsafe { c::dds_delete_listener(self.0) }
+    }
+}
+
+/// Puts the incompatible-QoS listener on a participant, for all its readers and writers.
+pub(crate) fn listen_for_qos(participant: &Entity, reports: &Arc<QosReports>) {
+    let l = Listener::new(Arc::as_ptr(reports).cast());
+    // SAFETY: l.0 is live; the callbacks match Cyclone's signatures.
+    unsafe {
+        c::dds_lset_requested_incompatible_qos(l.0, Some(on_requested_incompatible));
+        c::dds_lset_offered_incompatible_qos(l.0, Some(on_offered_incompatible));
+        c::dds_set_listener(participant.0, l.0);
+    }
+}
+
+/// A topic's registered type: the sertype serialised samples are made with.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SerType(*const c::ddsi_sertype);
+
+// SAFETY: a sertype is immutable once its topic exists and Cyclone shares it across
+// threads itself; it lives as long as the topic, which outlives every use here.
+unsafe impl Send for SerType {}
+// SAFETY: as above.
+unsafe impl Sync for SerType {}
+
+/// The sertype of a topic, reader or writer.
+pub(crate) fn sertype(entity: &Entity) -> Result<SerType, String> {
+    let mut st: *const c::ddsi_sertype = null();
+    // SAFETY: `st` is a valid out-parameter.
+    let ret = unsafe { c::dds_get_entity_sertype(entity.0, &raw mut st) };
+    if ret < 0 || st.is_null() {
+        return Err(retcode(ret));
+    }
+    Ok(SerType(st))
+}
+
+/// Creates a topic of a type built by `build` (a dynamic type registered with Cyclone).
+pub(crate) fn topic(
+    participant: &Entity,
+    name: &str,
+    ty: &crate::shape::Shape,
+    qos: &Qos,
+) -> Result<Entity, String> {
+    let cname = CString::new(name).map_err(|e| e.to_string())?;
+    let mut built = crate::shape::DynamicType::build(participant.0, ty)?;
+    let mut type_info: *mut c::dds_typeinfo_t = null_mut();
+    // SAFETY: `built` is a complete dynamic type; registering consumes nothing.
+    let ret = unsafe { c::dds_dynamic_type_register(built.raw(), &raw mut type_info) };
+    if ret < 0 {
+        return Err(format!("type {}: {}", ty.name, retcode(ret)));
+    }
+    let mut descriptor: *mut c::dds_topic_descriptor_t = null_mut();
+    // SAFETY: type_info came from the registration above.
+    let ret = unsafe {
+        c::dds_create_topic_descriptor(
+            c::dds_find_scope_DDS_FIND_SCOPE_LOCAL_DOMAIN,
+            participant.0,
+            type_info,
+            0,
+            &raw mut descriptor,
+        )
+    };
+    // SAFETY: type_info is freed once, after its last use.
+    unsafe { c::dds_free_typeinfo(type_info) };
+    if ret < 0 || descriptor.is_null() {
+        return Err(format!("type {}: {}", ty.name, retcode(ret)));
+    }
+    // Match remote endpoints on the type's name, as RustDDS, Fast DDS and RTI without
+    // XTypes do: announce no TypeInformation (docs/deviations.md, "Type matching").
+    // SAFETY: descriptor is live; the fields are put back before it is deleted.
+    let handle = unsafe {
+        let d = &mut *descriptor;
+        let saved = (d.type_information, d.type_mapping, d.m_flagset);
+        d.type_information = c::dds_type_meta_ser { data: null_mut(), sz: 0 };
+        d.type_mapping = c::dds_type_meta_ser { data: null_mut(), sz: 0 };
+        d.m_flagset &= !c::DDS_TOPIC_XTYPES_METADATA;
+        let h = c::dds_create_topic(participant.0, descriptor, cname.as_ptr(), qos.ptr(), null());
+        let d = &mut *descriptor;
+        (d.type_information, d.type_mapping, d.m_flagset) = saved;
+        c::dds_delete_topic_descriptor(descriptor);
+        h
+    };
+    Entity::new(handle).map_err(|e| format!("topic {name}: {e}"))
+}
+
+/// Creates a writer.
+pub(crate) fn writer(participant: &Entity, topic: TopicRef, qos: &Qos) -> Result<Entity, String> {
+    // SAFETY: live entities and QoS; no listener.
+    Entity::new(unsafe { c::dds_create_writer(participant.0, topic.0, qos.ptr(), null()) })
+}
+
+/// What a reader's data-available listener wakes.
+pub(crate) trait Wake: Send + Sync {
+    /// Called from a Cyclone thread whenever data arrived.
+    fn wake(&self);
+}
+
+unsafe extern "C" fn on_data_available<W: Wake>(_reader: c::dds_entity_t, arg: *mut c_void) {
+    // SAFETY: arg is the Arc<W> the reader was created with, released only after the
+    // reader is deleted (see ReaderHandle's Drop).
+    let w = unsafe { &*(arg as *const W) };
+    w.wake();
+}
+
+/// A reader with its data-available listener's argument, which it keeps alive.
+pub(crate) struct ReaderHandle<W: Wake> {
+    entity: Option<Entity>,
+    arg: *const W,
+}
+
+impl<W: Wake> std::fmt::Debug for ReaderHandle<W> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ReaderHandle").field("entity", &self.entity).finish()
+    }
+}
+
+// SAFETY: the argument is an Arc<W> with W: Send + Sync; the handle is an integer.
+unsafe impl<W: Wake> Send for ReaderHandle<W> {}
+// SAFETY: as above.
+unsafe impl<W: Wake> Sync for ReaderHandle<W> {}
+
+impl<W: Wake> ReaderHandle<W> {
+    /// The reader entity.
+    pub(crate) fn entity(&self) -> &Entity {
+        self.entity.as_ref().unwrap_or_else(|| unreachable_entity())
+    }
+}
+
+#[cold]
+fn unreachable_entity() -> &'static Entity {
+    static NONE: OnceLock<Entity> = OnceLock::new();
+    NONE.get_or_init(|| Entity(0))
+}
+
+impl<W: Wake> Drop for ReaderHandle<W> {
+    fn drop(&mut self) {
+        // Delete first: after dds_delete returns no listener call is running or will run.
+        drop(self.entity.take());
+        // SAFETY: arg came from Arc::into_raw in `reader` and is released once.
+        unsafe { drop(Arc::from_raw(self.arg)) };
+    }
+}
+
+/// Creates a reader whose arriving data calls `wake.wake()`.
+pub(crate) fn reader<W: Wake>(
+    participant: &Entity,
+    topic: TopicRef,
+    qos: &Qos,
+    wake: Arc<W>,
+) -> Result<ReaderHandle<W>, String> {
+    let arg = Arc::into_raw(wake);
+    let l = Listener::new(arg.cast());
+    // SAFETY: l.0 is live; the callback matches; Cyclone copies the listener.
+    let handle = unsafe {
+        c::dds_lset_data_available(l.0, Some(on_data_available::<W>));
+        c::dds_create_reader(participant.0, topic.0, qos.ptr(), l.0)
+    };
+    match Entity::new(handle) {
+        Ok(entity) => Ok(ReaderHandle {
+            entity: Some(entity),
+            arg,
+        }),
+        Err(e) => {
+            // SAFETY: no reader holds arg; release it once.
+            unsafe { drop(Arc::from_raw(arg)) };
+            Err(e)
+        }
+    }
+}
+
+/// Writes one sample given as CDR with its 4-byte encapsulation header.
+pub(crate) fn write_cdr(writer: &Entity, ty: SerType, cdr: &mut [u8]) -> Result<(), i32> {
+    let iov = c::ddsrt_iovec_t {
+        iov_base: cdr.as_mut_ptr().cast(),
+        iov_len: cdr.len(),
+    };
+    // SAFETY: the iovec points at `cdr`, which outlives the call (Cyclone copies it).
+    let sd = unsafe {
+        c::ddsi_serdata_from_ser_iov(ty.0, c::ddsi_serdata_kind_SDK_DATA, 1, &raw const iov, cdr.len())
+    };
+    if sd.is_null() {
+        // The bytes do not match the topic's type.
+        return Err(c::DDS_RETCODE_BAD_PARAMETER as i32);
+    }
+    // SAFETY: sd is a fresh serdata of the writer's type; dds_writecdr takes the reference.
+    let ret = unsafe { c::dds_writecdr(writer.0, sd) };
+    if ret < 0 { Err(ret) } else { Ok(()) }
+}
+
+/// Cyclone's timeout code: a reliable write blocked past its limit.
+pub(crate) const TIMEOUT: i32 = c::DDS_RETCODE_TIMEOUT as i32;
+
+/// One sample taken from a reader: its CDR (with the encapsulation header) and metadata.
+#[derive(Debug)]
+pub(crate) struct Taken {
+    /// CDR bytes, header included; empty for an invalid (state-only) sample.
+    pub(crate) cdr: Vec<u8>,
+    /// The writer's source timestamp, ns since the Unix epoch.
+    pub(crate) source_timestamp_ns: i64,
+    /// The writer's instance handle in this reader, for [`publication_guid`].
+    pub(crate) publication: u64,
+}
+
+/// Takes up to `max` samples with data (state-only samples are dropped).
+pub(crate) fn take_cdr(reader: &Entity, max: usize, out: &mut Vec<Taken>) -> Result<(), String> {
+    const BATCH: usize = 64;
+    let max = max.min(BATCH);
+    let mut bufs = [null_mut::<c::ddsi_serdata>(); BATCH];
+    // SAFETY: plain C struct, zero is a valid bit pattern.
+    let mut infos: [c::dds_sample_info_t; BATCH] = unsafe { std::mem::zeroed() };
+    // SAFETY: the buffers hold `max` entries.
+    let n = unsafe {
+        c::dds_takecdr(
+            reader.0,
+            bufs.as_mut_ptr(),
+            u32::try_from(max).unwrap_or(1),
+            infos.as_mut_ptr(),
+            c::DDS_ANY_STATE,
+        )
+    };
+    if n < 0 {
+        return Err(retcode(n));
+    }
+    for (sd, info) in bufs.iter().zip(&infos).take(usize::try_from(n).unwrap_or(0)) {
+        if info.valid_data {
+            // SAFETY: sd is a serdata reference dds_takecdr handed over; size and the
+            // serialised bytes are read before the reference is dropped.
+            let cdr = unsafe {
+                let size = c::ddsi_serdata_size(*sd) as usize;
+                let mut iov = c::ddsrt_iovec_t {
+                    iov_base: null_mut(),
+                    iov_len: 0,
+                };
+                let r = c::ddsi_serdata_to_ser_ref(*sd, 0, size, &raw mut iov);
+                let bytes =
+                    std::slice::from_raw_parts(iov.iov_base.cast::<u8>(), iov.iov_len).to_vec();
+                c::ddsi_serdata_to_ser_unref(r, &raw const iov);
+                bytes
+            };
+            out.push(Taken {
+                cdr,
+                source_timestamp_ns: info.source_timestamp,
+                publication: info.publication_handle,
+            });
+        }
+        // SAFETY: each taken reference is released once.
+        unsafe { c::ddsi_serdata_unref(*sd) };
+    }
+    Ok(())
+}
+
+/// The GUID of a writer matched with `reader`, from its instance handle there.
+pub(crate) fn publication_guid(reader: &Entity, publication: u64) -> Option<Guid> {
+    // SAFETY: returns null or an endpoint record that is freed below.
+    unsafe {
+        let ep = c::dds_get_matched_publication_data(reader.0, publication);
+        if ep.is_null() {
+            return None;
+        }
+        let g = (*ep).key.v;
+        c::dds_builtintopic_free_endpoint(ep);
+        Some(g)
+    }
+}
+
+/// How many readers a writer is matched with now.
+pub(crate) fn matched_readers(writer: &Entity) -> i32 {
+    // SAFETY: plain C struct, zero is valid; a valid out-parameter.
+    unsafe {
+        let mut st: c::dds_publication_matched_status_t = std::mem::zeroed();
+        if c::dds_get_publication_matched_status(writer.0, &raw mut st) < 0 {
+            return 0;
+        }
+        i32::try_from(st.current_count).unwrap_or(i32::MAX)
+    }
+}
+
+/// A change in the set of participants discovery knows.
+#[derive(Debug)]
+pub(crate) struct ParticipantChange {
+    pub(crate) guid: Guid,
+    pub(crate) name: Option<String>,
+    /// False when the participant left or its lease expired.
+    pub(crate) alive: bool,
+}
+
+/// A reader of the built-in participant topic.
+pub(crate) fn participant_reader(participant: &Entity) -> Result<Entity, String> {
+    // SAFETY: the built-in topic pseudo-handle; default QoS; no listener.
+    Entity::new(unsafe {
+        c::dds_create_reader(
+            participant.0,
+            c::DDS_BUILTIN_TOPIC_DCPSPARTICIPANT,
+            null(),
+            null(),
+        )
+    })
+}
+
+/// Participants that appeared or went since the last call.
+pub(crate) fn take_participants(reader: &Entity) -> Vec<ParticipantChange> {
+    const MAX: usize = 32;
+    let mut out = Vec::new();
+    loop {
+        let mut bufs = [null_mut::<c_void>(); MAX];
+        // SAFETY: plain C struct, zero is valid.
+        let mut infos: [c::dds_sample_info_t; MAX] = unsafe { std::mem::zeroed() };
+        // SAFETY: null buffers ask Cyclone to loan the samples, returned below.
+        let n = unsafe {
+            c::dds_take(reader.0, bufs.as_mut_ptr(), infos.as_mut_ptr(), MAX, MAX as u32)
+        };
+        if n <= 0 {
+            return out;
+        }
+        let n = usize::try_from(n).unwrap_or(0);
+        for (p, info) in bufs.iter().zip(&infos).take(n) {
+            // SAFETY: the loaned samples are dds_builtintopic_participant_t records; on a
+            // state-only sample only the key is filled in.
+            let (guid, name) = unsafe {
+                let rec = &*(*p as *const c::dds_builtintopic_participant_t);
+                let mut name: *mut std::os::raw::c_char = null_mut();
+                let named = info.valid_data
+                    && !rec.qos.is_null()
+                    && c::dds_qget_entity_name(rec.qos, &raw mut name)
+                    && !name.is_null();
+                let text = if named {
+                    let s = CStr::from_ptr(name).to_string_lossy().into_owned();
+                    c::dds_free(name.cast());
+                    Some(s)
+                } else {
+                    None
+                };
+                (rec.key.v, text)
+            };
+            out.push(ParticipantChange {
+                guid,
+                name,
+                alive: info.instance_state == c::dds_instance_state_DDS_IST_ALIVE,
+            });
+        }
+        // SAFETY: returns the loan taken above.
+        unsafe {
+            c::dds_return_loan(reader.0, bufs.as_mut_ptr(), i32::try_from(n).unwrap_or(0));
+        }
+        if n < MAX {
+            return out;
+        }
+    }
+}
+
+/// Samples Cyclone received but could not deserialise, per topic name, since start.
+static MALFORMED: Mutex<Option<HashMap<String, (u64, String)>>> = Mutex::new(None);
+/// Woken whenever [`MALFORMED`] changes.
+static MALFORMED_WATCHERS: Mutex<Vec<std::sync::Weak<dyn Wake>>> = Mutex::new(Vec::new());
+
+/// How many samples of `topic` Cyclone dropped as undecodable, and the last report.
+pub(crate) fn malformed_since(topic: &str) -> (u64, String) {
+    MALFORMED
+        .lock()
+        .ok()
+        .and_then(|m| m.as_ref().and_then(|m| m.get(topic).cloned()))
+        .unwrap_or_default()
+}
+
+/// Registers a waker for new malformed-sample reports.
+pub(crate) fn watch_malformed(w: std::sync::Weak<dyn Wake>) {
+    if let Ok(mut ws) = MALFORMED_WATCHERS.lock() {
+        ws.retain(|w| w.strong_count() > 0);
+        ws.push(w);
+    }
+}
+
+/// Records a "deserialization <topic>/<type> failed" warning of Cyclone's receive path.
+fn note_malformed(message: &str) {
+    let Some(rest) = message.split(": deserialization ").nth(1) else {
+        return;
+    };
+    let what = rest.split(" failed").next().unwrap_or(rest);
+    // "<topic>/<type>": topic names contain '/', type names do not.
+    let topic = what.rsplit_once('/').map_or(what, |(t, _)| t).to_string();
+    if let Ok(mut m) = MALFORMED.lock() {
+        let entry = m.get_or_insert_with(HashMap::new).entry(topic).or_default();
+        entry.0 += 1;
+        entry.1 = message.trim().to_string();
+    }
+    if let Ok(ws) = MALFORMED_WATCHERS.lock() {
+        for w in ws.iter().filter_map(std::sync::Weak::upgrade) {
+            w.wake();
+        }
+    }
+}
+
+unsafe extern "C" fn log_sink(_arg: *mut c_void, data: *const c::dds_log_data_t) {
+    // SAFETY: Cyclone passes a valid record whose message holds `size` bytes.
+    let (priority, message) = unsafe {
+        let d = &*data;
+        let bytes = std::slice::from_raw_parts(d.message.cast::<u8>(), d.size);
+        // The header (time, thread) Cyclone prepends is of no use in tracing's output.
+        let body = bytes.get(d.hdrsize..).unwrap_or(bytes);
+        (d.priority, String::from_utf8_lossy(body).trim_end().to_string())
+    };
+    if message.is_empty() {
+        return;
+    }
+    if message.contains(": deserialization ") {
+        note_malformed(&message);
+    }
+    match priority {
+        c::DDS_LC_FATAL | c::DDS_LC_ERROR => tracing::error!(target: "cyclonedds", "{message}"),
+        c::DDS_LC_WARNING => tracing::warn!(target: "cyclonedds", "{message}"),
+        _ => tracing::debug!(target: "cyclonedds", "{message}"),
+    }
+}
+
+fn install_log_sink() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        // SAFETY: a static callback without state.
+        unsafe {
+            c::dds_set_log_mask(c::DDS_LC_FATAL | c::DDS_LC_ERROR | c::DDS_LC_WARNING);
+            c::dds_set_log_sink(Some(log_sink), null_mut());
+        }
+    });
+}

@@ -1,0 +1,352 @@
+//! The shape of a topic type, read off its serde implementation, and Cyclone's dynamic
+//! type made from it.
+//!
+//! Cyclone checks every sample against its topic's type and computes instance keys from
+//! the serialised bytes, so it needs the type's layout: field order, primitive sizes,
+//! strings, sequences, arrays, enums, nested structs. `serde-reflection` traces that
+//! layout from the same `Deserialize` implementation that decodes the samples, so the
+//! two cannot drift apart. Strings and sequences are unbounded here: the IDL's bounds are
+//! checked by Shoal's validation, where a violation is reported rather than dropped.
+#![allow(unsafe_code)]
+
+use std::ffi::CString;
+
+use cyclors as c;
+use serde::de::DeserializeOwned;
+use serde_reflection::{ContainerFormat, Format, Registry, Tracer, TracerConfig};
+
+/// A type's layout as serde sees it, with its DDS type name and key fields.
+#[derive(Debug)]
+pub(crate) struct Shape {
+    /// The DDS type name, module-qualified.
+    pub(crate) name: String,
+    root: String,
+    registry: Registry,
+    keys: Vec<String>,
+}
+
+impl Shape {
+    /// Traces `T`, named `type_name` on the wire and keyed by the fields `keys` (none: an
+    /// unkeyed topic).
+    pub(crate) fn of<T: DeserializeOwned>(type_name: &str, keys: &[&str]) -> Result<Self, String> {
+        let samples = serde_reflection::Samples::new();
+        let trace_err = |e: serde_reflection::Error| format!("cannot trace the layout of {type_name}: {e}");
+        // A first pass names the enums; each further pass learns more of their variants,
+        // as serde-reflection's own `trace_type` does for a top-level enum.
+        let mut probe = Tracer::new(TracerConfig::default());
+        probe.trace_type_once::<T>(&samples).map_err(trace_err)?;
+        let enums: Vec<String> = probe
+            .registry_unchecked()
+            .into_iter()
+            .filter(|(_, c)| matches!(c, ContainerFormat::Enum(_)))
+            .map(|(n, _)| n)
+            .collect();
+        let mut tracer = Tracer::new(TracerConfig::default());
+        let mut format = None;
+        for _ in 0..256 {
+            format = Some(tracer.trace_type_once::<T>(&samples).map_err(trace_err)?.0);
+            let mut incomplete = false;
+            for e in &enums {
+                incomplete |= tracer.check_incomplete_enum(e).is_some();
+            }
+            if !incomplete {
+                break;
+            }
+        }
+        let registry = tracer.registry().map_err(trace_err)?;
+        let Some(format) = format else {
+            return Err(format!("cannot trace the layout of {type_name}"));
+        };
+        let Format::TypeName(root) = format else {
+            return Err(format!("{type_name} is not a struct"));
+        };
+        let shape = Self {
+            name: type_name.to_string(),
+            root,
+            registry,
+            keys: keys.iter().map(|k| (*k).to_string()).collect(),
+        };
+        for key in &shape.keys {
+            if !shape.root_fields()?.iter().any(|f| &f.name == key) {
+                return Err(format!("{type_name} has no key field {key}"));
+            }
+        }
+        Ok(shape)
+    }
+
+    fn root_fields(&self) -> Result<&[serde_reflection::Named<Format>], String> {
+        match self.registry.get(&self.root) {
+            Some(ContainerFormat::Struct(fields)) => Ok(fields),
+            _ => Err(format!("{} is not a struct", self.name)),
+        }
+    }
+
+    /// The module prefix of the DDS type name ("shoal::"), for nested types' names.
+    fn module(&self) -> &str {
+        self.name.rfind("::").map_or("", |i| &self.name[..i + 2])
+    }
+}
+
+/// A dynamic type under construction, unreferenced on drop.
+pub(crate) struct DynamicType(c::dds_dynamic_type_t);
+
+impl DynamicType {
+    /// The raw type, for registration.
+    pub(crate) fn raw(&mut self) -> *mut c::dds_dynamic_type_t {
+        &raw mut self.0
+    }
+
+    /// Builds `shape`'s dynamic type in `entity`'s domain.
+    pub(crate) fn build(entity: c::dds_entity_t, shape: &Shape) -> Result<Self, String> {
+        let mut b = Builder {
+            entity,
+            shape,
+            names: Vec::new(),
+            anonymous: 0,
+        };
+        let fields = shape.root_fields()?;
+        let mut ty = b.structure(&shape.name, fields)?;
+        for (i, f) in fields.iter().enumerate() {
+            if shape.keys.contains(&f.name) {
+                let id = u32::try_from(i).map_err(|e| e.to_string())?;
+                // SAFETY: ty is a struct under construction with member `id`.
+                check(
+                    unsafe { c::dds_dynamic_member_set_key(&raw mut ty.0, id, true) },
+                    "key",
+                )?;
+            }
+        }
+        Ok(ty)
+    }
+}
+
+impl Drop for DynamicType {
+    fn drop(&mut self) {
+        // SAFETY: releases the reference this value holds.
+        unsafe {
+            c::dds_dynamic_type_unref(&raw mut self.0);
+        }
+    }
+}
+
+fn check(ret: i32, what: &str) -> Result<(), String> {
+    if ret < 0 {
+        Err(format!("{what}: {}", crate::cyclone::retcode(ret)))
+    } else {
+        Ok(())
+    }
+}
+
+struct Builder<'a> {
+    entity: c::dds_entity_t,
+    shape: &'a Shape,
+    /// C strings that must live until the type is complete.
+    names: Vec<CString>,
+    anonymous: u32,
+}
+
+/// How a member's type is given to Cyclone.
+enum Spec {
+    Primitive(c::dds_dynamic_type_kind_t),
+    /// A type made here, whose reference moves into the parent.
+    Made(DynamicType),
+}
+
+impl Builder<'_> {
+    fn cname(&mut self, s: &str) -> Result<*const std::os::raw::c_char, String> {
+        let c = CString::new(s).map_err(|e| e.to_string())?;
+        let p = c.as_ptr();
+        self.names.push(c);
+        Ok(p)
+    }
+
+    fn anonymous_name(&mut self, what: &str) -> String {
+        self.anonymous += 1;
+        format!("{}{what}_{}", self.shape.module(), self.anonymous)
+    }
+
+    fn create(&mut self, d: c::dds_dynamic_type_descriptor_t) -> Result<DynamicType, String> {
+        // SAFETY: the descriptor's strings and bounds outlive the call (self.names, or
+        // the caller's stack); the entity is a live participant.
+        let t = unsafe { c::dds_dynamic_type_create(self.entity, d) };
+        if t.ret < 0 {
+            return Err(format!(
+                "a type of {}: {}",
+                self.shape.name,
+                crate::cyclone::retcode(t.ret)
+            ));
+        }
+        Ok(DynamicType(t))
+    }
+
+    fn descriptor(kind: c::dds_dynamic_type_kind_t) -> c::dds_dynamic_type_descriptor_t {
+        // SAFETY: a plain C struct for which all-zero is "unset".
+        let mut d: c::dds_dynamic_type_descriptor_t = unsafe { std::mem::zeroed() };
+        d.kind = kind;
+        d
+    }
+
+    fn structure(
+        &mut self,
+        name: &str,
+        fields: &[serde_reflection::Named<Format>],
+    ) -> Result<DynamicType, String> {
+        let mut d = Self::descriptor(c::dds_dynamic_type_kind_DDS_DYNAMIC_STRUCTURE);
+        d.name = self.cname(name)?;
+        let mut ty = self.create(d)?;
+        // SAFETY: ty is a struct under construction.
+        check(
+            unsafe {
+                c::dds_dynamic_type_set_extensibility(
+                    &raw mut ty.0,
+                    c::dds_dynamic_type_extensibility_DDS_DYNAMIC_TYPE_EXT_FINAL,
+                )
+            },
+            "extensibility",
+        )?;
+        for (i, f) in fields.iter().enumerate() {
+            let spec = self.spec(&f.value)?;
+            // SAFETY: a plain C struct for which all-zero is "unset".
+            let mut m: c::dds_dynamic_member_descriptor_t = unsafe { std::mem::zeroed() };
+            m.name = self.cname(&f.name)?;
+            m.id = u32::try_from(i).map_err(|e| e.to_string())?;
+            m.index = u32::MAX;
+            m.type_ = Self::type_spec(spec);
+            // SAFETY: ty is under construction; the member's type reference moves into it.
+            check(
+                unsafe { c::dds_dynamic_type_add_member(&raw mut ty.0, m) },
+                &format!("member {}", f.name),
+            )?;
+        }
+        Ok(ty)
+    }
+
+    fn type_spec(spec: Spec) -> c::dds_dynamic_type_spec_t {
+        // SAFETY: a plain C struct for which all-zero is "unset".
+        let mut s: c::dds_dynamic_type_spec_t = unsafe { std::mem::zeroed() };
+        match spec {
+            Spec::Primitive(p) => {
+                s.kind = c::dds_dynamic_type_spec_kind_DDS_DYNAMIC_TYPE_KIND_PRIMITIVE;
+                s.type_.primitive = p;
+            }
+            Spec::Made(t) => {
+                s.kind = c::dds_dynamic_type_spec_kind_DDS_DYNAMIC_TYPE_KIND_DEFINITION;
+                // The reference moves to Cyclone with the spec.
+                s.type_.type_ = std::mem::ManuallyDrop::new(t).0;
+            }
+        }
+        s
+    }
+
+    fn collection(
+        &mut self,
+        kind: c::dds_dynamic_type_kind_t,
+        element: &Format,
+        bound: Option<u32>,
+    ) -> Result<Spec, String> {
+        let element = self.spec(element)?;
+        let what = if bound.is_some() { "array" } else { "sequence" };
+        let name = self.anonymous_name(what);
+        let mut d = Self::descriptor(kind);
+        d.name = self.cname(&name)?;
+        let bounds = [bound.unwrap_or(0)];
+        if bound.is_some() {
+            d.num_bounds = 1;
+            d.bounds = bounds.as_ptr();
+        }
+        d.element_type = Self::type_spec(element);
+        Ok(Spec::Made(self.create(d)?))
+    }
+
+    fn spec(&mut self, format: &Format) -> Result<Spec, String> {
+        use c::{
+            dds_dynamic_type_kind_DDS_DYNAMIC_ARRAY as ARRAY,
+            dds_dynamic_type_kind_DDS_DYNAMIC_SEQUENCE as SEQUENCE,
+        };
+        let p = Spec::Primitive;
+        Ok(match format {
+            Format::Bool => p(c::dds_dynamic_type_kind_DDS_DYNAMIC_BOOLEAN),
+            Format::I8 => p(c::dds_dynamic_type_kind_DDS_DYNAMIC_INT8),
+            Format::I16 => p(c::dds_dynamic_type_kind_DDS_DYNAMIC_INT16),
+            Format::I32 => p(c::dds_dynamic_type_kind_DDS_DYNAMIC_INT32),
+            Format::I64 => p(c::dds_dynamic_type_kind_DDS_DYNAMIC_INT64),
+            Format::U8 => p(c::dds_dynamic_type_kind_DDS_DYNAMIC_UINT8),
+            Format::U16 => p(c::dds_dynamic_type_kind_DDS_DYNAMIC_UINT16),
+            Format::U32 => p(c::dds_dynamic_type_kind_DDS_DYNAMIC_UINT32),
+            Format::U64 => p(c::dds_dynamic_type_kind_DDS_DYNAMIC_UINT64),
+            Format::F32 => p(c::dds_dynamic_type_kind_DDS_DYNAMIC_FLOAT32),
+            Format::F64 => p(c::dds_dynamic_type_kind_DDS_DYNAMIC_FLOAT64),
+            Format::Str => {
+                let d = Self::descriptor(c::dds_dynamic_type_kind_DDS_DYNAMIC_STRING8);
+                Spec::Made(self.create(d)?)
+            }
+            Format::Bytes => self.collection(SEQUENCE, &Format::U8, None)?,
+            Format::Seq(element) => self.collection(SEQUENCE, element, None)?,
+            Format::TupleArray { content, size } => {
+                let size = u32::try_from(*size).map_err(|e| e.to_string())?;
+                self.collection(ARRAY, content, Some(size))?
+            }
+            Format::Tuple(items) if !items.is_empty() && items.iter().all(|i| *i == items[0]) => {
+                let size = u32::try_from(items.len()).map_err(|e| e.to_string())?;
+                self.collection(ARRAY, &items[0], Some(size))?
+            }
+            Format::TypeName(name) => self.named(name)?,
+            other => {
+                return Err(format!(
+                    "{} uses {other:?}, which has no DDS equivalent here",
+                    self.shape.name
+                ));
+            }
+        })
+    }
+
+    fn named(&mut self, name: &str) -> Result<Spec, String> {
+        let container = self
+            .shape
+            .registry
+            .get(name)
+            .cloned()
+            .ok_or_else(|| format!("{}: no layout traced for {name}", self.shape.name))?;
+        let suffix = if self.shape.name.ends_with('_') { "_" } else { "" };
+        let dds_name = format!("{}{name}{suffix}", self.shape.module());
+        Ok(match container {
+            ContainerFormat::Struct(fields) => Spec::Made(self.structure(&dds_name, &fields)?),
+            ContainerFormat::NewTypeStruct(inner) => self.spec(&inner)?,
+            ContainerFormat::TupleStruct(items) => self.spec(&Format::Tuple(items))?,
+            ContainerFormat::Enum(variants) => {
+                let mut d = Self::descriptor(c::dds_dynamic_type_kind_DDS_DYNAMIC_ENUMERATION);
+                d.name = self.cname(&dds_name)?;
+                let mut ty = self.create(d)?;
+                // Keys are the variants' indices: their values on the wire.
+                for (first, (index, variant)) in variants.iter().enumerate() {
+                    if !matches!(variant.value, serde_reflection::VariantFormat::Unit) {
+                        return Err(format!("{name} is not a C-like enum"));
+                    }
+                    // The IDL spells literals in upper case (`AUV`, `LOW_BATTERY`).
+                    let literal = self.cname(&variant.name.to_uppercase())?;
+                    let value = c::dds_dynamic_enum_literal_value_t {
+                        value_kind:
+                            c::dds_dynamic_type_enum_value_kind_DDS_DYNAMIC_ENUM_LITERAL_VALUE_EXPLICIT,
+                        value: i32::try_from(*index).map_err(|e| e.to_string())?,
+                    };
+                    // SAFETY: ty is an enum under construction; the name outlives the call.
+                    check(
+                        unsafe {
+                            c::dds_dynamic_type_add_enum_literal(
+                                &raw mut ty.0,
+                                literal,
+                                value,
+                                first == 0,
+                            )
+                        },
+                        &format!("{name}::{}", variant.name),
+                    )?;
+                }
+                Spec::Made(ty)
+            }
+            ContainerFormat::UnitStruct => {
+                return Err(format!("{name} is a unit struct, which has no DDS equivalent"));
+            }
+        })
+    }
+}
