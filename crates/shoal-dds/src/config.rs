@@ -14,10 +14,13 @@ pub struct DdsConfig {
     /// `["127.0.0.1"]`, keeps everything on this host; list a radio or Ethernet
     /// interface's address for a real deployment.
     pub interfaces: Vec<IpAddr>,
-    /// Announce to and prefer loopback for participants on the same host.
-    pub same_host_loopback: bool,
-    /// Samples the participant's per-topic cache holds before it drops the oldest.
-    /// RustDDS keeps only 64 when this is not set, which loses data silently under load.
+    /// No longer used: a setting of RustDDS, Shoal's earlier DDS library; Cyclone DDS
+    /// reaches every peer at the addresses it advertises. Accepted (with a warning) so
+    /// that older configuration files still load.
+    #[serde(skip_serializing)]
+    pub same_host_loopback: Option<bool>,
+    /// Samples each reader keeps, all instances together, before the oldest go; the
+    /// per-instance history depth is capped to it.
     pub topic_cache_samples: i32,
     /// Kernel receive buffer per UDP socket, bytes.
     pub socket_receive_buffer: usize,
@@ -28,7 +31,7 @@ impl Default for DdsConfig {
         Self {
             domain_id: 0,
             interfaces: vec![IpAddr::V4(Ipv4Addr::LOCALHOST)],
-            same_host_loopback: true,
+            same_host_loopback: None,
             topic_cache_samples: 8192,
             socket_receive_buffer: 8 * 1024 * 1024,
         }

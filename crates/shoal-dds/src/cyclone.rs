@@ -162,6 +162,14 @@ impl Qos {
         unsafe { c::dds_qset_resource_limits(self.0, samples, instances, per_instance) }
     }
 
+    /// Plain CDR version 1 only: Shoal's codec reads no XCDR2, so writers offering only
+    /// XCDR2 must not match rather than deliver samples nobody can decode.
+    pub(crate) fn xcdr1_only(&mut self) {
+        let ids = [c::DDS_DATA_REPRESENTATION_XCDR1 as i16];
+        // SAFETY: self.0 is live; Cyclone copies the one-element array.
+        unsafe { c::dds_qset_data_representation(self.0, 1, ids.as_ptr()) }
+    }
+
     pub(crate) fn entity_name(&mut self, name: &str) {
         if let Ok(name) = CString::new(name) {
             // SAFETY: self.0 is a live QoS object; Cyclone copies the string.
@@ -239,9 +247,7 @@ pub(crate) fn participant(domain_id: u16, name: &str) -> Result<Entity, String> 
     let mut qos = Qos::new();
     qos.entity_name(name);
     // SAFETY: the domain exists; QoS is live for the call; no listener.
-    Entity::new(unsafe {
-        c::dds_create_participant(u32::from(domain_id), qos.ptr(), null())
-    })
+    Entity::new(unsafe { c::dds_create_participant(u32::from(domain_id), qos.ptr(), null()) })
 }
 
 /// Writers' and readers' incompatible-QoS reports, as the participant's listener saw them.
@@ -380,8 +386,14 @@ pub(crate) fn topic(
     let handle = unsafe {
         let d = &mut *descriptor;
         let saved = (d.type_information, d.type_mapping, d.m_flagset);
-        d.type_information = c::dds_type_meta_ser { data: null_mut(), sz: 0 };
-        d.type_mapping = c::dds_type_meta_ser { data: null_mut(), sz: 0 };
+        d.type_information = c::dds_type_meta_ser {
+            data: null_mut(),
+            sz: 0,
+        };
+        d.type_mapping = c::dds_type_meta_ser {
+            data: null_mut(),
+            sz: 0,
+        };
         d.m_flagset &= !c::DDS_TOPIC_XTYPES_METADATA;
         let h = c::dds_create_topic(participant.0, descriptor, cname.as_ptr(), qos.ptr(), null());
         let d = &mut *descriptor;
@@ -419,7 +431,9 @@ pub(crate) struct ReaderHandle<W: Wake> {
 
 impl<W: Wake> std::fmt::Debug for ReaderHandle<W> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ReaderHandle").field("entity", &self.entity).finish()
+        f.debug_struct("ReaderHandle")
+            .field("entity", &self.entity)
+            .finish()
     }
 }
 
@@ -485,11 +499,17 @@ pub(crate) fn write_cdr(writer: &Entity, ty: SerType, cdr: &mut [u8]) -> Result<
     };
     // SAFETY: the iovec points at `cdr`, which outlives the call (Cyclone copies it).
     let sd = unsafe {
-        c::ddsi_serdata_from_ser_iov(ty.0, c::ddsi_serdata_kind_SDK_DATA, 1, &raw const iov, cdr.len())
+        c::ddsi_serdata_from_ser_iov(
+            ty.0,
+            c::ddsi_serdata_kind_SDK_DATA,
+            1,
+            &raw const iov,
+            cdr.len(),
+        )
     };
     if sd.is_null() {
         // The bytes do not match the topic's type.
-        return Err(c::DDS_RETCODE_BAD_PARAMETER as i32);
+        return Err(c::DDS_RETCODE_BAD_PARAMETER);
     }
     // SAFETY: sd is a fresh serdata of the writer's type; dds_writecdr takes the reference.
     let ret = unsafe { c::dds_writecdr(writer.0, sd) };
@@ -497,7 +517,7 @@ pub(crate) fn write_cdr(writer: &Entity, ty: SerType, cdr: &mut [u8]) -> Result<
 }
 
 /// Cyclone's timeout code: a reliable write blocked past its limit.
-pub(crate) const TIMEOUT: i32 = c::DDS_RETCODE_TIMEOUT as i32;
+pub(crate) const TIMEOUT: i32 = c::DDS_RETCODE_TIMEOUT;
 
 /// One sample taken from a reader: its CDR (with the encapsulation header) and metadata.
 #[derive(Debug)]
@@ -530,7 +550,11 @@ pub(crate) fn take_cdr(reader: &Entity, max: usize, out: &mut Vec<Taken>) -> Res
     if n < 0 {
         return Err(retcode(n));
     }
-    for (sd, info) in bufs.iter().zip(&infos).take(usize::try_from(n).unwrap_or(0)) {
+    for (sd, info) in bufs
+        .iter()
+        .zip(&infos)
+        .take(usize::try_from(n).unwrap_or(0))
+    {
         if info.valid_data {
             // SAFETY: sd is a serdata reference dds_takecdr handed over; size and the
             // serialised bytes are read before the reference is dropped.
@@ -616,7 +640,13 @@ pub(crate) fn take_participants(reader: &Entity) -> Vec<ParticipantChange> {
         let mut infos: [c::dds_sample_info_t; MAX] = unsafe { std::mem::zeroed() };
         // SAFETY: null buffers ask Cyclone to loan the samples, returned below.
         let n = unsafe {
-            c::dds_take(reader.0, bufs.as_mut_ptr(), infos.as_mut_ptr(), MAX, MAX as u32)
+            c::dds_take(
+                reader.0,
+                bufs.as_mut_ptr(),
+                infos.as_mut_ptr(),
+                MAX,
+                MAX as u32,
+            )
         };
         if n <= 0 {
             return out;
@@ -706,7 +736,10 @@ unsafe extern "C" fn log_sink(_arg: *mut c_void, data: *const c::dds_log_data_t)
         let bytes = std::slice::from_raw_parts(d.message.cast::<u8>(), d.size);
         // The header (time, thread) Cyclone prepends is of no use in tracing's output.
         let body = bytes.get(d.hdrsize..).unwrap_or(bytes);
-        (d.priority, String::from_utf8_lossy(body).trim_end().to_string())
+        (
+            d.priority,
+            String::from_utf8_lossy(body).trim_end().to_string(),
+        )
     };
     if message.is_empty() {
         return;

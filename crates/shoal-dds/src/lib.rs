@@ -36,8 +36,8 @@ pub use topics::{ALL_TOPICS, ObservationKey, TopicType};
 /// (CDR little endian, RTPS 10.5) followed by XCDR1 plain CDR. For interop checks and tools.
 pub fn to_cdr_le<T: serde::Serialize>(sample: &T) -> Result<Vec<u8>, String> {
     let mut out = vec![0x00, 0x01, 0x00, 0x00];
-    let body = cdr_encoding::to_vec::<T, byteorder::LittleEndian>(sample)
-        .map_err(|e| e.to_string())?;
+    let body =
+        cdr_encoding::to_vec::<T, byteorder::LittleEndian>(sample).map_err(|e| e.to_string())?;
     out.extend_from_slice(&body);
     Ok(out)
 }

@@ -122,10 +122,13 @@ impl PubSub {
                 "dds.topic_cache_samples must be at least 1".into(),
             ));
         }
+        if config.same_host_loopback.is_some() {
+            warn!("dds.same_host_loopback has no effect any more (it was a RustDDS setting)");
+        }
         cyclone::domain(config).map_err(|e| dds_err("the domain", e))?;
         let name = format!("shoal {}", std::process::id());
-        let entity =
-            cyclone::participant(config.domain_id, &name).map_err(|e| dds_err("the participant", e))?;
+        let entity = cyclone::participant(config.domain_id, &name)
+            .map_err(|e| dds_err("the participant", e))?;
         let reports = Arc::new(QosReports::default());
         cyclone::listen_for_qos(&entity, &reports);
         let builtin = cyclone::participant_reader(&entity)
@@ -369,7 +372,6 @@ pub enum ParticipantEvent {
     },
 }
 
-
 /// A typed DDS writer in one priority class.
 pub struct Writer<T: TopicType> {
     entity: Entity,
@@ -495,15 +497,18 @@ struct Source {
 impl Source {
     fn meta(&mut self, taken: &cyclone::Taken) -> SampleMeta {
         let reader = self.reader.entity();
-        let guid = *self
-            .writers
-            .entry(taken.publication)
-            .or_insert_with(|| cyclone::publication_guid(reader, taken.publication).unwrap_or_default());
+        let guid = *self.writers.entry(taken.publication).or_insert_with(|| {
+            cyclone::publication_guid(reader, taken.publication).unwrap_or_default()
+        });
         SampleMeta {
-            writer: format!("{}.{}", cyclone::hex(&guid[..12]), cyclone::hex(&guid[12..])),
+            writer: format!(
+                "{}.{}",
+                cyclone::hex(&guid[..12]),
+                cyclone::hex(&guid[12..])
+            ),
             participant: cyclone::hex(&guid[..12]),
             source_timestamp_ms: (taken.source_timestamp_ns > 0)
-                .then(|| taken.source_timestamp_ns / 1_000_000),
+                .then_some(taken.source_timestamp_ns / 1_000_000),
         }
     }
 

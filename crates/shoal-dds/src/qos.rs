@@ -98,6 +98,7 @@ impl Policies {
     /// The Cyclone QoS object for these policies.
     pub(crate) fn to_qos(self) -> cyclone::Qos {
         let mut q = cyclone::Qos::new();
+        q.xcdr1_only();
         q.reliability(self.reliability);
         q.transient_local(self.transient_local);
         q.keep_last(self.depth);

@@ -29,34 +29,13 @@ impl Shape {
     /// Traces `T`, named `type_name` on the wire and keyed by the fields `keys` (none: an
     /// unkeyed topic).
     pub(crate) fn of<T: DeserializeOwned>(type_name: &str, keys: &[&str]) -> Result<Self, String> {
-        let samples = serde_reflection::Samples::new();
-        let trace_err = |e: serde_reflection::Error| format!("cannot trace the layout of {type_name}: {e}");
-        // A first pass names the enums; each further pass learns more of their variants,
-        // as serde-reflection's own `trace_type` does for a top-level enum.
-        let mut probe = Tracer::new(TracerConfig::default());
-        probe.trace_type_once::<T>(&samples).map_err(trace_err)?;
-        let enums: Vec<String> = probe
-            .registry_unchecked()
-            .into_iter()
-            .filter(|(_, c)| matches!(c, ContainerFormat::Enum(_)))
-            .map(|(n, _)| n)
-            .collect();
         let mut tracer = Tracer::new(TracerConfig::default());
-        let mut format = None;
-        for _ in 0..256 {
-            format = Some(tracer.trace_type_once::<T>(&samples).map_err(trace_err)?.0);
-            let mut incomplete = false;
-            for e in &enums {
-                incomplete |= tracer.check_incomplete_enum(e).is_some();
-            }
-            if !incomplete {
-                break;
-            }
-        }
-        let registry = tracer.registry().map_err(trace_err)?;
-        let Some(format) = format else {
-            return Err(format!("cannot trace the layout of {type_name}"));
-        };
+        let (format, _) = tracer
+            .trace_type_once::<T>(&serde_reflection::Samples::new())
+            .map_err(|e| format!("cannot trace the layout of {type_name}: {e}"))?;
+        // Enums need only their kind here (see `named`), not every variant, which a single
+        // pass does not always reach (an enum inside a sequence, say).
+        let registry = tracer.registry_unchecked();
         let Format::TypeName(root) = format else {
             return Err(format!("{type_name} is not a struct"));
         };
@@ -307,45 +286,33 @@ impl Builder<'_> {
             .get(name)
             .cloned()
             .ok_or_else(|| format!("{}: no layout traced for {name}", self.shape.name))?;
-        let suffix = if self.shape.name.ends_with('_') { "_" } else { "" };
+        let suffix = if self.shape.name.ends_with('_') {
+            "_"
+        } else {
+            ""
+        };
         let dds_name = format!("{}{name}{suffix}", self.shape.module());
         Ok(match container {
             ContainerFormat::Struct(fields) => Spec::Made(self.structure(&dds_name, &fields)?),
             ContainerFormat::NewTypeStruct(inner) => self.spec(&inner)?,
             ContainerFormat::TupleStruct(items) => self.spec(&Format::Tuple(items))?,
             ContainerFormat::Enum(variants) => {
-                let mut d = Self::descriptor(c::dds_dynamic_type_kind_DDS_DYNAMIC_ENUMERATION);
-                d.name = self.cname(&dds_name)?;
-                let mut ty = self.create(d)?;
-                // Keys are the variants' indices: their values on the wire.
-                for (first, (index, variant)) in variants.iter().enumerate() {
-                    if !matches!(variant.value, serde_reflection::VariantFormat::Unit) {
-                        return Err(format!("{name} is not a C-like enum"));
-                    }
-                    // The IDL spells literals in upper case (`AUV`, `LOW_BATTERY`).
-                    let literal = self.cname(&variant.name.to_uppercase())?;
-                    let value = c::dds_dynamic_enum_literal_value_t {
-                        value_kind:
-                            c::dds_dynamic_type_enum_value_kind_DDS_DYNAMIC_ENUM_LITERAL_VALUE_EXPLICIT,
-                        value: i32::try_from(*index).map_err(|e| e.to_string())?,
-                    };
-                    // SAFETY: ty is an enum under construction; the name outlives the call.
-                    check(
-                        unsafe {
-                            c::dds_dynamic_type_add_enum_literal(
-                                &raw mut ty.0,
-                                literal,
-                                value,
-                                first == 0,
-                            )
-                        },
-                        &format!("{name}::{}", variant.name),
-                    )?;
+                // A C-like enum is its variant's 32-bit index on the wire (XCDR1), the same
+                // bytes as an int32. No type information is exchanged (see `cyclone::topic`),
+                // so Cyclone need not know the literals; decoding in Shoal rejects an unknown
+                // value and reports the sample as malformed.
+                if variants
+                    .values()
+                    .any(|v| !matches!(v.value, serde_reflection::VariantFormat::Unit))
+                {
+                    return Err(format!("{name} is not a C-like enum"));
                 }
-                Spec::Made(ty)
+                Spec::Primitive(c::dds_dynamic_type_kind_DDS_DYNAMIC_INT32)
             }
             ContainerFormat::UnitStruct => {
-                return Err(format!("{name} is a unit struct, which has no DDS equivalent"));
+                return Err(format!(
+                    "{name} is a unit struct, which has no DDS equivalent"
+                ));
             }
         })
     }

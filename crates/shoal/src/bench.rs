@@ -615,7 +615,9 @@ async fn bus_figures(
     seconds: u64,
     no_peer: bool,
 ) -> Result<BusFigures> {
-    eprintln!("bus: {seconds} s of Shoal round trips (Cyclone DDS, two processes, state vectors)...");
+    eprintln!(
+        "bus: {seconds} s of Shoal round trips (Cyclone DDS, two processes, state vectors)..."
+    );
     let rt = shoal_round_trip(cfg, domain, seconds).await?;
     eprintln!("bus: Shoal throughput, stepping the offered rate up until samples are lost...");
     let (thr, steps) = shoal_throughput(cfg, domain + 3).await?;

@@ -277,7 +277,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
-    let result = match cli.command {
+    match cli.command {
         Command::Up {
             no_fleet,
             secure,
@@ -387,6 +387,5 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             Ok(())
         }
-    };
-    result
+    }
 }

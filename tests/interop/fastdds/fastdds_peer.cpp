@@ -784,6 +784,11 @@ static int cmd_publish_state(const Args& a)
         return 1;
     }
     log("announced " + id);
+    // A station rejects state from a vehicle it has no announcement of: let the
+    // announcement reach every matched reader first (a busy host can take seconds).
+    if (wait_matched(aw, MATCH_TIMEOUT_S) &&
+        aw->wait_for_acknowledgments(eprosima::fastrtps::Duration_t(10.0)) != ReturnCode_t::RETCODE_OK)
+        log("announcement not acknowledged within 10 s; publishing anyway");
     DataWriter* w = p.writer<StateVector>(TOPIC_STATE, false, 100);
     if (!wait_matched(w, MATCH_TIMEOUT_S)) {
         if (g_stop) return g_stop_code;

@@ -166,7 +166,8 @@ fn up_starts_the_station_and_fleet_and_stops_cleanly() {
     assert!(log.contains("station stopped"), "{log}");
     // An error the DDS library logs (at shutdown or before) is a fault of Shoal's use of it.
     assert!(
-        !log.lines().any(|l| l.contains("ERROR") && l.contains("cyclonedds")),
+        !log.lines()
+            .any(|l| l.contains("ERROR") && l.contains("cyclonedds")),
         "{log}"
     );
     assert!(dir.path().join("shoal-data/history.db").exists());

@@ -192,7 +192,9 @@ fn processes_stopped_and_resumed_go_on_exchanging_data() {
         }
     }
     let resumed = now_ms();
-    wait_for(15, "state sent after the last resume", || fresh_since(resumed));
+    wait_for(15, "state sent after the last resume", || {
+        fresh_since(resumed)
+    });
     assert!(
         vehicle.0.try_wait().unwrap().is_none(),
         "the vehicle exited: {}",
