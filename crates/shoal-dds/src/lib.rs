@@ -32,6 +32,13 @@ pub use qos::{Priority, QosProfile, WriterOptions};
 pub use secure::{SIGNED_TYPE_NAME, Security, SecurityCounts, signed_topic};
 pub use topics::{ALL_TOPICS, ObservationKey, TopicType};
 
+/// The Cyclone DDS XML configuration Shoal gives its domain for `config`: usable as
+/// `CYCLONEDDS_URI` for other Cyclone-based processes (a vehicle's own DDS stack,
+/// `ddsperf`) that should use the same interfaces and transport settings.
+pub fn cyclone_config(config: &DdsConfig) -> String {
+    cyclone::domain_xml(config)
+}
+
 /// Serialises a sample exactly as it goes on the wire: a 4-byte encapsulation header
 /// (CDR little endian, RTPS 10.5) followed by XCDR1 plain CDR. For interop checks and tools.
 pub fn to_cdr_le<T: serde::Serialize>(sample: &T) -> Result<Vec<u8>, String> {
