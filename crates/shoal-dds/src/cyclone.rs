@@ -14,7 +14,7 @@
 use std::collections::HashMap;
 use std::ffi::{CStr, CString, c_void};
 use std::ptr::{null, null_mut};
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Mutex};
 
 use cyclors as c;
 
@@ -67,10 +67,14 @@ pub(crate) type Guid = [u8; 16];
 
 /// The GUID of an entity.
 pub(crate) fn guid(entity: &Entity) -> Guid {
+    guid_of(entity.0)
+}
+
+fn guid_of(handle: c::dds_entity_t) -> Guid {
     let mut g = c::dds_guid_t { v: [0; 16] };
     // SAFETY: `g` is a valid out-parameter; a failure leaves it zero.
     unsafe {
-        c::dds_get_guid(entity.0, &raw mut g);
+        c::dds_get_guid(handle, &raw mut g);
     }
     g.v
 }
@@ -281,7 +285,7 @@ unsafe extern "C" fn on_requested_incompatible(
     // SAFETY: arg is the Arc<QosReports> the participant's listener was created with; the
     // participant is deleted (which ends listener calls) before that Arc is released.
     let reports = unsafe { &*(arg as *const QosReports) };
-    let id = hex(&guid(&std::mem::ManuallyDrop::new(Entity(reader))).map(|b| b));
+    let id = hex(&guid_of(reader));
     if let Ok(mut e) = reports.events.lock() {
         e.push((id, true, policy_name(status.last_policy_id)));
     }
@@ -294,7 +298,7 @@ unsafe extern "C" fn on_offered_incompatible(
 ) {
     // SAFETY: as in on_requested_incompatible.
     let reports = unsafe { &*(arg as *const QosReports) };
-    let id = hex(&guid(&std::mem::ManuallyDrop::new(Entity(writer))));
+    let id = hex(&guid_of(writer));
     if let Ok(mut e) = reports.events.lock() {
         e.push((id, false, policy_name(status.last_policy_id)));
     }
@@ -425,7 +429,8 @@ unsafe extern "C" fn on_data_available<W: Wake>(_reader: c::dds_entity_t, arg: *
 
 /// A reader with its data-available listener's argument, which it keeps alive.
 pub(crate) struct ReaderHandle<W: Wake> {
-    entity: Option<Entity>,
+    /// Deleted by hand in `Drop`, before `arg` is released.
+    entity: std::mem::ManuallyDrop<Entity>,
     arg: *const W,
 }
 
@@ -445,22 +450,19 @@ unsafe impl<W: Wake> Sync for ReaderHandle<W> {}
 impl<W: Wake> ReaderHandle<W> {
     /// The reader entity.
     pub(crate) fn entity(&self) -> &Entity {
-        self.entity.as_ref().unwrap_or_else(|| unreachable_entity())
+        &self.entity
     }
-}
-
-#[cold]
-fn unreachable_entity() -> &'static Entity {
-    static NONE: OnceLock<Entity> = OnceLock::new();
-    NONE.get_or_init(|| Entity(0))
 }
 
 impl<W: Wake> Drop for ReaderHandle<W> {
     fn drop(&mut self) {
-        // Delete first: after dds_delete returns no listener call is running or will run.
-        drop(self.entity.take());
-        // SAFETY: arg came from Arc::into_raw in `reader` and is released once.
-        unsafe { drop(Arc::from_raw(self.arg)) };
+        // SAFETY: the entity is dropped once, here. Deleting it first means no listener
+        // call is running or will run when arg goes; arg came from Arc::into_raw in
+        // `reader` and is released once.
+        unsafe {
+            std::mem::ManuallyDrop::drop(&mut self.entity);
+            drop(Arc::from_raw(self.arg));
+        }
     }
 }
 
@@ -480,7 +482,7 @@ pub(crate) fn reader<W: Wake>(
     };
     match Entity::new(handle) {
         Ok(entity) => Ok(ReaderHandle {
-            entity: Some(entity),
+            entity: std::mem::ManuallyDrop::new(entity),
             arg,
         }),
         Err(e) => {
@@ -763,4 +765,35 @@ fn install_log_sink() {
             c::dds_set_log_sink(Some(log_sink), null_mut());
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_deserialization_warning_is_counted_against_its_topic() {
+        let before = malformed_since("test/malformed/topic").0;
+        note_malformed(
+            "1611:f8f44b0f:ce8e6612:2 #1: deserialization test/malformed/topic/shoal::StateVector failed (for reasons unknown)",
+        );
+        let (count, last) = malformed_since("test/malformed/topic");
+        assert_eq!(count, before + 1);
+        assert!(last.contains("#1"), "{last}");
+        // Other warnings are not counted.
+        note_malformed("something else entirely");
+        assert_eq!(malformed_since("test/malformed/topic").0, before + 1);
+    }
+
+    #[test]
+    fn the_domain_configuration_confines_dds_to_the_configured_interfaces() {
+        let xml = domain_xml(&DdsConfig::default());
+        assert!(xml.contains(r#"<NetworkInterface address="127.0.0.1" multicast="true"/>"#));
+        assert!(xml.contains("<AllowMulticast>spdp</AllowMulticast>"));
+        let c = DdsConfig {
+            interfaces: vec![std::net::Ipv4Addr::new(10, 1, 2, 3).into()],
+            ..DdsConfig::default()
+        };
+        assert!(domain_xml(&c).contains(r#"address="10.1.2.3" multicast="default""#));
+    }
 }
