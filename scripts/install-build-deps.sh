@@ -2,11 +2,12 @@
 # Installs what building Shoal needs beyond Rust, on Debian 12: cmake and libclang, with
 # which the `cyclors` crate builds Eclipse Cyclone DDS from its bundled source and
 # generates its Rust bindings. Node.js >= 20 and npm (for the console) are checked, not
-# installed. Idempotent and quiet when everything is there; apt needs root.
+# installed. Further Debian packages given as arguments are installed in the same apt run
+# (scripts/install-test-deps.sh passes the tests' own). Idempotent; apt needs root.
 set -euo pipefail
 say() { echo "install-build-deps: $*"; }
 
-APT_PKGS=(cmake libclang-dev)
+APT_PKGS=(cmake libclang-dev "$@")
 missing=()
 for p in "${APT_PKGS[@]}"; do
     if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
@@ -20,8 +21,10 @@ if ((${#missing[@]})); then
     fi
     say "apt-get install ${missing[*]}"
     export DEBIAN_FRONTEND=noninteractive
-    apt-get update -qq
-    apt-get install -y -qq "${missing[@]}" >/dev/null
+    apt-get update -q
+    apt-get install -y -q --no-install-recommends "${missing[@]}" </dev/null
+else
+    say "apt packages present: ${APT_PKGS[*]}"
 fi
 if ! command -v npm >/dev/null 2>&1; then
     say "npm not found: the console's build needs Node.js >= 20 and npm" >&2

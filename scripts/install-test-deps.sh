@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs everything Shoal's DDS interop tests need on a Debian 12 machine:
-#   - apt: cmake + libclang-dev (Shoal's own build: Cyclone DDS from source),
-#     iproute2 (network namespaces), cyclonedds-tools (ddsperf),
+#   - apt, through scripts/install-build-deps.sh: cmake + libclang-dev (Shoal's own
+#     build: Cyclone DDS from source), iproute2 (network namespaces), cyclonedds-tools (ddsperf),
 #     libfastrtps-dev + libfastcdr-dev (Fast DDS 2.9 / Fast CDR 1.0), g++, make,
 #     python3-venv
 #   - $REPO/.venv with PyPI cyclonedds and rticonnextdds-connector (DDS peers) and
@@ -32,20 +32,9 @@ if [[ $(id -u) != 0 ]]; then
 fi
 
 # ---------------------------------------------------------------- apt
-APT_PKGS=(cmake libclang-dev iproute2 cyclonedds-tools libfastrtps-dev libfastcdr-dev g++ make python3 python3-venv)
-missing=()
-for p in "${APT_PKGS[@]}"; do
-    if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
-        missing+=("$p")
-    fi
-done
-if ((${#missing[@]})); then
-    say "apt-get install ${missing[*]}"
-    apt-get update -q
-    apt-get install -y -q --no-install-recommends "${missing[@]}" </dev/null
-else
-    say "apt packages present: ${APT_PKGS[*]}"
-fi
+# The build's own packages (cmake, libclang-dev) and the tests', in one apt run.
+"$REPO/scripts/install-build-deps.sh" iproute2 cyclonedds-tools libfastrtps-dev libfastcdr-dev \
+    g++ make python3 python3-venv
 
 # ---------------------------------------------------------------- venv
 venv_ok() {
