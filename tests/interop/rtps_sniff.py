@@ -5,7 +5,7 @@ the data representation every vendor actually puts on the wire.
 For each DATA submessage written by a user-defined writer (entity kind
 0x02/0x03, i.e. not a builtin discovery endpoint) it records the
 encapsulation identifier of the serialized payload: 0x0001 CDR_LE / 0x0000
-CDR_BE are plain XCDR1 (what RustDDS reads); 0x0006/0x0007 (CDR2),
+CDR_BE are plain XCDR1 (what Shoal reads); 0x0006/0x0007 (CDR2),
 0x0008/0x0009 (D_CDR2), 0x000a/0x000b (PL_CDR2) are XCDR2; 0x0002/0x0003 are
 PL_CDR (XCDR1 mutable).
 

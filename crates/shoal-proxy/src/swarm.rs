@@ -200,7 +200,7 @@ pub async fn run_swarm(
     ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
     // States from a vehicle the station has not heard announced are refused: once a
     // reader matched both writers (or after 30 s), announce everyone, give the station a
-    // second to take the announcements (another reader thread), then report.
+    // second to take the announcements (another reader), then report.
     let waiting = tokio::time::Instant::now();
     while (announce.matched_readers() == 0 || states.matched_readers() == 0)
         && waiting.elapsed() < Duration::from_secs(30)

@@ -5,7 +5,7 @@ Types mirror idl/shoal.idl: module-qualified type names ("shoal::StateVector"),
 @final extensibility, @key members, bounded strings and sequences, same member
 order. Every reader and writer carries DataRepresentation = [XCDR1] so the
 samples on the wire are plain CDR (encapsulation CDR_LE 0x0001), the only
-representation RustDDS reads.
+representation Shoal reads.
 
 Subcommands (same interface as rti_peer.py and the Fast DDS peer):
   publish-state  --vehicle-id ID --count N --rate HZ [--linger S]

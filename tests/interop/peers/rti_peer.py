@@ -3,7 +3,7 @@
 
 Types and QoS live in shoal_rti.xml next to this file (checked against
 idl/shoal.idl by tests/interop/check_rti_xml.py). All readers and writers use
-XCDR_DATA_REPRESENTATION (plain XCDR1 CDR), the only representation RustDDS
+XCDR_DATA_REPRESENTATION (plain XCDR1 CDR), the only representation Shoal
 reads. The connector wheel bundles the Connext 6.1.2 libraries and needs no
 license file.
 
