@@ -19,8 +19,9 @@ pub struct DdsConfig {
     /// that older configuration files still load.
     #[serde(skip_serializing)]
     pub same_host_loopback: Option<bool>,
-    /// Samples each reader keeps, all instances together, before the oldest go; the
-    /// per-instance history depth is capped to it.
+    /// Samples each reader holds untaken, all instances together; beyond it DDS refuses
+    /// new samples (a reliable writer sends them again later). The per-instance history
+    /// depth is capped to it.
     pub topic_cache_samples: i32,
     /// Kernel receive buffer per UDP socket, bytes.
     pub socket_receive_buffer: usize,

@@ -81,6 +81,9 @@ impl WriterOptions {
     }
 }
 
+/// DDS's "no limit" for resource limits (`DDS_LENGTH_UNLIMITED`).
+const UNLIMITED: i32 = -1;
+
 /// The policies Shoal sets on an endpoint; everything else is the DDS default.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Policies {
@@ -90,7 +93,7 @@ pub(crate) struct Policies {
     pub(crate) depth: i32,
     pub(crate) deadline: Option<Duration>,
     pub(crate) liveliness_lease: Option<Duration>,
-    /// (samples, instances, samples per instance); `None` is unlimited.
+    /// (samples, instances, samples per instance); `None`, and -1 in each, is unlimited.
     pub(crate) limits: Option<(i32, i32, i32)>,
 }
 
@@ -155,6 +158,9 @@ impl QosProfile {
             Self::Tasks | Self::Announcements | Self::Events => 4,
         };
         let cache = cache_samples.max(1);
+        // DDS counts every instance a reader has seen against max_instances for as long
+        // as the instance exists, so that one stays unlimited: ten thousand vehicles are
+        // ten thousand instances. What bounds memory is the samples not yet taken.
         Policies {
             reliability,
             transient_local,
@@ -162,7 +168,7 @@ impl QosProfile {
             depth: depth.min(cache),
             deadline: None,
             liveliness_lease: None,
-            limits: Some((cache, cache, cache)),
+            limits: Some((cache, UNLIMITED, UNLIMITED)),
         }
     }
 }
@@ -183,7 +189,7 @@ mod tests {
     #[test]
     fn reader_cache_is_bounded_by_configuration_not_the_library_default() {
         let r = QosProfile::State.reader_qos(5000);
-        assert_eq!(r.limits, Some((5000, 5000, 5000)));
+        assert_eq!(r.limits, Some((5000, UNLIMITED, UNLIMITED)));
         // A cache smaller than the history depth shrinks the depth, which DDS requires.
         assert_eq!(QosProfile::State.reader_qos(10).depth, 10);
     }
