@@ -694,12 +694,21 @@ static MALFORMED: Mutex<Option<HashMap<String, (u64, String)>>> = Mutex::new(Non
 /// Woken whenever [`MALFORMED`] changes.
 static MALFORMED_WATCHERS: Mutex<Vec<std::sync::Weak<dyn Wake>>> = Mutex::new(Vec::new());
 
-/// How many samples of `topic` Cyclone dropped as undecodable, and the last report.
-pub(crate) fn malformed_since(topic: &str) -> (u64, String) {
+/// How many samples of `topic` Cyclone dropped as undecodable since the process started.
+pub(crate) fn malformed_count(topic: &str) -> u64 {
     MALFORMED
         .lock()
         .ok()
-        .and_then(|m| m.as_ref().and_then(|m| m.get(topic).cloned()))
+        .and_then(|m| m.as_ref().and_then(|m| m.get(topic).map(|e| e.0)))
+        .unwrap_or(0)
+}
+
+/// Cyclone's last report of an undecodable sample of `topic`.
+pub(crate) fn malformed_last(topic: &str) -> String {
+    MALFORMED
+        .lock()
+        .ok()
+        .and_then(|m| m.as_ref().and_then(|m| m.get(topic).map(|e| e.1.clone())))
         .unwrap_or_default()
 }
 
@@ -773,16 +782,19 @@ mod tests {
 
     #[test]
     fn a_deserialization_warning_is_counted_against_its_topic() {
-        let before = malformed_since("test/malformed/topic").0;
+        let before = malformed_count("test/malformed/topic");
         note_malformed(
             "1611:f8f44b0f:ce8e6612:2 #1: deserialization test/malformed/topic/shoal::StateVector failed (for reasons unknown)",
         );
-        let (count, last) = malformed_since("test/malformed/topic");
+        let (count, last) = (
+            malformed_count("test/malformed/topic"),
+            malformed_last("test/malformed/topic"),
+        );
         assert_eq!(count, before + 1);
         assert!(last.contains("#1"), "{last}");
         // Other warnings are not counted.
         note_malformed("something else entirely");
-        assert_eq!(malformed_since("test/malformed/topic").0, before + 1);
+        assert_eq!(malformed_count("test/malformed/topic"), before + 1);
     }
 
     #[test]

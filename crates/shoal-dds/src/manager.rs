@@ -286,7 +286,7 @@ impl PubSub {
         cyclone::watch_malformed(Arc::downgrade(&watch));
         let malformed_seen = readers
             .iter()
-            .map(|r| cyclone::malformed_since(&r.topic).0)
+            .map(|r| cyclone::malformed_count(&r.topic))
             .collect();
         Ok(Subscription {
             readers,
@@ -575,13 +575,16 @@ impl<T: TopicType> Subscription<T> {
     fn fill(&mut self) {
         let mut taken = Vec::new();
         for (i, source) in self.readers.iter_mut().enumerate() {
-            let (count, last) = cyclone::malformed_since(&source.topic);
-            while self.malformed_seen[i] < count {
-                self.malformed_seen[i] += 1;
-                self.buffer.push_back(Err(ReadError::Malformed {
-                    topic: T::TOPIC,
-                    detail: last.clone(),
-                }));
+            let count = cyclone::malformed_count(&source.topic);
+            if self.malformed_seen[i] < count {
+                let last = cyclone::malformed_last(&source.topic);
+                while self.malformed_seen[i] < count {
+                    self.malformed_seen[i] += 1;
+                    self.buffer.push_back(Err(ReadError::Malformed {
+                        topic: T::TOPIC,
+                        detail: format!("Cyclone DDS could not decode it: {last}"),
+                    }));
+                }
             }
             taken.clear();
             if let Err(detail) = cyclone::take_cdr(source.reader.entity(), BATCH, &mut taken) {
