@@ -797,6 +797,24 @@ mod tests {
         assert_eq!(malformed_count("test/malformed/topic"), before + 1);
     }
 
+    /// Cyclone has one configuration per domain and process: a second, different one is
+    /// refused with a message, the first stays usable.
+    #[test]
+    fn a_second_configuration_for_an_open_domain_is_refused() {
+        let first = DdsConfig {
+            domain_id: 212,
+            ..DdsConfig::default()
+        };
+        assert_eq!(domain(&first), Ok(()));
+        assert_eq!(domain(&first), Ok(()));
+        let other = DdsConfig {
+            socket_receive_buffer: 1 << 20,
+            ..first
+        };
+        let err = domain(&other).err().unwrap_or_default();
+        assert!(err.contains("domain 212 is already open"), "{err}");
+    }
+
     #[test]
     fn the_domain_configuration_confines_dds_to_the_configured_interfaces() {
         let xml = domain_xml(&DdsConfig::default());

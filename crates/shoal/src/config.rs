@@ -251,6 +251,14 @@ mod tests {
     }
 
     #[test]
+    fn an_older_file_with_the_retired_same_host_loopback_key_still_loads() {
+        let parsed =
+            from_table(parse_table("[dds]\nsame_host_loopback = true\n").unwrap()).unwrap();
+        assert_eq!(parsed.dds.same_host_loopback, Some(true));
+        assert!(from_table(parse_table("[dds]\nsame_host_loopback = 3\n").unwrap()).is_err());
+    }
+
+    #[test]
     fn environment_overrides_the_file() {
         let mut t = parse_table("[dds]\ndomain_id = 3\n").unwrap();
         let vars = [
