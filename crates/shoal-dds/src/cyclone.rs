@@ -14,6 +14,7 @@
 use std::collections::HashMap;
 use std::ffi::{CStr, CString, c_void};
 use std::ptr::{null, null_mut};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use cyclors as c;
@@ -523,17 +524,23 @@ pub(crate) const TIMEOUT: i32 = c::DDS_RETCODE_TIMEOUT;
 
 /// One sample taken from a reader: its CDR (with the encapsulation header) and metadata.
 #[derive(Debug)]
-pub(crate) struct Taken {
-    /// CDR bytes, header included; empty for an invalid (state-only) sample.
-    pub(crate) cdr: Vec<u8>,
+pub(crate) struct Taken<'a> {
+    /// CDR bytes, header included, borrowed from Cyclone's sample.
+    pub(crate) cdr: &'a [u8],
     /// The writer's source timestamp, ns since the Unix epoch.
     pub(crate) source_timestamp_ns: i64,
     /// The writer's instance handle in this reader, for [`publication_guid`].
     pub(crate) publication: u64,
 }
 
-/// Takes up to `max` samples with data (state-only samples are dropped).
-pub(crate) fn take_cdr(reader: &Entity, max: usize, out: &mut Vec<Taken>) -> Result<(), String> {
+/// Takes up to `max` samples and hands each one with data to `each` (state-only samples
+/// are dropped); returns how many Cyclone gave. The bytes are lent, not copied: each
+/// sample is released when `each` returns.
+pub(crate) fn take_cdr(
+    reader: &Entity,
+    max: usize,
+    mut each: impl FnMut(Taken<'_>),
+) -> Result<usize, String> {
     const BATCH: usize = 64;
     let max = max.min(BATCH);
     let mut bufs = [null_mut::<c::ddsi_serdata>(); BATCH];
@@ -552,36 +559,53 @@ pub(crate) fn take_cdr(reader: &Entity, max: usize, out: &mut Vec<Taken>) -> Res
     if n < 0 {
         return Err(retcode(n));
     }
-    for (sd, info) in bufs
-        .iter()
-        .zip(&infos)
-        .take(usize::try_from(n).unwrap_or(0))
-    {
-        if info.valid_data {
-            // SAFETY: sd is a serdata reference dds_takecdr handed over; size and the
-            // serialised bytes are read before the reference is dropped.
-            let cdr = unsafe {
-                let size = c::ddsi_serdata_size(*sd) as usize;
-                let mut iov = c::ddsrt_iovec_t {
-                    iov_base: null_mut(),
-                    iov_len: 0,
-                };
-                let r = c::ddsi_serdata_to_ser_ref(*sd, 0, size, &raw mut iov);
-                let bytes =
-                    std::slice::from_raw_parts(iov.iov_base.cast::<u8>(), iov.iov_len).to_vec();
-                c::ddsi_serdata_to_ser_unref(r, &raw const iov);
-                bytes
+    let n = usize::try_from(n).unwrap_or(0);
+    // Released on every path out, a panic in `each` included.
+    struct Release<'a>(&'a [*mut c::ddsi_serdata]);
+    impl Drop for Release<'_> {
+        fn drop(&mut self) {
+            for sd in self.0 {
+                // SAFETY: each reference dds_takecdr handed over is released once.
+                unsafe { c::ddsi_serdata_unref(*sd) };
+            }
+        }
+    }
+    let _release = Release(&bufs[..n]);
+    for (sd, info) in bufs.iter().zip(&infos).take(n) {
+        if !info.valid_data {
+            continue;
+        }
+        // SAFETY: sd is a live serdata reference (released only by `_release`); the
+        // serialised bytes stay valid until the matching unref below.
+        unsafe {
+            let size = c::ddsi_serdata_size(*sd) as usize;
+            let mut iov = c::ddsrt_iovec_t {
+                iov_base: null_mut(),
+                iov_len: 0,
             };
-            out.push(Taken {
+            let r = c::ddsi_serdata_to_ser_ref(*sd, 0, size, &raw mut iov);
+            // Unreferenced even if `each` panics.
+            struct Unref(*mut c::ddsi_serdata, c::ddsrt_iovec_t);
+            impl Drop for Unref {
+                fn drop(&mut self) {
+                    // SAFETY: the reference and iovec ddsi_serdata_to_ser_ref returned.
+                    unsafe { c::ddsi_serdata_to_ser_unref(self.0, &raw const self.1) };
+                }
+            }
+            let guard = Unref(r, iov);
+            let cdr: &[u8] = if guard.1.iov_base.is_null() {
+                &[]
+            } else {
+                std::slice::from_raw_parts(guard.1.iov_base.cast::<u8>(), guard.1.iov_len)
+            };
+            each(Taken {
                 cdr,
                 source_timestamp_ns: info.source_timestamp,
                 publication: info.publication_handle,
             });
         }
-        // SAFETY: each taken reference is released once.
-        unsafe { c::ddsi_serdata_unref(*sd) };
     }
-    Ok(())
+    Ok(n)
 }
 
 /// The GUID of a writer matched with `reader`, from its instance handle there.
@@ -691,8 +715,17 @@ pub(crate) fn take_participants(reader: &Entity) -> Vec<ParticipantChange> {
 
 /// Samples Cyclone received but could not deserialise, per topic name, since start.
 static MALFORMED: Mutex<Option<HashMap<String, (u64, String)>>> = Mutex::new(None);
+/// Reports counted in [`MALFORMED`], over all topics: a reader compares it with the total it
+/// last saw before it takes the map's lock, so the take path locks nothing while no
+/// undecodable sample arrives.
+static MALFORMED_TOTAL: AtomicU64 = AtomicU64::new(0);
 /// Woken whenever [`MALFORMED`] changes.
 static MALFORMED_WATCHERS: Mutex<Vec<std::sync::Weak<dyn Wake>>> = Mutex::new(Vec::new());
+
+/// How many undecodable samples Cyclone dropped since the process started, on any topic.
+pub(crate) fn malformed_total() -> u64 {
+    MALFORMED_TOTAL.load(Ordering::Acquire)
+}
 
 /// How many samples of `topic` Cyclone dropped as undecodable since the process started.
 pub(crate) fn malformed_count(topic: &str) -> u64 {
@@ -733,6 +766,7 @@ fn note_malformed(message: &str) {
         entry.0 += 1;
         entry.1 = message.trim().to_string();
     }
+    MALFORMED_TOTAL.fetch_add(1, Ordering::Release);
     if let Ok(ws) = MALFORMED_WATCHERS.lock() {
         for w in ws.iter().filter_map(std::sync::Weak::upgrade) {
             w.wake();

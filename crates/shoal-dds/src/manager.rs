@@ -268,22 +268,28 @@ impl PubSub {
             readers.push(Source {
                 reader: reader(topic)?,
                 topic: name,
-                decode: Decode::Signed(Arc::clone(security)),
-                writers: HashMap::new(),
+                samples: Samples {
+                    decode: Decode::Signed(Arc::clone(security)),
+                    writers: HashMap::new(),
+                },
             });
         }
         let (topic, _) = self.model_topic::<T>(topic_name)?;
         readers.push(Source {
             reader: reader(topic)?,
             topic: topic_name.to_string(),
-            decode: match security {
-                Some(s) => Decode::Unsigned(Arc::clone(s)),
-                None => Decode::Plain,
+            samples: Samples {
+                decode: match security {
+                    Some(s) => Decode::Unsigned(Arc::clone(s)),
+                    None => Decode::Plain,
+                },
+                writers: HashMap::new(),
             },
-            writers: HashMap::new(),
         });
         let watch: Arc<dyn cyclone::Wake> = signal.clone();
         cyclone::watch_malformed(Arc::downgrade(&watch));
+        // Read before the counts: a report between the two is then looked at again.
+        let malformed_total = cyclone::malformed_total();
         let malformed_seen = readers
             .iter()
             .map(|r| cyclone::malformed_count(&r.topic))
@@ -291,6 +297,7 @@ impl PubSub {
         Ok(Subscription {
             readers,
             malformed_seen,
+            malformed_total,
             buffer: VecDeque::new(),
             signal,
             _participant: Arc::clone(&self.participant),
@@ -489,30 +496,40 @@ enum Decode {
 struct Source {
     reader: ReaderHandle<Signal>,
     topic: String,
-    decode: Decode,
-    /// Writer GUIDs by their instance handle in this reader.
-    writers: HashMap<u64, cyclone::Guid>,
+    samples: Samples,
 }
 
-impl Source {
-    fn meta(&mut self, taken: &cyclone::Taken) -> SampleMeta {
-        let reader = self.reader.entity();
-        let guid = *self.writers.entry(taken.publication).or_insert_with(|| {
-            cyclone::publication_guid(reader, taken.publication).unwrap_or_default()
+/// How one reader's samples are turned into stream items.
+struct Samples {
+    decode: Decode,
+    /// Writer and participant GUIDs as text, by the writer's instance handle in this reader:
+    /// formatted once per writer rather than once per sample.
+    writers: HashMap<u64, (String, String)>,
+}
+
+impl Samples {
+    fn meta(&mut self, reader: &Entity, taken: &cyclone::Taken) -> SampleMeta {
+        let (writer, participant) = self.writers.entry(taken.publication).or_insert_with(|| {
+            let guid = cyclone::publication_guid(reader, taken.publication).unwrap_or_default();
+            let participant = cyclone::hex(&guid[..12]);
+            (
+                format!("{participant}.{}", cyclone::hex(&guid[12..])),
+                participant,
+            )
         });
         SampleMeta {
-            writer: format!(
-                "{}.{}",
-                cyclone::hex(&guid[..12]),
-                cyclone::hex(&guid[12..])
-            ),
-            participant: cyclone::hex(&guid[..12]),
+            writer: writer.clone(),
+            participant: participant.clone(),
             source_timestamp_ms: (taken.source_timestamp_ns > 0)
                 .then_some(taken.source_timestamp_ns / 1_000_000),
         }
     }
 
-    fn item<T: TopicType>(&mut self, taken: &cyclone::Taken) -> Result<(T, SampleMeta), ReadError> {
+    fn item<T: TopicType>(
+        &mut self,
+        reader: &Entity,
+        taken: &cyclone::Taken,
+    ) -> Result<(T, SampleMeta), ReadError> {
         let malformed = |detail: String| {
             warn!(topic = T::TOPIC, %detail, "malformed sample dropped");
             ReadError::Malformed {
@@ -522,8 +539,8 @@ impl Source {
         };
         match &self.decode {
             Decode::Plain => {
-                let value: T = crate::from_cdr(&taken.cdr).map_err(malformed)?;
-                let meta = self.meta(taken);
+                let value: T = crate::from_cdr(taken.cdr).map_err(malformed)?;
+                let meta = self.meta(reader, taken);
                 validated(value, meta)
             }
             Decode::Unsigned(security) => {
@@ -532,8 +549,8 @@ impl Source {
             }
             Decode::Signed(security) => {
                 let security = Arc::clone(security);
-                let wire: SignedWire = crate::from_cdr(&taken.cdr).map_err(malformed)?;
-                let meta = self.meta(taken);
+                let wire: SignedWire = crate::from_cdr(taken.cdr).map_err(malformed)?;
+                let meta = self.meta(reader, taken);
                 open_signed::<T>(&security, &wire, meta)
             }
         }
@@ -550,6 +567,8 @@ pub struct Subscription<T: TopicType> {
     readers: Vec<Source>,
     /// Malformed-sample reports already turned into errors, per reader.
     malformed_seen: Vec<u64>,
+    /// [`cyclone::malformed_total`] when `malformed_seen` was last brought up to date.
+    malformed_total: u64,
     buffer: VecDeque<Result<(T, SampleMeta), ReadError>>,
     signal: Arc<Signal>,
     _participant: Arc<Participant>,
@@ -573,9 +592,15 @@ const BATCH: usize = 64;
 impl<T: TopicType> Subscription<T> {
     /// Moves what the readers hold (and new malformed reports) into the buffer.
     fn fill(&mut self) {
-        let mut taken = Vec::new();
+        let total = cyclone::malformed_total();
+        let check_malformed = total != self.malformed_total;
+        self.malformed_total = total;
         for (i, source) in self.readers.iter_mut().enumerate() {
-            let count = cyclone::malformed_count(&source.topic);
+            let count = if check_malformed {
+                cyclone::malformed_count(&source.topic)
+            } else {
+                0
+            };
             if self.malformed_seen[i] < count {
                 let last = cyclone::malformed_last(&source.topic);
                 while self.malformed_seen[i] < count {
@@ -586,16 +611,19 @@ impl<T: TopicType> Subscription<T> {
                     }));
                 }
             }
-            taken.clear();
-            if let Err(detail) = cyclone::take_cdr(source.reader.entity(), BATCH, &mut taken) {
+            let Source {
+                reader, samples, ..
+            } = source;
+            let reader = reader.entity();
+            let buffer = &mut self.buffer;
+            let took = cyclone::take_cdr(reader, BATCH, |t| {
+                buffer.push_back(samples.item::<T>(reader, &t));
+            });
+            if let Err(detail) = took {
                 self.buffer.push_back(Err(ReadError::Dds {
                     topic: T::TOPIC,
                     detail,
                 }));
-                continue;
-            }
-            for t in &taken {
-                self.buffer.push_back(source.item::<T>(t));
             }
         }
     }
