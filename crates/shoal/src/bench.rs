@@ -1389,6 +1389,95 @@ async fn standard_query_times(api: std::net::SocketAddr) -> Result<Vec<f64>> {
     Ok(times)
 }
 
+/// One 10-second sample of `bench scale` once every vehicle is alive.
+struct ScaleRow {
+    /// Seconds since the swarm started.
+    t_s: f64,
+    /// State vectors accepted per second over the last interval.
+    per_s: f64,
+    rss_mb: f64,
+    /// The standard queries' HTTP round trips, ms.
+    queries_ms: Vec<f64>,
+}
+
+/// Whether memory and queries stay flat over a scale run: the first and last tenth
+/// (session 5's measure), every tenth's mean RSS (single readings swing by 10 to 20 MB
+/// as the allocator keeps and returns pages), and a least-squares line through all RSS
+/// readings, which a steady swing does not tilt but a leak does.
+fn print_flatness(rows: &[ScaleRow]) {
+    let tenth = (rows.len() / 10).max(1);
+    let medians = |part: &[ScaleRow]| {
+        column_medians(
+            &part
+                .iter()
+                .map(|r| r.queries_ms.clone())
+                .collect::<Vec<_>>(),
+        )
+    };
+    let (first, last) = (
+        medians(&rows[..tenth]),
+        medians(&rows[rows.len() - tenth..]),
+    );
+    let show = |v: &[f64]| {
+        v.iter()
+            .map(|t| format!("{t:.2}"))
+            .collect::<Vec<_>>()
+            .join(" / ")
+    };
+    println!(
+        "SPARQL median ms (q1 / q2 / q3 / q4 / q5), first tenth of the run: {}; last tenth: {}",
+        show(&first),
+        show(&last)
+    );
+    #[allow(clippy::cast_precision_loss)]
+    let mean_rss =
+        |part: &[ScaleRow]| part.iter().map(|r| r.rss_mb).sum::<f64>() / part.len() as f64;
+    let (a, b) = (
+        mean_rss(&rows[..tenth]),
+        mean_rss(&rows[rows.len() - tenth..]),
+    );
+    println!(
+        "station RSS first tenth {a:.1} MB, last tenth {b:.1} MB ({:+.1} %)",
+        (b / a - 1.0) * 100.0
+    );
+    if rows.len() >= 10 {
+        let tenths: Vec<String> = (0..10)
+            .map(|i| {
+                let part = &rows[i * rows.len() / 10..(i + 1) * rows.len() / 10];
+                format!("{:.1}", mean_rss(part))
+            })
+            .collect();
+        println!("station RSS by tenth of the run, MB: {}", tenths.join(", "));
+    }
+    let points: Vec<(f64, f64)> = rows.iter().map(|r| (r.t_s, r.rss_mb)).collect();
+    if let Some((at_zero, per_s)) = least_squares(&points) {
+        let (t0, t1) = (points[0].0, points[points.len() - 1].0);
+        let (y0, y1) = (at_zero + per_s * t0, at_zero + per_s * t1);
+        println!(
+            "station RSS trend (least squares over {} readings): {:+.1} MB/h, {y0:.1} MB at the start to {y1:.1} MB at the end of the line ({:+.1} %)",
+            points.len(),
+            per_s * 3600.0,
+            (y1 / y0 - 1.0) * 100.0
+        );
+    }
+}
+
+/// The least-squares line through `points`: its value at x = 0 and its slope; `None` for
+/// fewer than two distinct x.
+fn least_squares(points: &[(f64, f64)]) -> Option<(f64, f64)> {
+    #[allow(clippy::cast_precision_loss)]
+    let n = points.len() as f64;
+    let mx = points.iter().map(|p| p.0).sum::<f64>() / n;
+    let my = points.iter().map(|p| p.1).sum::<f64>() / n;
+    let sxx: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    let sxy: f64 = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    if points.len() < 2 || sxx <= 0.0 {
+        return None;
+    }
+    let slope = sxy / sxx;
+    Some((my - slope * mx, slope))
+}
+
 /// The median of each column of `rows`.
 fn column_medians(rows: &[Vec<f64>]) -> Vec<f64> {
     let width = rows.first().map_or(0, Vec::len);
@@ -1476,7 +1565,12 @@ async fn scale_figures(
             first_rss = Some(st);
         }
         if all_alive_at.is_some() {
-            rows.push((per_s, st, q));
+            rows.push(ScaleRow {
+                t_s: start.elapsed().as_secs_f64(),
+                per_s,
+                rss_mb: st,
+                queries_ms: q,
+            });
         }
         let deadline =
             all_alive_at.unwrap_or(Duration::from_secs(120)) + Duration::from_secs(seconds);
@@ -1489,33 +1583,12 @@ async fn scale_figures(
     let _ = tokio::time::timeout(Duration::from_secs(15), swarm.wait()).await;
     let _ = tokio::time::timeout(Duration::from_secs(15), station.wait()).await;
     let _ = std::fs::remove_dir_all(&dir);
-    let steady: Vec<f64> = rows.iter().skip(1).map(|r| r.0).collect();
+    let steady: Vec<f64> = rows.iter().skip(1).map(|r| r.per_s).collect();
     #[allow(clippy::cast_precision_loss)]
     let mean = steady.iter().sum::<f64>() / steady.len().max(1) as f64;
-    let peak = rows.iter().map(|r| r.1).fold(0.0, f64::max);
-    // Flatness: the first and last tenth of the steady run (at least one sample each).
-    let tenth = (rows.len() / 10).max(1);
+    let peak = rows.iter().map(|r| r.rss_mb).fold(0.0, f64::max);
     if rows.len() >= 2 {
-        let column = |part: &[(f64, f64, Vec<f64>)]| {
-            column_medians(&part.iter().map(|r| r.2.clone()).collect::<Vec<_>>())
-        };
-        let (first, last) = (column(&rows[..tenth]), column(&rows[rows.len() - tenth..]));
-        let show = |v: &[f64]| {
-            v.iter()
-                .map(|t| format!("{t:.2}"))
-                .collect::<Vec<_>>()
-                .join(" / ")
-        };
-        println!(
-            "SPARQL median ms (q1 / q2 / q3 / q4 / q5), first tenth of the run: {}; last tenth: {}",
-            show(&first),
-            show(&last)
-        );
-        println!(
-            "station RSS first tenth {:.1} MB, last tenth {:.1} MB",
-            rows[..tenth].iter().map(|r| r.1).sum::<f64>() / tenth as f64,
-            rows[rows.len() - tenth..].iter().map(|r| r.1).sum::<f64>() / tenth as f64
-        );
+        print_flatness(&rows);
     }
     match all_alive_at {
         Some(t) => {
@@ -2007,4 +2080,30 @@ async fn suite(
         .with_context(|| format!("cannot write {}", path.display()))?;
     eprintln!("suite: written to {}", path.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn least_squares_finds_a_line_and_ignores_a_steady_swing() {
+        let line: Vec<(f64, f64)> = (0..10)
+            .map(|i| (f64::from(i), 3.0 + 2.0 * f64::from(i)))
+            .collect();
+        let (a, b) = least_squares(&line).unwrap_or((f64::NAN, f64::NAN));
+        assert!((a - 3.0).abs() < 1e-9 && (b - 2.0).abs() < 1e-9, "{a} {b}");
+        // A swing of ±15 MB around 80 MB every 10 minutes tilts the hour's line by under
+        // 5 MB/h (the phase at the ends), where 10 % growth would be 8 MB/h.
+        let swing: Vec<(f64, f64)> = (0..360)
+            .map(|i| {
+                let t = f64::from(i) * 10.0;
+                (t, 80.0 + 15.0 * (t / 600.0 * std::f64::consts::TAU).sin())
+            })
+            .collect();
+        let (_, slope) = least_squares(&swing).unwrap_or((f64::NAN, f64::NAN));
+        assert!(slope.abs() * 3600.0 < 5.0, "{slope}");
+        assert!(least_squares(&[(1.0, 2.0)]).is_none());
+        assert!(least_squares(&[(1.0, 2.0), (1.0, 3.0)]).is_none());
+    }
 }
