@@ -1450,7 +1450,9 @@ fn print_flatness(rows: &[ScaleRow]) {
         println!("station RSS by tenth of the run, MB: {}", tenths.join(", "));
     }
     let points: Vec<(f64, f64)> = rows.iter().map(|r| (r.t_s, r.rss_mb)).collect();
-    if let Some((at_zero, per_s)) = least_squares(&points) {
+    // Over a few minutes the allocator's swing is all a line would show.
+    let long_enough = points.len() >= 30;
+    if let Some((at_zero, per_s)) = least_squares(&points).filter(|_| long_enough) {
         let (t0, t1) = (points[0].0, points[points.len() - 1].0);
         let (y0, y1) = (at_zero + per_s * t0, at_zero + per_s * t1);
         println!(
@@ -2075,16 +2077,47 @@ async fn suite(
         .next()
         .unwrap_or("host")
         .to_string();
-    let path = out.join(format!("{}-{host}-suite.md", date()));
+    let path = unused_path(out, &format!("{}-{host}-suite", date()), "md");
     std::fs::write(&path, format!("{header}{table}"))
         .with_context(|| format!("cannot write {}", path.display()))?;
     eprintln!("suite: written to {}", path.display());
     Ok(())
 }
 
+/// `dir/stem.ext`, or `dir/stem-2.ext`, `-3`… if that exists: a second run on the same day
+/// must not overwrite the first one's record.
+fn unused_path(dir: &std::path::Path, stem: &str, ext: &str) -> std::path::PathBuf {
+    let mut path = dir.join(format!("{stem}.{ext}"));
+    let mut n = 2;
+    while path.exists() {
+        path = dir.join(format!("{stem}-{n}.{ext}"));
+        n += 1;
+    }
+    path
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_second_suite_run_on_a_day_gets_its_own_file() {
+        let dir = std::env::temp_dir().join(format!("shoal-unused-path-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap_or_default();
+        let first = unused_path(&dir, "day-suite", "md");
+        assert_eq!(first, dir.join("day-suite.md"));
+        std::fs::write(&first, "one").unwrap_or_default();
+        assert_eq!(
+            unused_path(&dir, "day-suite", "md"),
+            dir.join("day-suite-2.md")
+        );
+        std::fs::write(dir.join("day-suite-2.md"), "two").unwrap_or_default();
+        assert_eq!(
+            unused_path(&dir, "day-suite", "md"),
+            dir.join("day-suite-3.md")
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn least_squares_finds_a_line_and_ignores_a_steady_swing() {
