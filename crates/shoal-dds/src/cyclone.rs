@@ -534,13 +534,13 @@ pub(crate) struct Taken<'a> {
 }
 
 /// Takes up to `max` samples and hands each one with data to `each` (state-only samples
-/// are dropped); returns how many Cyclone gave. The bytes are lent, not copied: each
-/// sample is released when `each` returns.
+/// are dropped). The bytes are lent, not copied: each sample is released when `each`
+/// returns.
 pub(crate) fn take_cdr(
     reader: &Entity,
     max: usize,
     mut each: impl FnMut(Taken<'_>),
-) -> Result<usize, String> {
+) -> Result<(), String> {
     const BATCH: usize = 64;
     let max = max.min(BATCH);
     let mut bufs = [null_mut::<c::ddsi_serdata>(); BATCH];
@@ -605,7 +605,7 @@ pub(crate) fn take_cdr(
             });
         }
     }
-    Ok(n)
+    Ok(())
 }
 
 /// The GUID of a writer matched with `reader`, from its instance handle there.

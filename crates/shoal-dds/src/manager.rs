@@ -616,10 +616,9 @@ impl<T: TopicType> Subscription<T> {
             } = source;
             let reader = reader.entity();
             let buffer = &mut self.buffer;
-            let took = cyclone::take_cdr(reader, BATCH, |t| {
+            if let Err(detail) = cyclone::take_cdr(reader, BATCH, |t| {
                 buffer.push_back(samples.item::<T>(reader, &t));
-            });
-            if let Err(detail) = took {
+            }) {
                 self.buffer.push_back(Err(ReadError::Dds {
                     topic: T::TOPIC,
                     detail,
