@@ -31,8 +31,13 @@ pub struct StoreConfig {
     pub max_events: usize,
     /// Expected state period of a vehicle not told otherwise, ms (default 1000).
     pub expected_state_period_ms: i64,
-    /// Built-in lost-contact rule: missed periods before contact is lost, >= 1 (default 5).
-    pub lost_contact_factor: f64,
+    /// Retired and ignored. It set the missed periods of the built-in lost-contact rule,
+    /// which is gone (the station's Vehicle Register owns contact and raises its own
+    /// CommLost alarm). Still accepted, and range-checked (finite, >= 1), so that older
+    /// configuration files load; [`StoreConfig::retired_keys`] names it so the station
+    /// can warn. Default: absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lost_contact_factor: Option<f64>,
     /// Built-in low-battery rule: threshold in percent (default 20).
     pub low_battery_pct: f64,
     /// Deadline of a task after it was issued, ms (default 1 h); hold tasks add their duration.
@@ -49,7 +54,7 @@ impl Default for StoreConfig {
             min_state_interval_ms: 1000,
             max_events: 10_000,
             expected_state_period_ms: 1000,
-            lost_contact_factor: 5.0,
+            lost_contact_factor: None,
             low_battery_pct: 20.0,
             task_deadline_ms: 3_600_000,
             operating_area: Vec::new(),
@@ -101,6 +106,16 @@ fn out_of_range(
 }
 
 impl StoreConfig {
+    /// The retired keys this configuration sets (they have no effect), as spelt in TOML,
+    /// so that the caller can warn about them.
+    pub fn retired_keys(&self) -> Vec<&'static str> {
+        let mut keys = Vec::new();
+        if self.lost_contact_factor.is_some() {
+            keys.push("lost_contact_factor");
+        }
+        keys
+    }
+
     /// Checks every value; the first problem found is returned.
     pub fn check(&self) -> Result<(), ConfigError> {
         if self.min_state_interval_ms < 0 {
@@ -124,12 +139,15 @@ impl StoreConfig {
                 &self.task_deadline_ms,
             ));
         }
-        // The built-in rule refuses these too; checking here names the configuration key.
-        if !(self.lost_contact_factor.is_finite() && self.lost_contact_factor >= 1.0) {
+        // Ignored, but still checked: a value the old rule refused is a mistake in the
+        // file, better named than carried silently.
+        if let Some(factor) = self.lost_contact_factor
+            && !(factor.is_finite() && factor >= 1.0)
+        {
             return Err(out_of_range(
                 "lost_contact_factor",
                 "finite and >= 1",
-                &self.lost_contact_factor,
+                &factor,
             ));
         }
         if !(0.0..=100.0).contains(&self.low_battery_pct) {
@@ -257,7 +275,7 @@ mod tests {
         );
         assert!(with(|c| c.min_state_interval_ms = -1).starts_with("min_state_interval_ms"));
         assert!(with(|c| c.task_deadline_ms = -5).starts_with("task_deadline_ms"));
-        assert!(with(|c| c.lost_contact_factor = 0.5).starts_with("lost_contact_factor"));
+        assert!(with(|c| c.lost_contact_factor = Some(0.5)).starts_with("lost_contact_factor"));
         assert!(with(|c| c.low_battery_pct = f64::NAN).starts_with("low_battery_pct"));
         assert_eq!(
             with(|c| c.operating_area = vec![corner(43.0, 5.8); 2]),
@@ -273,5 +291,18 @@ mod tests {
                 vec![corner(0.0, 0.0), corner(0.0, 1.0), corner(1.0, f64::NAN)])
             .starts_with("operating_area[2]: longitude_deg = NaN")
         );
+    }
+
+    #[test]
+    fn the_retired_lost_contact_factor_still_loads_and_is_named() {
+        let c: StoreConfig = toml::from_str("lost_contact_factor = 5.0").unwrap();
+        assert_eq!(c.lost_contact_factor, Some(5.0));
+        assert_eq!(c.check(), Ok(()));
+        assert_eq!(c.retired_keys(), ["lost_contact_factor"]);
+        assert!(StoreConfig::default().retired_keys().is_empty());
+        // Absent, it is not written back either.
+        let text = toml::to_string(&StoreConfig::default()).unwrap();
+        assert!(!text.contains("lost_contact_factor"), "{text}");
+        assert!(toml::from_str::<StoreConfig>("lost_contact_factor = \"five\"").is_err());
     }
 }

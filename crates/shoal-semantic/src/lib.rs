@@ -5,9 +5,11 @@
 //!   to its user): vehicles ([`SemanticStore::upsert_vehicle`]), their latest state
 //!   ([`SemanticStore::update_state`] is cheap and typed; [`SemanticStore::flush_dirty`]
 //!   mirrors it into RDF at a bounded rate per vehicle), tasks
-//!   ([`SemanticStore::upsert_task`], [`SemanticStore::task_status`]), events and
-//!   environment observations. Removed facts are freed at once, so the model stays the
-//!   same size and speed under continuous updates.
+//!   ([`SemanticStore::upsert_task`], [`SemanticStore::task_status`]), events,
+//!   environment observations, and each vehicle's availability as the station's Vehicle
+//!   Register decides it ([`SemanticStore::set_availability`]: the store mirrors it and
+//!   never decides contact or availability by itself). Removed facts are freed at once,
+//!   so the model stays the same size and speed under continuous updates.
 //! - Semantic Reasoner ([`reasoner::TBox`]): RDFS-lite closure and capability inference
 //!   from sensors, materialised per entity into graphs of derived facts when the model
 //!   changes, never per telemetry update.
@@ -51,9 +53,12 @@ pub use rules::{
     Comparison, Condition, MAX_RULE_ID_LEN, RuleInfo, RuleSpec, StateField, Threshold, builtin,
     outside,
 };
+/// A vehicle's availability, as the station's Vehicle Register decides it and
+/// [`SemanticStore::set_availability`] mirrors it (re-exported from `shoal_model`).
+pub use shoal_model::Availability;
 /// A row of [`QueryResult::Solutions`].
 pub use sparesults::QuerySolution;
-pub use store::{Availability, ExportFormat, ExportOptions, SemanticStore, StoreStats};
+pub use store::{ExportFormat, ExportOptions, SemanticStore, StoreStats};
 
 /// The five standard queries (name, SPARQL), from `ontology/queries/`; the cross-check
 /// runs the same files with rdflib.

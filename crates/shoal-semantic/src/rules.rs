@@ -4,12 +4,14 @@
 //! Conditions on a state-vector field ([`Threshold`]) and on the operating area run
 //! natively on the typed state at every [`crate::SemanticStore::update_state`], without
 //! touching RDF (the fast path); lost contact and task overdue run in
-//! [`crate::SemanticStore::tick`]; SPARQL conditions run on the RDF model after the
-//! entity they watch changed, with `?this` bound to that entity. Rules are indexed by
-//! what they watch (state field or RDF property), so an insert runs only the rules it can
-//! affect, and only for the changed entity. Rules are edge-triggered: a rule fires once
-//! when its condition becomes true for an entity and re-arms when it becomes false, so a
-//! vehicle at 19 % battery reporting at 10 Hz raises one event, not ten a second.
+//! [`crate::SemanticStore::tick`] (lost contact only as operators' rules, which raise an
+//! event and change nothing: contact is the station's Vehicle Register's); SPARQL
+//! conditions run on the RDF model after the entity they watch changed, with `?this`
+//! bound to that entity. Rules are indexed by what they watch (state field or RDF
+//! property), so an insert runs only the rules it can affect, and only for the changed
+//! entity. Rules are edge-triggered: a rule fires once when its condition becomes true for
+//! an entity and re-arms when it becomes false, so a vehicle at 19 % battery reporting at
+//! 10 Hz raises one event, not ten a second.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::fmt;
@@ -237,7 +239,8 @@ pub enum Condition {
         /// Polygon corners, at least 3, in order; longitude/latitude treated as planar.
         polygon: Vec<GeoPoint>,
     },
-    /// No state for `factor` × the vehicle's expected reporting period (in `tick`).
+    /// No state for `factor` × the vehicle's expected reporting period (in `tick`). Only
+    /// raises the rule's event: contact and availability are the Vehicle Register's.
     LostContact {
         /// How many missed periods make contact lost.
         factor: f64,
@@ -579,11 +582,12 @@ pub fn outside(polygon: &[GeoPoint], lat: f64, lon: f64) -> bool {
 }
 
 /// Identifiers of the built-in rules.
+///
+/// None watches contact: the station's Vehicle Register owns contact and raises its own
+/// CommLost alarm, so a built-in lost-contact rule would only raise it twice.
 pub mod builtin {
     /// Battery below the configured threshold.
     pub const LOW_BATTERY: &str = "builtin.low_battery";
-    /// No state for K × the expected period.
-    pub const LOST_CONTACT: &str = "builtin.lost_contact";
     /// Outside the configured operating area.
     pub const OUT_OF_AREA: &str = "builtin.out_of_area";
     /// Task still active after its deadline.

@@ -36,8 +36,9 @@ use std::time::{Duration, Instant};
 use oxrdf::{GraphName, GraphNameRef, Literal, NamedNode, QuadRef, Triple};
 use oxrdfio::{RdfFormat, RdfSerializer};
 use shoal_model::{
-    EnvironmentObservation, Event, EventKind, GeoPoint, LinkKind, Severity, StateVector, Task,
-    TaskAssignment, TaskKind, TaskState, TaskStatus, Validate, VehicleAnnouncement, VehicleKind,
+    Availability, EnvironmentObservation, Event, EventKind, GeoPoint, LinkKind, MAX_VEHICLE_ID_LEN,
+    Severity, StateVector, Task, TaskAssignment, TaskKind, TaskState, TaskStatus, Validate,
+    ValidationError, VehicleAnnouncement, VehicleKind,
 };
 use spareval::{CancellationToken, QueryResults};
 
@@ -79,26 +80,16 @@ pub struct StoreStats {
     pub state_flushes: u64,
 }
 
-/// Whether a vehicle can take a task now (`shoal:availability`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-#[non_exhaustive]
-pub enum Availability {
-    /// In contact, no active task.
-    Idle,
-    /// In contact, a task sent, accepted or running.
-    Busy,
-    /// Lost contact.
-    Lost,
-}
-
-impl Availability {
-    fn iri(self) -> NamedNode {
-        shoal(match self {
-            Self::Idle => "Idle",
-            Self::Busy => "Busy",
-            Self::Lost => "Lost",
-        })
-    }
+/// The ontology's individual of `shoal:Availability` naming `a`.
+fn availability_iri(a: Availability) -> NamedNode {
+    shoal(match a {
+        Availability::Idle => "Idle",
+        Availability::Busy => "Busy",
+        Availability::Charging => "Charging",
+        // `shoal:Fault` is the class of fault events; the availability is another term.
+        Availability::Fault => "Faulty",
+        Availability::Lost => "Lost",
+    })
 }
 
 /// Typed latest state of one vehicle; `Copy` so the hot path never allocates.
@@ -135,9 +126,13 @@ struct VehicleEntry {
     /// When the state graph was last written (the caller's clock), ms.
     last_flush_ms: Option<i64>,
     dirty: bool,
-    lost: bool,
-    active_tasks: u32,
+    /// A lost-contact rule fired for it since its last state: the next state re-arms
+    /// those rules. A flag, so that `update_state` looks at the rules only then.
+    silence_reported: bool,
+    /// As the Vehicle Register last set it ([`SemanticStore::set_availability`]); the
+    /// store never decides it.
     availability: Option<Availability>,
+    /// The period lost-contact rules expect between two states, ms.
     expected_period_ms: i64,
 }
 
@@ -149,13 +144,6 @@ struct TaskEntry {
     message: String,
     state_changed_ms: i64,
     deadline_ms: i64,
-}
-
-fn is_active(state: TaskState) -> bool {
-    matches!(
-        state,
-        TaskState::Sent | TaskState::Accepted | TaskState::Running
-    )
 }
 
 fn state_code(s: TaskState) -> &'static str {
@@ -340,15 +328,6 @@ impl SemanticStore {
                 }),
             },
             RuleSpec {
-                id: builtin::LOST_CONTACT.into(),
-                description: "No state vector for K times the expected reporting period".into(),
-                severity: Severity::Alarm,
-                kind: EventKind::CommLost,
-                condition: Condition::LostContact {
-                    factor: self.config.lost_contact_factor,
-                },
-            },
-            RuleSpec {
                 id: builtin::TASK_OVERDUE.into(),
                 description: "Task still not finished after its deadline".into(),
                 severity: Severity::Warning,
@@ -489,8 +468,7 @@ impl SemanticStore {
                 mirror: None,
                 last_flush_ms: None,
                 dirty: false,
-                lost: false,
-                active_tasks: 0,
+                silence_reported: false,
                 availability: None,
                 expected_period_ms: self.config.expected_state_period_ms,
             },
@@ -501,8 +479,8 @@ impl SemanticStore {
             Triple::new(v.clone(), vocab::rdf_type(), shoal("Vehicle")),
             Triple::new(v, shoal("vehicleId"), text(vehicle_id)),
         ];
+        // No availability yet: the Vehicle Register sets it when it registers the vehicle.
         self.write_entity(EntityKind::Vehicle, vehicle_id, triples)?;
-        self.sync_availability(vehicle_id)?;
         Ok(())
     }
 
@@ -571,7 +549,7 @@ impl SemanticStore {
         Ok(events)
     }
 
-    /// Sets the reporting period the lost-contact rule expects from a vehicle, ms.
+    /// Sets the reporting period lost-contact rules expect from a vehicle, ms.
     pub fn set_expected_period(&mut self, vehicle_id: &str, period_ms: i64) {
         if let Some(e) = self.vehicles.get_mut(vehicle_id) {
             e.expected_period_ms = period_ms.max(1);
@@ -597,7 +575,7 @@ impl SemanticStore {
         }
         self.stats.states_accepted += 1;
         entry.latest = Some(new);
-        let regained = std::mem::take(&mut entry.lost);
+        let regained = std::mem::take(&mut entry.silence_reported);
         if !entry.dirty {
             entry.dirty = true;
             self.dirty.push_back(s.vehicle_id.clone());
@@ -646,11 +624,12 @@ impl SemanticStore {
             }
         }
         if regained {
+            // Heard from again: each lost-contact rule may fire again at the next silence.
+            // Availability is left alone: contact is the Vehicle Register's to decide.
             for k in 0..self.rules.lost_contact.len() {
                 let id = Arc::clone(&self.rules.lost_contact[k].id);
                 self.rules.edge(&s.vehicle_id, &id, false);
             }
-            self.sync_availability(&s.vehicle_id)?;
         }
         Ok(events)
     }
@@ -780,32 +759,52 @@ impl SemanticStore {
         })
     }
 
-    /// A vehicle's availability, as written to `shoal:availability`.
+    /// A vehicle's availability, as last set by [`Self::set_availability`]; `None` for a
+    /// vehicle whose availability was never set.
     pub fn availability(&self, vehicle_id: &str) -> Option<Availability> {
         self.vehicles.get(vehicle_id)?.availability
     }
 
-    fn sync_availability(&mut self, vehicle_id: &str) -> Result<(), StoreError> {
+    /// Mirrors a vehicle's availability, as the station's Vehicle Register decided it, into
+    /// `shoal:availability`; creates the vehicle if it is not known yet.
+    ///
+    /// The register is the one owner of contact and availability (it weighs contact,
+    /// faults, tasks and charging); the store only mirrors what it is told, so the model
+    /// and the register cannot disagree. Writes only when the value changed, in the
+    /// vehicle's own small availability graph. Runs no rules: it has no events to hand
+    /// back, and contact loss is the register's own CommLost alarm.
+    pub fn set_availability(
+        &mut self,
+        vehicle_id: &str,
+        availability: Availability,
+    ) -> Result<(), StoreError> {
+        if !self.vehicles.contains_key(vehicle_id)
+            && !shoal_model::is_identifier(vehicle_id, MAX_VEHICLE_ID_LEN)
+        {
+            // The id becomes an IRI: the rule every datum's vehicle_id follows applies here.
+            return Err(StoreError::Invalid {
+                what: "vehicle id",
+                source: ValidationError::BadText {
+                    field: "vehicle_id",
+                    rule: "must be 1..=32 of letters, digits, '_', '-' and '.'",
+                },
+            });
+        }
+        self.ensure_vehicle(vehicle_id)?;
         let Some(e) = self.vehicles.get_mut(vehicle_id) else {
             return Ok(());
         };
-        let now = if e.lost {
-            Availability::Lost
-        } else if e.active_tasks > 0 {
-            Availability::Busy
-        } else {
-            Availability::Idle
-        };
-        if e.availability == Some(now) {
+        if e.availability == Some(availability) {
             return Ok(());
         }
-        e.availability = Some(now);
+        e.availability = Some(availability);
         let t = vec![Triple::new(
-            vehicle_iri(vehicle_id),
+            e.iri.clone(),
             shoal("availability"),
-            now.iri(),
+            availability_iri(availability),
         )];
-        // Its own small graph: availability changes with tasks and contact, not telemetry.
+        // Its own small graph: availability changes with tasks and contact, not telemetry,
+        // and rewriting it must not touch the vehicle's registration facts.
         self.set_entity(
             EntityKind::Availability,
             vehicle_id,
@@ -830,7 +829,7 @@ impl SemanticStore {
             deadline_ms = deadline_ms.saturating_add((duration_s * 1000.0) as i64);
         }
         if let Task::SetReportingRate { rate_hz } = task {
-            // The lost-contact rule should expect the new period from now on.
+            // Lost-contact rules should expect the new period from now on.
             self.set_expected_period(&a.vehicle_id, (1000.0 / rate_hz).ceil() as i64);
         }
         let previous = self.tasks.remove(&a.task_id);
@@ -843,15 +842,6 @@ impl SemanticStore {
             ),
             None => (TaskState::Pending, 0.0, String::new(), a.issued_ms),
         };
-        if let Some(p) = &previous
-            && is_active(p.state)
-            && p.assignment.vehicle_id != a.vehicle_id
-        {
-            self.adjust_active(&p.assignment.vehicle_id.clone(), -1)?;
-            if is_active(state) {
-                self.adjust_active(&a.vehicle_id, 1)?;
-            }
-        }
         self.tasks.insert(
             a.task_id.clone(),
             TaskEntry {
@@ -886,22 +876,11 @@ impl SemanticStore {
             tracing::debug!(task = %s.task_id, from = state_code(entry.state), to = state_code(s.state), "transition out of a final state ignored");
             return Ok(Vec::new());
         }
-        let delta = i32::from(is_active(s.state)) - i32::from(is_active(entry.state));
         entry.state = s.state;
         entry.progress_pct = s.progress_pct;
         entry.message.clone_from(&s.message);
         entry.state_changed_ms = s.timestamp_ms;
-        if delta != 0 {
-            self.adjust_active(&s.vehicle_id, delta)?;
-        }
         self.write_task(&s.task_id, s.timestamp_ms)
-    }
-
-    fn adjust_active(&mut self, vehicle_id: &str, delta: i32) -> Result<(), StoreError> {
-        if let Some(e) = self.vehicles.get_mut(vehicle_id) {
-            e.active_tasks = e.active_tasks.saturating_add_signed(delta);
-        }
-        self.sync_availability(vehicle_id)
     }
 
     fn write_task(&mut self, task_id: &str, ts: i64) -> Result<Vec<Event>, StoreError> {
@@ -1158,7 +1137,10 @@ impl SemanticStore {
     // Rules
     // ---------------------------------------------------------------------------------
 
-    /// Time-driven rules: lost contact and task overdue, evaluated at `now_ms`.
+    /// Time-driven rules, evaluated at `now_ms`: task overdue, and the lost-contact rules
+    /// operators created. A lost-contact rule raises its event once per silence (a newer
+    /// state re-arms it) and does nothing else: contact and availability are the Vehicle
+    /// Register's, which raises its own CommLost alarm.
     pub fn tick(&mut self, now_ms: i64) -> Result<Vec<Event>, StoreError> {
         let mut events = Vec::new();
         let lost_rules = self.rules.lost_contact.clone();
@@ -1181,9 +1163,8 @@ impl SemanticStore {
             let msg = format!("no state vector for {:.1} s", silent as f64 / 1000.0);
             events.push(self.rules.event(&rule, now_ms, &id, "", &msg));
             if let Some(e) = self.vehicles.get_mut(&id) {
-                e.lost = true;
+                e.silence_reported = true;
             }
-            self.sync_availability(&id)?;
         }
         let overdue_rules = self.rules.overdue.clone();
         let mut fired = Vec::new();
@@ -1899,7 +1880,9 @@ mod tests {
             "SELECT ?r WHERE { ?r a shoal:SparqlRule ; shoal:enabled true }",
         );
         assert_eq!(ids, ["gliders-low"]);
-        assert_eq!(s.rules().len(), 5);
+        // Two built-in rules (low battery, task overdue; out of area needs an area) and
+        // the two created here.
+        assert_eq!(s.rules().len(), 4);
         s.delete_rule("gliders-low").unwrap();
         assert_eq!(
             s.delete_rule("gliders-low"),
@@ -1908,24 +1891,48 @@ mod tests {
         assert!(select_ids(&s, "SELECT ?r WHERE { ?r a shoal:SparqlRule }").is_empty());
     }
 
+    /// Contact is the Vehicle Register's: the store has no lost-contact rule of its own,
+    /// and an operator's lost-contact rule raises its event without touching availability.
     #[test]
-    fn lost_contact_is_detected_by_tick_and_cleared_by_a_new_state() {
+    fn a_user_lost_contact_rule_fires_in_tick_is_rearmed_by_a_state_and_leaves_availability() {
         let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
+        s.set_availability("auv-1", Availability::Idle).unwrap();
         s.update_state(&state("auv-1", T, 80.0)).unwrap();
-        assert!(s.tick(T + 4_000).unwrap().is_empty());
-        let e = s.tick(T + 6_000).unwrap();
+        assert!(s.tick(T + 60_000).unwrap().is_empty(), "no built-in rule");
+        s.create_rule(RuleSpec {
+            id: "silent".into(),
+            description: "No state for five periods".into(),
+            severity: Severity::Alarm,
+            kind: EventKind::CommLost,
+            condition: Condition::LostContact { factor: 5.0 },
+        })
+        .unwrap();
+        s.update_state(&state("auv-1", T + 1_000, 80.0)).unwrap();
+        assert!(s.tick(T + 5_000).unwrap().is_empty());
+        let e = s.tick(T + 7_000).unwrap();
         assert_eq!(e.len(), 1);
-        assert_eq!(e[0].kind, EventKind::CommLost);
-        assert_eq!(s.availability("auv-1"), Some(Availability::Lost));
-        assert!(s.tick(T + 7_000).unwrap().is_empty(), "fires once");
         assert_eq!(
-            select_ids(&s, "SELECT ?v WHERE { ?v shoal:availability shoal:Lost }"),
+            (e[0].kind, e[0].vehicle_id.as_str()),
+            (EventKind::CommLost, "auv-1")
+        );
+        assert!(e[0].event_id.starts_with("silent-"), "{}", e[0].event_id);
+        assert!(s.tick(T + 8_000).unwrap().is_empty(), "fires once");
+        assert_eq!(s.availability("auv-1"), Some(Availability::Idle));
+        assert!(select_ids(&s, "SELECT ?v WHERE { ?v shoal:availability shoal:Lost }").is_empty());
+        assert_eq!(
+            select_ids(&s, "SELECT ?v WHERE { ?v shoal:availability shoal:Idle }"),
             ["auv-1"]
         );
-        s.update_state(&state("auv-1", T + 8_000, 80.0)).unwrap();
+        // A newer state re-arms the rule; an older one (a late retransmission) does not.
+        s.update_state(&state("auv-1", T, 80.0)).unwrap();
+        assert!(
+            s.tick(T + 20_000).unwrap().is_empty(),
+            "a stale state re-arms nothing"
+        );
+        s.update_state(&state("auv-1", T + 9_000, 80.0)).unwrap();
+        assert!(s.tick(T + 10_000).unwrap().is_empty());
+        assert_eq!(s.tick(T + 15_000).unwrap().len(), 1, "re-armed");
         assert_eq!(s.availability("auv-1"), Some(Availability::Idle));
-        assert!(s.tick(T + 9_000).unwrap().is_empty());
-        assert_eq!(s.tick(T + 14_000).unwrap().len(), 1, "re-armed");
     }
 
     #[test]
@@ -2085,25 +2092,55 @@ mod tests {
         );
     }
 
+    /// Availability is what the Vehicle Register last set, mirrored into RDF; a task's
+    /// state changes never touch it.
     #[test]
-    fn tasks_drive_availability_and_final_states_are_final() {
+    fn availability_is_what_was_set_and_tasks_leave_it_alone_and_final_states_are_final() {
         let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
         s.upsert_vehicle(&announce("auv-1", VehicleKind::Auv, &[], &[]))
             .unwrap();
-        s.upsert_task(&goto("t1", "auv-1")).unwrap();
+        s.upsert_vehicle(&announce("auv-2", VehicleKind::Auv, &[], &[]))
+            .unwrap();
+        assert_eq!(s.availability("auv-1"), None, "not decided by the store");
+        assert!(select_ids(&s, "SELECT ?v WHERE { ?v shoal:availability ?a }").is_empty());
+        s.set_availability("auv-1", Availability::Charging).unwrap();
+        s.set_availability("auv-2", Availability::Idle).unwrap();
         assert_eq!(
-            s.availability("auv-1"),
-            Some(Availability::Idle),
-            "pending is not busy"
+            select_ids(
+                &s,
+                "SELECT ?v WHERE { ?v shoal:availability shoal:Charging }"
+            ),
+            ["auv-1"]
         );
+        s.upsert_task(&goto("t1", "auv-1")).unwrap();
         s.task_status(&status("t1", "auv-1", T + 1, TaskState::Running))
             .unwrap();
-        assert_eq!(s.availability("auv-1"), Some(Availability::Busy));
+        assert_eq!(s.availability("auv-1"), Some(Availability::Charging));
         let q3 = crate::STANDARD_QUERIES[2].1;
         assert_eq!(s.query(q3, &QueryLimits::default()).unwrap().len(), 1);
+        s.set_availability("auv-1", Availability::Busy).unwrap();
+        assert_eq!(
+            select_ids(&s, "SELECT ?v WHERE { ?v shoal:availability shoal:Busy }"),
+            ["auv-1"]
+        );
+        assert!(
+            select_ids(
+                &s,
+                "SELECT ?v WHERE { ?v shoal:availability shoal:Charging }"
+            )
+            .is_empty(),
+            "the old value is replaced"
+        );
         s.task_status(&status("t1", "auv-1", T + 2, TaskState::Done))
             .unwrap();
-        assert_eq!(s.availability("auv-1"), Some(Availability::Idle));
+        assert_eq!(s.availability("auv-1"), Some(Availability::Busy));
+        // Moving the task to another vehicle moves no availability either.
+        s.upsert_task(&goto("t2", "auv-1")).unwrap();
+        s.task_status(&status("t2", "auv-1", T + 3, TaskState::Accepted))
+            .unwrap();
+        s.upsert_task(&goto("t2", "auv-2")).unwrap();
+        assert_eq!(s.availability("auv-1"), Some(Availability::Busy));
+        assert_eq!(s.availability("auv-2"), Some(Availability::Idle));
         s.task_status(&status("t1", "auv-1", T + 3, TaskState::Running))
             .unwrap();
         assert_eq!(s.task_state("t1"), Some(TaskState::Done));
@@ -2120,6 +2157,104 @@ mod tests {
             "SELECT ?t WHERE { ?t shoal:hasState ?s . ?s a shoal:FinalTaskState }",
         );
         assert_eq!(done, ["t1"]);
+    }
+
+    #[test]
+    fn set_availability_on_an_unknown_vehicle_creates_it() {
+        let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
+        s.set_availability("usv-9", Availability::Fault).unwrap();
+        assert_eq!(s.stats().unwrap().vehicles, 1);
+        assert_eq!(s.availability("usv-9"), Some(Availability::Fault));
+        assert_eq!(
+            select_ids(
+                &s,
+                "SELECT ?v WHERE { ?v a shoal:Vehicle ; shoal:vehicleId \"usv-9\" ; \
+                 shoal:availability shoal:Faulty }"
+            ),
+            ["usv-9"]
+        );
+        // Its later announcement keeps the availability (a graph of its own).
+        s.upsert_vehicle(&announce("usv-9", VehicleKind::Usv, &[], &[]))
+            .unwrap();
+        assert_eq!(
+            select_ids(
+                &s,
+                "SELECT ?v WHERE { ?v a shoal:USV ; shoal:availability shoal:Faulty }"
+            ),
+            ["usv-9"]
+        );
+        // The id becomes an IRI, so it must be a well-formed identifier.
+        let e = s
+            .set_availability("no such>id", Availability::Idle)
+            .unwrap_err();
+        assert!(matches!(e, StoreError::Invalid { .. }), "{e}");
+        assert!(e.to_string().contains("vehicle_id"), "{e}");
+        assert_eq!(s.stats().unwrap().vehicles, 1);
+    }
+
+    #[test]
+    fn setting_the_same_availability_twice_writes_nothing() {
+        let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
+        s.upsert_vehicle(&announce("auv-1", VehicleKind::Auv, &[], &[]))
+            .unwrap();
+        s.set_availability("auv-1", Availability::Idle).unwrap();
+        let before = s.stats().unwrap();
+        let quads = quads_of(&s);
+        // A live snapshot makes any write copy the model first, so a write would show.
+        let snapshot = s.snapshot();
+        s.set_availability("auv-1", Availability::Idle).unwrap();
+        let after = s.stats().unwrap();
+        assert_eq!(after, before);
+        assert_eq!(after.snapshot_copies, 0, "nothing was written");
+        assert_eq!(quads_of(&s), quads);
+        drop(snapshot);
+        s.set_availability("auv-1", Availability::Lost).unwrap();
+        assert_eq!(
+            s.stats().unwrap().quads,
+            before.quads,
+            "replaced, not added"
+        );
+        assert_ne!(quads_of(&s), quads);
+        assert_eq!(quads_of(&s), bookkept_quads(&s));
+    }
+
+    #[test]
+    fn every_availability_maps_to_its_ontology_individual() {
+        let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
+        let q = format!(
+            "SELECT ?a ?l WHERE {{ <{}> shoal:availability ?a . \
+             ?a a shoal:Availability ; rdfs:label ?l }}",
+            vehicle_iri("auv-1").as_str()
+        );
+        for (a, local) in [
+            (Availability::Idle, "Idle"),
+            (Availability::Busy, "Busy"),
+            (Availability::Charging, "Charging"),
+            (Availability::Fault, "Faulty"),
+            (Availability::Lost, "Lost"),
+        ] {
+            s.set_availability("auv-1", a).unwrap();
+            let QueryResult::Solutions { rows, .. } = s.query(&q, &QueryLimits::default()).unwrap()
+            else {
+                panic!("not solutions");
+            };
+            assert_eq!(
+                rows.len(),
+                1,
+                "{a:?}: one value, an individual of the ontology"
+            );
+            assert_eq!(
+                rows[0].get(0),
+                Some(&oxrdf::Term::from(shoal(local))),
+                "{a:?}"
+            );
+            // The ontology's label is the name the register's JSON uses.
+            match rows[0].get(1) {
+                Some(oxrdf::Term::Literal(l)) => assert_eq!(l.value(), a.as_str()),
+                other => panic!("{a:?}: {other:?}"),
+            }
+            assert_eq!(s.availability("auv-1"), Some(a));
+        }
     }
 
     #[test]

@@ -5,13 +5,17 @@
 //! `SHOAL_PYTHON`). Skipped, saying why, when that Python lacks rdflib, unless
 //! `SHOAL_INTEROP_REQUIRED=1`, which turns the skip into a failure (CI sets it).
 
+// The fixture helpers below are test code outside `#[test]` functions: a panic is how
+// they fail the test.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use std::path::PathBuf;
 use std::process::Command;
 
 use oxrdf::Term;
 use shoal_semantic::{
-    ExportFormat, ExportOptions, QueryLimits, QueryResult, STANDARD_QUERIES, SemanticStore,
-    StoreConfig, bench,
+    Availability, ExportFormat, ExportOptions, QueryLimits, QueryResult, STANDARD_QUERIES,
+    SemanticStore, StoreConfig, bench,
 };
 
 fn workspace() -> PathBuf {
@@ -39,6 +43,49 @@ fn python() -> Option<PathBuf> {
     );
     eprintln!("SKIPPED crosscheck: {why}");
     None
+}
+
+/// The vehicle ids of a SELECT's first column (`shoal:vehicleId` literals).
+fn vehicle_ids(store: &SemanticStore, sparql: &str) -> Vec<String> {
+    let QueryResult::Solutions { rows, .. } = store.query(sparql, &QueryLimits::default()).unwrap()
+    else {
+        panic!("not a SELECT: {sparql}");
+    };
+    rows.iter()
+        .map(|r| match r.get(0) {
+            Some(Term::Literal(l)) => l.value().to_owned(),
+            other => panic!("not a vehicle id: {other:?}"),
+        })
+        .collect()
+}
+
+/// Sets each vehicle's availability as the station's Vehicle Register would from tasks
+/// alone: Busy while a task of it is sent, accepted or running, else Idle. The store
+/// mirrors availability and never derives it, so the fixture must say it (query 1 asks
+/// for idle vehicles). Setting a value already set writes nothing, so this stays right
+/// if the fleet generator sets availability itself.
+fn set_availability_from_tasks(store: &mut SemanticStore) {
+    let all = vehicle_ids(
+        store,
+        "SELECT ?id WHERE { ?v a shoal:Vehicle ; shoal:vehicleId ?id }",
+    );
+    let busy = vehicle_ids(
+        store,
+        "SELECT DISTINCT ?id WHERE { ?t shoal:assignedTo ?v ; shoal:hasState ?s . \
+         ?v shoal:vehicleId ?id . VALUES ?s { shoal:Sent shoal:Accepted shoal:Running } }",
+    );
+    assert!(
+        !busy.is_empty() && busy.len() < all.len(),
+        "the fixture should have both idle and busy vehicles"
+    );
+    for id in &all {
+        let a = if busy.contains(id) {
+            Availability::Busy
+        } else {
+            Availability::Idle
+        };
+        store.set_availability(id, a).unwrap();
+    }
 }
 
 /// A cell as rdflib prints it: IRI or lexical form; numbers compared as numbers below.
@@ -80,6 +127,7 @@ fn standard_queries_agree_with_rdflib() {
     let Some(py) = python() else { return };
     let mut store = SemanticStore::new(StoreConfig::default()).unwrap();
     bench::populate_fleet(&mut store, 120, 42).unwrap();
+    set_availability_from_tasks(&mut store);
     let dir = tempfile::tempdir().unwrap();
     let export = dir.path().join("model.nq");
     let options = ExportOptions {
