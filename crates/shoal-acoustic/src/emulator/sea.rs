@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
+use shoal_model::geo;
 use tokio::sync::mpsc;
 use tokio::time::Instant;
 use tracing::{debug, trace};
@@ -131,13 +132,14 @@ pub(super) struct Sea {
 }
 
 fn distance_m(a: &Position, b: &Position) -> f64 {
-    const R: f64 = 6_371_000.0;
     // Equirectangular: exact enough over the few km an acoustic link spans.
-    let mean_lat = ((a.latitude_deg + b.latitude_deg) / 2.0).to_radians();
-    let dx = (b.longitude_deg - a.longitude_deg).to_radians() * mean_lat.cos() * R;
-    let dy = (b.latitude_deg - a.latitude_deg).to_radians() * R;
-    let dz = b.depth_m - a.depth_m;
-    (dx * dx + dy * dy + dz * dz).sqrt()
+    let (horizontal, _) = geo::distance_bearing(
+        a.latitude_deg,
+        a.longitude_deg,
+        b.latitude_deg,
+        b.longitude_deg,
+    );
+    horizontal.hypot(b.depth_m - a.depth_m)
 }
 
 fn micros(s: f64) -> u64 {

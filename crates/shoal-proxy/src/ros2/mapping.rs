@@ -8,6 +8,11 @@ use super::msgs::Quaternion;
 use crate::imc::mapping::displace;
 
 /// WGS84 semi-major axis, metres.
+///
+/// Not a second Earth radius beside `shoal_model::geo::EARTH_RADIUS_M`: with the
+/// eccentricity below it gives the ellipsoid's radii of curvature, so that goals in a
+/// ROS 2 vehicle's ENU frame land where its own (ellipsoidal) navigation puts them, as
+/// `imc::mapping::displace` does for DUNE.
 const WGS84_A: f64 = 6_378_137.0;
 /// WGS84 first eccentricity squared.
 const WGS84_E2: f64 = 6.694_379_990_14e-3;

@@ -1,13 +1,14 @@
-//! Flat-earth geometry for the few kilometres of a mission area: distances, bearings and
-//! lawnmower survey patterns.
+//! Lawnmower survey patterns for the simulator (and the proxies that plan surveys the
+//! same way).
 //!
-//! Equirectangular projection around a local origin is good to well under 0.1 % over a
-//! mission area, far below a vehicle's navigation error.
+//! The geometry underneath (distances, bearings, the local east/north frame, the Earth
+//! radius) is `shoal_model::geo`'s, re-exported here for the simulator's users.
 
 use shoal_model::GeoPoint;
+pub use shoal_model::geo::{
+    EARTH_RADIUS_M, LocalFrame, angle_diff, distance, distance_bearing, path_length,
+};
 
-/// Mean Earth radius, metres.
-pub const EARTH_RADIUS_M: f64 = 6_371_000.0;
 /// Most survey lines one survey may have; a bigger survey is refused, not truncated.
 pub const MAX_SURVEY_LINES: usize = 1000;
 
@@ -35,78 +36,6 @@ pub enum SurveyError {
         /// Most allowed.
         max: usize,
     },
-}
-
-/// Signed smallest difference `a - b` between two headings, degrees in (-180, 180].
-pub fn angle_diff(a: f64, b: f64) -> f64 {
-    let d = (a - b).rem_euclid(360.0);
-    if d > 180.0 { d - 360.0 } else { d }
-}
-
-/// Equirectangular distance (m) and initial bearing (degrees) between two nearby points.
-pub fn distance_bearing(lat1: f64, lon1: f64, lat2: f64, lon2: f64) -> (f64, f64) {
-    let mean_lat = ((lat1 + lat2) / 2.0).to_radians();
-    let north = (lat2 - lat1).to_radians() * EARTH_RADIUS_M;
-    let east = (lon2 - lon1).to_radians() * EARTH_RADIUS_M * mean_lat.cos();
-    (
-        north.hypot(east),
-        east.atan2(north).to_degrees().rem_euclid(360.0),
-    )
-}
-
-/// Distance in metres between two points.
-pub fn distance(a: GeoPoint, b: GeoPoint) -> f64 {
-    distance_bearing(
-        a.latitude_deg,
-        a.longitude_deg,
-        b.latitude_deg,
-        b.longitude_deg,
-    )
-    .0
-}
-
-/// Length in metres of the path from `from` through every waypoint in order.
-pub fn path_length(from: GeoPoint, waypoints: &[GeoPoint]) -> f64 {
-    let mut last = from;
-    let mut total = 0.0;
-    for wp in waypoints {
-        total += distance(last, *wp);
-        last = *wp;
-    }
-    total
-}
-
-/// A local east/north frame in metres around an origin.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct LocalFrame {
-    lat0: f64,
-    lon0: f64,
-    cos_lat0: f64,
-}
-
-impl LocalFrame {
-    pub(crate) fn new(origin: GeoPoint) -> Self {
-        Self {
-            lat0: origin.latitude_deg,
-            lon0: origin.longitude_deg,
-            cos_lat0: origin.latitude_deg.to_radians().cos().max(1e-6),
-        }
-    }
-
-    /// (east, north) of a point, metres.
-    pub(crate) fn to_xy(self, p: GeoPoint) -> (f64, f64) {
-        (
-            (p.longitude_deg - self.lon0).to_radians() * EARTH_RADIUS_M * self.cos_lat0,
-            (p.latitude_deg - self.lat0).to_radians() * EARTH_RADIUS_M,
-        )
-    }
-
-    pub(crate) fn to_geo(self, x: f64, y: f64) -> GeoPoint {
-        GeoPoint {
-            latitude_deg: self.lat0 + (y / EARTH_RADIUS_M).to_degrees(),
-            longitude_deg: self.lon0 + (x / (EARTH_RADIUS_M * self.cos_lat0)).to_degrees(),
-        }
-    }
 }
 
 /// Lawnmower waypoints covering a polygon: east-west lines at most `spacing_m` apart,
@@ -342,21 +271,5 @@ mod tests {
         let wps = lawnmower(&flat, 10.0).unwrap();
         assert_eq!(wps.len(), 2);
         assert!((distance(wps[0], wps[1]) - 219.0).abs() < 2.0, "{wps:?}");
-    }
-
-    #[test]
-    fn path_length_adds_the_legs() {
-        let a = p(0.0, 0.0);
-        let b = p(0.001, 0.0);
-        let total = path_length(a, &[b, a]);
-        assert!((total - 2.0 * distance(a, b)).abs() < 1e-9);
-        assert!((distance(a, b) - 111.19).abs() < 0.1);
-    }
-
-    #[test]
-    fn angle_diff_takes_the_short_way_round() {
-        assert_eq!(angle_diff(10.0, 350.0), 20.0);
-        assert_eq!(angle_diff(350.0, 10.0), -20.0);
-        assert_eq!(angle_diff(180.0, 0.0), 180.0);
     }
 }
