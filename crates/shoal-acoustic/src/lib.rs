@@ -27,5 +27,4 @@ pub mod emulator;
 pub mod link;
 pub mod nl;
 pub mod pdu;
-pub mod rng;
 pub mod secure;

@@ -5,6 +5,8 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
+use rand::{RngExt as _, SeedableRng as _};
+use rand_xoshiro::SplitMix64;
 use shoal_model::geo;
 use tokio::sync::mpsc;
 use tokio::time::Instant;
@@ -14,7 +16,6 @@ use super::{EmulatorConfig, LinkStats, Position};
 use crate::at::{self, AtCommand, BROADCAST, ModemError, Notification, Received};
 use crate::channel::ChannelModel;
 use crate::nl::{NlCommand, NlEvent};
-use crate::rng::SplitMix64;
 
 /// Bytes the EviNS network layer prefixes to each packet (§2); counted in air time only.
 const NL_HEADER: usize = 4;
@@ -183,7 +184,7 @@ impl Sea {
             im_bit_rate: cfg.im_bit_rate,
             burst_bit_rate: cfg.burst_bit_rate,
             preamble_s: cfg.preamble_s,
-            rng: SplitMix64::new(cfg.seed),
+            rng: SplitMix64::seed_from_u64(cfg.seed),
             nodes,
             arrivals: Vec::new(),
             stats: BTreeMap::new(),
@@ -286,7 +287,7 @@ impl Sea {
             let per = self
                 .fixed_per
                 .unwrap_or_else(|| self.model.per(d, bytes * 8, rate, attenuation));
-            let lost = self.rng.chance(per);
+            let lost = self.rng.random::<f64>() < per;
             let start = now + self.wall(delay_s);
             let end = start + air;
             let id = self.next_id;

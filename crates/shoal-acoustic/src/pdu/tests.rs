@@ -1,6 +1,7 @@
 //! PDU codec tests: sizes against the §3 budget, round trips, garbage, the delta track.
 
 use proptest::prelude::*;
+use rand::SeedableRng as _;
 
 use super::*;
 
@@ -129,7 +130,7 @@ fn json_entry_points_round_trip() {
 fn delta_coding_median_is_at_most_10_bytes_over_a_simulated_track() {
     let mut enc = DeltaEncoder::new();
     let mut dec = DeltaDecoder::new();
-    let mut rng = crate::rng::SplitMix64::new(7);
+    let mut rng = rand_xoshiro::SplitMix64::seed_from_u64(7);
     let (mut lat, mut lon) = (43.0_f64, 5.9_f64);
     let mut sizes = Vec::new();
     let m_per_deg = 111_320.0;
@@ -153,11 +154,11 @@ fn delta_coding_median_is_at_most_10_bytes_over_a_simulated_track() {
             latitude_deg: lat,
             longitude_deg: lon,
             depth_m: 30.0 + 5.0 * (f / 20.0).sin(),
-            altitude_m: Some(20.0 - 5.0 * (f / 20.0).sin() + rng.next_f64()),
-            speed_mps: 1.5 + 0.1 * rng.next_f64(),
-            yaw_deg: yaw + 2.0 * rng.next_f64() - 1.0,
-            pitch_deg: 2.0 * rng.next_f64() - 1.0,
-            roll_deg: rng.next_f64(),
+            altitude_m: Some(20.0 - 5.0 * (f / 20.0).sin() + rng.random::<f64>()),
+            speed_mps: 1.5 + 0.1 * rng.random::<f64>(),
+            yaw_deg: yaw + 2.0 * rng.random::<f64>() - 1.0,
+            pitch_deg: 2.0 * rng.random::<f64>() - 1.0,
+            roll_deg: rng.random::<f64>(),
             battery_pct: 90.0 - f / 72.0,
         };
         let pdu = enc.encode(&state).unwrap();
@@ -174,7 +175,7 @@ fn delta_coding_median_is_at_most_10_bytes_over_a_simulated_track() {
             "depth at {i}"
         );
         if let Pdu::StateKeyframe(k) = &pdu
-            && rng.next_f64() < 0.7
+            && rng.random::<f64>() < 0.7
         {
             assert!(enc.acknowledge(k.seq));
         }

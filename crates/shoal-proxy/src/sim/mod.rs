@@ -54,6 +54,7 @@ pub use geo::{
 use crate::adapter::{
     Acceptance, Refusal, TaskOrder, TaskUpdate, VehicleEvent, VehicleOutput, capability_of,
 };
+use rand::{RngExt as _, SeedableRng as _};
 use rng::SplitMix64;
 
 /// Distance at which a waypoint counts as reached, metres.
@@ -471,7 +472,7 @@ impl SimVehicle {
         Self {
             announcement,
             profile,
-            rng: SplitMix64::new(seed),
+            rng: SplitMix64::seed_from_u64(seed),
             low_battery: FallingAlarm::new(
                 settings.low_battery_pct,
                 settings.low_battery_hysteresis_pct,
@@ -1103,7 +1104,7 @@ impl SimVehicle {
         };
         // Per-second probability p over a step of dt seconds.
         let p_step = 1.0 - (1.0 - p).powf(dt);
-        if self.rng.next_f64() >= p_step {
+        if self.rng.random::<f64>() >= p_step {
             return;
         }
         let text = format!(
