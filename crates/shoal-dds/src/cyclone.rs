@@ -80,15 +80,6 @@ fn guid_of(handle: c::dds_entity_t) -> Guid {
     g.v
 }
 
-/// Hex text of GUID bytes.
-pub(crate) fn hex(bytes: &[u8]) -> String {
-    use std::fmt::Write;
-    bytes.iter().fold(String::new(), |mut s, b| {
-        let _ = write!(s, "{b:02x}");
-        s
-    })
-}
-
 /// Reliability of an endpoint.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) enum Reliability {
@@ -286,7 +277,7 @@ unsafe extern "C" fn on_requested_incompatible(
     // SAFETY: arg is the Arc<QosReports> the participant's listener was created with; the
     // participant is deleted (which ends listener calls) before that Arc is released.
     let reports = unsafe { &*(arg as *const QosReports) };
-    let id = hex(&guid_of(reader));
+    let id = hex::encode(guid_of(reader));
     if let Ok(mut e) = reports.events.lock() {
         e.push((id, true, policy_name(status.last_policy_id)));
     }
@@ -299,7 +290,7 @@ unsafe extern "C" fn on_offered_incompatible(
 ) {
     // SAFETY: as in on_requested_incompatible.
     let reports = unsafe { &*(arg as *const QosReports) };
-    let id = hex(&guid_of(writer));
+    let id = hex::encode(guid_of(writer));
     if let Ok(mut e) = reports.events.lock() {
         e.push((id, false, policy_name(status.last_policy_id)));
     }

@@ -137,7 +137,7 @@ impl PubSub {
         info!(
             domain = config.domain_id,
             interfaces = ?config.interfaces,
-            participant = %cyclone::hex(&guid[..12]),
+            participant = %hex::encode(&guid[..12]),
             "DDS participant joined"
         );
         Ok(Self {
@@ -181,7 +181,7 @@ impl PubSub {
     /// This participant's GUID prefix, as hex text, for logs and link metadata; the same
     /// text as [`SampleMeta::participant`] of its own samples.
     pub fn participant_id(&self) -> String {
-        cyclone::hex(&self.participant.guid[..12])
+        hex::encode(&self.participant.guid[..12])
     }
 
     fn model_topic<T: TopicType>(&self, name: &str) -> Result<(TopicRef, SerType), CreateError> {
@@ -312,7 +312,7 @@ impl PubSub {
             .into_iter()
             .filter(|p| p.guid[..12] != *own)
             .map(|p| {
-                let participant = cyclone::hex(&p.guid[..12]);
+                let participant = hex::encode(&p.guid[..12]);
                 if p.alive {
                     ParticipantEvent::Discovered {
                         participant,
@@ -511,9 +511,9 @@ impl Samples {
     fn meta(&mut self, reader: &Entity, taken: &cyclone::Taken) -> SampleMeta {
         let (writer, participant) = self.writers.entry(taken.publication).or_insert_with(|| {
             let guid = cyclone::publication_guid(reader, taken.publication).unwrap_or_default();
-            let participant = cyclone::hex(&guid[..12]);
+            let participant = hex::encode(&guid[..12]);
             (
-                format!("{participant}.{}", cyclone::hex(&guid[12..])),
+                format!("{participant}.{}", hex::encode(&guid[12..])),
                 participant,
             )
         });

@@ -34,7 +34,7 @@ use zeroize::Zeroizing;
 use crate::files::{self, FileError, FileProblem};
 use crate::reject::Rejection;
 use crate::replay::ReplayWindow;
-use crate::util::{self, RandomError, hex};
+use crate::util::{self, RandomError};
 
 /// The broadcast modem address (EvoLogics S2C: 255), and the key slot of the fleet key.
 pub const BROADCAST: u8 = 255;
@@ -114,7 +114,7 @@ impl AcousticKey {
 
     /// The first 8 bytes of SHA-256 of the key, in hex: safe to log, enough to tell keys apart.
     pub fn fingerprint(&self) -> String {
-        hex(&Sha256::digest(self.0.as_ref())[..8])
+        hex::encode(&Sha256::digest(self.0.as_ref())[..8])
     }
 
     /// PEM text (`-----BEGIN SHOAL ACOUSTIC KEY-----`), wiped when dropped.

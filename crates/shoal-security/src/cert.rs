@@ -20,7 +20,7 @@ use zeroize::Zeroizing;
 
 use crate::files::{self, FileError, FileProblem};
 use crate::identity::{Identity, IdentityError};
-use crate::util::{self, RandomError, hex};
+use crate::util::{self, RandomError};
 
 /// PEM label of certificates.
 pub const CERT_PEM_LABEL: &str = "CERTIFICATE";
@@ -46,7 +46,7 @@ pub struct PrivateKey {
 impl fmt::Debug for PrivateKey {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         // Never print the secret; the public half identifies the key well enough.
-        write!(f, "PrivateKey(public {})", hex(&self.public))
+        write!(f, "PrivateKey(public {})", hex::encode(self.public))
     }
 }
 
@@ -136,7 +136,7 @@ impl CertId {
 
 impl fmt::Display for CertId {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&hex(&self.0))
+        f.write_str(&hex::encode(self.0))
     }
 }
 
@@ -257,7 +257,7 @@ impl Certificate {
         Ok(Self {
             der: der.to_vec(),
             id: CertId::of_der(der),
-            serial: hex(x509.raw_serial()),
+            serial: hex::encode(x509.raw_serial()),
             common_name,
             identity,
             public_key,
@@ -697,7 +697,7 @@ mod tests {
         let back = PrivateKey::from_pkcs8_der(block.contents()).unwrap();
         assert_eq!(back.verifying_key(), key.verifying_key());
         assert!(PrivateKey::from_pkcs8_der(&block.contents()[1..]).is_err());
-        assert!(!format!("{key:?}").contains(&hex(key.signing.as_bytes())));
+        assert!(!format!("{key:?}").contains(&hex::encode(key.signing.as_bytes())));
     }
 
     #[test]

@@ -10,7 +10,7 @@ use x509_parser::x509::ReasonCode;
 
 use crate::cert::{Certificate, PrivateKey, TrustAnchor, is_canonical_signed, issuer, key_id};
 use crate::files::{self, FileError, FileProblem};
-use crate::util::{self, hex, unhex};
+use crate::util;
 
 /// PEM label of the revocation list.
 pub const CRL_PEM_LABEL: &str = "X509 CRL";
@@ -164,7 +164,7 @@ impl RevocationList {
             .filter_map(|(serial, r)| {
                 // Serials come from certificates we parsed, so they are hex; skip defensively.
                 Some(RevokedCertParams {
-                    serial_number: SerialNumber::from(unhex(serial)?),
+                    serial_number: SerialNumber::from(hex::decode(serial).ok()?),
                     revocation_time: util::datetime(r.revoked_ms),
                     reason_code: Some(r.reason.to_rcgen()),
                     invalidity_date: None,
@@ -236,7 +236,7 @@ impl RevocationList {
                     RevokeReason::from_code(c)
                 });
                 (
-                    hex(r.raw_serial()),
+                    hex::encode(r.raw_serial()),
                     Revoked {
                         revoked_ms: r.revocation_date.timestamp().saturating_mul(1000),
                         reason,

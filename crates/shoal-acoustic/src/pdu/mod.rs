@@ -231,30 +231,16 @@ impl FramePacker {
     }
 }
 
-/// Lowercase hex of `bytes`.
+/// Lowercase hex of `bytes`: the text form of a PDU on the command line (`shoal pdu`).
 pub fn to_hex(bytes: &[u8]) -> String {
-    use std::fmt::Write;
-    bytes
-        .iter()
-        .fold(String::with_capacity(bytes.len() * 2), |mut s, b| {
-            let _ = write!(s, "{b:02x}");
-            s
-        })
+    hex::encode(bytes)
 }
 
-/// Bytes from hex (whitespace ignored, either case).
+/// Bytes from hex (whitespace ignored, so a dump split into groups or lines reads back;
+/// either case).
 pub fn from_hex(text: &str) -> Result<Vec<u8>, DecodeError> {
     let digits: Vec<u8> = text.bytes().filter(|b| !b.is_ascii_whitespace()).collect();
-    if !digits.len().is_multiple_of(2) {
-        return Err(DecodeError::BadHex);
-    }
-    digits
-        .chunks(2)
-        .map(|p| {
-            let s = std::str::from_utf8(p).map_err(|_| DecodeError::BadHex)?;
-            u8::from_str_radix(s, 16).map_err(|_| DecodeError::BadHex)
-        })
-        .collect()
+    hex::decode(digits).map_err(|_| DecodeError::BadHex)
 }
 
 /// Why a JSON PDU could not be turned into bytes.

@@ -1033,8 +1033,7 @@ mod tests {
             message: Message::Heartbeat,
         };
         let bytes = encode(&p).unwrap();
-        let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
-        assert_eq!(hex, expected);
+        assert_eq!(hex::encode(&bytes), expected);
         let (back, order, used) = decode(&bytes).unwrap();
         assert_eq!((back, order, used), (p, ByteOrder::Little, 22));
     }

@@ -395,10 +395,6 @@ ros_topic_type!(Log, "rcl_interfaces::msg::dds_::Log_", "rt/rosout");
 mod tests {
     use super::*;
 
-    fn hex(b: &[u8]) -> String {
-        b.iter().map(|x| format!("{x:02x}")).collect()
-    }
-
     #[test]
     fn a_pose_stamped_is_plain_cdr_in_msg_order() {
         let p = PoseStamped {
@@ -418,7 +414,10 @@ mod tests {
         let b = shoal_dds::to_cdr_le(&p).unwrap();
         // Encapsulation CDR_LE; sec; nanosec; "map\0" with its length; then the doubles,
         // 8-aligned from the start of the payload (offset 16: no padding needed).
-        assert_eq!(hex(&b[..20]), "000100000100000002000000040000006d617000");
+        assert_eq!(
+            hex::encode(&b[..20]),
+            "000100000100000002000000040000006d617000"
+        );
         assert_eq!(b.len(), 4 + 16 + 7 * 8);
         assert_eq!(&b[20..28], &1.0f64.to_le_bytes());
         assert_eq!(&b[36..44], &(-3.0f64).to_le_bytes());
