@@ -674,7 +674,7 @@ impl From<DispatchError> for ApiError {
             DispatchError::VehicleLost(_)
             | DispatchError::Incapable { .. }
             | DispatchError::LowBattery { .. } => Self::Conflict(e.to_string()),
-            DispatchError::Dds(_) => Self::Internal(e.to_string()),
+            DispatchError::Publish(_) => Self::Internal(e.to_string()),
             DispatchError::InMission { ref error, .. }
                 if matches!(
                     **error,
@@ -819,7 +819,7 @@ async fn env_subscribe(
     let Json(spec) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let sub = s
         .subscribe_environment(spec)
-        .map_err(ApiError::BadRequest)?;
+        .map_err(|e| ApiError::BadRequest(e.to_string()))?;
     Ok((StatusCode::CREATED, Json(sub)))
 }
 

@@ -60,7 +60,7 @@ pub async fn run_cdt<D: ModemDriver + 'static>(
         let step: Result<(), ConverterError> = tokio::select! {
             () = shutdown.cancelled() => break,
             Some(item) = next_opt(&mut tasks) => match item {
-                Ok((t, _)) => cdt.on_task(t).await,
+                Ok((t, _)) => cdt.on_task(t.into_inner()).await,
                 Err(e) => {
                     warn!(error = %e, "bad task sample ignored");
                     Ok(())

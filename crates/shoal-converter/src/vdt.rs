@@ -108,12 +108,12 @@ pub async fn run_vdt<D: ModemDriver + 'static>(
             () = shutdown.cancelled() => break,
             Some(item) = next_opt(&mut states) => {
                 if let Some(s) = sample(item) {
-                    vdt.on_state(s);
+                    vdt.on_state(s.into_inner());
                 }
                 Ok(())
             }
             Some(item) = next_opt(&mut announcements) => match sample(item) {
-                Some(a) => vdt.on_announcement(a).await,
+                Some(a) => vdt.on_announcement(a.into_inner()).await,
                 None => Ok(()),
             },
             Some(item) = next_opt(&mut statuses) => match sample(item) {

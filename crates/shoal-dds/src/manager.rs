@@ -8,6 +8,7 @@ use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 
 use futures::Stream;
+use shoal_model::Validated;
 use futures::task::AtomicWaker;
 use tracing::{debug, info, warn};
 
@@ -529,7 +530,7 @@ impl Samples {
         &mut self,
         reader: &Entity,
         taken: &cyclone::Taken,
-    ) -> Result<(T, SampleMeta), ReadError> {
+    ) -> Result<(Validated<T>, SampleMeta), ReadError> {
         let malformed = |detail: String| {
             warn!(topic = T::TOPIC, %detail, "malformed sample dropped");
             ReadError::Malformed {
@@ -569,7 +570,7 @@ pub struct Subscription<T: TopicType> {
     malformed_seen: Vec<u64>,
     /// [`cyclone::malformed_total`] when `malformed_seen` was last brought up to date.
     malformed_total: u64,
-    buffer: VecDeque<Result<(T, SampleMeta), ReadError>>,
+    buffer: VecDeque<Result<(Validated<T>, SampleMeta), ReadError>>,
     signal: Arc<Signal>,
     _participant: Arc<Participant>,
     _type: PhantomData<fn() -> T>,
@@ -631,7 +632,7 @@ impl<T: TopicType> Subscription<T> {
 impl<T: TopicType> Stream for Subscription<T> {
     /// A valid sample with its metadata, or why a received sample was unusable. The stream
     /// goes on after an error: one bad sample never blocks the ones behind it.
-    type Item = Result<(T, SampleMeta), ReadError>;
+    type Item = Result<(Validated<T>, SampleMeta), ReadError>;
 
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
         loop {
@@ -657,7 +658,7 @@ fn open_signed<T: TopicType>(
     security: &Security,
     wire: &SignedWire,
     meta: SampleMeta,
-) -> Result<(T, SampleMeta), ReadError> {
+) -> Result<(Validated<T>, SampleMeta), ReadError> {
     match security.open::<T>(wire) {
         Ok(sample) => Ok((sample, meta)),
         Err(Refused::Gate(reason, detail)) => {
@@ -676,10 +677,13 @@ fn open_signed<T: TopicType>(
     }
 }
 
-fn validated<T: TopicType>(value: T, meta: SampleMeta) -> Result<(T, SampleMeta), ReadError> {
-    match value.validate() {
-        Ok(()) => Ok((value, meta)),
-        Err(error) => Err(ReadError::Invalid {
+fn validated<T: TopicType>(
+    value: T,
+    meta: SampleMeta,
+) -> Result<(Validated<T>, SampleMeta), ReadError> {
+    match Validated::new(value) {
+        Ok(value) => Ok((value, meta)),
+        Err((error, value)) => Err(ReadError::Invalid {
             topic: T::TOPIC,
             error,
             payload: serde_json::to_string(&value).unwrap_or_else(|e| format!("\"{e}\"")),

@@ -14,6 +14,7 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use serde::{Deserialize, Serialize};
+use shoal_model::Validated;
 use shoal_security::{Gate, RejectionCounts, SigningIdentity, envelope::counter_start_from_clock};
 
 use crate::topics::TopicType;
@@ -133,7 +134,7 @@ impl Security {
     }
 
     /// Admits a signed sample of `T`: verified, allowed by the policy, decoded and valid.
-    pub(crate) fn open<T: TopicType>(&self, wire: &SignedWire) -> Result<T, Refused> {
+    pub(crate) fn open<T: TopicType>(&self, wire: &SignedWire) -> Result<Validated<T>, Refused> {
         let mut decoded: Option<T> = None;
         let admitted = {
             let mut gate = self
@@ -160,9 +161,9 @@ impl Security {
             ));
         }
         let sample = decoded.ok_or_else(|| Refused::Gate("internal", "no payload".into()))?;
-        match sample.validate() {
-            Ok(()) => Ok(sample),
-            Err(e) => Err(Refused::Invalid(
+        match Validated::new(sample) {
+            Ok(sample) => Ok(sample),
+            Err((e, sample)) => Err(Refused::Invalid(
                 e,
                 serde_json::to_string(&sample).unwrap_or_else(|e| format!("\"{e}\"")),
             )),

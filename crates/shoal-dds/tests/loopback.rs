@@ -95,7 +95,7 @@ async fn a_late_joining_reader_still_gets_transient_local_tasks() {
         .expect("late joiner got no task")
         .unwrap()
         .unwrap();
-    assert_eq!(got, task);
+    assert_eq!(*got, task);
     assert_eq!(got.kind, TaskKind::Surface);
 }
 
@@ -230,5 +230,5 @@ async fn every_topic_type_is_accepted_by_dds_and_crosses() {
         .expect("timed out")
         .unwrap()
         .unwrap();
-    assert_eq!(got, announcement);
+    assert_eq!(*got, announcement);
 }

@@ -76,7 +76,7 @@ async fn signed_samples_flow_both_ways_and_unsigned_or_forged_ones_are_refused()
         .unwrap();
     let task = TaskAssignment::new("t1", "m1", "auv-1", shoal_model::now_ms(), &Task::Surface);
     let (got, _) = send_until(&tw, task.clone(), &mut tasks).await.unwrap();
-    assert_eq!(got, task);
+    assert_eq!(*got, task);
 
     // Drain what the retries above left behind.
     while let Ok(Some(_)) = tokio::time::timeout(Duration::from_millis(300), states.next()).await {}

@@ -32,8 +32,8 @@ pub use event::{Event, EventKind, Severity};
 pub use link::{EVENT_ID_PREFIX as LINK_EVENT_PREFIX, LinkStatus};
 pub use state::StateVector;
 pub use task::{GeoPoint, Task, TaskAssignment, TaskKind, TaskState, TaskStatus};
-pub use validate::{Reason, Validate, ValidationError, is_identifier};
-pub use vehicle::{LinkKind, VehicleAnnouncement, VehicleKind};
+pub use validate::{Reason, Validate, Validated, ValidationError, is_identifier};
+pub use vehicle::{Availability, LinkKind, VehicleAnnouncement, VehicleKind};
 
 /// Sentinel for an optional measurement that is not available (e.g. altitude at the surface).
 pub const UNKNOWN: f64 = -1.0;

@@ -82,6 +82,43 @@ pub trait Validate {
     fn validate(&self) -> Result<(), ValidationError>;
 }
 
+/// A datum that passed [`Validate`]: whoever holds one need not check it again.
+///
+/// The Publish/Subscribe Manager hands received samples over as `Validated<T>`, so the
+/// station core neither validates twice nor can forget to.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Validated<T>(T);
+
+impl<T: Validate> Validated<T> {
+    /// Validates `value`; on failure the value comes back beside the error.
+    pub fn new(value: T) -> Result<Self, (ValidationError, T)> {
+        match value.validate() {
+            Ok(()) => Ok(Self(value)),
+            Err(e) => Err((e, value)),
+        }
+    }
+}
+
+impl<T> Validated<T> {
+    /// The datum itself.
+    pub fn into_inner(self) -> T {
+        self.0
+    }
+}
+
+impl<T> std::ops::Deref for Validated<T> {
+    type Target = T;
+    fn deref(&self) -> &T {
+        &self.0
+    }
+}
+
+impl<T> AsRef<T> for Validated<T> {
+    fn as_ref(&self) -> &T {
+        &self.0
+    }
+}
+
 pub(crate) fn finite_in(
     field: &'static str,
     value: f64,

@@ -5,6 +5,36 @@ use serde::{Deserialize, Serialize};
 use crate::validate::{finite_in, identifier, text, timestamp};
 use crate::{MAX_NAME_LEN, MAX_VEHICLE_ID_LEN, Validate, ValidationError};
 
+/// What a vehicle can be asked to do now, as the station's Vehicle and Service Register
+/// decides it (the semantic model mirrors it as `shoal:availability`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Availability {
+    /// In contact, no task under way.
+    Idle,
+    /// A task sent, accepted or running.
+    Busy,
+    /// At rest at the surface with its battery rising.
+    Charging,
+    /// Reported a fault recently.
+    Fault,
+    /// Not heard from for the lost-contact time, or its DDS participant left.
+    Lost,
+}
+
+impl Availability {
+    /// The lowercase name, as JSON and the ontology's individuals spell it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Idle => "idle",
+            Self::Busy => "busy",
+            Self::Charging => "charging",
+            Self::Fault => "fault",
+            Self::Lost => "lost",
+        }
+    }
+}
+
 /// The kind of platform; the IDL enum `shoal::VehicleKind` in the same order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -15,7 +15,7 @@ use shoal_dds::{
 };
 use shoal_model::{
     EnvironmentObservation, Event, MAX_TEXT_LEN, Severity, StateVector, Task, TaskAssignment,
-    TaskState, TaskStatus, ValidationError, VehicleAnnouncement, now_ms,
+    TaskState, TaskStatus, Validated, ValidationError, VehicleAnnouncement, now_ms,
 };
 use tokio::time::{Instant, Interval, MissedTickBehavior};
 use tokio_util::sync::CancellationToken;
@@ -335,7 +335,7 @@ pub(crate) async fn serve<A, O, S>(
 where
     A: VehicleAdapter,
     O: Outbox,
-    S: Stream<Item = Result<(TaskAssignment, SampleMeta), ReadError>> + Unpin + Send,
+    S: Stream<Item = Result<(Validated<TaskAssignment>, SampleMeta), ReadError>> + Unpin + Send,
 {
     let vehicle_id = adapter.announcement().vehicle_id;
     let announce_every = options.announce_interval.max(Duration::from_secs(1));
@@ -360,7 +360,7 @@ where
                 }
                 Some(Err(e)) => warn!(vehicle = %vehicle_id, error = %e, "bad task sample ignored"),
                 Some(Ok((a, _))) => {
-                    if let Some(rate_hz) = on_assignment(&mut proxy, &mut adapter, outbox, a).await {
+                    if let Some(rate_hz) = on_assignment(&mut proxy, &mut adapter, outbox, a.into_inner()).await {
                         state_tick = state_ticker(rate_hz);
                     }
                 }
@@ -459,7 +459,7 @@ mod tests {
     use crate::adapter::Refusal;
     use crate::sim::{SimAdapter, SimSettings, SimSpec};
 
-    type TaskTx = mpsc::UnboundedSender<Result<(TaskAssignment, SampleMeta), ReadError>>;
+    type TaskTx = mpsc::UnboundedSender<Result<(Validated<TaskAssignment>, SampleMeta), ReadError>>;
 
     /// Records what the proxy publishes.
     #[derive(Debug, Clone, Default)]
@@ -519,6 +519,7 @@ mod tests {
                 participant: "station".into(),
                 source_timestamp_ms: None,
             };
+            let a = Validated::new(a).expect("a test task is valid");
             self.tasks.unbounded_send(Ok((a, meta))).unwrap();
         }
 

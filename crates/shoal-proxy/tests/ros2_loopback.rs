@@ -61,7 +61,7 @@ fn spawn_vehicle(stop: CancellationToken) -> Arc<Mutex<Vec<PoseStamped>>> {
                 () = stop.cancelled() => return,
                 Some(Ok((g, _))) = goal_r.next() => {
                     target = Some((g.pose.position.x, g.pose.position.y, g.pose.position.z));
-                    seen.lock().unwrap().push(g);
+                    seen.lock().unwrap().push(g.into_inner());
                 }
                 _ = tick.tick() => {
                     if let Some((tx, ty, tz)) = target {

@@ -1,10 +1,11 @@
 //! Configuration of the station core.
 
+use crate::error::ConfigError;
 use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
-use crate::preprocess::PlausibilityConfig;
+use crate::ingest::preprocess::PlausibilityConfig;
 
 /// The `[station]` section of Shoal's configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -60,31 +61,47 @@ impl Default for StationConfig {
 
 impl StationConfig {
     /// Checks the values make sense together; the error names the key.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), ConfigError> {
         if !(self.stale_after_s.is_finite() && self.stale_after_s > 0.0) {
-            return Err("station.stale_after_s must be a positive number of seconds".into());
+            return Err(ConfigError::new(
+                "stale_after_s",
+                "station.stale_after_s must be a positive number of seconds",
+            ));
         }
         if !(self.lost_after_s.is_finite() && self.lost_after_s >= self.stale_after_s) {
-            return Err("station.lost_after_s must be at least station.stale_after_s".into());
+            return Err(ConfigError::new(
+                "lost_after_s",
+                "station.lost_after_s must be at least station.stale_after_s",
+            ));
         }
         if !(self.summary_interval_s.is_finite() && self.summary_interval_s >= 0.0) {
-            return Err("station.summary_interval_s must be 0 or a positive number".into());
+            return Err(ConfigError::new(
+                "summary_interval_s",
+                "station.summary_interval_s must be 0 or a positive number",
+            ));
         }
         if !(self.task_ack_timeout_s.is_finite() && self.task_ack_timeout_s > 0.0) {
-            return Err("station.task_ack_timeout_s must be a positive number of seconds".into());
+            return Err(ConfigError::new(
+                "task_ack_timeout_s",
+                "station.task_ack_timeout_s must be a positive number of seconds",
+            ));
         }
         if !(self.acoustic_task_ack_timeout_s.is_finite() && self.acoustic_task_ack_timeout_s > 0.0)
         {
-            return Err(
-                "station.acoustic_task_ack_timeout_s must be a positive number of seconds".into(),
-            );
+            return Err(ConfigError::new(
+                "acoustic_task_ack_timeout_s",
+                "station.acoustic_task_ack_timeout_s must be a positive number of seconds",
+            ));
         }
         if !(0.0..=100.0).contains(&self.min_dispatch_battery_pct) {
-            return Err("station.min_dispatch_battery_pct must be within [0, 100]".into());
+            return Err(ConfigError::new(
+                "min_dispatch_battery_pct",
+                "station.min_dispatch_battery_pct must be within [0, 100]",
+            ));
         }
         self.semantic
             .check()
-            .map_err(|e| format!("station.semantic: {e}"))?;
+            .map_err(|e| ConfigError::new("semantic", format!("station.semantic: {e}")))?;
         self.plausibility.check()
     }
 }

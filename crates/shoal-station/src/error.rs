@@ -2,13 +2,35 @@
 
 use shoal_model::ValidationError;
 
+/// A configuration value is wrong; the message names the key and its rule.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{message}")]
+pub struct ConfigError {
+    /// The key under `[station]`, e.g. `plausibility.max_age_s`.
+    pub key: String,
+    message: String,
+}
+
+impl ConfigError {
+    /// An error about `key`; `message` says what the key must be.
+    pub fn new(key: impl Into<String>, message: impl Into<String>) -> Self {
+        Self {
+            key: key.into(),
+            message: message.into(),
+        }
+    }
+}
+
 /// The station could not start or stop cleanly.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum StationError {
     /// A configuration value is wrong; the message names the key.
-    #[error("{0}")]
-    Config(String),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The rules file could not be applied; the message names the file and the rule.
+    #[error(transparent)]
+    RulesFile(#[from] crate::rules::RulesFileError),
     /// DDS endpoints could not be created.
     #[error(transparent)]
     Dds(#[from] shoal_dds::CreateError),
@@ -17,10 +39,62 @@ pub enum StationError {
     History(#[source] shoal_history::HistoryError),
     /// The semantic model could not be built.
     #[error("semantic model: {0}")]
-    Semantic(String),
+    Semantic(#[source] shoal_semantic::StoreError),
     /// Shutdown did not complete.
     #[error("shutdown: {0}")]
-    Shutdown(String),
+    Shutdown(#[source] tokio::task::JoinError),
+}
+
+/// Why the Data Access Manager refused a datum; counted and reported under [`Self::reason`].
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum Rejection {
+    /// A type or range check failed (only for data that did not come through the bus,
+    /// which validates on receipt).
+    #[error("invalid: {0}")]
+    Invalid(#[source] ValidationError),
+    /// Plausible neither against the vehicle's history nor the station's clock.
+    #[error("implausible: {0}")]
+    Implausible(crate::ingest::preprocess::Implausible),
+    /// The vehicle never announced itself (`station.require_announcement`).
+    #[error("{0} never announced itself")]
+    UnknownVehicle(String),
+    /// A task status for a task this station never gave that vehicle.
+    #[error("task {task_id} was never given to {vehicle_id}")]
+    UnknownTask {
+        /// The task it names.
+        task_id: String,
+        /// The vehicle that reported it.
+        vehicle_id: String,
+    },
+}
+
+impl Rejection {
+    /// The stable reason code the counters and the quarantine use, e.g.
+    /// `out_of_range:latitude_deg`, `implausible:position_jump`, `unknown_vehicle`.
+    pub fn reason(&self) -> String {
+        match self {
+            Self::Invalid(e) => e.reason().to_string(),
+            Self::Implausible(why) => why.reason().to_owned(),
+            Self::UnknownVehicle(_) => "unknown_vehicle".to_owned(),
+            Self::UnknownTask { .. } => "unknown_task".to_owned(),
+        }
+    }
+}
+
+/// An environment subscription request breaks a rule; the message names the field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SubscriptionError {
+    /// `max_rate_hz` is out of range.
+    #[error("max_rate_hz must be within (0, 100]")]
+    Rate,
+    /// The area has fewer than three corners.
+    #[error("area: a polygon needs at least 3 points")]
+    AreaTooSmall,
+    /// A corner of the area is out of range.
+    #[error("area: {0}")]
+    AreaPoint(#[source] ValidationError),
 }
 
 /// A task or mission could not be registered or dispatched.
@@ -73,6 +147,9 @@ pub enum DispatchError {
     /// No mission with this id.
     #[error("unknown mission {0:?}")]
     UnknownMission(String),
+    /// No task with this id.
+    #[error("unknown task {0:?}")]
+    UnknownTask(String),
     /// One task of a mission is refused.
     #[error("tasks[{index}]: {error}")]
     InMission {
@@ -81,9 +158,9 @@ pub enum DispatchError {
         /// Why.
         error: Box<DispatchError>,
     },
-    /// DDS refused the write.
+    /// The bus refused the write.
     #[error("could not publish the task: {0}")]
-    Dds(String),
+    Publish(#[source] crate::bus::PublishError),
 }
 
 /// A rule could not be created, switched or deleted.

@@ -1,28 +1,44 @@
-//! Shoal's middleware core at the Command and Control Station.
+//! Shoal's middleware core at the Command and Control Station, as the architecture's
+//! services:
 //!
-//! - [`Station`] subscribes to every Shoal topic through the Publish/Subscribe Manager,
-//!   validates each datum (the Data Pre-Processor's type and range checks; samples that
-//!   fail are counted by reason, quarantined in the history store and reported as
-//!   events), keeps the Vehicle Register's live view ([`VehicleView`]), writes every
-//!   accepted datum to the history store, and watches contact (stale, lost).
-//! - [`StationHandle`] is what the API uses: fleet, counters ([`IngestStats`]), history
-//!   queries, events, and task dispatch.
-//! - [`StationConfig`] is the `[station]` configuration section.
+//! - [`ingest`](crate::IngestStats) — the Data Access Manager: the one entry for data
+//!   heard from vehicles (plausibility, latest state, semantic model, history), typed
+//!   [`Rejection`]s counted, quarantined and reported.
+//! - `register` — the Vehicle & Service Register: registration, contact, availability
+//!   ([`VehicleView`]); the one owner of a vehicle's live state.
+//! - `missions` — the Mission & Task Register and dispatch ([`MissionView`], [`TaskView`]).
+//! - `reporters` — the Event, Tasks and Environment Reporters and the live feed
+//!   ([`LiveUpdate`]).
+//! - `rules` — Rules & Policies as the API and the rules file see them ([`RuleDoc`]).
+//!
+//! [`StationHandle`] is the core: the bus feeds it, the API reads and commands through
+//! it, and it publishes through an [`Outbox`], so it runs in plain unit tests. [`Station`]
+//! wires it to the Publish/Subscribe Manager and runs it.
 
+mod bus;
 mod config;
+mod core;
 mod error;
-mod fleet;
+mod ingest;
 mod missions;
-mod preprocess;
+mod register;
 mod reporters;
 mod rules;
 mod station;
+#[cfg(test)]
+mod testing;
 
+pub use bus::{DdsOutbox, EventOrigin, Outbox, PublishError};
 pub use config::StationConfig;
-pub use error::{DispatchError, RuleChangeError, StationError};
-pub use fleet::{Availability, Contact, VehicleView};
+pub use core::StationHandle;
+pub use error::{
+    ConfigError, DispatchError, Rejection, RuleChangeError, StationError, SubscriptionError,
+};
+pub use ingest::IngestStats;
+pub use ingest::preprocess::{Implausible, PlausibilityConfig};
 pub use missions::{MissionSpec, MissionState, MissionTaskSpec, MissionView, TaskView};
-pub use preprocess::{Implausible, PlausibilityConfig};
+pub use register::{Contact, VehicleView};
 pub use reporters::{Ack, EnvSubscription, EnvSubscriptionSpec, EventView, LiveUpdate};
 pub use rules::{ConditionDoc, RuleDoc, RulesFileError};
-pub use station::{IngestStats, Station, StationHandle, StationReport};
+pub use shoal_model::Availability;
+pub use station::{Station, StationReport};

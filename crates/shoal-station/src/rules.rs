@@ -8,7 +8,11 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use shoal_model::{EventKind, GeoPoint, Severity};
-use shoal_semantic::{Condition, RuleError, RuleInfo, RuleSpec};
+use shoal_semantic::{Condition, RuleError, RuleInfo, RuleSpec, SemanticStore};
+use tracing::{info, warn};
+
+use crate::core::{StationHandle, lock};
+use crate::error::RuleChangeError;
 
 /// What a rule checks, as JSON (`{"type": "threshold", "expr": "battery_pct < 20"}`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -169,6 +173,16 @@ pub enum RulesFileError {
         /// The parser's message, with the JSON path of the bad value.
         detail: String,
     },
+    /// A rule in the file is refused by the semantic model.
+    #[error("rules file {path}: rule {id}: {source}")]
+    Rule {
+        /// The file.
+        path: PathBuf,
+        /// The rule's identifier.
+        id: String,
+        /// Why it is refused.
+        source: RuleError,
+    },
 }
 
 impl RulesFile {
@@ -209,6 +223,149 @@ impl RulesFile {
         let tmp = PathBuf::from(tmp);
         std::fs::write(&tmp, json + "\n").map_err(io)?;
         std::fs::rename(&tmp, path).map_err(io)
+    }
+}
+
+/// Applies the rules file: creates its user rules and switches built-in ones as saved.
+pub(crate) fn apply_rules_file(
+    semantic: &mut SemanticStore,
+    path: &Path,
+) -> Result<(), RulesFileError> {
+    let file = RulesFile::load(path)?;
+    let bad = |id: &str, source| RulesFileError::Rule {
+        path: path.into(),
+        id: id.to_owned(),
+        source,
+    };
+    for doc in &file.rules {
+        if !doc.built_in {
+            let spec = doc.to_spec().map_err(|e| bad(&doc.id, e))?;
+            semantic.create_rule(spec).map_err(|e| bad(&doc.id, e))?;
+        }
+        match semantic.set_rule_enabled(&doc.id, doc.enabled) {
+            Ok(()) => {}
+            // A built-in rule this version no longer has: nothing to switch.
+            Err(e) if doc.built_in => {
+                warn!(path = %path.display(), rule = %doc.id, error = %e, "saved built-in rule ignored");
+            }
+            Err(e) => return Err(bad(&doc.id, e)),
+        }
+    }
+    if !file.rules.is_empty() {
+        info!(path = %path.display(), rules = file.rules.len(), "rules loaded");
+    }
+    Ok(())
+}
+
+/// The API side of Rules & Policies: every change is applied to the semantic model and
+/// saved to the rules file, in the order changes were made.
+impl StationHandle {
+    /// Every rule, built-in ones included, ordered by identifier.
+    pub fn rules(&self) -> Vec<RuleDoc> {
+        lock(&self.core.semantic)
+            .rules()
+            .iter()
+            .map(RuleDoc::from_info)
+            .collect()
+    }
+
+    /// One rule.
+    pub fn rule(&self, id: &str) -> Option<RuleDoc> {
+        self.rules().into_iter().find(|r| r.id == id)
+    }
+
+    /// Creates a user rule (checked and, for SPARQL, parsed now); it is saved for restarts.
+    pub fn create_rule(&self, doc: &RuleDoc) -> Result<RuleDoc, RuleChangeError> {
+        self.change_rules(&doc.id, |sem| {
+            sem.create_rule(doc.to_spec()?)?;
+            if !doc.enabled {
+                sem.set_rule_enabled(&doc.id, false)?;
+            }
+            Ok(())
+        })
+    }
+
+    /// Enables or disables a rule, built-in ones included.
+    pub fn set_rule_enabled(&self, id: &str, enabled: bool) -> Result<RuleDoc, RuleChangeError> {
+        self.change_rules(id, |sem| sem.set_rule_enabled(id, enabled))
+    }
+
+    /// Replaces a user rule's definition (description, severity, kind, condition, enabled)
+    /// with `doc`, checked exactly as [`Self::create_rule`] checks a new one. On a refused
+    /// definition the rule stays as it was; built-in rules can only be enabled or disabled.
+    pub fn replace_rule(&self, doc: &RuleDoc) -> Result<RuleDoc, RuleChangeError> {
+        self.change_rules(&doc.id, |sem| {
+            let old = sem
+                .rules()
+                .into_iter()
+                .find(|r| r.spec.id == doc.id)
+                .ok_or_else(|| RuleError::NotFound(doc.id.clone()))?;
+            if old.built_in {
+                return Err(RuleError::BuiltIn(doc.id.clone()));
+            }
+            // A threshold expression is parsed here, before anything changes.
+            let spec = doc.to_spec()?;
+            // The store has no in-place update: the semantic lock is held throughout, so
+            // no datum is ever checked against a half-replaced rule.
+            sem.delete_rule(&doc.id)?;
+            if let Err(e) = sem.create_rule(spec) {
+                // The old definition was accepted before, so it is accepted again.
+                if let Err(back) = sem.create_rule(old.spec) {
+                    warn!(rule = %doc.id, error = %back, "rule lost while restoring it");
+                } else if !old.enabled
+                    && let Err(back) = sem.set_rule_enabled(&doc.id, false)
+                {
+                    warn!(rule = %doc.id, error = %back, "restored rule left enabled");
+                }
+                return Err(e);
+            }
+            if !doc.enabled {
+                sem.set_rule_enabled(&doc.id, false)?;
+            }
+            Ok(())
+        })
+    }
+
+    /// Deletes a user rule (built-in rules can only be disabled).
+    pub fn delete_rule(&self, id: &str) -> Result<(), RuleChangeError> {
+        let _file = lock(&self.core.rules_file);
+        let docs = {
+            let mut sem = lock(&self.core.semantic);
+            sem.delete_rule(id)?;
+            sem.rules().iter().map(RuleDoc::from_info).collect()
+        };
+        info!(rule = id, "rule deleted");
+        self.save_rules(docs)
+    }
+
+    fn change_rules(
+        &self,
+        id: &str,
+        change: impl FnOnce(&mut SemanticStore) -> Result<(), RuleError>,
+    ) -> Result<RuleDoc, RuleChangeError> {
+        let _file = lock(&self.core.rules_file);
+        let docs: Vec<RuleDoc> = {
+            let mut sem = lock(&self.core.semantic);
+            change(&mut sem)?;
+            sem.rules().iter().map(RuleDoc::from_info).collect()
+        };
+        let doc = docs
+            .iter()
+            .find(|d| d.id == id)
+            .cloned()
+            .ok_or_else(|| RuleError::NotFound(id.to_owned()))?;
+        info!(rule = id, enabled = doc.enabled, condition = ?doc.condition, "rule changed");
+        self.save_rules(docs)?;
+        Ok(doc)
+    }
+
+    fn save_rules(&self, rules: Vec<RuleDoc>) -> Result<(), RuleChangeError> {
+        RulesFile { rules }
+            .save(&self.core.config.rules_path)
+            .map_err(|e| {
+                warn!(error = %e, "rules not saved");
+                RuleChangeError::Save(e)
+            })
     }
 }
 

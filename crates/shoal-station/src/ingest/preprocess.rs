@@ -13,6 +13,7 @@
 //! *among themselves* re-anchors the vehicle: the last of them is accepted and the
 //! operator is told.
 
+use crate::error::ConfigError;
 use serde::{Deserialize, Serialize};
 use shoal_model::{StateVector, UNKNOWN, geo};
 
@@ -56,7 +57,7 @@ impl Default for PlausibilityConfig {
 
 impl PlausibilityConfig {
     /// Checks the values; the error names the key.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), ConfigError> {
         let positive = [
             ("max_future_s", self.max_future_s),
             ("max_age_s", self.max_age_s),
@@ -65,8 +66,9 @@ impl PlausibilityConfig {
         ];
         for (key, v) in positive {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!(
-                    "station.plausibility.{key} must be a positive number"
+                return Err(ConfigError::new(
+                    format!("plausibility.{key}"),
+                    format!("station.plausibility.{key} must be a positive number"),
                 ));
             }
         }
@@ -75,13 +77,17 @@ impl PlausibilityConfig {
             ("battery_tolerance_pct", self.battery_tolerance_pct),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!(
-                    "station.plausibility.{key} must be 0 or a positive number"
+                return Err(ConfigError::new(
+                    format!("plausibility.{key}"),
+                    format!("station.plausibility.{key} must be 0 or a positive number"),
                 ));
             }
         }
         if self.reanchor_after == 0 {
-            return Err("station.plausibility.reanchor_after must be at least 1".into());
+            return Err(ConfigError::new(
+                "plausibility.reanchor_after",
+                "station.plausibility.reanchor_after must be at least 1",
+            ));
         }
         Ok(())
     }
@@ -486,12 +492,22 @@ mod tests {
             speed_margin: 0.0,
             ..PlausibilityConfig::default()
         };
-        assert!(bad.check().unwrap_err().contains("speed_margin"));
+        assert!(
+            bad.check()
+                .unwrap_err()
+                .to_string()
+                .contains("speed_margin")
+        );
         let bad = PlausibilityConfig {
             reanchor_after: 0,
             ..PlausibilityConfig::default()
         };
-        assert!(bad.check().unwrap_err().contains("reanchor_after"));
+        assert!(
+            bad.check()
+                .unwrap_err()
+                .to_string()
+                .contains("reanchor_after")
+        );
         assert!(PlausibilityConfig::default().check().is_ok());
     }
 }

@@ -1,11 +1,12 @@
-//! The Vehicle Register's live view: every known vehicle, its latest state and availability.
+//! The Vehicle Register's live state: every known vehicle, its latest state, contact and
+//! availability. This is the one place they are kept; the semantic model mirrors them.
 
 use std::collections::BTreeMap;
 
 use serde::Serialize;
-use shoal_model::{LinkKind, LinkStatus, StateVector, VehicleAnnouncement};
+use shoal_model::{Availability, LinkKind, LinkStatus, StateVector, VehicleAnnouncement};
 
-use crate::preprocess::Suspects;
+use crate::ingest::preprocess::Suspects;
 
 /// Whether a vehicle is being heard from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -19,22 +20,6 @@ pub enum Contact {
     Lost,
     /// Announced but no state vector yet.
     Silent,
-}
-
-/// What a vehicle can be asked to do now (the Vehicle Register's availability).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Availability {
-    /// In contact, no task under way.
-    Idle,
-    /// A task sent, accepted or running.
-    Busy,
-    /// At rest at the surface with its battery rising.
-    Charging,
-    /// Reported a fault in the last ten minutes.
-    Fault,
-    /// Not heard from for `lost_after_s`.
-    Lost,
 }
 
 /// One vehicle as the station knows it.
@@ -81,6 +66,8 @@ pub(crate) struct Entry {
     pub(crate) participant: Option<String>,
     /// Station time that participant left DDS; contact is lost until a newer state.
     pub(crate) left_ms: Option<i64>,
+    /// What it can be asked to do, as last decided by [`Entry::refresh_availability`].
+    pub(crate) availability: Availability,
 }
 
 /// All vehicles by id.
@@ -115,6 +102,7 @@ impl Fleet {
                         last_fault_ms: None,
                         participant: None,
                         left_ms: None,
+                        availability: Availability::Idle,
                     },
                 );
                 true
@@ -160,17 +148,23 @@ impl Fleet {
         gone
     }
 
-    pub(crate) fn view(&self, busy: impl Fn(&str) -> bool, now_ms: i64) -> Vec<VehicleView> {
-        self.vehicles
-            .values()
-            .map(|e| e.view(busy(&e.announcement.vehicle_id), now_ms))
-            .collect()
+    pub(crate) fn view(&self) -> Vec<VehicleView> {
+        self.vehicles.values().map(Entry::view).collect()
     }
 }
 
 impl Entry {
+    /// Decides availability again; returns the new value when it changed.
+    pub(crate) fn refresh_availability(&mut self, busy: bool, now_ms: i64) -> Option<Availability> {
+        let now = self.decide_availability(busy, now_ms);
+        (now != self.availability).then(|| {
+            self.availability = now;
+            now
+        })
+    }
+
     /// Availability from contact, faults, tasks and charging, in that order of precedence.
-    pub(crate) fn availability(&self, busy: bool, now_ms: i64) -> Availability {
+    fn decide_availability(&self, busy: bool, now_ms: i64) -> Availability {
         const FAULT_MEMORY_MS: i64 = 600_000;
         if self.contact == Contact::Lost {
             Availability::Lost
@@ -193,9 +187,9 @@ impl Entry {
         }
     }
 
-    pub(crate) fn view(&self, busy: bool, now_ms: i64) -> VehicleView {
+    pub(crate) fn view(&self) -> VehicleView {
         VehicleView {
-            availability: self.availability(busy, now_ms),
+            availability: self.availability,
             announcement: self.announcement.clone(),
             latest: self.latest.clone(),
             last_contact_ms: self.last_contact_ms,

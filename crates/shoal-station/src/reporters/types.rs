@@ -6,8 +6,9 @@ use std::collections::VecDeque;
 use serde::{Deserialize, Serialize};
 use shoal_model::{EnvironmentObservation, Event, GeoPoint};
 
-use crate::fleet::VehicleView;
+use crate::error::SubscriptionError;
 use crate::missions::{MissionView, TaskView};
+use crate::register::VehicleView;
 
 /// Who acknowledged an event, and when.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -67,16 +68,16 @@ pub struct EnvSubscription {
 
 impl EnvSubscriptionSpec {
     /// Checks the request; the error names the field.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), SubscriptionError> {
         if !(self.max_rate_hz.is_finite() && self.max_rate_hz > 0.0 && self.max_rate_hz <= 100.0) {
-            return Err("max_rate_hz must be within (0, 100]".into());
+            return Err(SubscriptionError::Rate);
         }
         if let Some(area) = &self.area {
             if area.len() < 3 {
-                return Err("area: a polygon needs at least 3 points".into());
+                return Err(SubscriptionError::AreaTooSmall);
             }
             for p in area {
-                shoal_model::Validate::validate(p).map_err(|e| format!("area: {e}"))?;
+                shoal_model::Validate::validate(p).map_err(SubscriptionError::AreaPoint)?;
             }
         }
         Ok(())
@@ -84,6 +85,17 @@ impl EnvSubscriptionSpec {
 }
 
 impl EnvSubscription {
+    /// A new subscription with nothing matched yet.
+    pub(crate) fn new(id: String, spec: EnvSubscriptionSpec) -> Self {
+        Self {
+            id,
+            spec,
+            delivered: 0,
+            recent: VecDeque::new(),
+            last_ms: std::collections::HashMap::new(),
+        }
+    }
+
     /// Takes the observation if it matches and the rate allows; true when taken.
     pub(crate) fn offer(&mut self, o: &EnvironmentObservation, now_ms: i64) -> bool {
         if self
@@ -197,12 +209,12 @@ mod tests {
             area: Some(vec![]),
             max_rate_hz: 1.0,
         };
-        assert!(bad.check().unwrap_err().contains("area"));
+        assert!(bad.check().unwrap_err().to_string().contains("area"));
         let bad = EnvSubscriptionSpec {
             property: None,
             area: None,
             max_rate_hz: 0.0,
         };
-        assert!(bad.check().unwrap_err().contains("max_rate_hz"));
+        assert!(bad.check().unwrap_err().to_string().contains("max_rate_hz"));
     }
 }

@@ -1,0 +1,171 @@
+//! The station core's state, each part owned by the service named after it, and the
+//! handle through which the bus, the API and tools reach them.
+
+use std::sync::atomic::AtomicU64;
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use shoal_history::{History, HistoryReader, HistoryWriter, Record, SubmitError};
+use shoal_model::now_ms;
+use shoal_semantic::SemanticStore;
+use tracing::{info, warn};
+
+use crate::bus::Outbox;
+use crate::config::StationConfig;
+use crate::error::StationError;
+use crate::ingest::IngestStats;
+use crate::missions::TaskRegister;
+use crate::register::Fleet;
+use crate::reporters::Reporters;
+
+/// How far back a restarted station reloads tasks from the history.
+const TASK_MEMORY_MS: i64 = 24 * 3_600_000;
+
+/// Everything the station keeps; one owner per kind of state.
+pub(crate) struct Core {
+    pub(crate) config: StationConfig,
+    /// The Vehicle & Service Register: each vehicle's latest state, contact, availability.
+    pub(crate) fleet: Mutex<Fleet>,
+    /// The Mission & Task Register.
+    pub(crate) tasks: Mutex<TaskRegister>,
+    /// The Data Access Manager's counters.
+    pub(crate) stats: Mutex<IngestStats>,
+    /// The Event, Tasks and Environment Reporters, and the live feed.
+    pub(crate) reporters: Reporters,
+    /// The semantic model (ontology + a mirror of the live swarm); rules fire on insert.
+    pub(crate) semantic: Mutex<SemanticStore>,
+    pub(crate) history: HistoryWriter,
+    pub(crate) reader: HistoryReader,
+    pub(crate) outbox: Arc<dyn Outbox>,
+    /// Held while a rule change is applied and saved, so saves happen in change order.
+    pub(crate) rules_file: Mutex<()>,
+    /// Numbers the station's own events, tasks and subscriptions.
+    pub(crate) seq: AtomicU64,
+    pub(crate) started_ms: i64,
+}
+
+/// Locks a mutex, recovering the data if a panicking thread poisoned it: the station's
+/// in-memory views stay usable, and the history store is the record of truth anyway.
+pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// A cheap, cloneable handle on the station core: what the bus feeds, the API reads and
+/// operators command through.
+#[derive(Clone)]
+pub struct StationHandle {
+    pub(crate) core: Arc<Core>,
+}
+
+impl std::fmt::Debug for StationHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StationHandle").finish_non_exhaustive()
+    }
+}
+
+impl StationHandle {
+    /// Builds the station core over `history`, publishing through `outbox`, and reloads
+    /// what it knew before a restart: vehicles, their latest states, the last day's tasks.
+    pub fn new(
+        config: StationConfig,
+        history: &History,
+        outbox: Arc<dyn Outbox>,
+    ) -> Result<Self, StationError> {
+        config.check()?;
+        for key in config.semantic.retired_keys() {
+            warn!(
+                key = %format_args!("station.semantic.{key}"),
+                "this setting has no effect any more: contact and availability are the register's"
+            );
+        }
+        let mut fleet = Fleet::default();
+        let reader = history.reader();
+        // A restarted station knows its vehicles at once; DDS re-delivers announcements
+        // (transient-local) too, and re-registration is idempotent.
+        for a in reader.vehicles().map_err(StationError::History)? {
+            fleet.register(a);
+        }
+        let mut semantic =
+            SemanticStore::new(config.semantic.clone()).map_err(StationError::Semantic)?;
+        crate::rules::apply_rules_file(&mut semantic, &config.rules_path)?;
+        for e in fleet.vehicles.values() {
+            let id = &e.announcement.vehicle_id;
+            if let Err(err) = semantic.upsert_vehicle(&e.announcement) {
+                warn!(vehicle = %id, error = %err, "not in the semantic model");
+            }
+            if let Err(err) = semantic.set_availability(id, e.availability) {
+                warn!(vehicle = %id, error = %err, "availability not in the semantic model");
+            }
+        }
+        for s in reader.latest_states().map_err(StationError::History)? {
+            if let Err(err) = semantic.update_state(&s) {
+                warn!(vehicle = %s.vehicle_id, error = %err, "state not in the semantic model");
+            }
+            if let Some(e) = fleet.vehicles.get_mut(&s.vehicle_id) {
+                e.latest = Some(s);
+            }
+        }
+        // The Mission & Task Register resumes where it was: tasks of the last day with the
+        // state their recorded transitions reached.
+        let mut tasks = TaskRegister::default();
+        let reloaded = reader
+            .tasks_since(now_ms() - TASK_MEMORY_MS, 100_000)
+            .map_err(StationError::History)?;
+        if !reloaded.is_empty() {
+            info!(tasks = reloaded.len(), "tasks reloaded from the history");
+        }
+        for t in reloaded.iter().filter_map(|t| t.assignment.as_ref()) {
+            if let Err(err) = semantic.upsert_task(t) {
+                warn!(task = %t.task_id, error = %err, "task not in the semantic model");
+            }
+        }
+        tasks.restore(reloaded, now_ms());
+        let core = Core {
+            fleet: Mutex::new(fleet),
+            tasks: Mutex::new(tasks),
+            stats: Mutex::new(IngestStats::default()),
+            reporters: Reporters::default(),
+            semantic: Mutex::new(semantic),
+            history: history.writer(),
+            reader,
+            outbox,
+            rules_file: Mutex::new(()),
+            seq: AtomicU64::new(0),
+            started_ms: now_ms(),
+            config,
+        };
+        let handle = Self {
+            core: Arc::new(core),
+        };
+        // Restored tasks make vehicles busy before any of them is heard again.
+        handle.refresh_availability_all(now_ms());
+        Ok(handle)
+    }
+
+    /// Hands a record to the history writer; waits for room rather than lose it.
+    pub(crate) fn store(&self, record: Record) {
+        match self.core.history.submit(record) {
+            Ok(_) => {}
+            // Back-pressure instead of loss: wait for the writer thread to make room.
+            Err(SubmitError::Full(record)) => {
+                let w = self.core.history.clone();
+                let r = tokio::task::block_in_place(move || w.submit_blocking(*record));
+                if let Err(e) = r {
+                    warn!(error = %e, "history store closed; record not stored");
+                }
+            }
+            Err(e) => warn!(error = %e, "history store closed; record not stored"),
+        }
+    }
+
+    /// The next number of the station's own sequence.
+    pub(crate) fn next_seq(&self) -> u64 {
+        self.core
+            .seq
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// The station's configuration.
+    pub fn config(&self) -> &StationConfig {
+        &self.core.config
+    }
+}

@@ -1,0 +1,375 @@
+//! The Mission & Task Register and dispatch: pre-dispatch checks, single tasks, missions
+//! (plan, start, abort, abort all), sending each task on the link its vehicle is heard on,
+//! retries over the acoustic link and expiry of unacknowledged tasks.
+//!
+//! The register's bookkeeping ([`register`]) is pure; this module adds the I/O: the
+//! outbox, the history, the semantic model, the reporters.
+
+mod register;
+mod views;
+
+use shoal_history::Record;
+use shoal_model::{
+    EventKind, LinkKind, Severity, Task, TaskAssignment, TaskKind, TaskState, now_ms,
+};
+use tracing::{info, warn};
+
+use crate::core::{StationHandle, lock};
+use crate::error::DispatchError;
+use crate::register::Contact;
+use crate::reporters::LiveUpdate;
+pub(crate) use register::TaskRegister;
+pub use views::{MissionSpec, MissionState, MissionTaskSpec, MissionView, TaskView};
+
+impl StationHandle {
+    /// Checks a task can go to its vehicle now: well-formed, the vehicle registered and
+    /// in contact, able to do it (its announced capabilities, the register's part of the
+    /// information model) and with battery enough for anything but going home or up.
+    fn check_task(&self, task: &TaskAssignment) -> Result<(), DispatchError> {
+        shoal_model::Validate::validate(task).map_err(DispatchError::Invalid)?;
+        task.task().map_err(DispatchError::Invalid)?;
+        self.check_dispatch(&task.vehicle_id, task.kind)
+    }
+
+    /// Whether a task of `kind` would go to `vehicle_id` now, as far as the vehicle is
+    /// concerned (registered, in contact, announcing the capability, battery enough): the
+    /// same check dispatching makes, so that a console can say beforehand what the station
+    /// would refuse.
+    pub fn check_dispatch(&self, vehicle_id: &str, kind: TaskKind) -> Result<(), DispatchError> {
+        use shoal_model::TaskKind as K;
+        let fleet = lock(&self.core.fleet);
+        let Some(v) = fleet.vehicles.get(vehicle_id) else {
+            return Err(DispatchError::UnknownVehicle(vehicle_id.to_owned()));
+        };
+        if kind == K::Abort {
+            // An emergency order always goes out, whatever the vehicle says it can do.
+            return Ok(());
+        }
+        if v.contact == Contact::Lost {
+            return Err(DispatchError::VehicleLost(vehicle_id.to_owned()));
+        }
+        let capability = kind.capability();
+        if !v.announcement.capabilities.iter().any(|c| c == capability) {
+            return Err(DispatchError::Incapable {
+                vehicle: vehicle_id.to_owned(),
+                capability,
+            });
+        }
+        let needs_energy = !matches!(
+            kind,
+            K::Surface | K::ReturnHome | K::RequestState | K::SetReportingRate
+        );
+        let min = self.core.config.min_dispatch_battery_pct;
+        if let Some(s) = &v.latest
+            && needs_energy
+            && s.battery_pct != shoal_model::UNKNOWN
+            && s.battery_pct < min
+        {
+            return Err(DispatchError::LowBattery {
+                vehicle: vehicle_id.to_owned(),
+                battery_pct: s.battery_pct,
+                min_pct: min,
+            });
+        }
+        Ok(())
+    }
+
+    /// Validates a single task, registers it and sends it at once. Aborts go out on the
+    /// emergency priority class.
+    pub async fn dispatch(&self, task: TaskAssignment) -> Result<(), DispatchError> {
+        self.dispatch_now(task)
+    }
+
+    /// [`Self::dispatch`] for code that is not async.
+    pub fn dispatch_now(&self, task: TaskAssignment) -> Result<(), DispatchError> {
+        self.check_task(&task)?;
+        {
+            let mut reg = lock(&self.core.tasks);
+            if reg.contains_task(&task.task_id) {
+                return Err(DispatchError::DuplicateTask(task.task_id));
+            }
+            reg.add_task(task.clone(), now_ms());
+        }
+        self.register_task(&task);
+        // The outcome of the write itself: reading the register afterwards would race the
+        // vehicle, whose acceptance may already have moved the task past `sent`.
+        blocking(|| self.send_registered(&task.task_id))
+    }
+
+    /// Enters a task in the semantic model and the history.
+    fn register_task(&self, task: &TaskAssignment) {
+        let fired = lock(&self.core.semantic).upsert_task(task);
+        self.emit_fired(fired);
+        self.store(Record::Task(task.clone()));
+    }
+
+    /// Publishes a registered pending task on the link its vehicle is reachable on now.
+    ///
+    /// Both links start at the same topic: a vehicle on IP takes it directly, and the CDT
+    /// that hears a submerged vehicle forwards it acoustically (retransmitting until its
+    /// TTL). The station records which link it expects to carry the task, which sets how
+    /// long it waits for an acknowledgement before the task expires.
+    pub(crate) fn send_registered(&self, task_id: &str) -> Result<(), DispatchError> {
+        let Some(task) = lock(&self.core.tasks)
+            .task(task_id)
+            .map(|t| t.assignment.clone())
+        else {
+            return Err(DispatchError::UnknownTask(task_id.to_owned()));
+        };
+        // Checked again when a mission's next task comes due: things change.
+        if let Err(e) = self.check_task(&task) {
+            warn!(task = task_id, error = %e, "task not sent");
+            self.task_ended(task_id, TaskState::Failed, &format!("not sent: {e}"));
+            return Err(e);
+        }
+        let link = lock(&self.core.fleet)
+            .vehicles
+            .get(&task.vehicle_id)
+            .map_or(LinkKind::Ip, |v| v.link);
+        let (kind, vehicle) = (task.kind, task.vehicle_id.clone());
+        match self.core.outbox.publish_task(task) {
+            Ok(()) => {
+                info!(task = task_id, vehicle = %vehicle, ?kind, ?link, "task dispatched");
+                lock(&self.core.stats).tasks_dispatched += 1;
+                lock(&self.core.tasks).sent(task_id, link, now_ms());
+                self.record_transitions();
+                self.refresh_availability(&vehicle, now_ms());
+                self.push_task(task_id);
+                Ok(())
+            }
+            Err(e) => {
+                warn!(task = task_id, error = %e, "task not published");
+                lock(&self.core.tasks).finish(
+                    task_id,
+                    TaskState::Failed,
+                    &format!("could not be published: {e}"),
+                    now_ms(),
+                );
+                self.record_transitions();
+                Err(DispatchError::Publish(e))
+            }
+        }
+    }
+
+    /// Ends a task in `state` on the station's own account and moves its mission on.
+    fn task_ended(&self, task_id: &str, state: TaskState, message: &str) {
+        lock(&self.core.tasks).finish(task_id, state, message, now_ms());
+        self.task_changed(task_id, state, message);
+    }
+
+    /// Sends the tasks that became due; a refused one has ended the task already.
+    pub(crate) fn send_all(&self, task_ids: Vec<String>) {
+        blocking(|| {
+            for id in task_ids {
+                let _ = self.send_registered(&id);
+            }
+        });
+    }
+
+    /// Registers a mission after checking every task (ids unique, vehicles able); it
+    /// starts with [`Self::start_mission`].
+    pub fn plan_mission(&self, spec: MissionSpec) -> Result<MissionView, DispatchError> {
+        if !shoal_model::is_identifier(&spec.mission_id, shoal_model::MAX_ID_LEN) {
+            return Err(DispatchError::BadField {
+                field: "mission_id",
+                rule: "1..=64 of [A-Za-z0-9_.-]",
+            });
+        }
+        if spec.tasks.is_empty() {
+            return Err(DispatchError::BadField {
+                field: "tasks",
+                rule: "a mission needs at least one task",
+            });
+        }
+        if lock(&self.core.tasks).contains_mission(&spec.mission_id) {
+            return Err(DispatchError::DuplicateMission(spec.mission_id));
+        }
+        let now = now_ms();
+        let mut assignments: Vec<TaskAssignment> = Vec::with_capacity(spec.tasks.len());
+        for (n, t) in spec.tasks.iter().enumerate() {
+            let id = t
+                .task_id
+                .clone()
+                .unwrap_or_else(|| format!("{}-{}", spec.mission_id, n + 1));
+            // One millisecond apart, so that the history keeps the mission's order.
+            let issued = now + i64::try_from(n).unwrap_or(0);
+            let a = TaskAssignment::new(id, &spec.mission_id, &t.vehicle_id, issued, &t.task);
+            let in_mission = |error| DispatchError::InMission {
+                index: n,
+                error: Box::new(error),
+            };
+            self.check_task(&a).map_err(in_mission)?;
+            if assignments.iter().any(|b| b.task_id == a.task_id)
+                || lock(&self.core.tasks).contains_task(&a.task_id)
+            {
+                return Err(in_mission(DispatchError::DuplicateTask(a.task_id)));
+            }
+            assignments.push(a);
+        }
+        {
+            let mut reg = lock(&self.core.tasks);
+            let ids = assignments.iter().map(|a| a.task_id.clone()).collect();
+            for a in &assignments {
+                reg.add_task(a.clone(), now);
+            }
+            reg.add_mission(&spec.mission_id, &spec.name, ids, now);
+        }
+        for a in &assignments {
+            self.register_task(a);
+        }
+        info!(mission = %spec.mission_id, tasks = assignments.len(), "mission planned");
+        let view = self
+            .mission(&spec.mission_id)
+            .ok_or(DispatchError::UnknownMission(spec.mission_id))?;
+        self.publish_live(LiveUpdate::Mission(Box::new(view.clone())));
+        Ok(view)
+    }
+
+    /// Starts a planned mission: each vehicle's first task goes out.
+    pub fn start_mission(&self, mission_id: &str) -> Result<MissionView, DispatchError> {
+        let first = lock(&self.core.tasks)
+            .start(mission_id, now_ms())
+            .ok_or_else(|| DispatchError::UnknownMission(mission_id.to_owned()))?;
+        info!(mission = mission_id, "mission started");
+        self.send_all(first);
+        self.mission(mission_id)
+            .ok_or_else(|| DispatchError::UnknownMission(mission_id.to_owned()))
+    }
+
+    /// Aborts a mission: pending tasks end, vehicles with a task under way get an abort
+    /// (emergency surface) on the emergency class.
+    pub fn abort_mission(&self, mission_id: &str) -> Result<MissionView, DispatchError> {
+        let busy = lock(&self.core.tasks)
+            .abort_mission(mission_id, now_ms())
+            .ok_or_else(|| DispatchError::UnknownMission(mission_id.to_owned()))?;
+        self.record_transitions();
+        warn!(mission = mission_id, vehicles = ?busy, "mission aborted");
+        self.raise(
+            Severity::Warning,
+            EventKind::Task,
+            "",
+            "",
+            &format!("mission {mission_id} aborted by the operator"),
+        );
+        blocking(|| {
+            for v in busy {
+                self.send_abort(&v, mission_id);
+            }
+        });
+        self.mission(mission_id)
+            .ok_or_else(|| DispatchError::UnknownMission(mission_id.to_owned()))
+    }
+
+    /// Aborts every open mission and sends an abort to every vehicle in contact.
+    pub fn abort_all(&self) -> Vec<String> {
+        let missions = lock(&self.core.tasks).open_missions();
+        for m in &missions {
+            let _ = lock(&self.core.tasks).abort_mission(m, now_ms());
+        }
+        self.record_transitions();
+        let vehicles: Vec<String> = lock(&self.core.fleet)
+            .vehicles
+            .iter()
+            .filter(|(_, v)| v.contact != Contact::Lost)
+            .map(|(id, _)| id.clone())
+            .collect();
+        self.raise(
+            Severity::Alarm,
+            EventKind::Task,
+            "",
+            "",
+            &format!(
+                "ABORT ALL by the operator: {} vehicles, {} missions",
+                vehicles.len(),
+                missions.len()
+            ),
+        );
+        blocking(|| {
+            for v in &vehicles {
+                self.send_abort(v, "all");
+            }
+        });
+        vehicles
+    }
+
+    fn send_abort(&self, vehicle_id: &str, scope: &str) {
+        let seq = self.next_seq();
+        let id: String = format!("abort-{scope}-{vehicle_id}-{seq}")
+            .chars()
+            .take(shoal_model::MAX_ID_LEN)
+            .collect();
+        let a = TaskAssignment::new(&id, "", vehicle_id, now_ms(), &Task::Abort);
+        lock(&self.core.tasks).add_task(a.clone(), now_ms());
+        self.register_task(&a);
+        if let Err(e) = self.send_registered(&id) {
+            warn!(vehicle = vehicle_id, error = %e, "abort not sent");
+        }
+    }
+
+    /// Expires sent tasks their vehicle never acknowledged in time (at `now`).
+    pub(crate) fn expire_tasks(&self, now: i64) {
+        let cfg = &self.core.config;
+        #[allow(clippy::cast_possible_truncation)]
+        let (ip, acoustic) = (
+            (cfg.task_ack_timeout_s * 1000.0) as i64,
+            (cfg.acoustic_task_ack_timeout_s * 1000.0) as i64,
+        );
+        let overdue = lock(&self.core.tasks).overdue(now, ip, acoustic);
+        for id in overdue {
+            let msg = "not acknowledged by the vehicle in time";
+            lock(&self.core.tasks).finish(&id, TaskState::Expired, msg, now);
+            self.task_changed(&id, TaskState::Expired, msg);
+        }
+    }
+
+    /// The tasks restored missions are waiting for (after a restart); sent at once.
+    pub(crate) fn resume_missions(&self) {
+        let due = lock(&self.core.tasks).due_tasks();
+        if !due.is_empty() {
+            info!(
+                tasks = due.len(),
+                "sending the tasks restored missions are waiting for"
+            );
+            self.send_all(due);
+        }
+    }
+
+    /// Tasks issued since the station started, by id.
+    pub fn tasks(&self) -> Vec<TaskView> {
+        lock(&self.core.tasks).tasks()
+    }
+
+    /// One task.
+    pub fn task(&self, task_id: &str) -> Option<TaskView> {
+        lock(&self.core.tasks).task(task_id).cloned()
+    }
+
+    /// Every mission, by id.
+    pub fn missions(&self) -> Vec<MissionView> {
+        lock(&self.core.tasks).missions()
+    }
+
+    /// One mission.
+    pub fn mission(&self, mission_id: &str) -> Option<MissionView> {
+        lock(&self.core.tasks).mission(mission_id)
+    }
+
+    /// Remote readers matched by the station's (control-class) task writer now.
+    pub fn task_readers(&self) -> i32 {
+        self.core.outbox.task_readers()
+    }
+}
+
+/// Runs `f`, which may wait on the bus, without stalling a tokio worker: other tasks move
+/// to another worker meanwhile. Outside a multi-threaded runtime it just runs `f`.
+fn blocking<R>(f: impl FnOnce() -> R) -> R {
+    match tokio::runtime::Handle::try_current() {
+        Ok(h) if h.runtime_flavor() == tokio::runtime::RuntimeFlavor::MultiThread => {
+            tokio::task::block_in_place(f)
+        }
+        _ => f(),
+    }
+}
+
+#[cfg(test)]
+mod tests;

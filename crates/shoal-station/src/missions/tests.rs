@@ -1,0 +1,383 @@
+//! Dispatch and missions without DDS: checks, every transition the station drives,
+//! retries, expiry, abort, abort all, and resuming after a restart.
+
+use std::sync::atomic::Ordering;
+
+use shoal_model::{EventKind, Severity, Task, TaskKind, TaskState, now_ms};
+
+use crate::error::DispatchError;
+use crate::missions::{MissionSpec, MissionState, MissionTaskSpec};
+use crate::testing::{Fixture, assignment, goto, state};
+
+fn spec(id: &str, tasks: &[(&str, Task)]) -> MissionSpec {
+    MissionSpec {
+        mission_id: id.into(),
+        name: format!("mission {id}"),
+        tasks: tasks
+            .iter()
+            .map(|(v, t)| MissionTaskSpec {
+                task_id: None,
+                vehicle_id: (*v).into(),
+                task: t.clone(),
+            })
+            .collect(),
+    }
+}
+
+fn task_state(f: &Fixture, id: &str) -> TaskState {
+    f.h.task(id).unwrap().state
+}
+
+#[test]
+fn a_dispatched_task_goes_out_and_is_sent() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap();
+    assert_eq!(f.out.tasks().len(), 1);
+    assert_eq!(f.out.tasks()[0].task_id, "t-1");
+    assert_eq!(task_state(&f, "t-1"), TaskState::Sent);
+    assert_eq!(f.h.stats().tasks_dispatched, 1);
+    f.flush();
+    assert!(
+        f.h.history()
+            .task_history("t-1")
+            .unwrap()
+            .assignment
+            .is_some()
+    );
+}
+
+#[test]
+fn a_task_for_an_unknown_vehicle_is_refused_and_nothing_goes_out() {
+    let f = Fixture::new();
+    let err = f.h.dispatch_now(assignment("t-1", "ghost")).unwrap_err();
+    assert!(matches!(err, DispatchError::UnknownVehicle(v) if v == "ghost"));
+    assert!(f.out.tasks().is_empty());
+    assert!(f.h.task("t-1").is_none());
+}
+
+#[test]
+fn a_task_the_vehicle_did_not_announce_it_can_do_is_refused() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    let t = shoal_model::TaskAssignment::new("t-1", "", "auv-1", now_ms(), &Task::ReturnHome);
+    let err = f.h.dispatch_now(t).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            DispatchError::Incapable {
+                capability: "return_home",
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn a_vehicle_low_on_battery_may_only_be_sent_up_or_home() {
+    let f = Fixture::new();
+    f.announce("auv-1");
+    f.h.ingest_state(state("auv-1", now_ms(), 10.0)).unwrap();
+    let err = f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap_err();
+    assert!(matches!(err, DispatchError::LowBattery { .. }), "{err:?}");
+    assert!(f.h.check_dispatch("auv-1", TaskKind::Surface).is_ok());
+    assert!(f.h.check_dispatch("auv-1", TaskKind::GotoWaypoint).is_err());
+}
+
+#[test]
+fn a_lost_vehicle_gets_no_task_but_always_an_abort() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    let lost = (f.h.config().lost_after_s * 1000.0) as i64;
+    f.h.tick(now_ms() + lost + 100);
+    let err = f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap_err();
+    assert!(matches!(err, DispatchError::VehicleLost(_)));
+    assert!(f.h.check_dispatch("auv-1", TaskKind::Abort).is_ok());
+}
+
+#[test]
+fn a_task_id_is_used_once() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap();
+    let err = f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap_err();
+    assert!(matches!(err, DispatchError::DuplicateTask(_)));
+    assert_eq!(f.out.tasks().len(), 1);
+}
+
+#[test]
+fn a_task_the_bus_refuses_fails_and_says_why() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.out.refuse.store(true, Ordering::Relaxed);
+    let err = f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap_err();
+    assert!(matches!(err, DispatchError::Publish(_)), "{err:?}");
+    let t = f.h.task("t-1").unwrap();
+    assert_eq!(t.state, TaskState::Failed);
+    assert!(
+        t.message.contains("could not be published"),
+        "{}",
+        t.message
+    );
+}
+
+#[test]
+fn a_mission_is_checked_whole_before_anything_is_registered() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    let bad_id = f.h.plan_mission(spec("bad id", &[("auv-1", goto())]));
+    assert!(matches!(
+        bad_id,
+        Err(DispatchError::BadField {
+            field: "mission_id",
+            ..
+        })
+    ));
+    let empty = f.h.plan_mission(spec("m-1", &[]));
+    assert!(matches!(
+        empty,
+        Err(DispatchError::BadField { field: "tasks", .. })
+    ));
+    let second_refused =
+        f.h.plan_mission(spec("m-1", &[("auv-1", goto()), ("ghost", goto())]));
+    match second_refused {
+        Err(DispatchError::InMission { index: 1, error }) => {
+            assert!(matches!(*error, DispatchError::UnknownVehicle(_)));
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(f.h.missions().is_empty());
+    assert!(f.h.tasks().is_empty());
+    f.h.plan_mission(spec("m-1", &[("auv-1", goto())])).unwrap();
+    let again = f.h.plan_mission(spec("m-1", &[("auv-1", goto())]));
+    assert!(matches!(again, Err(DispatchError::DuplicateMission(_))));
+}
+
+#[test]
+fn a_mission_runs_each_vehicles_tasks_in_order_and_ends_done() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.alive("auv-2");
+    let m =
+        f.h.plan_mission(spec(
+            "m-1",
+            &[("auv-1", goto()), ("auv-2", goto()), ("auv-1", goto())],
+        ))
+        .unwrap();
+    assert_eq!(m.state, MissionState::Planned);
+    assert!(
+        f.out.tasks().is_empty(),
+        "nothing goes out before the start"
+    );
+    let m = f.h.start_mission("m-1").unwrap();
+    assert_eq!(m.state, MissionState::Running);
+    let sent: Vec<String> = f.out.tasks().into_iter().map(|t| t.task_id).collect();
+    assert_eq!(sent, ["m-1-1", "m-1-2"]);
+    assert_eq!(task_state(&f, "m-1-3"), TaskState::Pending);
+    f.report("m-1-1", "auv-1", TaskState::Accepted);
+    f.report("m-1-1", "auv-1", TaskState::Running);
+    f.report("m-1-1", "auv-1", TaskState::Done);
+    assert_eq!(f.out.tasks().last().unwrap().task_id, "m-1-3");
+    f.report("m-1-2", "auv-2", TaskState::Done);
+    f.report("m-1-3", "auv-1", TaskState::Done);
+    let m = f.h.mission("m-1").unwrap();
+    assert_eq!(m.state, MissionState::Done);
+    assert!((m.progress_pct - 100.0).abs() < 1e-9);
+}
+
+#[test]
+fn a_failed_task_skips_the_rest_of_its_vehicle_and_fails_the_mission() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.plan_mission(spec("m-1", &[("auv-1", goto()), ("auv-1", goto())]))
+        .unwrap();
+    f.h.start_mission("m-1").unwrap();
+    f.report("m-1-1", "auv-1", TaskState::Failed);
+    assert_eq!(task_state(&f, "m-1-2"), TaskState::Aborted);
+    assert_eq!(f.out.tasks().len(), 1, "the skipped task never went out");
+    assert_eq!(f.h.mission("m-1").unwrap().state, MissionState::Failed);
+    assert!(f.h.recent_events().iter().any(|e| e.kind == EventKind::Task
+        && e.task_id == "m-1-1"
+        && e.severity == Severity::Warning));
+}
+
+#[test]
+fn a_report_never_moves_a_task_backwards_or_out_of_a_final_state() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap();
+    f.report("t-1", "auv-1", TaskState::Running);
+    f.report("t-1", "auv-1", TaskState::Accepted);
+    assert_eq!(task_state(&f, "t-1"), TaskState::Running);
+    f.report("t-1", "auv-1", TaskState::Done);
+    f.report("t-1", "auv-1", TaskState::Failed);
+    assert_eq!(task_state(&f, "t-1"), TaskState::Done);
+}
+
+#[test]
+fn aborting_a_mission_ends_pending_tasks_and_stops_busy_vehicles() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.plan_mission(spec("m-1", &[("auv-1", goto()), ("auv-1", goto())]))
+        .unwrap();
+    f.h.start_mission("m-1").unwrap();
+    f.report("m-1-1", "auv-1", TaskState::Running);
+    let m = f.h.abort_mission("m-1").unwrap();
+    assert_eq!(m.state, MissionState::Aborted);
+    assert_eq!(task_state(&f, "m-1-2"), TaskState::Aborted);
+    let abort = f
+        .out
+        .tasks()
+        .into_iter()
+        .find(|t| t.kind == TaskKind::Abort);
+    assert_eq!(abort.unwrap().vehicle_id, "auv-1");
+    assert!(matches!(
+        f.h.abort_mission("m-unknown"),
+        Err(DispatchError::UnknownMission(_))
+    ));
+}
+
+#[test]
+fn abort_all_stops_every_vehicle_in_contact_and_raises_an_alarm() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.alive("auv-2");
+    f.announce("auv-silent");
+    f.h.plan_mission(spec("m-1", &[("auv-1", goto())])).unwrap();
+    f.h.start_mission("m-1").unwrap();
+    let stopped = f.h.abort_all();
+    assert_eq!(
+        stopped.len(),
+        3,
+        "silent is not lost: it gets the abort too"
+    );
+    let aborts = f
+        .out
+        .tasks()
+        .into_iter()
+        .filter(|t| t.kind == TaskKind::Abort)
+        .count();
+    assert_eq!(aborts, 3);
+    assert_eq!(f.h.mission("m-1").unwrap().state, MissionState::Aborted);
+    assert!(
+        f.out
+            .events()
+            .iter()
+            .any(|e| e.severity == Severity::Alarm && e.text.starts_with("ABORT ALL"))
+    );
+}
+
+#[test]
+fn a_sent_task_never_acknowledged_expires_and_fails_its_mission() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.plan_mission(spec("m-1", &[("auv-1", goto())])).unwrap();
+    f.h.start_mission("m-1").unwrap();
+    let timeout = (f.h.config().task_ack_timeout_s * 1000.0) as i64;
+    f.h.expire_tasks(now_ms() + timeout / 2);
+    assert_eq!(task_state(&f, "m-1-1"), TaskState::Sent);
+    f.h.expire_tasks(now_ms() + timeout + 1000);
+    assert_eq!(task_state(&f, "m-1-1"), TaskState::Expired);
+    assert_eq!(f.h.mission("m-1").unwrap().state, MissionState::Failed);
+}
+
+#[test]
+fn a_task_the_acoustic_link_gave_up_on_is_sent_again_a_bounded_number_of_times() {
+    let f = Fixture::with(|c| c.acoustic_task_retries = 2);
+    f.alive("auv-ac1");
+    f.h.link_reported(shoal_model::LinkStatus {
+        vehicle_id: "auv-ac1".into(),
+        link: shoal_model::LinkKind::Acoustic,
+        cdt_address: 1,
+        vehicle_address: 2,
+        rssi_db: None,
+        integrity: None,
+        heard_ms: now_ms(),
+        participant: "cdt".into(),
+    });
+    f.h.dispatch_now(assignment("t-1", "auv-ac1")).unwrap();
+    assert_eq!(
+        f.h.task("t-1").unwrap().link,
+        Some(shoal_model::LinkKind::Acoustic)
+    );
+    for n in 1..=2 {
+        f.report("t-1", "auv-ac1", TaskState::Expired);
+        assert_eq!(f.out.tasks().len(), 1 + n, "retry {n} went out");
+        assert_eq!(f.h.task("t-1").unwrap().retries, u32::try_from(n).unwrap());
+    }
+    f.report("t-1", "auv-ac1", TaskState::Expired);
+    assert_eq!(f.out.tasks().len(), 3);
+    assert_eq!(task_state(&f, "t-1"), TaskState::Expired);
+}
+
+#[test]
+fn a_task_over_ip_that_a_relay_reports_expired_is_not_sent_again() {
+    let f = Fixture::with(|c| c.acoustic_task_retries = 2);
+    f.alive("auv-1");
+    f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap();
+    f.report("t-1", "auv-1", TaskState::Expired);
+    assert_eq!(f.out.tasks().len(), 1);
+    assert_eq!(task_state(&f, "t-1"), TaskState::Expired);
+}
+
+#[test]
+fn an_accepted_task_is_reported_as_an_event() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap();
+    f.report("t-1", "auv-1", TaskState::Accepted);
+    let ev = f.h.recent_events();
+    assert!(ev.iter().any(|e| e.text == "task t-1 accepted"), "{ev:?}");
+    assert_eq!(f.h.stats().task_status, 1);
+}
+
+#[test]
+fn a_status_from_another_vehicle_than_the_tasks_is_refused() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.alive("auv-2");
+    f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap();
+    let err =
+        f.h.ingest_task_status(crate::testing::valid(crate::testing::status(
+            "t-1",
+            "auv-2",
+            TaskState::Done,
+        )))
+        .unwrap_err();
+    assert_eq!(err.reason(), "unknown_task");
+    assert_eq!(task_state(&f, "t-1"), TaskState::Sent);
+}
+
+#[test]
+fn a_restarted_station_resumes_its_missions_where_they_were() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.plan_mission(spec("m-1", &[("auv-1", goto()), ("auv-1", goto())]))
+        .unwrap();
+    f.h.start_mission("m-1").unwrap();
+    f.report("m-1-1", "auv-1", TaskState::Done);
+    assert_eq!(task_state(&f, "m-1-2"), TaskState::Sent);
+    let f = f.restart();
+    assert_eq!(task_state(&f, "m-1-1"), TaskState::Done);
+    assert_eq!(task_state(&f, "m-1-2"), TaskState::Sent);
+    assert_eq!(f.h.mission("m-1").unwrap().state, MissionState::Running);
+    // The vehicle is busy with the restored task before it is heard again.
+    assert_eq!(
+        f.h.vehicle("auv-1").unwrap().availability,
+        shoal_model::Availability::Busy
+    );
+}
+
+#[test]
+fn a_restarted_station_does_not_send_again_a_task_it_had_sent() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.plan_mission(spec("m-1", &[("auv-1", goto())])).unwrap();
+    f.h.start_mission("m-1").unwrap();
+    f.out.refuse.store(false, Ordering::Relaxed);
+    let f = f.restart();
+    // Sent before the restart: not sent again, so the vehicle does not run it twice.
+    f.h.resume_missions();
+    assert!(f.out.tasks().is_empty());
+}
