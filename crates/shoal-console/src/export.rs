@@ -5,6 +5,7 @@
 use std::fmt::Write as _;
 
 use serde_json::{Value, json};
+use shoal_model::datetime::format_utc;
 use shoal_model::{StateVector, TaskKind};
 use shoal_station::MissionView;
 
@@ -44,36 +45,6 @@ impl MissionLog {
     }
 }
 
-/// Days since 1970-01-01 to (year, month, day), proleptic Gregorian (Howard Hinnant's
-/// `civil_from_days`).
-fn civil_from_days(days: i64) -> (i64, u32, u32) {
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    (
-        y,
-        u32::try_from(m).unwrap_or(1),
-        u32::try_from(d).unwrap_or(1),
-    )
-}
-
-/// `2025-11-21T14:03:07.250Z`: spreadsheets and GIS tools read this without help.
-pub fn iso_utc(ms: i64) -> String {
-    let days = ms.div_euclid(86_400_000);
-    let in_day = ms.rem_euclid(86_400_000);
-    let (y, mo, d) = civil_from_days(days);
-    let (h, rest) = (in_day / 3_600_000, in_day % 3_600_000);
-    let (mi, rest) = (rest / 60_000, rest % 60_000);
-    let (s, milli) = (rest / 1000, rest % 1000);
-    format!("{y:04}-{mo:02}-{d:02}T{h:02}:{mi:02}:{s:02}.{milli:03}Z")
-}
-
 /// Quotes a CSV field when it holds a separator, quote or line break (RFC 4180).
 fn field(s: &str) -> String {
     if s.contains([',', '"', '\n', '\r']) {
@@ -100,7 +71,7 @@ pub fn to_csv(log: &MissionLog) -> String {
                 out,
                 "{mission},{vehicle},{},{},{},{},{},{},{},{},{},{},{}\r\n",
                 s.timestamp_ms,
-                iso_utc(s.timestamp_ms),
+                format_utc(s.timestamp_ms),
                 s.latitude_deg,
                 s.longitude_deg,
                 s.depth_m,
@@ -285,10 +256,10 @@ mod tests {
 
     #[test]
     fn iso_times_are_utc_with_milliseconds() {
-        assert_eq!(iso_utc(0), "1970-01-01T00:00:00.000Z");
-        assert_eq!(iso_utc(951_782_400_000), "2000-02-29T00:00:00.000Z");
-        assert_eq!(iso_utc(1_763_733_787_250), "2025-11-21T14:03:07.250Z");
-        assert_eq!(iso_utc(-1), "1969-12-31T23:59:59.999Z");
+        assert_eq!(format_utc(0), "1970-01-01T00:00:00.000Z");
+        assert_eq!(format_utc(951_782_400_000), "2000-02-29T00:00:00.000Z");
+        assert_eq!(format_utc(1_763_733_787_250), "2025-11-21T14:03:07.250Z");
+        assert_eq!(format_utc(-1), "1969-12-31T23:59:59.999Z");
     }
 
     #[test]

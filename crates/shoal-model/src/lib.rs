@@ -18,6 +18,7 @@
 //! and exported as constants so codecs and checks share one source of truth. The crate has
 //! no I/O and no async.
 
+pub mod datetime;
 mod environment;
 mod event;
 pub mod geo;

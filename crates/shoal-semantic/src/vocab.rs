@@ -6,6 +6,7 @@
 
 use oxrdf::vocab::xsd;
 use oxrdf::{Literal, NamedNode};
+use shoal_model::datetime::format_utc;
 
 /// Namespace of the Shoal ontology (classes and properties), prefix `shoal:`.
 pub const NS: &str = "https://example.invalid/shoal/ontology#";
@@ -143,34 +144,10 @@ pub(crate) fn double(v: f64) -> Literal {
     Literal::from(v)
 }
 
-/// An `xsd:dateTime` literal (UTC) for milliseconds since the Unix epoch.
+/// An `xsd:dateTime` literal (UTC) for milliseconds since the Unix epoch: the model's
+/// timestamp text, `YYYY-MM-DDThh:mm:ss.sssZ`, is one.
 pub(crate) fn date_time(ms: i64) -> Literal {
-    Literal::new_typed_literal(format_date_time(ms), xsd::DATE_TIME)
-}
-
-/// `YYYY-MM-DDThh:mm:ss.sssZ` for milliseconds since the Unix epoch (proleptic Gregorian).
-pub fn format_date_time(ms: i64) -> String {
-    let days = ms.div_euclid(86_400_000);
-    let in_day = ms.rem_euclid(86_400_000);
-    let (y, m, d) = civil_from_days(days);
-    let (h, rest) = (in_day / 3_600_000, in_day % 3_600_000);
-    let (min, rest) = (rest / 60_000, rest % 60_000);
-    let (s, milli) = (rest / 1000, rest % 1000);
-    format!("{y:04}-{m:02}-{d:02}T{h:02}:{min:02}:{s:02}.{milli:03}Z")
-}
-
-/// Howard Hinnant's `civil_from_days`: days since 1970-01-01 to (year, month, day).
-fn civil_from_days(z: i64) -> (i64, i64, i64) {
-    let z = z + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let y = yoe + era * 400;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    (if m <= 2 { y + 1 } else { y }, m, d)
+    Literal::new_typed_literal(format_utc(ms), xsd::DATE_TIME)
 }
 
 #[cfg(test)]
@@ -179,15 +156,9 @@ mod tests {
 
     #[test]
     fn date_times_format_as_utc_iso_8601() {
-        assert_eq!(format_date_time(0), "1970-01-01T00:00:00.000Z");
-        assert_eq!(
-            format_date_time(1_700_000_000_123),
-            "2023-11-14T22:13:20.123Z"
-        );
-        assert_eq!(
-            format_date_time(951_782_400_000),
-            "2000-02-29T00:00:00.000Z"
-        );
+        assert_eq!(format_utc(0), "1970-01-01T00:00:00.000Z");
+        assert_eq!(format_utc(1_700_000_000_123), "2023-11-14T22:13:20.123Z");
+        assert_eq!(format_utc(951_782_400_000), "2000-02-29T00:00:00.000Z");
     }
 
     #[test]
