@@ -20,6 +20,8 @@
 //!
 //! tokio is used only at the network edges (emulator, drivers, link runner).
 
+#![forbid(unsafe_code)]
+
 pub mod at;
 pub mod channel;
 pub mod driver;

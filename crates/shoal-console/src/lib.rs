@@ -15,6 +15,8 @@
 //! model), rules, environment subscriptions, SPARQL, the
 //! live WebSocket `/api/ws`, and logins (`/api/auth/...`, see [`auth`]).
 
+#![forbid(unsafe_code)]
+
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
 use std::sync::Arc;
 

@@ -89,10 +89,8 @@ impl DynamicType {
             if shape.keys.contains(&f.name) {
                 let id = u32::try_from(i).map_err(|e| e.to_string())?;
                 // SAFETY: ty is a struct under construction with member `id`.
-                check(
-                    unsafe { c::dds_dynamic_member_set_key(&raw mut ty.0, id, true) },
-                    "key",
-                )?;
+                let ret = unsafe { c::dds_dynamic_member_set_key(&raw mut ty.0, id, true) };
+                check(ret, "key")?;
             }
         }
         Ok(ty)
@@ -174,15 +172,13 @@ impl Builder<'_> {
         d.name = self.cname(name)?;
         let mut ty = self.create(d)?;
         // SAFETY: ty is a struct under construction.
-        check(
-            unsafe {
-                c::dds_dynamic_type_set_extensibility(
-                    &raw mut ty.0,
-                    c::dds_dynamic_type_extensibility_DDS_DYNAMIC_TYPE_EXT_FINAL,
-                )
-            },
-            "extensibility",
-        )?;
+        let ret = unsafe {
+            c::dds_dynamic_type_set_extensibility(
+                &raw mut ty.0,
+                c::dds_dynamic_type_extensibility_DDS_DYNAMIC_TYPE_EXT_FINAL,
+            )
+        };
+        check(ret, "extensibility")?;
         for (i, f) in fields.iter().enumerate() {
             let spec = self.spec(&f.value)?;
             // SAFETY: a plain C struct for which all-zero is "unset".
@@ -192,10 +188,8 @@ impl Builder<'_> {
             m.index = u32::MAX;
             m.type_ = Self::type_spec(spec);
             // SAFETY: ty is under construction; the member's type reference moves into it.
-            check(
-                unsafe { c::dds_dynamic_type_add_member(&raw mut ty.0, m) },
-                &format!("member {}", f.name),
-            )?;
+            let ret = unsafe { c::dds_dynamic_type_add_member(&raw mut ty.0, m) };
+            check(ret, &format!("member {}", f.name))?;
         }
         Ok(ty)
     }

@@ -32,6 +32,8 @@
 //! are driven by private single-threaded runtimes on the store's own threads, so the store
 //! may also be used from inside a caller's runtime.
 
+#![forbid(unsafe_code)]
+
 mod backend;
 mod baseline;
 mod config;

@@ -18,6 +18,8 @@
 //! and exported as constants so codecs and checks share one source of truth. The crate has
 //! no I/O and no async.
 
+#![forbid(unsafe_code)]
+
 pub mod datetime;
 mod environment;
 mod event;

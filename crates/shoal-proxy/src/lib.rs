@@ -16,6 +16,8 @@
 //! [`run_sim`] is [`run_proxy`] with a simulated vehicle, as `shoal vehicle --sim` runs it.
 //! [`sim::SimVehicle`] is the simulation itself, with no I/O, so it is tested step by step.
 
+#![forbid(unsafe_code)]
+
 pub mod adapter;
 pub mod imc;
 mod link;

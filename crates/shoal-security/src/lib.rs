@@ -98,6 +98,8 @@
 //! assumption. Both are shorter than RFC 2104's advice (at least 80 bits), a deliberate
 //! trade for frames of tens of bytes, as 802.15.4 and LoRaWAN make with 32-bit MICs.
 
+#![forbid(unsafe_code)]
+
 pub mod acoustic;
 pub mod cert;
 pub mod envelope;

@@ -34,6 +34,8 @@
 //! watchdog that cancels queries at their timeout. It is not `Sync`-shared by itself: the
 //! station owns it behind its Data Access Manager (a `Mutex`/`RwLock` around it).
 
+#![forbid(unsafe_code)]
+
 pub mod bench;
 mod config;
 mod dataset;

@@ -1,5 +1,7 @@
 //! `shoal`: the command line of the Shoal middleware. Thin glue over the library crates.
 
+#![forbid(unsafe_code)]
+
 mod acoustic;
 mod bench;
 mod config;
