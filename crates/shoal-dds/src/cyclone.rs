@@ -20,12 +20,26 @@ use std::sync::{Arc, Mutex};
 use cyclors as c;
 
 use crate::config::DdsConfig;
+use crate::error::{CreateError, DdsError, TypeError};
 
 /// A Cyclone return code in words.
-pub(crate) fn retcode(ret: i32) -> String {
+fn retcode(ret: i32) -> String {
     // SAFETY: dds_strretcode returns a pointer to a static string for any value.
     let s = unsafe { CStr::from_ptr(c::dds_strretcode(ret)) };
     s.to_string_lossy().into_owned()
+}
+
+/// The error for a Cyclone return code.
+pub(crate) fn error(code: i32) -> DdsError {
+    DdsError::Code {
+        code,
+        message: retcode(code),
+    }
+}
+
+/// `s` as a C string.
+fn c_string(s: &str) -> Result<CString, DdsError> {
+    CString::new(s).map_err(|_| DdsError::Nul(s.to_string()))
 }
 
 /// A Cyclone entity (participant, topic, reader, writer), deleted with its children on drop.
@@ -34,9 +48,9 @@ pub(crate) struct Entity(c::dds_entity_t);
 
 impl Entity {
     /// Wraps a handle a `dds_create_*` call returned; negative values are error codes.
-    pub(crate) fn new(handle: c::dds_entity_t) -> Result<Self, String> {
+    pub(crate) fn new(handle: c::dds_entity_t) -> Result<Self, DdsError> {
         if handle < 0 {
-            Err(retcode(handle))
+            Err(error(handle))
         } else {
             Ok(Self(handle))
         }
@@ -214,7 +228,7 @@ pub(crate) fn domain_xml(config: &DdsConfig) -> String {
 
 /// Creates `config`'s domain unless this process already has it; a second configuration
 /// for the same domain id is an error (Cyclone has one per domain and process).
-pub(crate) fn domain(config: &DdsConfig) -> Result<(), String> {
+pub(crate) fn domain(config: &DdsConfig) -> Result<(), DdsError> {
     install_log_sink();
     let xml = domain_xml(config);
     let mut domains = DOMAINS
@@ -224,13 +238,10 @@ pub(crate) fn domain(config: &DdsConfig) -> Result<(), String> {
         return if *existing == xml {
             Ok(())
         } else {
-            Err(format!(
-                "domain {} is already open in this process with other interfaces or buffers",
-                config.domain_id
-            ))
+            Err(DdsError::DomainConflict(config.domain_id))
         };
     }
-    let cxml = CString::new(xml.clone()).map_err(|e| e.to_string())?;
+    let cxml = c_string(&xml)?;
     // SAFETY: a valid C string; Cyclone parses it and copies what it needs.
     let handle = unsafe { c::dds_create_domain(u32::from(config.domain_id), cxml.as_ptr()) };
     let entity = Entity::new(handle)?;
@@ -239,7 +250,7 @@ pub(crate) fn domain(config: &DdsConfig) -> Result<(), String> {
 }
 
 /// Joins `domain_id` (created with [`domain`]) as a participant named `name`.
-pub(crate) fn participant(domain_id: u16, name: &str) -> Result<Entity, String> {
+pub(crate) fn participant(domain_id: u16, name: &str) -> Result<Entity, DdsError> {
     let mut qos = Qos::new();
     qos.entity_name(name);
     // SAFETY: the domain exists; QoS is live for the call; no listener.
@@ -335,12 +346,12 @@ unsafe impl Send for SerType {}
 unsafe impl Sync for SerType {}
 
 /// The sertype of a topic, reader or writer.
-pub(crate) fn sertype(entity: &Entity) -> Result<SerType, String> {
+pub(crate) fn sertype(entity: &Entity) -> Result<SerType, DdsError> {
     let mut st: *const c::ddsi_sertype = null();
     // SAFETY: `st` is a valid out-parameter.
     let ret = unsafe { c::dds_get_entity_sertype(entity.0, &raw mut st) };
     if ret < 0 || st.is_null() {
-        return Err(retcode(ret));
+        return Err(error(ret.min(c::DDS_RETCODE_ERROR)));
     }
     Ok(SerType(st))
 }
@@ -351,14 +362,31 @@ pub(crate) fn topic(
     name: &str,
     ty: &crate::shape::Shape,
     qos: &Qos,
-) -> Result<Entity, String> {
-    let cname = CString::new(name).map_err(|e| e.to_string())?;
-    let mut built = crate::shape::DynamicType::build(participant.0, ty)?;
+) -> Result<Entity, CreateError> {
+    let refused = |source| CreateError::Dds {
+        what: format!("topic {name}"),
+        source,
+    };
+    let type_refused = |step: &str, ret: i32| CreateError::Type {
+        topic: name.to_string(),
+        source: TypeError::Dds {
+            type_name: ty.name.clone(),
+            step: step.to_string(),
+            source: error(ret.min(c::DDS_RETCODE_ERROR)),
+        },
+    };
+    let cname = c_string(name).map_err(refused)?;
+    let mut built = crate::shape::DynamicType::build(participant.0, ty).map_err(|source| {
+        CreateError::Type {
+            topic: name.to_string(),
+            source,
+        }
+    })?;
     let mut type_info: *mut c::dds_typeinfo_t = null_mut();
     // SAFETY: `built` is a complete dynamic type; registering consumes nothing.
     let ret = unsafe { c::dds_dynamic_type_register(built.raw(), &raw mut type_info) };
     if ret < 0 {
-        return Err(format!("type {}: {}", ty.name, retcode(ret)));
+        return Err(type_refused("register", ret));
     }
     let mut descriptor: *mut c::dds_topic_descriptor_t = null_mut();
     // SAFETY: type_info came from the registration above.
@@ -374,7 +402,7 @@ pub(crate) fn topic(
     // SAFETY: type_info is freed once, after its last use.
     unsafe { c::dds_free_typeinfo(type_info) };
     if ret < 0 || descriptor.is_null() {
-        return Err(format!("type {}: {}", ty.name, retcode(ret)));
+        return Err(type_refused("topic descriptor", ret));
     }
     // Match remote endpoints on the type's name, as RustDDS, Fast DDS and RTI without
     // XTypes do: announce no TypeInformation (docs/deviations.md, "Type matching").
@@ -397,11 +425,11 @@ pub(crate) fn topic(
         c::dds_delete_topic_descriptor(descriptor);
         h
     };
-    Entity::new(handle).map_err(|e| format!("topic {name}: {e}"))
+    Entity::new(handle).map_err(refused)
 }
 
 /// Creates a writer.
-pub(crate) fn writer(participant: &Entity, topic: TopicRef, qos: &Qos) -> Result<Entity, String> {
+pub(crate) fn writer(participant: &Entity, topic: TopicRef, qos: &Qos) -> Result<Entity, DdsError> {
     // SAFETY: live entities and QoS; no listener.
     Entity::new(unsafe { c::dds_create_writer(participant.0, topic.0, qos.ptr(), null()) })
 }
@@ -464,7 +492,7 @@ pub(crate) fn reader<W: Wake>(
     topic: TopicRef,
     qos: &Qos,
     wake: Arc<W>,
-) -> Result<ReaderHandle<W>, String> {
+) -> Result<ReaderHandle<W>, DdsError> {
     let arg = Arc::into_raw(wake);
     let l = Listener::new(arg.cast());
     // SAFETY: l.0 is live; the callback matches; Cyclone copies the listener.
@@ -531,7 +559,7 @@ pub(crate) fn take_cdr(
     reader: &Entity,
     max: usize,
     mut each: impl FnMut(Taken<'_>),
-) -> Result<(), String> {
+) -> Result<(), DdsError> {
     const BATCH: usize = 64;
     let max = max.min(BATCH);
     let mut bufs = [null_mut::<c::ddsi_serdata>(); BATCH];
@@ -548,7 +576,7 @@ pub(crate) fn take_cdr(
         )
     };
     if n < 0 {
-        return Err(retcode(n));
+        return Err(error(n));
     }
     let n = usize::try_from(n).unwrap_or(0);
     // Released on every path out, a panic in `each` included.
@@ -635,7 +663,7 @@ pub(crate) struct ParticipantChange {
 }
 
 /// A reader of the built-in participant topic.
-pub(crate) fn participant_reader(participant: &Entity) -> Result<Entity, String> {
+pub(crate) fn participant_reader(participant: &Entity) -> Result<Entity, DdsError> {
     // SAFETY: the built-in topic pseudo-handle; default QoS; no listener.
     Entity::new(unsafe {
         c::dds_create_reader(
@@ -836,7 +864,10 @@ mod tests {
             socket_receive_buffer: 1 << 20,
             ..first
         };
-        let err = domain(&other).err().unwrap_or_default();
+        let err = domain(&other)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
         assert!(err.contains("domain 212 is already open"), "{err}");
     }
 

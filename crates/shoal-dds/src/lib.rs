@@ -26,7 +26,7 @@ mod shape;
 mod topics;
 
 pub use config::DdsConfig;
-pub use error::{CreateError, ReadError, WriteError};
+pub use error::{CdrError, CreateError, DdsError, ReadError, TypeError, WriteError};
 pub use manager::{ParticipantEvent, PubSub, SampleMeta, Subscription, Writer};
 pub use qos::{Priority, QosProfile, WriterOptions};
 pub use secure::{SIGNED_TYPE_NAME, Security, SecurityCounts, signed_topic};
@@ -41,26 +41,23 @@ pub fn cyclone_config(config: &DdsConfig) -> String {
 
 /// Serialises a sample exactly as it goes on the wire: a 4-byte encapsulation header
 /// (CDR little endian, RTPS 10.5) followed by XCDR1 plain CDR. For interop checks and tools.
-pub fn to_cdr_le<T: serde::Serialize>(sample: &T) -> Result<Vec<u8>, String> {
+pub fn to_cdr_le<T: serde::Serialize>(sample: &T) -> Result<Vec<u8>, CdrError> {
     let mut out = vec![0x00, 0x01, 0x00, 0x00];
     let body =
-        cdr_encoding::to_vec::<T, byteorder::LittleEndian>(sample).map_err(|e| e.to_string())?;
+        cdr_encoding::to_vec::<T, byteorder::LittleEndian>(sample).map_err(CdrError::Encode)?;
     out.extend_from_slice(&body);
     Ok(out)
 }
 
 /// Decodes the bytes [`to_cdr_le`] makes (either byte order of plain CDR).
-pub fn from_cdr<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
-    let (header, body) = bytes.split_at_checked(4).ok_or_else(|| {
-        format!(
-            "{} bytes cannot hold a CDR encapsulation header",
-            bytes.len()
-        )
-    })?;
+pub fn from_cdr<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, CdrError> {
+    let (header, body) = bytes
+        .split_at_checked(4)
+        .ok_or(CdrError::TooShort(bytes.len()))?;
     let decoded = match [header[0], header[1]] {
         [0x00, 0x01] => cdr_encoding::from_bytes::<T, byteorder::LittleEndian>(body),
         [0x00, 0x00] => cdr_encoding::from_bytes::<T, byteorder::BigEndian>(body),
-        other => return Err(format!("unsupported CDR encapsulation {other:02x?}")),
+        other => return Err(CdrError::Encapsulation(other)),
     };
-    decoded.map(|(v, _)| v).map_err(|e| e.to_string())
+    decoded.map(|(v, _)| v).map_err(CdrError::Decode)
 }

@@ -8,13 +8,13 @@ use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 
 use futures::Stream;
-use shoal_model::Validated;
 use futures::task::AtomicWaker;
+use shoal_model::Validated;
 use tracing::{debug, info, warn};
 
 use crate::config::DdsConfig;
 use crate::cyclone::{self, Entity, QosReports, ReaderHandle, SerType, TopicRef};
-use crate::error::{CreateError, ReadError, WriteError};
+use crate::error::{CdrError, CreateError, DdsError, ReadError, SendError, TypeError, WriteError};
 use crate::qos::WriterOptions;
 use crate::secure::{
     Refused, SIGNED_TYPE_NAME, Security, SecurityCounts, SignedWire, signed_topic,
@@ -22,10 +22,10 @@ use crate::secure::{
 use crate::shape::Shape;
 use crate::topics::TopicType;
 
-fn dds_err(what: impl Into<String>, detail: impl std::fmt::Display) -> CreateError {
+fn dds_err(what: impl Into<String>, source: DdsError) -> CreateError {
     CreateError::Dds {
         what: what.into(),
-        detail: detail.to_string(),
+        source,
     }
 }
 
@@ -54,7 +54,7 @@ impl Participant {
         &self,
         name: &str,
         type_name: &str,
-        shape: impl FnOnce() -> Result<Shape, String>,
+        shape: impl FnOnce() -> Result<Shape, TypeError>,
     ) -> Result<(TopicRef, SerType), CreateError> {
         let mut topics = self
             .topics
@@ -62,17 +62,20 @@ impl Participant {
             .map_err(|_| CreateError::Config("topic table lock poisoned".into()))?;
         if let Some(t) = topics.get(name) {
             if t.type_name != type_name {
-                return Err(dds_err(
-                    format!("topic {name}"),
-                    format!("it already carries {}, not {type_name}", t.type_name),
-                ));
+                return Err(CreateError::TopicTypeMismatch {
+                    topic: name.to_string(),
+                    existing: t.type_name.clone(),
+                    requested: type_name.to_string(),
+                });
             }
             return Ok((t.entity.topic_ref(), t.sertype));
         }
-        let shape = shape().map_err(|e| dds_err(format!("topic {name}"), e))?;
+        let shape = shape().map_err(|source| CreateError::Type {
+            topic: name.to_string(),
+            source,
+        })?;
         let qos = cyclone::Qos::new();
-        let entity = cyclone::topic(&self.entity, name, &shape, &qos)
-            .map_err(|e| dds_err(format!("topic {name}"), e))?;
+        let entity = cyclone::topic(&self.entity, name, &shape, &qos)?;
         let sertype = cyclone::sertype(&entity).map_err(|e| dds_err(format!("topic {name}"), e))?;
         let shared = entity.topic_ref();
         topics.insert(
@@ -408,23 +411,22 @@ impl<T: TopicType> Writer<T> {
         }
     }
 
-    fn send(&self, sample: &T) -> Result<(), String> {
+    fn send(&self, sample: &T) -> Result<(), SendError> {
         let mut cdr = match &self.security {
             Some(security) => crate::to_cdr_le(&security.seal(sample)?)?,
             None => crate::to_cdr_le(sample)?,
         };
         cyclone::write_cdr(&self.entity, self.sertype, &mut cdr).map_err(|code| {
             if code == cyclone::TIMEOUT {
-                "reliable history full: readers are not acknowledging".to_string()
+                SendError::HistoryFull
             } else {
-                cyclone::retcode(code)
+                SendError::Dds(cyclone::error(code))
             }
         })
     }
 
     fn send_or_return(&self, sample: T) -> Result<(), WriteError<T>> {
-        self.send(&sample)
-            .map_err(|detail| WriteError::Dds { detail, sample })
+        self.send(&sample).map_err(|e| e.with(sample))
     }
 
     /// Validates and publishes one sample; on failure the sample comes back in the error.
@@ -531,7 +533,8 @@ impl Samples {
         reader: &Entity,
         taken: &cyclone::Taken,
     ) -> Result<(Validated<T>, SampleMeta), ReadError> {
-        let malformed = |detail: String| {
+        let malformed = |e: CdrError| {
+            let detail = e.to_string();
             warn!(topic = T::TOPIC, %detail, "malformed sample dropped");
             ReadError::Malformed {
                 topic: T::TOPIC,
@@ -617,12 +620,12 @@ impl<T: TopicType> Subscription<T> {
             } = source;
             let reader = reader.entity();
             let buffer = &mut self.buffer;
-            if let Err(detail) = cyclone::take_cdr(reader, BATCH, |t| {
+            if let Err(e) = cyclone::take_cdr(reader, BATCH, |t| {
                 buffer.push_back(samples.item::<T>(reader, &t));
             }) {
                 self.buffer.push_back(Err(ReadError::Dds {
                     topic: T::TOPIC,
-                    detail,
+                    detail: e.to_string(),
                 }));
             }
         }

@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 use shoal_model::Validated;
 use shoal_security::{Gate, RejectionCounts, SigningIdentity, envelope::counter_start_from_clock};
 
+use crate::error::SendError;
 use crate::topics::TopicType;
 
 /// The DDS type name of a signed sample, as in `idl/shoal.idl`.
@@ -120,13 +121,13 @@ impl Security {
     }
 
     /// Wraps a valid sample of `T` in a signed envelope.
-    pub(crate) fn seal<T: TopicType>(&self, sample: &T) -> Result<SignedWire, String> {
+    pub(crate) fn seal<T: TopicType>(&self, sample: &T) -> Result<SignedWire, SendError> {
         let payload = crate::to_cdr_le(sample)?;
         let counter = self.counter.fetch_add(1, Ordering::Relaxed);
         let envelope = self
             .identity
             .sign(T::TOPIC, &payload, shoal_model::now_ms(), counter)
-            .map_err(|e| e.to_string())?;
+            .map_err(SendError::Sign)?;
         Ok(SignedWire {
             key: sample.key_text(),
             envelope: envelope.encode(),
@@ -145,7 +146,7 @@ impl Security {
                 if topic != T::TOPIC {
                     return Err(format!("signed for {topic}, sent on {}", T::TOPIC));
                 }
-                let sample: T = crate::from_cdr(payload)?;
+                let sample: T = crate::from_cdr(payload).map_err(|e| e.to_string())?;
                 let owner = sample
                     .owner_vehicle()
                     .ok_or_else(|| format!("{} has no owning vehicle", T::TOPIC))?

@@ -15,6 +15,8 @@ use cyclors as c;
 use serde::de::DeserializeOwned;
 use serde_reflection::{ContainerFormat, Format, Registry, Tracer, TracerConfig};
 
+use crate::error::{DdsError, TypeError};
+
 /// A type's layout as serde sees it, with its DDS type name and key fields.
 #[derive(Debug)]
 pub(crate) struct Shape {
@@ -28,16 +30,22 @@ pub(crate) struct Shape {
 impl Shape {
     /// Traces `T`, named `type_name` on the wire and keyed by the fields `keys` (none: an
     /// unkeyed topic).
-    pub(crate) fn of<T: DeserializeOwned>(type_name: &str, keys: &[&str]) -> Result<Self, String> {
+    pub(crate) fn of<T: DeserializeOwned>(
+        type_name: &str,
+        keys: &[&str],
+    ) -> Result<Self, TypeError> {
         let mut tracer = Tracer::new(TracerConfig::default());
         let (format, _) = tracer
             .trace_type_once::<T>(&serde_reflection::Samples::new())
-            .map_err(|e| format!("cannot trace the layout of {type_name}: {e}"))?;
+            .map_err(|e| TypeError::Trace {
+                type_name: type_name.to_string(),
+                detail: e.to_string(),
+            })?;
         // Enums need only their kind here (see `named`), not every variant, which a single
         // pass does not always reach (an enum inside a sequence, say).
         let registry = tracer.registry_unchecked();
         let Format::TypeName(root) = format else {
-            return Err(format!("{type_name} is not a struct"));
+            return Err(TypeError::NotStruct(type_name.to_string()));
         };
         let shape = Self {
             name: type_name.to_string(),
@@ -47,17 +55,33 @@ impl Shape {
         };
         for key in &shape.keys {
             if !shape.root_fields()?.iter().any(|f| &f.name == key) {
-                return Err(format!("{type_name} has no key field {key}"));
+                return Err(TypeError::NoKeyField {
+                    type_name: type_name.to_string(),
+                    key: key.clone(),
+                });
             }
         }
         Ok(shape)
     }
 
-    fn root_fields(&self) -> Result<&[serde_reflection::Named<Format>], String> {
+    fn root_fields(&self) -> Result<&[serde_reflection::Named<Format>], TypeError> {
         match self.registry.get(&self.root) {
             Some(ContainerFormat::Struct(fields)) => Ok(fields),
-            _ => Err(format!("{} is not a struct", self.name)),
+            _ => Err(TypeError::NotStruct(self.name.clone())),
         }
+    }
+
+    /// Refused: `what` has no DDS equivalent.
+    fn unsupported(&self, what: String) -> TypeError {
+        TypeError::Unsupported {
+            type_name: self.name.clone(),
+            what,
+        }
+    }
+
+    /// A count or index as the 32 bits DDS has for it.
+    fn u32(&self, n: usize, what: &str) -> Result<u32, TypeError> {
+        u32::try_from(n).map_err(|_| self.unsupported(format!("{n} {what}")))
     }
 
     /// The module prefix of the DDS type name ("shoal::"), for nested types' names.
@@ -76,7 +100,7 @@ impl DynamicType {
     }
 
     /// Builds `shape`'s dynamic type in `entity`'s domain.
-    pub(crate) fn build(entity: c::dds_entity_t, shape: &Shape) -> Result<Self, String> {
+    pub(crate) fn build(entity: c::dds_entity_t, shape: &Shape) -> Result<Self, TypeError> {
         let mut b = Builder {
             entity,
             shape,
@@ -87,10 +111,10 @@ impl DynamicType {
         let mut ty = b.structure(&shape.name, fields)?;
         for (i, f) in fields.iter().enumerate() {
             if shape.keys.contains(&f.name) {
-                let id = u32::try_from(i).map_err(|e| e.to_string())?;
+                let id = shape.u32(i, "fields")?;
                 // SAFETY: ty is a struct under construction with member `id`.
                 let ret = unsafe { c::dds_dynamic_member_set_key(&raw mut ty.0, id, true) };
-                check(ret, "key")?;
+                check(ret, shape, "key")?;
             }
         }
         Ok(ty)
@@ -106,11 +130,21 @@ impl Drop for DynamicType {
     }
 }
 
-fn check(ret: i32, what: &str) -> Result<(), String> {
+/// A dynamic-type call's return code: an error naming the step when negative.
+fn check(ret: i32, shape: &Shape, step: &str) -> Result<(), TypeError> {
     if ret < 0 {
-        Err(format!("{what}: {}", crate::cyclone::retcode(ret)))
+        Err(refused(shape, step, crate::cyclone::error(ret)))
     } else {
         Ok(())
+    }
+}
+
+/// Cyclone refused `step` of building `shape`'s type.
+fn refused(shape: &Shape, step: &str, source: DdsError) -> TypeError {
+    TypeError::Dds {
+        type_name: shape.name.clone(),
+        step: step.to_string(),
+        source,
     }
 }
 
@@ -130,8 +164,9 @@ enum Spec {
 }
 
 impl Builder<'_> {
-    fn cname(&mut self, s: &str) -> Result<*const std::os::raw::c_char, String> {
-        let c = CString::new(s).map_err(|e| e.to_string())?;
+    fn cname(&mut self, s: &str) -> Result<*const std::os::raw::c_char, TypeError> {
+        let c = CString::new(s)
+            .map_err(|_| refused(self.shape, "name", DdsError::Nul(s.to_string())))?;
         let p = c.as_ptr();
         self.names.push(c);
         Ok(p)
@@ -142,17 +177,11 @@ impl Builder<'_> {
         format!("{}{what}_{}", self.shape.module(), self.anonymous)
     }
 
-    fn create(&mut self, d: c::dds_dynamic_type_descriptor_t) -> Result<DynamicType, String> {
+    fn create(&mut self, d: c::dds_dynamic_type_descriptor_t) -> Result<DynamicType, TypeError> {
         // SAFETY: the descriptor's strings and bounds outlive the call (self.names, or
         // the caller's stack); the entity is a live participant.
         let t = unsafe { c::dds_dynamic_type_create(self.entity, d) };
-        if t.ret < 0 {
-            return Err(format!(
-                "a type of {}: {}",
-                self.shape.name,
-                crate::cyclone::retcode(t.ret)
-            ));
-        }
+        check(t.ret, self.shape, "create a type")?;
         Ok(DynamicType(t))
     }
 
@@ -167,7 +196,7 @@ impl Builder<'_> {
         &mut self,
         name: &str,
         fields: &[serde_reflection::Named<Format>],
-    ) -> Result<DynamicType, String> {
+    ) -> Result<DynamicType, TypeError> {
         let mut d = Self::descriptor(c::dds_dynamic_type_kind_DDS_DYNAMIC_STRUCTURE);
         d.name = self.cname(name)?;
         let mut ty = self.create(d)?;
@@ -178,18 +207,18 @@ impl Builder<'_> {
                 c::dds_dynamic_type_extensibility_DDS_DYNAMIC_TYPE_EXT_FINAL,
             )
         };
-        check(ret, "extensibility")?;
+        check(ret, self.shape, "extensibility")?;
         for (i, f) in fields.iter().enumerate() {
             let spec = self.spec(&f.value)?;
             // SAFETY: a plain C struct for which all-zero is "unset".
             let mut m: c::dds_dynamic_member_descriptor_t = unsafe { std::mem::zeroed() };
             m.name = self.cname(&f.name)?;
-            m.id = u32::try_from(i).map_err(|e| e.to_string())?;
+            m.id = self.shape.u32(i, "fields")?;
             m.index = u32::MAX;
             m.type_ = Self::type_spec(spec);
             // SAFETY: ty is under construction; the member's type reference moves into it.
             let ret = unsafe { c::dds_dynamic_type_add_member(&raw mut ty.0, m) };
-            check(ret, &format!("member {}", f.name))?;
+            check(ret, self.shape, &format!("member {}", f.name))?;
         }
         Ok(ty)
     }
@@ -216,7 +245,7 @@ impl Builder<'_> {
         kind: c::dds_dynamic_type_kind_t,
         element: &Format,
         bound: Option<u32>,
-    ) -> Result<Spec, String> {
+    ) -> Result<Spec, TypeError> {
         let element = self.spec(element)?;
         let what = if bound.is_some() { "array" } else { "sequence" };
         let name = self.anonymous_name(what);
@@ -231,7 +260,7 @@ impl Builder<'_> {
         Ok(Spec::Made(self.create(d)?))
     }
 
-    fn spec(&mut self, format: &Format) -> Result<Spec, String> {
+    fn spec(&mut self, format: &Format) -> Result<Spec, TypeError> {
         use c::{
             dds_dynamic_type_kind_DDS_DYNAMIC_ARRAY as ARRAY,
             dds_dynamic_type_kind_DDS_DYNAMIC_SEQUENCE as SEQUENCE,
@@ -256,30 +285,23 @@ impl Builder<'_> {
             Format::Bytes => self.collection(SEQUENCE, &Format::U8, None)?,
             Format::Seq(element) => self.collection(SEQUENCE, element, None)?,
             Format::TupleArray { content, size } => {
-                let size = u32::try_from(*size).map_err(|e| e.to_string())?;
+                let size = self.shape.u32(*size, "array elements")?;
                 self.collection(ARRAY, content, Some(size))?
             }
             Format::Tuple(items) if !items.is_empty() && items.iter().all(|i| *i == items[0]) => {
-                let size = u32::try_from(items.len()).map_err(|e| e.to_string())?;
+                let size = self.shape.u32(items.len(), "tuple elements")?;
                 self.collection(ARRAY, &items[0], Some(size))?
             }
             Format::TypeName(name) => self.named(name)?,
-            other => {
-                return Err(format!(
-                    "{} uses {other:?}, which has no DDS equivalent here",
-                    self.shape.name
-                ));
-            }
+            other => return Err(self.shape.unsupported(format!("{other:?}"))),
         })
     }
 
-    fn named(&mut self, name: &str) -> Result<Spec, String> {
-        let container = self
-            .shape
-            .registry
-            .get(name)
-            .cloned()
-            .ok_or_else(|| format!("{}: no layout traced for {name}", self.shape.name))?;
+    fn named(&mut self, name: &str) -> Result<Spec, TypeError> {
+        let container = self.shape.registry.get(name).cloned().ok_or_else(|| {
+            self.shape
+                .unsupported(format!("{name}, whose layout was not traced"))
+        })?;
         let suffix = if self.shape.name.ends_with('_') {
             "_"
         } else {
@@ -299,14 +321,12 @@ impl Builder<'_> {
                     .values()
                     .any(|v| !matches!(v.value, serde_reflection::VariantFormat::Unit))
                 {
-                    return Err(format!("{name} is not a C-like enum"));
+                    return Err(self.shape.unsupported(format!("enum {name} carrying data")));
                 }
                 Spec::Primitive(c::dds_dynamic_type_kind_DDS_DYNAMIC_INT32)
             }
             ContainerFormat::UnitStruct => {
-                return Err(format!(
-                    "{name} is a unit struct, which has no DDS equivalent"
-                ));
+                return Err(self.shape.unsupported(format!("unit struct {name}")));
             }
         })
     }
