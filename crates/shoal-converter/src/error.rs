@@ -15,7 +15,7 @@ pub enum ConverterError {
     /// The acoustic link stopped (its modem driver ended) while the converter ran.
     #[error("acoustic link stopped")]
     LinkStopped,
-    /// The modem emulator of the acoustic demo could not start.
+    /// The modem emulator of an emulated relay could not start.
     #[error("modem emulator: {0}")]
     Emulator(#[from] shoal_acoustic::emulator::EmulatorError),
 }

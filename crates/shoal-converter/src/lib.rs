@@ -14,23 +14,21 @@
 //!   types (a per-vehicle link-status event plus the writer's participant).
 //! - [`config`]: [`VdtConfig`] and [`CdtConfig`] (serde, defaults, `deny_unknown_fields`).
 //! - [`Modem`]: the configured modem driver (EvoLogics AT or EviNS NL).
-//! - [`relay`]: the SWARMs sea-trial topology in one call, for `shoal up`:
-//!   simulated AUV on a private DDS domain → VDT → emulated sea → CDT on a relay → station.
-//! - [`bench`]: figures for `shoal bench acoustic` (PDU sizes, channel use, emergency
-//!   latency, control delivery under loss), measured on the modem emulator.
+//! - [`emulated_relay`]: the SWARMs sea-trial topology in one call: any vehicle software on
+//!   its private DDS domain → VDT → emulated sea → CDT on a relay → station (`shoal up`'s
+//!   acoustic demo puts the simulator behind it).
 //!
 //! The codec, the modem drivers, the link layer and the emulator live in `shoal-acoustic`;
 //! this crate is the glue between them and the Publish/Subscribe Manager (`shoal-dds`).
 
-pub mod bench;
 pub mod cdt;
 mod common;
 pub mod config;
 mod dedup;
+pub mod emulated_relay;
 mod error;
 pub mod link_status;
 mod modem;
-pub mod relay;
 pub mod vdt;
 
 pub use cdt::run_cdt;

@@ -25,8 +25,8 @@
 //!   materialised rows, which is much cheaper than the evaluator's own sort.
 //! - Export ([`SemanticStore::export`]) as N-Quads/TriG/Turtle/N-Triples, and the five
 //!   standard queries ([`STANDARD_QUERIES`]) cross-checked against rdflib.
-//! - [`bench`]: figures for the standard queries at fleet scale, fresh and through a
-//!   simulated hour of traffic, with memory.
+//! - [`synthetic`]: a deterministic synthetic fleet, for tests, the rdflib cross-check and
+//!   `shoal bench semantic`.
 //! - [`StoreConfig`]: the store's tuning, deserialisable from the station's TOML, checked
 //!   by [`StoreConfig::check`].
 //!
@@ -36,7 +36,6 @@
 
 #![forbid(unsafe_code)]
 
-pub mod bench;
 mod config;
 mod dataset;
 mod error;
@@ -46,6 +45,7 @@ mod query;
 pub mod reasoner;
 mod rules;
 mod store;
+pub mod synthetic;
 pub mod vocab;
 
 pub use config::{ConfigError, StoreConfig};

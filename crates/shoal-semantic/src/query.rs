@@ -461,7 +461,7 @@ mod tests {
 
     fn store() -> SemanticStore {
         let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
-        crate::bench::populate_fleet(&mut s, 10, 3).unwrap();
+        crate::synthetic::populate_fleet(&mut s, 10, 3).unwrap();
         s
     }
 
@@ -621,7 +621,7 @@ mod tests {
             st.altitude_m = shoal_model::UNKNOWN;
             s.update_state(&st).unwrap();
         }
-        s.flush_dirty(crate::bench::T0_MS + 60_000).unwrap();
+        s.flush_dirty(crate::synthetic::T0_MS + 60_000).unwrap();
         for (q, keys) in [
             (
                 "SELECT ?v ?b WHERE { ?v shoal:batteryLevel ?b } ORDER BY DESC(?b) ?v",

@@ -2039,7 +2039,7 @@ mod tests {
             ..StoreConfig::default()
         })
         .unwrap();
-        crate::bench::populate_fleet(&mut s, 6, 3).unwrap();
+        crate::synthetic::populate_fleet(&mut s, 6, 3).unwrap();
         for i in 1..=5i64 {
             let mut st = state("v0002", T + 60_000 + i * 1000, 50.0 + i as f64);
             // Altitude comes and goes: an unknown altitude is not stated at all.
@@ -2333,7 +2333,7 @@ mod tests {
     #[test]
     fn exports_reparse_to_the_same_quads() {
         let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
-        crate::bench::populate_fleet(&mut s, 5, 1).unwrap();
+        crate::synthetic::populate_fleet(&mut s, 5, 1).unwrap();
         let opts = ExportOptions {
             format: ExportFormat::NQuads,
             include_ontology: true,

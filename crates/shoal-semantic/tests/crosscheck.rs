@@ -15,7 +15,7 @@ use std::process::Command;
 use oxrdf::Term;
 use shoal_semantic::{
     Availability, ExportFormat, ExportOptions, QueryLimits, QueryResult, STANDARD_QUERIES,
-    SemanticStore, StoreConfig, bench,
+    SemanticStore, StoreConfig, synthetic,
 };
 
 fn workspace() -> PathBuf {
@@ -126,7 +126,7 @@ fn sorted(mut rows: Vec<Vec<Option<String>>>) -> Vec<Vec<Option<String>>> {
 fn standard_queries_agree_with_rdflib() {
     let Some(py) = python() else { return };
     let mut store = SemanticStore::new(StoreConfig::default()).unwrap();
-    bench::populate_fleet(&mut store, 120, 42).unwrap();
+    synthetic::populate_fleet(&mut store, 120, 42).unwrap();
     set_availability_from_tasks(&mut store);
     let dir = tempfile::tempdir().unwrap();
     let export = dir.path().join("model.nq");

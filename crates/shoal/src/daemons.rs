@@ -183,7 +183,7 @@ fn spawn(
 /// `shoal acoustic-demo` (started by `shoal up`).
 pub async fn acoustic_demo(cfg: &ShoalConfig, exit_on_stdin_close: bool) -> Result<()> {
     let shutdown = shutdown_signal(exit_on_stdin_close);
-    let demo = shoal_converter::relay::AcousticDemoConfig::default();
+    let demo = crate::relay::AcousticDemoConfig::default();
     info!(
         vehicles = demo.vehicles.len(),
         "acoustic demo: submerged AUV -> emulated modem -> CDT on the relay -> station"
@@ -195,7 +195,7 @@ pub async fn acoustic_demo(cfg: &ShoalConfig, exit_on_stdin_close: bool) -> Resu
     } else {
         None
     };
-    shoal_converter::relay::run_acoustic_demo_with(demo, cdt_dds, keys, shutdown)
+    crate::relay::run_acoustic_demo(demo, cdt_dds, keys, shutdown)
         .await
         .context("acoustic demo failed")
 }
@@ -259,7 +259,7 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Re
     let mut station_env = Vec::new();
     let mut bundles = std::collections::HashMap::new();
     if secure {
-        let demo = shoal_converter::relay::AcousticDemoConfig::default();
+        let demo = crate::relay::AcousticDemoConfig::default();
         let mut ids: Vec<&str> = Vec::new();
         if !no_fleet {
             ids.extend(cfg.fleet.vehicles.iter().map(|v| v.id.as_str()));

@@ -310,7 +310,7 @@ pub fn prepare_fleet(
 pub fn acoustic_keys(
     cfg: &SecurityConfig,
     vehicle_ids: &[&str],
-) -> Result<shoal_converter::relay::AcousticKeys> {
+) -> Result<shoal_converter::emulated_relay::AcousticKeys> {
     let store = KeyStore::open(&cfg.store).context("cannot open the key store")?;
     let mut keys = std::collections::HashMap::new();
     for id in vehicle_ids {
@@ -319,7 +319,7 @@ pub fn acoustic_keys(
             .with_context(|| format!("no acoustic key for {id:?}: run `shoal keys issue {id}`"))?;
         keys.insert((*id).to_string(), key);
     }
-    Ok(shoal_converter::relay::AcousticKeys {
+    Ok(shoal_converter::emulated_relay::AcousticKeys {
         tag: shoal_security::TagSize::Bits64,
         keys,
     })

@@ -8,6 +8,7 @@ mod config;
 mod daemons;
 mod keys;
 mod query;
+mod relay;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

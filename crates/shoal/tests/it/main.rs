@@ -12,12 +12,15 @@
 //! - `security`: `[security]` on: signed fleet, refused intruders, revocation, start-up
 //!   errors.
 //! - `scenario`: the services end to end — missions on three vehicles, one acoustic.
+//! - `converter`: the DDS-Acoustic Converter (VDT, CDT, the emulated relay) with a
+//!   simulated vehicle behind it; its own module list says where its tests go.
 //! - `interop`: foreign DDS implementations (Cyclone DDS, RTI Connext, Fast DDS) against
 //!   the station, both directions; skipped with a reason when a peer is not installed.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 mod cli;
 mod common;
+mod converter;
 mod faults;
 mod interop;
 mod proxies;

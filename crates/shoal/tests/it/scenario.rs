@@ -5,7 +5,6 @@
 use std::time::Duration;
 
 use axum::http::StatusCode;
-use shoal_converter::relay::{AcousticDemoConfig, run_acoustic_demo};
 use shoal_dds::DdsConfig;
 use shoal_model::{EventKind, LinkKind, TaskState, VehicleKind, now_ms};
 use shoal_proxy::sim::SimSpec;
@@ -13,6 +12,7 @@ use shoal_station::MissionState;
 use tokio_util::sync::CancellationToken;
 
 use crate::common::{dds, eventually, start_station};
+use crate::converter::common::{demo_relay, run_relayed_sim};
 use crate::station::call;
 
 fn goto(vehicle: &str, lat: f64, lon: f64) -> serde_json::Value {
@@ -55,19 +55,15 @@ async fn three_vehicles_one_acoustic_run_their_missions_to_done() {
         )));
     }
     // One AUV behind the acoustic relay, on its own private domain.
-    let mut demo = AcousticDemoConfig {
-        time_scale: 0.1,
-        ..AcousticDemoConfig::default()
-    };
-    demo.vehicles[0].domain_id = 131;
-    let ac = demo.vehicles[0].sim.clone();
+    let (demo, ac) = demo_relay(131, 0.1);
     let station_dds = DdsConfig {
         domain_id: 69,
         ..DdsConfig::default()
     };
     let relay = {
         let stop = stop.clone();
-        tokio::spawn(async move { run_acoustic_demo(demo, &station_dds, stop).await })
+        let ac = ac.clone();
+        tokio::spawn(async move { run_relayed_sim(demo, ac, station_dds, stop).await })
     };
 
     for id in ["auv-s1", "usv-s2", ac.id.as_str()] {

@@ -12,7 +12,7 @@ use shoal_model::{
 };
 use tokio_util::sync::CancellationToken;
 
-use crate::common::*;
+use super::common::*;
 
 /// True if `b` (received acoustically) is `a` within the PDU resolution: keyframe 1e-5°,
 /// 0.1 m, 0.05 m/s, 0.5°, 1 %; deltas 2e-5°, 0.25 m/s, 3° (half a step each way, plus the
@@ -56,7 +56,7 @@ async fn state_and_announcement_cross_the_water_and_tasks_come_back() {
         let seen = a_seen.clone();
         tokio::spawn(async move {
             while let Some(Ok((s, _))) = a_states.next().await {
-                seen.lock().unwrap().push(s);
+                seen.lock().unwrap().push(s.into_inner());
             }
         });
     }

@@ -1,29 +1,9 @@
-//! Figures for `shoal bench acoustic` (issue 3, item 8); every function returns numbers and
-//! prints nothing.
-//!
-//! - [`pdu_sizes`]: each compact message's size against the DCCL reference State Vector
-//!   (158 bits → 20 bytes) and the SWARMs paper's 51-byte ASCII payload (ACOUSTIC.md §3).
-//! - [`channel_use`]: a saturated telemetry link, two emulated modems `distance_m` apart;
-//!   how busy the channel is and how full its frames are.
-//! - [`emergency_latency`]: an alarm injected while telemetry saturates the channel; time
-//!   from queueing to arrival, against one frame time plus propagation.
-//! - [`control_delivery`]: control messages at a fixed packet error rate with no modem
-//!   retries, so the link layer's ack and retransmission do all the work.
-//!
-//! Emergency latency has two bounds. The strict one is the issue's "one frame time plus
-//! propagation" (a 64-byte frame + d/c). A modem cannot abort a frame already on air (it
-//! answers BUSY), so an alarm that arrives as a full telemetry frame starts must wait for
-//! that frame, then needs its own (short) air time: the second bound,
-//! `bound_one_frame_wait_s`, adds the alarm frame's own air time. The link sends emergency
-//! frames without telemetry filler, and the driver reports an unacknowledged frame sent only
-//! when it is off air, so the link never commits a second telemetry frame ahead of an alarm.
-//!
-//! The measurements run the real emulator, AT drivers and link layer on 127.0.0.1 with
-//! `time_scale` < 1, and report **simulated** seconds (wall time divided by the scale).
+//! The channel measurements of `shoal bench acoustic`, each on two emulated modems on
+//! 127.0.0.1 with the real AT drivers and link layer, in simulated seconds.
 
 use std::time::Duration;
 
-use serde::Serialize;
+use anyhow::{Context, Result, anyhow, bail};
 use shoal_acoustic::channel::sound_speed_mackenzie;
 use shoal_acoustic::driver::{AtDriver, DriverConfig};
 use shoal_acoustic::emulator::{Emulator, EmulatorConfig, EmulatorHandle, ModemConfig};
@@ -32,188 +12,7 @@ use shoal_acoustic::pdu::{self, CompactEvent, CompactTask, MAX_FRAME, Pdu, TaskA
 use tokio::sync::mpsc;
 use tokio::time::Instant;
 
-use crate::error::ConverterError;
-
-/// The DCCL-equivalent size of the SWARMs State Vector, bytes (§3).
-pub const DCCL_REFERENCE_BYTES: usize = 20;
-/// The SWARMs paper's ASCII State Vector payload, bytes (§3).
-pub const SWARMS_ASCII_BYTES: usize = 51;
-/// A naive 32-bit binary layout of the State Vector, bytes (§3).
-pub const NAIVE_BINARY_BYTES: usize = 42;
-
-/// One row of the size table.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct SizeRow {
-    /// Message (and variant).
-    pub message: &'static str,
-    /// Significant bits, message id included.
-    pub bits: usize,
-    /// Bytes on the wire.
-    pub bytes: usize,
-    /// Bytes as a share of the SWARMs 51-byte ASCII payload.
-    pub vs_swarms_ascii: f64,
-    /// How many fit in one 64-byte instant message.
-    pub per_frame: usize,
-    /// How many fit once the frame carries the default 64-bit authentication tag.
-    pub per_frame_tagged: usize,
-}
-
-/// The PDU size table and its reference points.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct SizeReport {
-    /// One row per message.
-    pub rows: Vec<SizeRow>,
-    /// DCCL reference, bytes.
-    pub dccl_reference_bytes: usize,
-    /// SWARMs ASCII payload, bytes.
-    pub swarms_ascii_bytes: usize,
-    /// Naive binary layout, bytes.
-    pub naive_binary_bytes: usize,
-    /// Bytes the default (64-bit) authentication tag and its counter add per frame when
-    /// security is on (`shoal_acoustic::secure::TaggedDriver`).
-    pub auth_tag_bytes: Option<usize>,
-}
-
-/// The size table (pure; no I/O).
-pub fn pdu_sizes() -> SizeReport {
-    #[allow(clippy::cast_precision_loss)]
-    let rows = pdu::size_table()
-        .into_iter()
-        .map(|e| SizeRow {
-            message: e.message,
-            bits: e.bits,
-            bytes: e.bytes,
-            vs_swarms_ascii: e.bytes as f64 / SWARMS_ASCII_BYTES as f64,
-            per_frame: MAX_FRAME.checked_div(e.bytes).unwrap_or(0),
-            per_frame_tagged: (MAX_FRAME - shoal_security::acoustic::OVERHEAD_64)
-                .checked_div(e.bytes)
-                .unwrap_or(0),
-        })
-        .collect();
-    SizeReport {
-        rows,
-        dccl_reference_bytes: DCCL_REFERENCE_BYTES,
-        swarms_ascii_bytes: SWARMS_ASCII_BYTES,
-        naive_binary_bytes: NAIVE_BINARY_BYTES,
-        auth_tag_bytes: Some(shoal_security::acoustic::OVERHEAD_64),
-    }
-}
-
-/// Settings of the channel measurements.
-#[derive(Debug, Clone, PartialEq)]
-pub struct BenchOptions {
-    /// Wall-clock seconds per simulated second (0.05 runs 20× faster than real time).
-    pub time_scale: f64,
-    /// Emulator seed.
-    pub seed: u64,
-    /// Distance between the two modems, metres.
-    pub distance_m: f64,
-    /// Simulated seconds the saturated channel is measured for.
-    pub saturation_s: f64,
-    /// Emergency messages injected (one measurement each).
-    pub emergency_trials: u32,
-    /// Control messages sent in the loss measurement.
-    pub control_messages: u32,
-    /// Packet error rate of the loss measurement.
-    pub control_per: f64,
-}
-
-impl Default for BenchOptions {
-    fn default() -> Self {
-        Self {
-            time_scale: 0.05,
-            seed: 3,
-            distance_m: 1000.0,
-            saturation_s: 120.0,
-            emergency_trials: 8,
-            control_messages: 20,
-            control_per: 0.3,
-        }
-    }
-}
-
-/// Channel use under saturation.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ChannelUse {
-    /// Simulated seconds measured.
-    pub seconds: f64,
-    /// Frames received.
-    pub frames: u64,
-    /// PDU bytes received.
-    pub payload_bytes: u64,
-    /// Share of the time the channel carried a frame (air time incl. preamble / elapsed):
-    /// what the MAC and the driver leave idle is the rest.
-    pub busy_share: f64,
-    /// PDU bytes / frame capacity: how full the link layer packs its frames.
-    pub frame_fill: f64,
-    /// The headline figure: `busy_share × frame_fill`, the share of air time carrying
-    /// payload (goal ≥ 0.9). The modem's fixed preamble is physical-layer overhead and
-    /// is reported separately in `payload_bit_share`.
-    pub channel_use: f64,
-    /// Strictest view: payload bit time / elapsed time (preamble counted as overhead).
-    pub payload_bit_share: f64,
-    /// Whether `channel_use` meets the 0.9 goal.
-    pub goal_met: bool,
-}
-
-/// Emergency latency under saturating telemetry.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct EmergencyLatency {
-    /// Latency of each trial, simulated seconds (queueing → arrival at the receiver).
-    pub latencies_s: Vec<f64>,
-    /// Mean latency, s.
-    pub mean_s: f64,
-    /// Worst latency, s.
-    pub max_s: f64,
-    /// The goal: one 64-byte frame time plus propagation, s.
-    pub bound_s: f64,
-    /// Trials within the bound.
-    pub within_bound: usize,
-    /// One full frame's wait, plus the alarm frame's own air time, plus propagation, s.
-    pub bound_one_frame_wait_s: f64,
-    /// Trials within `bound_one_frame_wait_s`.
-    pub within_one_frame_wait: usize,
-}
-
-/// Control delivery under loss.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ControlDelivery {
-    /// Packet error rate applied to every packet (data and modem acks).
-    pub per: f64,
-    /// Messages sent.
-    pub sent: u32,
-    /// Acknowledged within the TTL.
-    pub delivered: u32,
-    /// The control TTL, simulated s.
-    pub ttl_s: f64,
-    /// Time until the last one was acknowledged, simulated s.
-    pub all_delivered_after_s: f64,
-    /// Packets the emulated channel lost during the run.
-    pub packets_lost: u64,
-}
-
-/// All of `shoal bench acoustic`.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct AcousticBench {
-    /// PDU sizes.
-    pub sizes: SizeReport,
-    /// Channel use under saturation.
-    pub channel: ChannelUse,
-    /// Emergency latency.
-    pub emergency: EmergencyLatency,
-    /// Control delivery at the configured PER.
-    pub control: ControlDelivery,
-}
-
-/// Runs every measurement in turn.
-pub async fn run(opts: &BenchOptions) -> Result<AcousticBench, ConverterError> {
-    Ok(AcousticBench {
-        sizes: pdu_sizes(),
-        channel: channel_use(opts).await?,
-        emergency: emergency_latency(opts).await?,
-        control: control_delivery(opts).await?,
-    })
-}
+use super::{BenchOptions, ChannelUse, ControlDelivery, EmergencyLatency};
 
 /// Two modems, a sending link on modem 1 and a receiving link on modem 2.
 struct Rig {
@@ -232,7 +31,7 @@ impl Drop for Rig {
     }
 }
 
-fn check(opts: &BenchOptions) -> Result<(), ConverterError> {
+fn check(opts: &BenchOptions) -> Result<()> {
     let ok = opts.time_scale.is_finite()
         && opts.time_scale > 0.0
         && opts.distance_m.is_finite()
@@ -240,13 +39,10 @@ fn check(opts: &BenchOptions) -> Result<(), ConverterError> {
         && opts.saturation_s.is_finite()
         && opts.saturation_s > 0.0
         && (0.0..1.0).contains(&opts.control_per);
-    if ok {
-        Ok(())
-    } else {
-        Err(ConverterError::Config(format!(
-            "bench options out of range: {opts:?}"
-        )))
+    if !ok {
+        bail!("bench options out of range: {opts:?}");
     }
+    Ok(())
 }
 
 impl Rig {
@@ -254,7 +50,7 @@ impl Rig {
         opts: &BenchOptions,
         tweak: impl FnOnce(&mut EmulatorConfig),
         link_cfg: LinkConfig,
-    ) -> Result<Self, ConverterError> {
+    ) -> Result<Self> {
         check(opts)?;
         let m = |address: u8, east_m: f64| ModemConfig {
             address,
@@ -273,11 +69,8 @@ impl Rig {
         };
         tweak(&mut cfg);
         let emu = Emulator::start(cfg, std::future::pending()).await?;
-        let driver = |i: usize| -> Result<AtDriver, ConverterError> {
-            let ep = emu
-                .modems()
-                .get(i)
-                .ok_or_else(|| ConverterError::Config("emulator modem missing".into()))?;
+        let driver = |i: usize| -> Result<AtDriver> {
+            let ep = emu.modems().get(i).context("emulator modem missing")?;
             let mut d = DriverConfig::new(ep.at).scaled(opts.time_scale);
             // Poll a busy modem every 20 ms (simulated) instead of 0.5 s: under saturation
             // the default leaves the channel idle for up to half a second per frame.
@@ -314,7 +107,7 @@ impl Rig {
         Duration::from_secs_f64(sim_s * self.scale)
     }
 
-    async fn send(&self, class: Class, pdu: Vec<u8>) -> Result<u64, ConverterError> {
+    async fn send(&self, class: Class, pdu: Vec<u8>) -> Result<u64> {
         self.tx
             .send(Outgoing {
                 dst: 2,
@@ -323,17 +116,17 @@ impl Rig {
                 supersede_key: None,
             })
             .await
-            .map_err(|_| ConverterError::LinkStopped)
+            .map_err(|_| anyhow!("acoustic link stopped"))
     }
 }
 
 /// A 10-byte delta State Vector, the typical telemetry PDU.
-fn telemetry_pdu() -> Result<Vec<u8>, ConverterError> {
+fn telemetry_pdu() -> Result<Vec<u8>> {
     pdu::samples()
         .into_iter()
         .find(|(n, _)| *n == "state_delta")
         .and_then(|(_, p)| pdu::encode(&p).ok())
-        .ok_or_else(|| ConverterError::Config("no delta sample PDU".into()))
+        .context("no delta sample PDU")
 }
 
 /// A saturating telemetry load: a long queue that never runs dry during the run.
@@ -344,7 +137,7 @@ fn saturating_link(opts: &BenchOptions) -> LinkConfig {
     cfg
 }
 
-async fn fill(rig: &Rig, opts: &BenchOptions, bytes: &[u8]) -> Result<(), ConverterError> {
+async fn fill(rig: &Rig, opts: &BenchOptions, bytes: &[u8]) -> Result<()> {
     // ~10 PDUs/s leave at 976 bit/s; queue twice what the run can drain.
     #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
     let n = (opts.saturation_s * 20.0).ceil() as usize + 100;
@@ -363,7 +156,7 @@ fn air_time_s(bytes: usize) -> f64 {
 }
 
 /// Channel use while a telemetry queue saturates the link.
-pub async fn channel_use(opts: &BenchOptions) -> Result<ChannelUse, ConverterError> {
+pub(super) async fn channel_use(opts: &BenchOptions) -> Result<ChannelUse> {
     let mut rig = Rig::start(opts, |_| {}, saturating_link(opts)).await?;
     let pdu = telemetry_pdu()?;
     fill(&rig, opts, &pdu).await?;
@@ -420,7 +213,7 @@ pub async fn channel_use(opts: &BenchOptions) -> Result<ChannelUse, ConverterErr
 }
 
 /// Size of the alarm PDU the latency trials send.
-fn telemetry_alarm_len() -> Result<usize, ConverterError> {
+fn telemetry_alarm_len() -> Result<usize> {
     pdu::encode(&Pdu::Event(CompactEvent {
         vehicle: Some(1),
         event_no: 0,
@@ -430,11 +223,11 @@ fn telemetry_alarm_len() -> Result<usize, ConverterError> {
         seconds_of_day: 0,
     }))
     .map(|b| b.len())
-    .map_err(|e| ConverterError::Config(e.to_string()))
+    .context("alarm PDU")
 }
 
 /// Latency of emergency messages while telemetry saturates the channel.
-pub async fn emergency_latency(opts: &BenchOptions) -> Result<EmergencyLatency, ConverterError> {
+pub(super) async fn emergency_latency(opts: &BenchOptions) -> Result<EmergencyLatency> {
     let mut rig = Rig::start(opts, |_| {}, saturating_link(opts)).await?;
     let pdu = telemetry_pdu()?;
     fill(&rig, opts, &pdu).await?;
@@ -452,7 +245,7 @@ pub async fn emergency_latency(opts: &BenchOptions) -> Result<EmergencyLatency, 
             task_no: None,
             seconds_of_day: 0,
         }))
-        .map_err(|e| ConverterError::Config(e.to_string()))?;
+        .context("alarm PDU")?;
         let t0 = Instant::now();
         rig.send(Class::Emergency, alarm.clone()).await?;
         let deadline = t0 + rig.wall(60.0);
@@ -463,7 +256,7 @@ pub async fn emergency_latency(opts: &BenchOptions) -> Result<EmergencyLatency, 
                     break;
                 }
                 Ok(Some(_)) => {}
-                Ok(None) => return Err(ConverterError::LinkStopped),
+                Ok(None) => bail!("acoustic link stopped"),
                 Err(_) => {
                     latencies.push(f64::INFINITY);
                     break;
@@ -501,7 +294,7 @@ pub async fn emergency_latency(opts: &BenchOptions) -> Result<EmergencyLatency, 
 }
 
 /// Delivery of control messages at `control_per` with no modem-level retries.
-pub async fn control_delivery(opts: &BenchOptions) -> Result<ControlDelivery, ConverterError> {
+pub(super) async fn control_delivery(opts: &BenchOptions) -> Result<ControlDelivery> {
     // One message per frame, so every message faces the loss on its own.
     let cfg = LinkConfig {
         max_frame: 16,
@@ -525,7 +318,7 @@ pub async fn control_delivery(opts: &BenchOptions) -> Result<ControlDelivery, Co
             task_no: u8::try_from(n % 256).unwrap_or(0),
             action: TaskAction::Hold { duration_s: 60 },
         });
-        let bytes = pdu::encode(&task).map_err(|e| ConverterError::Config(e.to_string()))?;
+        let bytes = pdu::encode(&task).context("task PDU")?;
         pending.insert(rig.send(Class::Control, bytes).await?);
     }
     let t0 = Instant::now();

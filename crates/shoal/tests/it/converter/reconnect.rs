@@ -5,7 +5,7 @@ use shoal_dds::{Priority, WriterOptions};
 use shoal_model::{TaskAssignment, TaskState, TaskStatus};
 use tokio_util::sync::CancellationToken;
 
-use crate::common::*;
+use super::common::*;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_task_queued_while_the_modem_is_gone_is_delivered_after_it_returns() {

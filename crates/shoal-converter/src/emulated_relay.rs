@@ -1,39 +1,58 @@
-//! The SWARMs sea-trial topology in one call: AUV →acoustic→ USV (CDT) →DDS over IP→
-//! station.
+//! An acoustic relay over the modem emulator: vehicles on their own private DDS domains,
+//! each heard only through a VDT, an emulated sea and a CDT that republishes them on the
+//! station's domain — the SWARMs sea-trial topology (vehicle →acoustic→ relay USV →DDS over
+//! IP→ station) on one host, for any vehicle software that publishes on a DDS domain.
 //!
-//! [`run_acoustic_demo`] starts, in this process:
+//! [`run_emulated_relay`] starts, in this process:
 //! - a modem emulator (`shoal-acoustic`) on 127.0.0.1 with one modem on the relay and one
-//!   per submerged vehicle; the vehicles' modems follow their live state;
-//! - per vehicle, a simulated vehicle ([`shoal_proxy::run_sim`]) on its **own private DDS
-//!   domain** (loopback only) and a VDT bridging that domain to the vehicle's modem. The
-//!   simulated vehicle never joins the station's domain: everything the station hears of
-//!   it crossed the emulated water;
-//! - a CDT on the relay's modem with its own DDS participant on the station's domain — the
+//!   per vehicle; the vehicles' modems can follow their live state;
+//! - per vehicle, a participant on its **own private DDS domain** (loopback only) handed to
+//!   the caller's vehicle (the simulator, a proxy for real vehicle software, a test
+//!   double), and a VDT bridging that domain to the vehicle's modem. The vehicle never
+//!   joins the station's domain: everything the station hears of it crossed the emulated
+//!   water;
+//! - a CDT on the relay's modem with the given participant on the station's domain — the
 //!   relay USV's DDS node — which republishes the vehicles' data there and forwards tasks.
 //!
-//! How `shoal up` includes it (the station already runs on `dds`):
+//! `shoal up`'s acoustic demo runs the simulator behind it (`crates/shoal/src/relay.rs`);
+//! the closure given to [`run_emulated_relay`] starts whatever vehicle software should
+//! speak on each private domain:
 //!
 //! ```no_run
-//! # async fn f(dds: shoal_dds::DdsConfig, shutdown: tokio_util::sync::CancellationToken) {
-//! use shoal_converter::relay::{AcousticDemoConfig, run_acoustic_demo};
-//! let demo = AcousticDemoConfig::default(); // one AUV "auv-ac1", private domain 100
-//! tokio::spawn(async move {
-//!     if let Err(e) = run_acoustic_demo(demo, &dds, shutdown).await {
-//!         tracing::error!(error = %e, "acoustic demo stopped");
+//! # async fn f(station: std::sync::Arc<shoal_dds::PubSub>,
+//! #            shutdown: tokio_util::sync::CancellationToken) {
+//! use shoal_converter::emulated_relay::{EmulatedRelayConfig, RelayedVehicle, run_emulated_relay};
+//! let auv = RelayedVehicle {
+//!     id: "auv-7".into(),
+//!     address: 2,
+//!     domain_id: 100,
+//!     latitude_deg: 63.467,
+//!     longitude_deg: 10.372,
+//! };
+//! let cfg = EmulatedRelayConfig::new(1, 63.464, 10.380, vec![auv]);
+//! let start_vehicle = |v: &RelayedVehicle, _private_dds, stop: tokio_util::sync::CancellationToken| {
+//!     // A real caller runs the vehicle's DDS software on `_private_dds` until `stop`.
+//!     let id = v.id.clone();
+//!     async move {
+//!         stop.cancelled().await;
+//!         tracing::info!(vehicle = %id, "vehicle stopped");
+//!         Ok(())
 //!     }
-//! });
+//! };
+//! if let Err(e) = run_emulated_relay(cfg, station, None, start_vehicle, shutdown).await {
+//!     tracing::error!(error = %e, "emulated relay stopped");
+//! }
 //! # }
 //! ```
 
+use std::future::Future;
 use std::sync::Arc;
 
 use futures::StreamExt;
-use serde::{Deserialize, Serialize};
 use shoal_acoustic::emulator::{Emulator, EmulatorConfig, EmulatorHandle, ModemConfig};
 use shoal_acoustic::secure::TaggedDriver;
 use shoal_dds::{DdsConfig, PubSub};
-use shoal_model::{StateVector, VehicleKind};
-use shoal_proxy::sim::SimSpec;
+use shoal_model::StateVector;
 use tokio::task::JoinSet;
 use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
@@ -43,20 +62,22 @@ use crate::error::ConverterError;
 use crate::modem::Modem;
 use crate::{run_cdt, run_vdt};
 
-/// Per-vehicle acoustic keys for the demo's link: every frame between a vehicle's VDT and
+/// Per-vehicle acoustic keys for the relay's link: every frame between a vehicle's VDT and
 /// the CDT is tagged with that vehicle's key (`shoal keys` issues them).
 #[derive(Debug)]
 pub struct AcousticKeys {
     /// Tag size on the link.
     pub tag: shoal_security::TagSize,
-    /// Key of each demo vehicle, by vehicle id.
+    /// Key of each relayed vehicle, by vehicle id.
     pub keys: std::collections::HashMap<String, shoal_security::AcousticKey>,
 }
 
 impl AcousticKeys {
     fn key(&self, vehicle_id: &str) -> Result<&shoal_security::AcousticKey, ConverterError> {
         self.keys.get(vehicle_id).ok_or_else(|| {
-            ConverterError::Config(format!("no acoustic key for demo vehicle {vehicle_id:?}"))
+            ConverterError::Config(format!(
+                "no acoustic key for relayed vehicle {vehicle_id:?}"
+            ))
         })
     }
 
@@ -92,24 +113,26 @@ async fn report_refusals(
     }
 }
 
-/// One submerged vehicle of the demo.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DemoVehicle {
-    /// The simulated vehicle (id, kind, start position, state rate).
-    pub sim: SimSpec,
+/// One vehicle behind the emulated relay.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RelayedVehicle {
+    /// Its vehicle id, as it publishes it.
+    pub id: String,
     /// Its acoustic address, 1..=15, distinct from the relay's.
     pub address: u8,
     /// Its private DDS domain (vehicle side); must differ from the station's.
     pub domain_id: u16,
+    /// Where its modem starts, degrees.
+    pub latitude_deg: f64,
+    /// Where its modem starts, degrees.
+    pub longitude_deg: f64,
 }
 
-/// Configuration of the acoustic demo.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct AcousticDemoConfig {
-    /// The submerged vehicles.
-    pub vehicles: Vec<DemoVehicle>,
+/// Configuration of an emulated relay.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EmulatedRelayConfig {
+    /// The vehicles behind it.
+    pub vehicles: Vec<RelayedVehicle>,
     /// Acoustic address of the relay's modem (the CDT).
     pub relay_address: u8,
     /// Relay position, degrees.
@@ -132,26 +155,24 @@ pub struct AcousticDemoConfig {
     pub follow_vehicles: bool,
 }
 
-impl Default for AcousticDemoConfig {
-    fn default() -> Self {
-        // Off Trondheim like the default fleet; the relay sits at usv-1's start position,
-        // about 520 m from the AUV.
+impl EmulatedRelayConfig {
+    /// A relay at `relay_address` and the given position with `vehicles` behind it; the
+    /// rest at its usual values: EvoLogics AT, real time, seed 1, channel physics, a state
+    /// every 2 s, default link settings, modems following their vehicles.
+    ///
+    /// There is no `Default`: where the relay sits decides whether its vehicles are in
+    /// acoustic range at all.
+    pub fn new(
+        relay_address: u8,
+        relay_latitude_deg: f64,
+        relay_longitude_deg: f64,
+        vehicles: Vec<RelayedVehicle>,
+    ) -> Self {
         Self {
-            vehicles: vec![DemoVehicle {
-                sim: SimSpec {
-                    id: "auv-ac1".into(),
-                    kind: VehicleKind::Auv,
-                    latitude_deg: 63.4670,
-                    longitude_deg: 10.3720,
-                    rate_hz: 1.0,
-                    battery_pct: 100.0,
-                },
-                address: 2,
-                domain_id: 100,
-            }],
-            relay_address: 1,
-            relay_latitude_deg: 63.4640,
-            relay_longitude_deg: 10.3800,
+            vehicles,
+            relay_address,
+            relay_latitude_deg,
+            relay_longitude_deg,
             modem_kind: ModemKind::EvologicsAt,
             time_scale: 1.0,
             seed: 1,
@@ -161,20 +182,18 @@ impl Default for AcousticDemoConfig {
             follow_vehicles: true,
         }
     }
-}
 
-impl AcousticDemoConfig {
-    /// Checks the demo against the station's DDS configuration.
+    /// Checks the relay against the station's DDS configuration.
     pub fn check(&self, station: &DdsConfig) -> Result<(), ConverterError> {
         let bad = |m: String| Err(ConverterError::Config(m));
         if self.vehicles.is_empty() {
-            return bad("acoustic demo: no vehicles".into());
+            return bad("emulated relay: no vehicles".into());
         }
         for v in &self.vehicles {
             if v.domain_id == station.domain_id {
                 return bad(format!(
-                    "acoustic demo: {} must use a private DDS domain, not the station's {}",
-                    v.sim.id, station.domain_id
+                    "emulated relay: {} must use a private DDS domain, not the station's {}",
+                    v.id, station.domain_id
                 ));
             }
         }
@@ -187,7 +206,7 @@ impl AcousticDemoConfig {
         self.vehicles
             .iter()
             .map(|v| AddressEntry {
-                vehicle_id: v.sim.id.clone(),
+                vehicle_id: v.id.clone(),
                 address: v.address,
             })
             .collect()
@@ -231,9 +250,9 @@ impl AcousticDemoConfig {
         }];
         modems.extend(self.vehicles.iter().map(|v| ModemConfig {
             address: v.address,
-            name: v.sim.id.clone(),
-            latitude_deg: v.sim.latitude_deg,
-            longitude_deg: v.sim.longitude_deg,
+            name: v.id.clone(),
+            latitude_deg: v.latitude_deg,
+            longitude_deg: v.longitude_deg,
             depth_m: 1.0,
             ..ModemConfig::default()
         }));
@@ -247,29 +266,29 @@ impl AcousticDemoConfig {
     }
 }
 
-/// Runs the acoustic demo until `shutdown`; `station` is the station's DDS configuration
-/// (the CDT joins that domain with its own participant, as the relay USV would).
+/// Runs the relay until `shutdown`. The CDT joins the station's domain through `cdt_dds`
+/// (its own participant, as the relay USV's would be; with security on, one made with
+/// [`PubSub::new_secure`] so the station admits what it relays); with `keys`, every
+/// acoustic frame is authenticated ([`shoal_acoustic::secure`]).
+///
+/// For each vehicle, `start_vehicle` gets its description, a participant on its private
+/// domain and a stop token, and returns the vehicle's software as a future; a vehicle that
+/// ends or fails stops the relay like any other part.
 ///
 /// Returns an error if the configuration is invalid, a DDS participant or the emulator
-/// cannot start, or a converter stops on its own; everything it started is stopped.
-pub async fn run_acoustic_demo(
-    cfg: AcousticDemoConfig,
-    station: &DdsConfig,
-    shutdown: CancellationToken,
-) -> Result<(), ConverterError> {
-    cfg.check(station)?;
-    run_acoustic_demo_with(cfg, Arc::new(PubSub::new(station)?), None, shutdown).await
-}
-
-/// Like [`run_acoustic_demo`] with the CDT's participant on the station's domain given, e.g.
-/// one with security on ([`PubSub::new_secure`]) so the station admits what it relays,
-/// and with `keys`, every acoustic frame authenticated ([`shoal_acoustic::secure`]).
-pub async fn run_acoustic_demo_with(
-    cfg: AcousticDemoConfig,
+/// cannot start, or a part (converter or vehicle) stops on its own; everything it started
+/// is stopped.
+pub async fn run_emulated_relay<F, Fut>(
+    cfg: EmulatedRelayConfig,
     cdt_dds: Arc<PubSub>,
     keys: Option<AcousticKeys>,
+    mut start_vehicle: F,
     shutdown: CancellationToken,
-) -> Result<(), ConverterError> {
+) -> Result<(), ConverterError>
+where
+    F: FnMut(&RelayedVehicle, Arc<PubSub>, CancellationToken) -> Fut,
+    Fut: Future<Output = Result<(), ConverterError>> + Send + 'static,
+{
     cfg.check(cdt_dds.config())?;
     // A child token: a failing part stops the others without cancelling the caller.
     let stop = shutdown.child_token();
@@ -285,7 +304,7 @@ pub async fn run_acoustic_demo_with(
     if let Some(keys) = &keys {
         let mut tagger = keys.tagger(cfg.relay_address);
         for v in &cfg.vehicles {
-            tagger.set_key(v.address, keys.key(&v.sim.id)?);
+            tagger.set_key(v.address, keys.key(&v.id)?);
         }
         let driver = TaggedDriver::new(driver, tagger);
         // The tag takes its bytes from every frame the link fills.
@@ -298,19 +317,19 @@ pub async fn run_acoustic_demo_with(
 
     for v in &cfg.vehicles {
         let ep = endpoint(v.address)
-            .ok_or_else(|| ConverterError::Config(format!("modem of {} missing", v.sim.id)))?;
+            .ok_or_else(|| ConverterError::Config(format!("modem of {} missing", v.id)))?;
         // The vehicle's own network: loopback only, its own domain, never the station's.
         let private = DdsConfig {
             domain_id: v.domain_id,
             ..DdsConfig::default()
         };
-        let sim_dds = Arc::new(PubSub::new(&private)?);
+        let vehicle_dds = Arc::new(PubSub::new(&private)?);
         let vdt_dds = Arc::new(PubSub::new(&private)?);
         let mut vdt_cfg = VdtConfig {
             modem: cfg.modem(ep.at, ep.nl),
             cdt_address: cfg.relay_address,
             vehicles: vec![AddressEntry {
-                vehicle_id: v.sim.id.clone(),
+                vehicle_id: v.id.clone(),
                 address: v.address,
             }],
             state_interval_s: cfg.state_interval_s,
@@ -322,17 +341,11 @@ pub async fn run_acoustic_demo_with(
             let states = vdt_dds.subscribe::<StateVector>()?;
             tasks.spawn(follow(emu.clone(), v.address, states, stop.clone()));
         }
-        let spec = v.sim.clone();
-        let sim_stop = stop.clone();
-        tasks.spawn(async move {
-            shoal_proxy::run_sim(spec, sim_dds, sim_stop)
-                .await
-                .map_err(ConverterError::from)
-        });
+        tasks.spawn(start_vehicle(v, vehicle_dds, stop.clone()));
         let driver = Modem::start(&vdt_cfg.modem, cfg.time_scale);
         if let Some(keys) = &keys {
             let mut tagger = keys.tagger(v.address);
-            tagger.set_key(cfg.relay_address, keys.key(&v.sim.id)?);
+            tagger.set_key(cfg.relay_address, keys.key(&v.id)?);
             let driver = TaggedDriver::new(driver, tagger);
             vdt_cfg.link.max_frame = driver.frame_budget(vdt_cfg.link.max_frame);
             tasks.spawn(report_refusals("vdt", driver.refused(), stop.clone()));
@@ -340,15 +353,15 @@ pub async fn run_acoustic_demo_with(
         } else {
             tasks.spawn(run_vdt(vdt_cfg, vdt_dds, driver, stop.clone()));
         }
-        info!(vehicle = %v.sim.id, address = v.address, domain = v.domain_id, "acoustic vehicle started");
+        info!(vehicle = %v.id, address = v.address, domain = v.domain_id, "relayed vehicle started");
     }
 
     let mut result = Ok(());
     while let Some(done) = tasks.join_next().await {
-        let r = done.map_err(|e| ConverterError::Config(format!("demo task panicked: {e}")));
+        let r = done.map_err(|e| ConverterError::Config(format!("relay task panicked: {e}")));
         if let Err(e) = r.and_then(|r| r) {
             if result.is_ok() && !shutdown.is_cancelled() {
-                warn!(error = %e, "acoustic demo part failed; stopping the demo");
+                warn!(error = %e, "emulated relay part failed; stopping the relay");
                 result = Err(e);
             }
             stop.cancel();

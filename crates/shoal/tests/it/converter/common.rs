@@ -1,4 +1,5 @@
-//! Shared helpers: the emulator, DDS participants, converter configs, waiting.
+//! Shared helpers: the emulator, DDS participants, converter configs, waiting, and the
+//! acoustic demo's relay topology.
 
 use std::future::Future;
 use std::net::SocketAddr;
@@ -7,9 +8,12 @@ use std::time::Duration;
 
 use futures::{Stream, StreamExt};
 use shoal_acoustic::emulator::{Emulator, EmulatorConfig, EmulatorHandle, ModemConfig};
-use shoal_converter::{AddressEntry, CdtConfig, ModemKind, ModemSettings, VdtConfig};
+use shoal_converter::emulated_relay::{EmulatedRelayConfig, RelayedVehicle, run_emulated_relay};
+use shoal_converter::{
+    AddressEntry, CdtConfig, ConverterError, ModemKind, ModemSettings, VdtConfig,
+};
 use shoal_dds::{DdsConfig, PubSub, ReadError, SampleMeta};
-use shoal_model::{GeoPoint, Task, TaskAssignment, VehicleKind, now_ms};
+use shoal_model::{GeoPoint, Task, TaskAssignment, Validated, VehicleKind, now_ms};
 use shoal_proxy::sim::SimSpec;
 
 /// Wall-clock seconds per simulated second in these tests.
@@ -150,14 +154,14 @@ pub async fn wait_for<T, S>(
     mut pred: impl FnMut(&T, &SampleMeta) -> bool,
 ) -> (T, SampleMeta)
 where
-    S: Stream<Item = Result<(T, SampleMeta), ReadError>> + Unpin,
+    S: Stream<Item = Result<(Validated<T>, SampleMeta), ReadError>> + Unpin,
 {
     let fut = async {
         while let Some(item) = stream.next().await {
             if let Ok((v, meta)) = item
                 && pred(&v, &meta)
             {
-                return (v, meta);
+                return (v.into_inner(), meta);
             }
         }
         panic!("stream ended while waiting for {what}");
@@ -181,7 +185,7 @@ pub struct AcousticAuv {
     /// Task status as the station hears it.
     pub status: shoal_dds::Subscription<shoal_model::TaskStatus>,
     /// The CDT, which ends when `shutdown` is cancelled.
-    pub cdt: tokio::task::JoinHandle<Result<(), shoal_converter::ConverterError>>,
+    pub cdt: tokio::task::JoinHandle<Result<(), ConverterError>>,
 }
 
 impl AcousticAuv {
@@ -236,4 +240,50 @@ impl AcousticAuv {
             cdt,
         }
     }
+}
+
+/// The relay of `shoal up`'s acoustic demo (`crates/shoal/src/relay.rs`): one AUV,
+/// `auv-ac1`, off Trondheim about 520 m from the relay, on `private_domain`, the sea and
+/// the converters at `time_scale`; and the simulated vehicle to put behind it.
+pub fn demo_relay(private_domain: u16, time_scale: f64) -> (EmulatedRelayConfig, SimSpec) {
+    let sim = SimSpec {
+        id: "auv-ac1".into(),
+        kind: VehicleKind::Auv,
+        latitude_deg: 63.4670,
+        longitude_deg: 10.3720,
+        rate_hz: 1.0,
+        battery_pct: 100.0,
+    };
+    let auv = RelayedVehicle {
+        id: sim.id.clone(),
+        address: 2,
+        domain_id: private_domain,
+        latitude_deg: sim.latitude_deg,
+        longitude_deg: sim.longitude_deg,
+    };
+    let mut relay = EmulatedRelayConfig::new(1, 63.4640, 10.3800, vec![auv]);
+    relay.time_scale = time_scale;
+    (relay, sim)
+}
+
+/// Runs `relay` until `stop` with the simulated `sim` behind it (every relayed vehicle is
+/// that simulator) and the CDT on `station`'s domain with its own participant, as the
+/// demo does.
+pub async fn run_relayed_sim(
+    relay: EmulatedRelayConfig,
+    sim: SimSpec,
+    station: DdsConfig,
+    stop: tokio_util::sync::CancellationToken,
+) -> Result<(), ConverterError> {
+    relay.check(&station)?;
+    let cdt_dds = Arc::new(PubSub::new(&station)?);
+    let start_sim = move |_: &RelayedVehicle, dds, stop| {
+        let spec = sim.clone();
+        async move {
+            shoal_proxy::run_sim(spec, dds, stop)
+                .await
+                .map_err(ConverterError::from)
+        }
+    };
+    run_emulated_relay(relay, cdt_dds, None, start_sim, stop).await
 }

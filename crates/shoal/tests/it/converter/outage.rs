@@ -10,7 +10,7 @@ use shoal_dds::{Priority, WriterOptions};
 use shoal_model::{TaskAssignment, TaskState};
 use tokio_util::sync::CancellationToken;
 
-use crate::common::*;
+use super::common::*;
 
 /// Simulated seconds pass 100× faster than wall-clock ones here.
 const FAST: f64 = 0.01;
@@ -62,7 +62,7 @@ async fn tasks_sent_during_a_ten_minute_outage_are_all_delivered_afterwards() {
     .await
     {
         if matches!(s.state, TaskState::Accepted | TaskState::Running) {
-            accepted.insert(s.task_id);
+            accepted.insert(s.task_id.clone());
         }
     }
     assert!(
@@ -88,7 +88,7 @@ async fn tasks_sent_during_a_ten_minute_outage_are_all_delivered_afterwards() {
                 TaskState::Accepted | TaskState::Running | TaskState::Done
             )
         {
-            accepted.insert(s.task_id);
+            accepted.insert(s.task_id.clone());
         }
     }
     shutdown.cancel();

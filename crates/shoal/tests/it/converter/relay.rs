@@ -1,13 +1,13 @@
-//! `run_acoustic_demo`: the SWARMs relay topology, seen from the station's domain only.
-//! Domains 105 (the AUV's private domain) and 106 (station).
+//! `run_emulated_relay` as `shoal up`'s acoustic demo runs it: the SWARMs relay topology,
+//! seen from the station's domain only. Domains 105 (the AUV's private domain) and 106
+//! (station).
 
 use shoal_converter::LinkStatus;
-use shoal_converter::relay::{AcousticDemoConfig, run_acoustic_demo};
 use shoal_dds::{DdsConfig, Priority, WriterOptions};
 use shoal_model::{Event, StateVector, TaskAssignment, TaskState, TaskStatus};
 use tokio_util::sync::CancellationToken;
 
-use crate::common::*;
+use super::common::*;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn the_demo_auv_reports_to_the_station_only_through_the_relay() {
@@ -15,12 +15,8 @@ async fn the_demo_auv_reports_to_the_station_only_through_the_relay() {
         domain_id: 106,
         ..DdsConfig::default()
     };
-    let mut demo = AcousticDemoConfig {
-        time_scale: SCALE,
-        ..AcousticDemoConfig::default()
-    };
-    demo.vehicles[0].domain_id = 105;
-    let id = demo.vehicles[0].sim.id.clone();
+    let (demo, sim) = demo_relay(105, SCALE);
+    let id = sim.id.clone();
 
     // The station's domain must be refused as the vehicle's private one.
     let mut clash = demo.clone();
@@ -34,7 +30,7 @@ async fn the_demo_auv_reports_to_the_station_only_through_the_relay() {
     let shutdown = CancellationToken::new();
     let run = {
         let shutdown = shutdown.clone();
-        tokio::spawn(async move { run_acoustic_demo(demo, &station_cfg, shutdown).await })
+        tokio::spawn(async move { run_relayed_sim(demo, sim, station_cfg, shutdown).await })
     };
 
     let (_, meta) = wait_for(&mut states, 60, "demo AUV state", |s: &StateVector, _| {

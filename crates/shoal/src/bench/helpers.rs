@@ -1,0 +1,149 @@
+//! What several benchmarks share: DDS participants and helper processes, the sample
+//! they send, percentiles, memory readings, the machine and date a result is stamped with.
+
+use std::process::Stdio;
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use shoal_dds::{DdsConfig, PubSub};
+use shoal_history::{History, HistoryConfig};
+use shoal_model::{StateVector, now_ms};
+use shoal_station::{Station, StationConfig};
+
+use crate::config::ShoalConfig;
+
+/// Topic of the throughput and soak samples.
+pub(super) const THROUGHPUT: &str = "shoal/bench/throughput";
+
+pub(super) fn dds(cfg: &ShoalConfig, domain: u16) -> Result<Arc<PubSub>> {
+    let c = DdsConfig {
+        domain_id: domain,
+        ..cfg.dds.clone()
+    };
+    Ok(Arc::new(PubSub::new(&c).context("cannot join DDS")?))
+}
+
+/// A state vector whose timestamp carries a sequence number (and stays valid).
+pub(super) fn sample(vehicle: &str, seq: u64, step: u32) -> StateVector {
+    StateVector {
+        vehicle_id: vehicle.to_string(),
+        timestamp_ms: 1_700_000_000_000 + i64::try_from(seq).unwrap_or(0),
+        latitude_deg: 63.44,
+        longitude_deg: 10.4,
+        depth_m: f64::from(step),
+        altitude_m: 12.0,
+        speed_mps: 1.5,
+        yaw_deg: 90.0,
+        pitch_deg: 1.0,
+        roll_deg: -1.0,
+        battery_pct: 77.0,
+    }
+}
+
+pub(super) fn seq_of(s: &StateVector) -> u64 {
+    u64::try_from(s.timestamp_ms - 1_700_000_000_000).unwrap_or(0)
+}
+
+/// Starts `shoal bench <args>` as a helper process that stops when our stdin pipe closes.
+pub(super) fn helper(args: &[String]) -> Result<tokio::process::Child> {
+    let exe = std::env::current_exe()?;
+    tokio::process::Command::new(exe)
+        .arg("bench")
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .kill_on_drop(true)
+        .spawn()
+        .context("cannot start the helper process")
+}
+
+/// Percentile of sorted values (nearest rank).
+pub(super) fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    #[allow(
+        clippy::cast_possible_truncation,
+        clippy::cast_sign_loss,
+        clippy::cast_precision_loss
+    )]
+    let i = ((p / 100.0) * (sorted.len() - 1) as f64).round() as usize;
+    sorted[i.min(sorted.len() - 1)]
+}
+
+pub(super) fn machine() -> String {
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
+    let cpus = std::thread::available_parallelism().map_or(0, std::num::NonZero::get);
+    format!("{} ({cpus} cores)", host.trim())
+}
+
+pub(super) fn date() -> String {
+    utc_date(now_ms())
+}
+
+/// The UTC calendar date of a time in ms since the Unix epoch, e.g. `2026-11-21`.
+pub(crate) fn utc_date(ms: i64) -> String {
+    match time::OffsetDateTime::from_unix_timestamp(ms.div_euclid(1000)) {
+        Ok(t) => format!("{:04}-{:02}-{:02}", t.year(), u8::from(t.month()), t.day()),
+        Err(_) => "(date out of range)".to_string(),
+    }
+}
+
+pub(super) fn rss_mb() -> f64 {
+    rss_mb_of("self")
+}
+
+/// Resident memory of a process (`self` or a pid), MB.
+pub(super) fn rss_mb_of(pid: &str) -> f64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|kb| kb.parse::<f64>().ok())
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}
+
+pub(super) fn tempfile_dir() -> Result<std::path::PathBuf> {
+    let dir = std::env::temp_dir().join(format!("shoal-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
+}
+
+/// A station for a measurement: the configured one, with its history in `db` and no
+/// periodic summary in the output.
+pub(super) fn bench_station(
+    cfg: &ShoalConfig,
+    domain: u16,
+    db: &std::path::Path,
+) -> Result<Station> {
+    let history = History::open(&HistoryConfig {
+        path: db.to_path_buf(),
+        ..cfg.history.clone()
+    })?;
+    Ok(Station::new(
+        StationConfig {
+            summary_interval_s: 0.0,
+            ..cfg.station.clone()
+        },
+        dds(cfg, domain)?,
+        history,
+    )?)
+}
+
+/// Starts `shoal <args>` with a domain, stopping when our stdin pipe closes.
+pub(super) fn child(args: &[&str], domain: u16) -> Result<tokio::process::Child> {
+    let exe = std::env::current_exe()?;
+    tokio::process::Command::new(exe)
+        .args(args)
+        .arg("--exit-on-stdin-close")
+        .env("SHOAL_DDS__DOMAIN_ID", domain.to_string())
+        .env("RUST_LOG", "warn,cyclonedds=error")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit())
+        .kill_on_drop(true)
+        .spawn()
+        .with_context(|| format!("cannot start shoal {}", args.join(" ")))
+}

@@ -1,0 +1,264 @@
+//! `shoal bench`: programs that print figures (never timed tests), one module each:
+//!
+//! - [`bus`]: state-vector round trip (p50/p99) and the highest reliable rate delivered
+//!   without loss, between two processes, with Cyclone DDS's `ddsperf` measured in the
+//!   same run on the same host and the ratios printed.
+//! - [`ingest`]: station ingest rate from simulated vehicles in another process, and loss.
+//! - [`soak`]: resident memory before, during and after many writes.
+//! - [`pipeline`]: the station's Data Access Manager in one process (validation,
+//!   plausibility, latest state, semantic model with 10 rules, history commit) against a
+//!   raw batched SQLite insert of the same rows in the same run.
+//! - [`acoustic`]: PDU sizes, channel use, emergency latency and control delivery on
+//!   emulated modems.
+//! - [`semantic`]: the standard SPARQL queries at fleet scale, fresh and through a
+//!   simulated hour of traffic.
+//! - [`scale`], [`latency`], [`late_joiner`]: a station with thousands of vehicles, the
+//!   vehicle-to-console latency, late-joining participants.
+//! - [`suite`]: every target in one table, each beside its peer.
+//! - [`helpers`]: what several of them share (participants, helper processes,
+//!   percentiles, memory, the machine and date of a run).
+//!
+//! Helper processes (`pong`, `sink`, `load`) are hidden subcommands of the same binary so
+//! the two sides of each measurement are separate DDS participants, as in deployment.
+
+mod acoustic;
+mod bus;
+mod helpers;
+mod ingest;
+mod late_joiner;
+mod latency;
+mod pipeline;
+mod scale;
+mod semantic;
+mod soak;
+mod suite;
+
+use anyhow::Result;
+use clap::Subcommand;
+
+pub(crate) use helpers::utc_date;
+
+use crate::config::ShoalConfig;
+
+/// Which benchmark to run.
+#[derive(Debug, Subcommand)]
+pub enum BenchCommand {
+    /// Round trip and throughput of the bus, side by side with Cyclone DDS's ddsperf.
+    Bus {
+        /// Seconds of round trips for each implementation.
+        #[arg(long, default_value_t = 10)]
+        seconds: u64,
+        /// DDS domain for the measurement (ddsperf uses the next two).
+        #[arg(long, default_value_t = 80)]
+        domain: u16,
+        /// Skip the ddsperf comparison.
+        #[arg(long)]
+        no_peer: bool,
+    },
+    /// Station ingest: simulated vehicles in another process publish state vectors.
+    Ingest {
+        /// Number of vehicles.
+        #[arg(long, default_value_t = 100)]
+        vehicles: usize,
+        /// State vectors per second per vehicle.
+        #[arg(long, default_value_t = 250.0)]
+        rate: f64,
+        /// Seconds of load.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// DDS domain for the measurement.
+        #[arg(long, default_value_t = 83)]
+        domain: u16,
+    },
+    /// The Data Access Manager without the bus: validate + plausibility + latest state +
+    /// semantic model with 10 rules + history commit, against a raw batched SQLite insert
+    /// of the same rows in the same run.
+    Pipeline {
+        /// Number of vehicles.
+        #[arg(long, default_value_t = 1000)]
+        vehicles: usize,
+        /// State vectors in all.
+        #[arg(long, default_value_t = 500_000)]
+        rows: usize,
+        /// DDS domain of the station's (idle) participant.
+        #[arg(long, default_value_t = 85)]
+        domain: u16,
+    },
+    /// Resident memory before, during and after N writes (writer and reader in this process).
+    Soak {
+        /// Number of state vectors to write.
+        #[arg(long, default_value_t = 300_000)]
+        writes: u64,
+        /// Instances (vehicle ids) the writes cycle through.
+        #[arg(long, default_value_t = 100)]
+        instances: u32,
+        /// DDS domain for the measurement.
+        #[arg(long, default_value_t = 84)]
+        domain: u16,
+    },
+    /// The acoustic link against its goals: PDU sizes vs DCCL (20 B) and SWARMs (51 B),
+    /// channel use under saturation, emergency latency under load, control delivery at
+    /// 30 % packet loss. Emulated modems on 127.0.0.1; figures in simulated time.
+    Acoustic {
+        /// Wall-clock seconds per simulated second (smaller is faster).
+        #[arg(long, default_value_t = 0.05)]
+        time_scale: f64,
+    },
+    /// The semantic store's five standard SPARQL queries at fleet scale, in this process
+    /// (no DDS): `burst` on a fresh fleet and after a burst of state mirrors, `hour`
+    /// through a simulated hour of fleet traffic, with memory.
+    Semantic {
+        #[command(subcommand)]
+        which: semantic::SemanticCommand,
+    },
+    /// Scale: a `shoal station` and N lightweight vehicles (`shoal swarm`), each its own
+    /// process, on loopback: vehicles alive, ingest rate and the resident memory of both
+    /// processes, every 10 s and at the end.
+    Scale {
+        /// Number of vehicles.
+        #[arg(long, default_value_t = 10_000)]
+        vehicles: usize,
+        /// State vectors per second per vehicle.
+        #[arg(long, default_value_t = 1.0)]
+        rate: f64,
+        /// Seconds to run once every vehicle is alive (or after 120 s of trying).
+        #[arg(long, default_value_t = 60)]
+        seconds: u64,
+        /// DDS domain for the measurement.
+        #[arg(long, default_value_t = 24)]
+        domain: u16,
+    },
+    /// Every figure of the targets in one run and one table, each beside the peer
+    /// measured in the same run (Cyclone DDS ddsperf, a raw batched SQLite insert, DCCL's
+    /// published size) and its target; saved as Markdown under `--out`.
+    Suite {
+        /// Seconds of round trips (and of latency measurement) per figure.
+        #[arg(long, default_value_t = 10)]
+        seconds: u64,
+        /// Vehicles of the scale figure.
+        #[arg(long, default_value_t = 10_000)]
+        scale_vehicles: usize,
+        /// Directory the Markdown report is written to.
+        #[arg(long, default_value = "bench/runs")]
+        out: std::path::PathBuf,
+        /// First DDS domain (the suite uses the next eight).
+        #[arg(long, default_value_t = 30)]
+        domain: u16,
+        /// Simulated seconds of fleet traffic through the semantic store before the
+        /// queries are measured again (0 skips it; an hour takes about 2 minutes).
+        #[arg(long, default_value_t = 3600)]
+        semantic_hour_s: u64,
+    },
+    /// End-to-end latency, vehicle -> station -> console: N lightweight vehicles in another
+    /// process (`shoal swarm`, each state stamped when sent) and a WebSocket client on the
+    /// console's live feed, as the web console reads it; p50/p99 of arrival minus stamp.
+    Latency {
+        /// Number of vehicles.
+        #[arg(long, default_value_t = 1000)]
+        vehicles: usize,
+        /// State vectors per second per vehicle.
+        #[arg(long, default_value_t = 1.0)]
+        rate: f64,
+        /// Seconds of measurement after a 5 s warm-up.
+        #[arg(long, default_value_t = 30)]
+        seconds: u64,
+        /// DDS domain for the measurement.
+        #[arg(long, default_value_t = 25)]
+        domain: u16,
+    },
+    /// Late joiners: a station publishes a task, then a vehicle's participant joins; does it
+    /// get the task (transient-local durability)? Repeated N times, each with a new
+    /// participant, and timed.
+    LateJoiner {
+        /// Trials.
+        #[arg(long, default_value_t = 1000)]
+        trials: usize,
+        /// DDS domain for the measurement.
+        #[arg(long, default_value_t = 26)]
+        domain: u16,
+    },
+    /// (helper) Echo pings back as pongs.
+    #[command(hide = true)]
+    Pong {
+        #[arg(long)]
+        domain: u16,
+    },
+    /// (helper) Count throughput samples per step and print the counts.
+    #[command(hide = true)]
+    Sink {
+        #[arg(long)]
+        domain: u16,
+    },
+    /// (helper) Announce vehicles and publish their state vectors at a rate.
+    #[command(hide = true)]
+    Load {
+        #[arg(long)]
+        domain: u16,
+        #[arg(long)]
+        vehicles: usize,
+        #[arg(long)]
+        rate: f64,
+        #[arg(long)]
+        seconds: f64,
+    },
+}
+/// Runs one benchmark.
+pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
+    match which {
+        BenchCommand::Bus {
+            seconds,
+            domain,
+            no_peer,
+        } => bus::bus(cfg, domain, seconds, no_peer).await,
+        BenchCommand::Ingest {
+            vehicles,
+            rate,
+            seconds,
+            domain,
+        } => ingest::ingest(cfg, domain, vehicles, rate, seconds).await,
+        BenchCommand::Pipeline {
+            vehicles,
+            rows,
+            domain,
+        } => pipeline::pipeline(cfg, domain, vehicles, rows).await,
+        BenchCommand::Soak {
+            writes,
+            instances,
+            domain,
+        } => soak::soak(cfg, domain, writes, instances).await,
+        BenchCommand::Acoustic { time_scale } => acoustic::acoustic(time_scale).await,
+        BenchCommand::Semantic { which } => {
+            tokio::task::spawn_blocking(move || semantic::semantic(which)).await?
+        }
+        BenchCommand::Latency {
+            vehicles,
+            rate,
+            seconds,
+            domain,
+        } => latency::latency(cfg, vehicles, rate, seconds, domain).await,
+        BenchCommand::LateJoiner { trials, domain } => {
+            late_joiner::late_joiner(cfg, trials, domain).await
+        }
+        BenchCommand::Suite {
+            seconds,
+            scale_vehicles,
+            out,
+            domain,
+            semantic_hour_s,
+        } => suite::suite(cfg, seconds, scale_vehicles, &out, domain, semantic_hour_s).await,
+        BenchCommand::Scale {
+            vehicles,
+            rate,
+            seconds,
+            domain,
+        } => scale::scale(vehicles, rate, seconds, domain).await,
+        BenchCommand::Pong { domain } => bus::pong(cfg, domain).await,
+        BenchCommand::Sink { domain } => bus::sink(cfg, domain).await,
+        BenchCommand::Load {
+            domain,
+            vehicles,
+            rate,
+            seconds,
+        } => ingest::load(cfg, domain, vehicles, rate, seconds).await,
+    }
+}

@@ -1,0 +1,124 @@
+//! The acoustic demo `shoal up` includes: simulated submerged vehicles heard by the station
+//! only through an emulated acoustic relay (AUV →acoustic→ USV (CDT) →DDS over IP→
+//! station, the SWARMs sea-trial topology).
+//!
+//! The relay itself (emulated modems, a VDT per vehicle on its private DDS domain, the CDT
+//! on the station's) is [`shoal_converter::emulated_relay`]; this module puts the vehicle
+//! simulator ([`shoal_proxy::run_sim`]) behind it.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use anyhow::Result;
+use shoal_converter::ConverterError;
+use shoal_converter::emulated_relay::{
+    AcousticKeys, EmulatedRelayConfig, RelayedVehicle, run_emulated_relay,
+};
+use shoal_dds::PubSub;
+use shoal_model::VehicleKind;
+use shoal_proxy::sim::SimSpec;
+use tokio_util::sync::CancellationToken;
+
+/// One submerged vehicle of the demo.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DemoVehicle {
+    /// The simulated vehicle (id, kind, start position, state rate).
+    pub sim: SimSpec,
+    /// Its acoustic address, 1..=15, distinct from the relay's.
+    pub address: u8,
+    /// Its private DDS domain (vehicle side); must differ from the station's.
+    pub domain_id: u16,
+}
+
+/// Configuration of the acoustic demo.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AcousticDemoConfig {
+    /// The submerged vehicles.
+    pub vehicles: Vec<DemoVehicle>,
+    /// Acoustic address of the relay's modem (the CDT).
+    pub relay_address: u8,
+    /// Relay position, degrees.
+    pub relay_latitude_deg: f64,
+    /// Relay position, degrees.
+    pub relay_longitude_deg: f64,
+}
+
+impl Default for AcousticDemoConfig {
+    fn default() -> Self {
+        // Off Trondheim like the default fleet; the relay sits at usv-1's start position,
+        // about 520 m from the AUV.
+        Self {
+            vehicles: vec![DemoVehicle {
+                sim: SimSpec {
+                    id: "auv-ac1".into(),
+                    kind: VehicleKind::Auv,
+                    latitude_deg: 63.4670,
+                    longitude_deg: 10.3720,
+                    rate_hz: 1.0,
+                    battery_pct: 100.0,
+                },
+                address: 2,
+                domain_id: 100,
+            }],
+            relay_address: 1,
+            relay_latitude_deg: 63.4640,
+            relay_longitude_deg: 10.3800,
+        }
+    }
+}
+
+impl AcousticDemoConfig {
+    /// The relay that carries the demo's vehicles (real time, channel physics).
+    fn relay(&self) -> EmulatedRelayConfig {
+        let vehicles = self
+            .vehicles
+            .iter()
+            .map(|v| RelayedVehicle {
+                id: v.sim.id.clone(),
+                address: v.address,
+                domain_id: v.domain_id,
+                latitude_deg: v.sim.latitude_deg,
+                longitude_deg: v.sim.longitude_deg,
+            })
+            .collect();
+        EmulatedRelayConfig::new(
+            self.relay_address,
+            self.relay_latitude_deg,
+            self.relay_longitude_deg,
+            vehicles,
+        )
+    }
+}
+
+/// Runs the acoustic demo until `shutdown`: each simulated vehicle on its private domain,
+/// heard through the relay whose CDT publishes with `cdt_dds` on the station's domain
+/// (with security on, a signing participant), its frames tagged with `keys` if given.
+///
+/// Returns an error if the relay or a simulated vehicle cannot start or stops on its own;
+/// everything it started is stopped.
+pub async fn run_acoustic_demo(
+    demo: AcousticDemoConfig,
+    cdt_dds: Arc<PubSub>,
+    keys: Option<AcousticKeys>,
+    shutdown: CancellationToken,
+) -> Result<()> {
+    let relay = demo.relay();
+    let specs: HashMap<String, SimSpec> = demo
+        .vehicles
+        .into_iter()
+        .map(|v| (v.sim.id.clone(), v.sim))
+        .collect();
+    let start_sim = move |v: &RelayedVehicle, dds: Arc<PubSub>, stop: CancellationToken| {
+        let spec = specs.get(&v.id).cloned();
+        async move {
+            // Every relayed vehicle was made from a demo vehicle, so its spec is there.
+            let spec = spec.ok_or_else(|| {
+                ConverterError::Config("relayed vehicle missing from the demo".into())
+            })?;
+            shoal_proxy::run_sim(spec, dds, stop)
+                .await
+                .map_err(ConverterError::from)
+        }
+    };
+    Ok(run_emulated_relay(relay, cdt_dds, keys, start_sim, shutdown).await?)
+}

@@ -1,0 +1,26 @@
+//! The DDS-Acoustic Converter end to end, one module per area. They live here rather than
+//! in `shoal-converter` because a simulated vehicle ([`shoal_proxy::run_sim`]) stands on
+//! the vehicle side, and the converter library does not depend on the simulator.
+//!
+//! Every test runs the real modem emulator on 127.0.0.1 and real DDS participants. Each
+//! uses its own DDS domains (from 100..130, listed in the module); domain A stands for the
+//! vehicle side, domain B for the station side.
+//!
+//! - `common`: emulator, participants and waiting helpers, and the demo's relay topology.
+//! - `end_to_end`: AUV on domain A → VDT → emulated sea → CDT → domain B and tasks back
+//!   (domains 101, 102).
+//! - `reconnect`: the modem connection drops and comes back; queued tasks survive
+//!   (domains 103, 104).
+//! - `outage`: ten simulated minutes out of acoustic range; queued tasks all arrive
+//!   afterwards (domains 107, 108).
+//! - `relay`: the `run_emulated_relay` topology of `shoal up`'s acoustic demo (domains
+//!   105, 106).
+//!
+//! New converter tests go in the module of their area; a new area gets a module listed
+//! here. The `shoal bench acoustic` figures are checked by the benchmark's own unit tests.
+
+pub mod common;
+mod end_to_end;
+mod outage;
+mod reconnect;
+mod relay;
