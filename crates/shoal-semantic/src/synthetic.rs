@@ -7,8 +7,8 @@
 //! semantic` all see the same kind of fleet.
 
 use shoal_model::{
-    EnvironmentObservation, Event, EventKind, GeoPoint, LinkKind, Severity, StateVector, Task,
-    TaskAssignment, TaskState, TaskStatus, VehicleAnnouncement, VehicleKind,
+    Availability, EnvironmentObservation, Event, EventKind, GeoPoint, LinkKind, Severity,
+    StateVector, Task, TaskAssignment, TaskState, TaskStatus, VehicleAnnouncement, VehicleKind,
 };
 
 use crate::{SemanticStore, StoreError};
@@ -162,7 +162,11 @@ pub fn populate_fleet(
             max_speed_mps: 3.0,
             timestamp_ms: T0_MS,
         })?;
+        // Availability is the station register's to decide; a synthetic fleet decides it
+        // as the register would: busy while a task is under way.
+        store.set_availability(&id, Availability::Idle)?;
         store.update_state(&synthetic_state(&mut rng, &id, T0_MS + 1000))?;
+        let mut busy = false;
         for k in 0..(1 + rng.below(3)) {
             let task_id = format!("t{i:04}-{k}");
             let task = if rng.next_f64() < 0.5 {
@@ -205,6 +209,7 @@ pub fn populate_fleet(
                 &task,
             ))?;
             let state = STATES[rng.below(STATES.len())];
+            busy |= is_under_way(state);
             if state != TaskState::Pending {
                 store.task_status(&TaskStatus {
                     task_id,
@@ -215,6 +220,9 @@ pub fn populate_fleet(
                     message: String::new(),
                 })?;
             }
+        }
+        if busy {
+            store.set_availability(&id, Availability::Busy)?;
         }
     }
     for i in 0..vehicles {
@@ -241,4 +249,12 @@ pub fn populate_fleet(
     }
     store.flush_dirty(T0_MS + 10_000)?;
     Ok(())
+}
+
+/// A task sent to its vehicle and not finished: the vehicle is busy with it.
+pub fn is_under_way(state: TaskState) -> bool {
+    matches!(
+        state,
+        TaskState::Sent | TaskState::Accepted | TaskState::Running
+    )
 }

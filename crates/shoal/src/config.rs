@@ -259,6 +259,18 @@ mod tests {
     }
 
     #[test]
+    fn an_older_file_with_the_retired_lost_contact_factor_still_loads() {
+        let text = "[station.semantic]\nlost_contact_factor = 5.0\n";
+        let parsed = from_table(parse_table(text).unwrap()).unwrap();
+        assert_eq!(
+            parsed.station.semantic.retired_keys(),
+            ["lost_contact_factor"]
+        );
+        let bad = "[station.semantic]\nlost_contact_factor = 0.5\n";
+        assert!(from_table(parse_table(bad).unwrap()).is_err());
+    }
+
+    #[test]
     fn environment_overrides_the_file() {
         let mut t = parse_table("[dds]\ndomain_id = 3\n").unwrap();
         let vars = [

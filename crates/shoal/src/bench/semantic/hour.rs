@@ -1,12 +1,13 @@
 //! `shoal bench semantic hour`: a simulated hour of fleet traffic through the store's
 //! normal write path, with query latency and memory sampled along the way.
 
+use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use shoal_model::{Event, StateVector, TaskState, TaskStatus};
+use shoal_model::{Availability, Event, StateVector, TaskState, TaskStatus};
 use shoal_semantic::synthetic::{
-    Lcg, PROPERTIES, T0_MS, populate_fleet, synthetic_observation, synthetic_state,
+    Lcg, PROPERTIES, T0_MS, is_under_way, populate_fleet, synthetic_observation, synthetic_state,
 };
 use shoal_semantic::{QueryLimits, STANDARD_QUERIES, SemanticStore, StoreConfig, StoreError};
 
@@ -162,6 +163,14 @@ pub fn run_hour(options: HourOptions, config: StoreConfig) -> Result<HourReport,
         .flat_map(|i| (0..3).map(move |k| (format!("t{i:04}-{k}"), format!("v{i:04}"))))
         .filter(|(t, _)| store.task_state(t).is_some())
         .collect();
+    // Tasks under way per vehicle: availability follows them, as the station's register
+    // would decide it.
+    let mut under_way: HashMap<String, u32> = HashMap::new();
+    for (task_id, vehicle_id) in &tasks {
+        if store.task_state(task_id).is_some_and(is_under_way) {
+            *under_way.entry(vehicle_id.clone()).or_default() += 1;
+        }
+    }
     let start_ms = T0_MS + 20_000;
     let limits = QueryLimits::default();
     let mut latencies: Vec<Vec<Duration>> = vec![Vec::new(); STANDARD_QUERIES.len()];
@@ -193,6 +202,7 @@ pub fn run_hour(options: HourOptions, config: StoreConfig) -> Result<HourReport,
                 Some(s) => s,
                 None => continue,
             };
+            let was = store.task_state(task_id).is_some_and(is_under_way);
             fired.extend(store.task_status(&TaskStatus {
                 task_id: task_id.clone(),
                 vehicle_id: vehicle_id.clone(),
@@ -201,6 +211,17 @@ pub fn run_hour(options: HourOptions, config: StoreConfig) -> Result<HourReport,
                 progress_pct: (rng.next_f64() * 100.0).round(),
                 message: String::new(),
             })?);
+            let now = store.task_state(task_id).is_some_and(is_under_way);
+            if was != now {
+                let n = under_way.entry(vehicle_id.clone()).or_default();
+                *n = if now { *n + 1 } else { n.saturating_sub(1) };
+                let a = if *n > 0 {
+                    Availability::Busy
+                } else {
+                    Availability::Idle
+                };
+                store.set_availability(vehicle_id, a)?;
+            }
         }
         fired.extend(store.flush_dirty(t)?);
         fired.extend(store.tick(t)?);
