@@ -105,3 +105,10 @@ impl StationConfig {
         self.plausibility.check()
     }
 }
+
+/// Seconds from the configuration as whole milliseconds (checked values are finite and
+/// far below the range where the cast saturates).
+#[allow(clippy::cast_possible_truncation)]
+pub(crate) fn ms(seconds: f64) -> i64 {
+    (seconds * 1000.0) as i64
+}

@@ -14,6 +14,7 @@ use shoal_model::{
 };
 use tracing::{info, warn};
 
+use crate::config::ms;
 use crate::core::{StationHandle, lock};
 use crate::error::DispatchError;
 use crate::register::Contact;
@@ -309,10 +310,9 @@ impl StationHandle {
     /// Expires sent tasks their vehicle never acknowledged in time (at `now`).
     pub(crate) fn expire_tasks(&self, now: i64) {
         let cfg = &self.core.config;
-        #[allow(clippy::cast_possible_truncation)]
         let (ip, acoustic) = (
-            (cfg.task_ack_timeout_s * 1000.0) as i64,
-            (cfg.acoustic_task_ack_timeout_s * 1000.0) as i64,
+            ms(cfg.task_ack_timeout_s),
+            ms(cfg.acoustic_task_ack_timeout_s),
         );
         let overdue = lock(&self.core.tasks).overdue(now, ip, acoustic);
         for id in overdue {

@@ -89,7 +89,7 @@ fn a_vehicle_low_on_battery_may_only_be_sent_up_or_home() {
 fn a_lost_vehicle_gets_no_task_but_always_an_abort() {
     let f = Fixture::new();
     f.alive("auv-1");
-    let lost = (f.h.config().lost_after_s * 1000.0) as i64;
+    let lost = crate::config::ms(f.h.config().lost_after_s);
     f.h.tick(now_ms() + lost + 100);
     let err = f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap_err();
     assert!(matches!(err, DispatchError::VehicleLost(_)));
@@ -274,7 +274,7 @@ fn a_sent_task_never_acknowledged_expires_and_fails_its_mission() {
     f.alive("auv-1");
     f.h.plan_mission(spec("m-1", &[("auv-1", goto())])).unwrap();
     f.h.start_mission("m-1").unwrap();
-    let timeout = (f.h.config().task_ack_timeout_s * 1000.0) as i64;
+    let timeout = crate::config::ms(f.h.config().task_ack_timeout_s);
     f.h.expire_tasks(now_ms() + timeout / 2);
     assert_eq!(task_state(&f, "m-1-1"), TaskState::Sent);
     f.h.expire_tasks(now_ms() + timeout + 1000);

@@ -10,6 +10,7 @@ use shoal_history::Record;
 use shoal_model::{Availability, EventKind, LinkStatus, Severity, VehicleAnnouncement, now_ms};
 use tracing::{debug, info, warn};
 
+use crate::config::ms;
 use crate::core::{StationHandle, lock};
 use crate::reporters::LiveUpdate;
 pub(crate) use fleet::Fleet;
@@ -150,11 +151,7 @@ impl StationHandle {
     /// participant left; a CommLost alarm on loss, an event when contact comes back.
     pub(crate) fn refresh_contact(&self, now: i64) {
         let cfg = &self.core.config;
-        #[allow(clippy::cast_possible_truncation)]
-        let (stale, lost) = (
-            (cfg.stale_after_s * 1000.0) as i64,
-            (cfg.lost_after_s * 1000.0) as i64,
-        );
+        let (stale, lost) = (ms(cfg.stale_after_s), ms(cfg.lost_after_s));
         let changed = lock(&self.core.fleet).refresh_contact(now, stale, lost);
         for (id, from, to) in changed {
             match to {

@@ -58,10 +58,9 @@ fn contact_goes_stale_then_lost_with_an_alarm_on_the_bus() {
     f.alive("auv-1");
     assert_eq!(f.h.vehicle("auv-1").unwrap().contact, Contact::Alive);
     let cfg = f.h.config().clone();
-    #[allow(clippy::cast_possible_truncation)]
     let (stale, lost) = (
-        (cfg.stale_after_s * 1000.0) as i64,
-        (cfg.lost_after_s * 1000.0) as i64,
+        crate::config::ms(cfg.stale_after_s),
+        crate::config::ms(cfg.lost_after_s),
     );
     f.h.tick(now_ms() + stale + 100);
     assert_eq!(f.h.vehicle("auv-1").unwrap().contact, Contact::Stale);
@@ -89,7 +88,7 @@ fn contact_goes_stale_then_lost_with_an_alarm_on_the_bus() {
 fn contact_regained_is_reported_and_the_vehicle_is_idle_again() {
     let f = Fixture::new();
     f.alive("auv-1");
-    let lost = (f.h.config().lost_after_s * 1000.0) as i64;
+    let lost = crate::config::ms(f.h.config().lost_after_s);
     f.h.tick(now_ms() + lost + 100);
     assert_eq!(f.h.vehicle("auv-1").unwrap().contact, Contact::Lost);
     f.h.ingest_state(state("auv-1", now_ms(), 80.0)).unwrap();
