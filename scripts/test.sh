@@ -50,6 +50,10 @@ SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" scripts/console-e2e.s
 
 if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
     step "fuzz smoke run (every cargo-fuzz target, 20 s each)"
+    # cargo-fuzz needs the nightly toolchain (fuzzing only: the product builds on stable).
+    if ! cargo +nightly --version >/dev/null 2>&1; then
+        rustup toolchain install nightly --profile minimal
+    fi
     if ! cargo +nightly fuzz --version >/dev/null 2>&1; then
         cargo +nightly install cargo-fuzz --locked
     fi
