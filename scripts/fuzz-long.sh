@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Long fuzzing runs (issue 9): every cargo-fuzz target for N executions (default 10
+# Long fuzzing runs: every cargo-fuzz target for N executions (default 10
 # million), one after another, on one core at low priority. Prints one line per target
 # with the executions done, the time taken and the corpus size; a crash stops with the
 # target's name and the input saved under fuzz/artifacts/<target>/ (turn it into a

@@ -10,7 +10,7 @@
 #   4. builds the release binary and drives the web console in Debian's Chromium
 #      (Playwright) against `shoal up`, inside the namespace,
 #   5. runs each cargo-fuzz target for a short smoke run.
-# Environment: SHOAL_SKIP_FUZZ=1 skips step 4; SHOAL_NETNS names the namespace.
+# Environment: SHOAL_SKIP_FUZZ=1 skips step 5; SHOAL_NETNS names the namespace.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 NS="${SHOAL_NETNS:-shoal-test}"

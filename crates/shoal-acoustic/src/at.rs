@@ -1,4 +1,5 @@
-//! The EvoLogics S2C AT interface over TCP (ACOUSTIC.md §1): parsers and formatters.
+//! The EvoLogics S2C AT interface over TCP (docs/acoustic.md#at-interface): parsers and
+//! formatters.
 //!
 //! Host → modem: in-band commands `+++<AT command>\n`. `AT*SENDIM,<len>,<dst>,ack|noack,<data>`
 //! and `AT*SEND,<len>,<dst>,<data>` carry `len` raw bytes, so they are parsed by length,
@@ -11,16 +12,17 @@
 
 use std::fmt;
 
-/// Most bytes of an instant message (§1).
+/// Most bytes of an instant message (docs/acoustic.md#frame-sizes-and-bit-rates).
 pub const MAX_IM: usize = 64;
 /// Most bytes of a burst in one `AT*SEND` (the emulator's buffer size).
 pub const MAX_BURST: usize = 1024;
-/// Longest command line the modem accepts (§1), excluding binary payloads.
+/// Longest command line the modem accepts (docs/acoustic.md#at-interface), excluding
+/// binary payloads.
 pub const MAX_COMMAND: usize = 1054;
 /// Broadcast address.
 pub const BROADCAST: u8 = 255;
 
-/// The modem's documented error replies (§1).
+/// The modem's documented error replies (docs/acoustic.md#at-interface).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
 pub enum ModemError {
@@ -125,7 +127,8 @@ impl AtCommand {
         }
     }
 
-    /// The in-band wire form, `+++<command>\n` (Ethernet line ending, §1).
+    /// The in-band wire form, `+++<command>\n` (Ethernet line ending,
+    /// docs/acoustic.md#at-interface).
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut out = b"+++".to_vec();
         match self {

@@ -1,11 +1,12 @@
-//! Underwater acoustic channel physics for the emulator (ACOUSTIC.md §6).
+//! Underwater acoustic channel physics for the emulator (docs/acoustic.md#channel-physics).
 //!
 //! The chain is `SNR = SL − TL − NL`, `Eb/N0 = SNR + 10·log10(B/R)`, BER from the
 //! modulation, `PER = 1 − (1 − BER)^bits`. [`ChannelModel::default`] holds the parameters
-//! that reproduce §6's worked example: SL 180 dB, 26 kHz centre, 16 kHz band, practical
-//! spreading `k = 1.5`, shipping 0.5, wind 5 m/s, BPSK in Rayleigh fading. With them a
-//! 20-byte frame has PER 0.010 at 3.5 km and 0.154 at 5 km at 976 bit/s, 0.136 and 0.90 at
-//! 13.9 kbit/s, and is lost for certain at 8 km (see the tests).
+//! that reproduce the worked example of docs/acoustic.md#packet-error-rate: SL 180 dB,
+//! 26 kHz centre, 16 kHz band, practical spreading `k = 1.5`, shipping 0.5, wind 5 m/s,
+//! BPSK in Rayleigh fading. With them a 20-byte frame has PER 0.010 at 3.5 km and 0.154 at
+//! 5 km at 976 bit/s, 0.136 and 0.90 at 13.9 kbit/s, and is lost for certain at 8 km (see
+//! the tests).
 
 use serde::{Deserialize, Serialize};
 
@@ -90,7 +91,8 @@ pub enum Modulation {
     /// Non-coherent binary FSK: `½·e^(−γ/2)`.
     NonCoherentFsk,
     /// BPSK in Rayleigh fading: `½(1 − √(γ/(1+γ)))`; the default, because without fading
-    /// the link looks perfect until absorption cuts it off (§6).
+    /// the link looks perfect until absorption cuts it off
+    /// (docs/acoustic.md#packet-error-rate).
     RayleighBpsk,
 }
 
@@ -111,8 +113,8 @@ pub fn per(ber: f64, bits: usize) -> f64 {
     (1.0 - (1.0 - ber.clamp(0.0, 1.0)).powi(n)).clamp(0.0, 1.0)
 }
 
-/// All parameters of the channel between two modems; the defaults reproduce §6's worked
-/// example.
+/// All parameters of the channel between two modems; the defaults reproduce the worked
+/// example of docs/acoustic.md#packet-error-rate.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ChannelModel {
@@ -194,7 +196,8 @@ mod tests {
 
     #[test]
     fn mackenzie_reference_value_is_frozen() {
-        // §6: T=10 °C, S=35 ppt, D=100 m → 1491.435 m/s (arlpy agrees).
+        // docs/acoustic.md#channel-physics: T=10 °C, S=35 ppt, D=100 m → 1491.435 m/s
+        // (arlpy agrees).
         assert!((sound_speed_mackenzie(10.0, 35.0, 100.0) - 1491.435).abs() < 5e-4);
     }
 
@@ -206,7 +209,8 @@ mod tests {
 
     #[test]
     fn worked_example_is_reproduced_by_the_default_parameters() {
-        // §6: 20-byte frame, Rayleigh: 0.01 / 0.15 at 976 bit/s, 0.14 / 0.90 at 13.9 kbit/s.
+        // docs/acoustic.md#packet-error-rate: 20-byte frame, Rayleigh: 0.01 / 0.15 at
+        // 976 bit/s, 0.14 / 0.90 at 13.9 kbit/s.
         let m = ChannelModel::default();
         let p = |d: f64, r: f64| m.per(d, 160, r, 0.0);
         assert!(

@@ -2,13 +2,13 @@
 //! implementations over TCP.
 //!
 //! A driver keeps **one message in flight**: the modem does not queue and a new instant
-//! message cancels a pending one (§1), so the caller (the [`crate::link`] layer) keeps the
-//! queue and hands over one frame at a time with [`ModemDriver::transmit`], which resolves
-//! to the frame's [`Outcome`]. A background task owns the TCP connection: it waits for each
-//! command's reply before the next (§1), retries after `BUSY`, maps `DELIVEREDIM` /
-//! `FAILEDIM` / `CANCELEDIM` (or `NL,delivered` / `NL,failed`) to outcomes, and reconnects
-//! when the connection drops, re-sending the frame in flight so nothing the caller queued
-//! is lost.
+//! message cancels a pending one (docs/acoustic.md#at-interface), so the caller (the
+//! [`crate::link`] layer) keeps the queue and hands over one frame at a time with
+//! [`ModemDriver::transmit`], which resolves to the frame's [`Outcome`]. A background task
+//! owns the TCP connection: it waits for each command's reply before the next (as the modem
+//! requires), retries after `BUSY`, maps `DELIVEREDIM` / `FAILEDIM` / `CANCELEDIM` (or
+//! `NL,delivered` / `NL,failed`) to outcomes, and reconnects when the connection drops,
+//! re-sending the frame in flight so nothing the caller queued is lost.
 
 use std::future::Future;
 use std::net::SocketAddr;
@@ -116,8 +116,9 @@ pub struct DriverConfig {
     pub reply_timeout: Duration,
     /// Longest wait for a delivery report before the frame counts as failed.
     pub report_timeout: Duration,
-    /// Instant-message bit rate, bit/s (976 for the S2C, ACOUSTIC.md §1): with
-    /// `air_overhead`, how long an unacknowledged frame occupies the modem.
+    /// Instant-message bit rate, bit/s (976 for the S2C,
+    /// docs/acoustic.md#frame-sizes-and-bit-rates): with `air_overhead`, how long an
+    /// unacknowledged frame occupies the modem.
     pub im_bit_rate: f64,
     /// Fixed on-air overhead per frame (preamble, guard).
     pub air_overhead: Duration,
@@ -140,7 +141,8 @@ impl DriverConfig {
 
     /// How long a frame of `len` bytes stays on air: an unacknowledged frame is reported
     /// sent only then, because the modem cannot take another one before (it does not
-    /// queue, §1) and the link must still be free to choose what goes next.
+    /// queue: docs/acoustic.md#at-interface) and the link must still be free to choose what
+    /// goes next.
     pub fn air_time(&self, len: usize) -> Duration {
         #[allow(clippy::cast_precision_loss)]
         let bits = (len * 8) as f64;
@@ -415,7 +417,7 @@ async fn run<W: Wire + Default>(
         info!(proto = W::NAME, addr = %cfg.addr, "connected to modem");
         status.connected.store(true, Ordering::Relaxed);
         wire.reset();
-        // Learn the local address first; one command at a time (§1).
+        // Learn the local address first; one command at a time (docs/acoustic.md#at-interface).
         let mut hello_pending = stream.write_all(&wire.hello()).await.is_ok();
         let mut hello_deadline = Instant::now() + cfg.reply_timeout;
         if let Some((_, phase, _)) = current.as_mut() {
@@ -565,7 +567,7 @@ fn handle_reply<W: Wire>(
     }
 }
 
-/// Driver for an EvoLogics S2C modem's AT interface over TCP (§1).
+/// Driver for an EvoLogics S2C modem's AT interface over TCP (docs/acoustic.md#at-interface).
 #[derive(Debug)]
 pub struct AtDriver {
     engine: Engine,
@@ -601,7 +603,7 @@ impl ModemDriver for AtDriver {
     }
 }
 
-/// Driver for the EviNS network layer over TCP (§2).
+/// Driver for the EviNS network layer over TCP (docs/acoustic.md#nl-protocol).
 #[derive(Debug)]
 pub struct NlDriver {
     engine: Engine,

@@ -1,18 +1,19 @@
 //! The acoustic link layer: what to send next over a slow, lossy, half-duplex link.
 //!
 //! One queue per [`Class`] (emergency > control > telemetry > bulk). Between queues the
-//! next frame follows Goby's rule (ACOUSTIC.md §4): priority grows with the time since the
-//! queue last sent, `P = value_base · (t − t_last) / ttl`, and the highest queue not in
-//! blackout goes first — except that emergency traffic always goes before everything
-//! else. Per queue: TTL (expired messages are reported and dropped), ack or not (control
-//! and emergency are retransmitted with exponential backoff until acknowledged or
+//! next frame follows Goby's rule (docs/acoustic.md#link-layer): priority grows with the
+//! time since the queue last sent, `P = value_base · (t − t_last) / ttl`, and the highest
+//! queue not in blackout goes first — except that emergency traffic always goes before
+//! everything else. Per queue: TTL (expired messages are reported and dropped), ack or not
+//! (control and emergency are retransmitted with exponential backoff until acknowledged or
 //! expired), newest-first (telemetry: the freshest state goes first and stale states age
 //! out instead of queueing forever), maximum length (oldest dropped), and an optional
 //! supersede key (a newer state of the same vehicle replaces the queued one).
 //!
-//! A frame to one destination is filled with as many queued PDUs as fit (§3: several
-//! compact messages share one 64-byte instant message). A [`Mac`] option restricts when a
-//! node may start transmitting: free (one frame in flight at a time) or TDMA slots.
+//! A frame to one destination is filled with as many queued PDUs as fit (several compact
+//! messages share one 64-byte instant message: docs/acoustic.md#compact-messages). A
+//! [`Mac`] option restricts when a node may start transmitting: free (one frame in flight
+//! at a time) or TDMA slots (docs/acoustic.md#medium-access).
 //!
 //! [`LinkCore`] is pure logic driven by explicit instants (unit tests need no runtime);
 //! [`start`] runs it against a [`ModemDriver`] on tokio.
@@ -56,7 +57,7 @@ impl Class {
     }
 }
 
-/// Behaviour of one class's queue (Goby's per-queue settings, §4).
+/// Behaviour of one class's queue (Goby's per-queue settings, docs/acoustic.md#link-layer).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct QueueConfig {
@@ -155,7 +156,7 @@ impl Default for LinkConfig {
             control: q(100.0, 900, true, false, 64),
             // Stale telemetry is useless: a minute, newest first, a short queue.
             telemetry: q(10.0, 60, false, true, 8),
-            // Goby's default TTL (§4).
+            // Goby's default TTL (docs/acoustic.md#link-layer).
             bulk: q(1.0, 1800, false, false, 256),
             max_frame: MAX_FRAME,
             backoff_initial: Duration::from_secs(2),

@@ -1,4 +1,5 @@
-//! The EviNS network-layer (NL) protocol (ACOUSTIC.md §2): parsers and formatters.
+//! The EviNS network-layer (NL) protocol (docs/acoustic.md#nl-protocol): parsers and
+//! formatters.
 //!
 //! Comma-separated lines over TCP. Host → NL: `NL,send[,<type>],[<len>],<dst>,<data>`,
 //! `NL,set,address|protocol|routing,...`, `NL,get,address|protocol|routing`. NL → host:
@@ -7,7 +8,7 @@
 //!
 //! Data with a length is read by length (binary-safe); without one it runs to the end of
 //! the line. Lines end in `\n` (a preceding `\r` is accepted). Malformed lines are answered
-//! with `NL,error,format` (Shoal's choice: §2 documents no generic error reply).
+//! with `NL,error,format` (Shoal's choice: EviNS documents no generic error reply).
 
 /// Longest line accepted without a newline before it is discarded as garbage.
 pub const MAX_LINE: usize = 2048;

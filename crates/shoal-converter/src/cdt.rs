@@ -1,11 +1,11 @@
 //! The Control Data Terminal: the station's (or a relay USV's) side of the converter.
 //!
 //! Modem → DDS: frames from the vehicles' VDTs are unpacked, duplicates suppressed (the
-//! modem may deliver a message twice, §1), states expanded from keyframe or delta, and
-//! every datum republished with the **same types and topics as an IP vehicle's**: the
-//! station needs no acoustic code. Each keyframe is acknowledged to its VDT so it can
-//! code deltas against it. Alongside, a per-vehicle link-status event carries the link
-//! metadata ([`crate::link_status`]).
+//! modem may deliver a message twice: docs/acoustic.md#at-interface), states expanded from
+//! keyframe or delta, and every datum republished with the **same types and topics as an
+//! IP vehicle's**: the station needs no acoustic code. Each keyframe is acknowledged to
+//! its VDT so it can code deltas against it. Alongside, a per-vehicle link-status event
+//! carries the link metadata ([`crate::link_status`]).
 //!
 //! DDS → modem: task assignments for the vehicles in the address book are given an 8-bit
 //! task number, sent as control (acknowledged, retransmitted with backoff until their TTL;

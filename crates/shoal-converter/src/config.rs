@@ -19,9 +19,11 @@ use crate::error::ConverterError;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ModemKind {
-    /// EvoLogics S2C AT commands over TCP (ACOUSTIC.md §1); port 9200 on a real modem.
+    /// EvoLogics S2C AT commands over TCP (docs/acoustic.md#at-interface); port 9200 on a
+    /// real modem.
     EvologicsAt,
-    /// The EviNS network-layer protocol over TCP (§2), as in the SWARMs sea trials.
+    /// The EviNS network-layer protocol over TCP (docs/acoustic.md#nl-protocol), as in the
+    /// SWARMs sea trials.
     EvinsNl,
 }
 
@@ -54,7 +56,8 @@ impl Default for ModemSettings {
 pub struct AddressEntry {
     /// Shoal vehicle id.
     pub vehicle_id: String,
-    /// Acoustic address, 1..=15 (the compact PDUs name vehicles in 4 bits, §3).
+    /// Acoustic address, 1..=15 (the compact PDUs name vehicles in 4 bits:
+    /// docs/acoustic.md#compact-messages).
     pub address: u8,
 }
 
@@ -208,8 +211,9 @@ impl Default for VdtConfig {
             cdt_address: 1,
             vehicles: Vec::new(),
             topics: AcousticTopics::default(),
-            // A 10-byte delta takes ~0.18 s on air at 976 bit/s (§1): one every 2 s leaves
-            // the channel mostly free for tasks and the station's acks.
+            // A 10-byte delta takes ~0.18 s on air at 976 bit/s
+            // (docs/acoustic.md#frame-sizes-and-bit-rates): one every 2 s leaves the channel
+            // mostly free for tasks and the station's acks.
             state_interval_s: 2.0,
             announce_interval_s: 60.0,
             environment_interval_s: 30.0,

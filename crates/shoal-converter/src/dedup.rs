@@ -1,10 +1,10 @@
 //! Duplicate suppression for received PDUs.
 //!
 //! The modem may deliver a message twice: when a `FAILEDIM` means "no ack came back" the
-//! message may still have arrived (§1), and the link layer retransmits it. A PDU's encoding
-//! is canonical and every message that may legitimately repeat carries a number or a
-//! time of day, so a byte-identical PDU from the same sender within the window is a
-//! duplicate.
+//! message may still have arrived (docs/acoustic.md#at-interface), and the link layer
+//! retransmits it. A PDU's encoding is canonical and every message that may legitimately
+//! repeat carries a number or a time of day, so a byte-identical PDU from the same sender
+//! within the window is a duplicate.
 
 use std::collections::{HashMap, VecDeque};
 

@@ -1,7 +1,7 @@
 //! Shoal's DDS-Acoustic Converter: the bridge between DDS topics and an acoustic modem.
 //!
 //! A submerged vehicle reaches the station only through an acoustic modem. As in SWARMs,
-//! a converter runs on each side of the water (ARCHITECTURE.md, "Links"):
+//! a converter runs on each side of the water (docs/architecture.md#links):
 //!
 //! - [`vdt`]: the **Vehicle Data Terminal** on the vehicle. [`run_vdt`] subscribes the
 //!   vehicle's local DDS topics, encodes them as compact PDUs and sends them through the

@@ -1,7 +1,7 @@
 //! The Vehicle Data Terminal: the vehicle's side of the DDS-Acoustic Converter.
 //!
 //! Vehicle DDS → modem: the VDT subscribes the vehicle's local topics and sends, for the
-//! vehicles it serves (ARCHITECTURE.md "Links", issue 3 item 5):
+//! vehicles it serves (docs/acoustic.md#converter):
 //! - state vectors as telemetry, at most one per vehicle per `state_interval_s`, the
 //!   freshest first (a newer state replaces a queued one), coded as a delta against the
 //!   last keyframe the CDT acknowledged, or as a keyframe;

@@ -18,7 +18,7 @@ use shoal_security::verify::{Gate, VerifierConfig};
 const BUDGET: Duration = Duration::from_millis(1500);
 /// A CDR-encoded state vector is about this long (string id, ten doubles, a timestamp).
 const PAYLOAD_LEN: usize = 100;
-/// A DCCL state vector is 20 bytes (the design notes, ACOUSTIC.md §3).
+/// A DCCL state vector is 20 bytes (docs/acoustic.md#dccl-comparison).
 const DCCL_STATE_VECTOR: usize = 20;
 /// The EvoLogics instant-message limit.
 const IM_BYTES: usize = 64;

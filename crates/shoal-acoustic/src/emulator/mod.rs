@@ -1,12 +1,13 @@
 //! `shoal modem-emu`: N virtual acoustic modems in one process, in one simulated sea.
 //!
-//! Each modem is a TCP server on 127.0.0.1 speaking the EvoLogics S2C AT interface (§1)
-//! and a second one speaking the EviNS NL protocol (§2). Transmissions go through a
-//! shared [`sea`]: propagation delay `d / c` (Mackenzie), air time from bit rate and length,
-//! PER from the [`crate::channel`] model (Rayleigh fading by default) drawn from a seeded
-//! PRNG, half duplex (a transmitting modem hears nothing) and collisions (overlapping
-//! arrivals at a receiver are both lost). Positions come from the config and can be moved
-//! at run time with [`EmulatorHandle::set_position`], e.g. from vehicles' live state.
+//! Each modem is a TCP server on 127.0.0.1 speaking the EvoLogics S2C AT interface
+//! (docs/acoustic.md#at-interface) and a second one speaking the EviNS NL protocol
+//! (docs/acoustic.md#nl-protocol). Transmissions go through a shared [`sea`]: propagation
+//! delay `d / c` (Mackenzie), air time from bit rate and length, PER from the
+//! [`crate::channel`] model (Rayleigh fading by default) drawn from a seeded PRNG, half
+//! duplex (a transmitting modem hears nothing) and collisions (overlapping arrivals at a
+//! receiver are both lost). Positions come from the config and can be moved at run time
+//! with [`EmulatorHandle::set_position`], e.g. from vehicles' live state.
 //!
 //! Entry points: [`Emulator::start`] (returns a handle with the bound addresses) and
 //! [`run`] (start and wait for shutdown), both taking a shutdown future.
@@ -49,7 +50,7 @@ pub struct EmulatorConfig {
     pub channel: ChannelModel,
     /// Use this PER for every packet instead of the channel model (for tests/benchmarks).
     pub fixed_per: Option<f64>,
-    /// Instant message bit rate, bit/s (976 for S2C, §1).
+    /// Instant message bit rate, bit/s (976 for S2C, docs/acoustic.md#frame-sizes-and-bit-rates).
     pub im_bit_rate: f64,
     /// Burst bit rate, bit/s.
     pub burst_bit_rate: f64,
@@ -71,7 +72,7 @@ impl Default for EmulatorConfig {
             im_bit_rate: 976.0,
             burst_bit_rate: 13_900.0,
             // With 64 bytes at 976 bit/s this gives ~0.6 s; a 10-byte IM ~0.18 s, in the
-            // 0.14–0.20 s §1 quotes for a short IM.
+            // 0.14–0.20 s docs/acoustic.md#frame-sizes-and-bit-rates gives for a short IM.
             preamble_s: 0.1,
             im_retries: 2,
             modems: Vec::new(),

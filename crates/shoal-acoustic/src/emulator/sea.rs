@@ -17,9 +17,11 @@ use crate::at::{self, AtCommand, BROADCAST, ModemError, Notification, Received};
 use crate::channel::ChannelModel;
 use crate::nl::{NlCommand, NlEvent};
 
-/// Bytes the EviNS network layer prefixes to each packet (§2); counted in air time only.
+/// Bytes the EviNS network layer prefixes to each packet (docs/acoustic.md#nl-protocol);
+/// counted in air time only.
 const NL_HEADER: usize = 4;
-/// NL payloads under this many bytes go as instant messages, larger ones as bursts (§2).
+/// NL payloads under this many bytes go as instant messages, larger ones as bursts
+/// (docs/acoustic.md#nl-protocol).
 const NL_IM_LIMIT: usize = 50;
 /// Size of an acknowledgement on air, bytes (a short IM-like packet).
 const ACK_BYTES: usize = 2;
@@ -541,8 +543,8 @@ impl Sea {
         Ok(())
     }
 
-    /// Starts a new message from `node`; a pending one is cancelled (§1: the modem does
-    /// not queue).
+    /// Starts a new message from `node`; a pending one is cancelled (the modem does not
+    /// queue: docs/acoustic.md#at-interface).
     fn start_send(
         &mut self,
         node: usize,

@@ -1,6 +1,6 @@
 //! Conversions between `shoal-model` types and compact PDUs.
 //!
-//! What the compact forms lose, on purpose (ACOUSTIC.md §3 budget):
+//! What the compact forms lose, on purpose (docs/acoustic.md#compact-messages):
 //! - vehicle ids become 4-bit acoustic addresses through an [`AddressBook`] the caller
 //!   supplies; task and event ids become 8-bit numbers the caller maps;
 //! - timestamps keep only the second of the UTC day; the receiver restores the date as the

@@ -1,4 +1,4 @@
-//! Keyframe + delta coding of State Vectors (issue 3, item 1).
+//! Keyframe + delta coding of State Vectors (docs/acoustic.md#compact-messages).
 //!
 //! The sender codes each state against the last keyframe the receiver *acknowledged*, so a
 //! lost delta never corrupts later ones and a lost keyframe only costs keyframes until one

@@ -1,4 +1,4 @@
-//! The compact messages and their declarative schemas (ACOUSTIC.md §3).
+//! The compact messages and their declarative schemas (docs/acoustic.md#compact-messages).
 //!
 //! Every message starts with a 1-byte message id, then its fields by the DCCL rule, then
 //! zero padding to a byte. Sizes (bits before padding / bytes) are listed by
@@ -9,8 +9,8 @@ use serde::{Deserialize, Serialize};
 use super::schema::{BitReader, BitWriter, Field, Schema};
 use super::{DecodeError, EncodeError};
 
-/// Message ids (the 1-byte DCCL id, §3). 0 is reserved: a zero byte where a message
-/// should start is frame padding.
+/// Message ids (the 1-byte DCCL id, docs/acoustic.md#compact-messages). 0 is reserved: a
+/// zero byte where a message should start is frame padding.
 pub mod id {
     /// [`super::StateKeyframe`].
     pub const STATE_KEYFRAME: u8 = 1;
@@ -38,8 +38,9 @@ const DEPTH: Field = Field::new("depth_m", 0.0, 6000.0, 0.1);
 const SPEED: Field = Field::new("speed_mps", 0.0, 10.0, 0.05);
 const NUMBER: Field = Field::new("number", 0.0, 255.0, 1.0);
 
-/// Keyframe State Vector: the §3 SWARMs field set and bounds, 158 bits → 20 bytes. The
-/// §3 "subtype" nibble carries the keyframe sequence number deltas refer to.
+/// Keyframe State Vector: the SWARMs field set and bounds of
+/// docs/acoustic.md#compact-messages, 158 bits → 20 bytes. The SWARMs "subtype" nibble
+/// carries the keyframe sequence number deltas refer to.
 pub const STATE_KEYFRAME_SCHEMA: Schema = Schema {
     name: "state_keyframe",
     fields: &[

@@ -1,6 +1,7 @@
 //! Compact PDUs: the DCCL rule, the messages, frame packing and model conversions.
 //!
-//! - [`schema`]: [`Field`] / [`Schema`] and the bit writer/reader (ACOUSTIC.md §3).
+//! - [`schema`]: [`Field`] / [`Schema`] and the bit writer/reader
+//!   (docs/acoustic.md#compact-messages).
 //! - [`Pdu`]: the compact messages (keyframe and delta State Vector, task, task status,
 //!   event, announcement, environment observation, ack); `serde` gives their JSON form.
 //! - [`encode`] / [`decode`]: one PDU ↔ bytes; [`pack_frame`] / [`unpack_frame`]: several
@@ -19,7 +20,8 @@ pub use delta::{DeltaDecoder, DeltaEncoder};
 pub use messages::*;
 pub use schema::{BitReader, BitWriter, Field, Schema};
 
-/// Largest modem frame: an EvoLogics instant message carries at most 64 bytes (§1).
+/// Largest modem frame: an EvoLogics instant message carries at most 64 bytes
+/// (docs/acoustic.md#frame-sizes-and-bit-rates).
 pub const MAX_FRAME: usize = 64;
 
 /// Why a message could not be encoded.
@@ -295,7 +297,8 @@ pub struct SizeEntry {
 }
 
 /// Each message's size in bits and bytes (for `shoal bench` and the docs). The reference
-/// points are DCCL's 158 bits / 20 bytes and the SWARMs paper's 51 ASCII bytes (§3).
+/// points are DCCL's 158 bits / 20 bytes and the SWARMs paper's 51 ASCII bytes
+/// (docs/acoustic.md#dccl-comparison).
 pub fn size_table() -> Vec<SizeEntry> {
     samples()
         .into_iter()

@@ -1,4 +1,5 @@
-//! The DCCL rule: bounded numeric fields packed MSB-first into a bit string (ACOUSTIC.md §3).
+//! The DCCL rule: bounded numeric fields packed MSB-first into a bit string
+//! (docs/acoustic.md#compact-messages).
 //!
 //! A [`Field`] is `(name, min, max, resolution, optional)`. Its value `x` travels as the
 //! integer `round((x - min) / resolution)` in `ceil(log2((max - min) / resolution + 1))`
@@ -41,7 +42,7 @@ impl BitWriter {
         self.bit_len
     }
 
-    /// The bytes, zero-padded to a whole byte as DCCL does (§3).
+    /// The bytes, zero-padded to a whole byte as DCCL does (docs/acoustic.md#compact-messages).
     pub fn finish(self) -> Vec<u8> {
         self.bytes
     }
@@ -107,7 +108,8 @@ pub fn bits_for_values(n: u64) -> u32 {
     }
 }
 
-/// One bounded numeric field of a compact message (the DCCL rule, §3).
+/// One bounded numeric field of a compact message (the DCCL rule,
+/// docs/acoustic.md#compact-messages).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Field {
     /// Field name, used in errors and docs.
@@ -287,7 +289,8 @@ mod tests {
 
     #[test]
     fn state_vector_reference_field_widths_match_acoustic_md() {
-        // §3: latitude ±90° at 1e-5 → 25 bits, longitude 26, depth 16, altitude 14, ...
+        // docs/acoustic.md#compact-messages: latitude ±90° at 1e-5 → 25 bits, longitude 26,
+        // depth 16, altitude 14, ...
         let cases = [
             (Field::new("lat", -90.0, 90.0, 1e-5), 25),
             (Field::new("lon", -180.0, 180.0, 1e-5), 26),

@@ -1,4 +1,5 @@
-//! PDU codec tests: sizes against the §3 budget, round trips, garbage, the delta track.
+//! PDU codec tests: sizes against docs/acoustic.md#dccl-comparison, round trips, garbage,
+//! the delta track.
 
 use proptest::prelude::*;
 use rand::SeedableRng as _;

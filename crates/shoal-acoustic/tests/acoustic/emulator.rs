@@ -137,7 +137,8 @@ async fn a_new_instant_message_cancels_the_pending_one_and_atz_cancels_too() {
 
 #[tokio::test]
 async fn beyond_range_the_message_fails_after_its_retries() {
-    // 9 km: PER ≈ 1 with the default channel (§6: total loss by 8 km).
+    // 9 km: PER ≈ 1 with the default channel (total loss by 8 km:
+    // docs/acoustic.md#packet-error-rate).
     let emu = emulator(vec![modem(1, 0.0), modem(2, 9000.0)], |_| {}).await;
     let mut a = AtClient::connect(emu.modems()[0].at).await;
     assert_eq!(

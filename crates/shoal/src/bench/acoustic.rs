@@ -1,8 +1,9 @@
-//! `shoal bench acoustic` (issue 3, item 8): the acoustic link against its goals. The
-//! measurements return numbers; [`acoustic`] prints them.
+//! `shoal bench acoustic`: the acoustic link against its goals. The measurements return
+//! numbers; [`acoustic`] prints them.
 //!
 //! - [`pdu_sizes`]: each compact message's size against the DCCL reference State Vector
-//!   (158 bits → 20 bytes) and the SWARMs paper's 51-byte ASCII payload (ACOUSTIC.md §3).
+//!   (158 bits → 20 bytes) and the SWARMs paper's 51-byte ASCII payload
+//!   (docs/acoustic.md#dccl-comparison).
 //! - [`link::channel_use`]: a saturated telemetry link, two emulated modems `distance_m` apart;
 //!   how busy the channel is and how full its frames are.
 //! - [`link::emergency_latency`]: an alarm injected while telemetry saturates the channel; time
@@ -10,7 +11,7 @@
 //! - [`link::control_delivery`]: control messages at a fixed packet error rate with no modem
 //!   retries, so the link layer's ack and retransmission do all the work.
 //!
-//! Emergency latency has two bounds. The strict one is the issue's "one frame time plus
+//! Emergency latency has two bounds. The strict one is the goal's "one frame time plus
 //! propagation" (a 64-byte frame + d/c). A modem cannot abort a frame already on air (it
 //! answers BUSY), so an alarm that arrives as a full telemetry frame starts must wait for
 //! that frame, then needs its own (short) air time: the second bound,
@@ -29,11 +30,13 @@ use super::helpers::{date, machine};
 
 mod link;
 
-/// The DCCL-equivalent size of the SWARMs State Vector, bytes (§3).
+/// The DCCL-equivalent size of the SWARMs State Vector, bytes
+/// (docs/acoustic.md#dccl-comparison).
 pub const DCCL_REFERENCE_BYTES: usize = 20;
-/// The SWARMs paper's ASCII State Vector payload, bytes (§3).
+/// The SWARMs paper's ASCII State Vector payload, bytes (docs/acoustic.md#dccl-comparison).
 pub const SWARMS_ASCII_BYTES: usize = 51;
-/// A naive 32-bit binary layout of the State Vector, bytes (§3).
+/// A naive 32-bit binary layout of the State Vector, bytes
+/// (docs/acoustic.md#dccl-comparison).
 pub const NAIVE_BINARY_BYTES: usize = 42;
 
 /// One row of the size table.

@@ -128,7 +128,7 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 24)]
         domain: u16,
     },
-    /// Every figure of the targets in one run and one table, each beside the peer
+    /// Every figure that has a target, in one run and one table, each beside the peer
     /// measured in the same run (Cyclone DDS ddsperf, a raw batched SQLite insert, DCCL's
     /// published size) and its target; saved as Markdown under `--out`.
     Suite {

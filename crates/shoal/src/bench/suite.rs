@@ -1,4 +1,4 @@
-//! `shoal bench suite`: every figure of the targets in one run and one table, each
+//! `shoal bench suite`: every figure that has a target, in one run and one table, each
 //! beside the peer measured in the same run (Cyclone DDS ddsperf, a raw batched SQLite
 //! insert, DCCL's published size) and its target; saved as Markdown.
 
