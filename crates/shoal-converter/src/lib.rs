@@ -21,6 +21,8 @@
 //! The codec, the modem drivers, the link layer and the emulator live in `shoal-acoustic`;
 //! this crate is the glue between them and the Publish/Subscribe Manager (`shoal-dds`).
 
+#![forbid(unsafe_code)]
+
 pub mod cdt;
 mod common;
 pub mod config;

@@ -699,18 +699,32 @@ mod tests {
     }
 
     #[tokio::test(start_paused = true)]
-    async fn an_inconsistent_task_fails_saying_why() {
+    async fn an_inconsistent_task_is_refused_on_receipt_and_never_reaches_the_vehicle() {
         let p = start(sim(100.0, &quiet()), ProxyOptions::default());
         let mut bad = assign("bad", "auv-1", &goto(63.001, 10.0));
         bad.area.push(bad.area[0]);
-        p.send(bad);
-        sleep_s(1.0).await;
-        let st = p.out.statuses("bad");
-        assert_eq!(states_of(&st), [TaskState::Failed]);
+        // The P/S Manager validates on receipt, so the proxy is handed a read error, not
+        // a task: the type it takes tasks as (`Validated`) cannot hold this one.
+        let Err((error, bad)) = Validated::new(bad) else {
+            panic!("an inconsistent task passed validation");
+        };
         assert_eq!(
-            st[0].message,
-            "invalid task: area: goto_waypoint needs exactly one point"
+            error.to_string(),
+            "area: goto_waypoint needs exactly one point"
         );
+        p.tasks
+            .unbounded_send(Err(ReadError::Invalid {
+                topic: "shoal/task_assignment",
+                error,
+                payload: serde_json::to_string(&bad).unwrap(),
+            }))
+            .unwrap();
+        sleep_s(1.0).await;
+        assert!(p.out.statuses("bad").is_empty());
+        // The proxy goes on: the next good task runs.
+        p.send(assign("good", "auv-1", &goto(63.001, 10.0)));
+        sleep_s(1.0).await;
+        assert!(!p.out.statuses("good").is_empty());
         p.stop().await.unwrap();
     }
 

@@ -15,6 +15,8 @@
 //! it, and it publishes through an [`Outbox`], so it runs in plain unit tests. [`Station`]
 //! wires it to the Publish/Subscribe Manager and runs it.
 
+#![forbid(unsafe_code)]
+
 mod bus;
 mod config;
 mod core;
