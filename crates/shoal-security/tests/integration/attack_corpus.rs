@@ -35,16 +35,16 @@ const TASK_TOPIC: &str = "shoal/task_assignment";
 /// The corpus seed.
 const SEED: u64 = 0x5eed_0005_4a0a_0001;
 
-/// SplitMix64: a tiny deterministic generator, so the corpus is the same on every run.
-struct Rng(u64);
+/// A seeded generator (the Rand project's SplitMix64, as the simulator uses), so the
+/// corpus is the same on every run.
+struct Rng(rand_xoshiro::SplitMix64);
 
 impl Rng {
+    fn new(seed: u64) -> Self {
+        Self(rand::SeedableRng::seed_from_u64(seed))
+    }
     fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
+        rand::Rng::next_u64(&mut self.0)
     }
     fn below(&mut self, n: usize) -> usize {
         (self.next() % n as u64) as usize
@@ -271,7 +271,7 @@ fn every_attack_is_refused_and_all_legitimate_traffic_accepted() {
         AcousticSide::new(TagSize::Bits64, &keys),
     ];
 
-    let mut rng = Rng(SEED);
+    let mut rng = Rng::new(SEED);
     let mut tally = Tally::default();
     let mut accepted: VecDeque<Vec<u8>> = VecDeque::new();
     let mut old_accepted: Vec<(i64, Vec<u8>)> = Vec::new();
