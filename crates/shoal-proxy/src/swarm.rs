@@ -12,12 +12,11 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use shoal_dds::{CreateError, Priority, PubSub, WriterOptions};
-use shoal_model::{LinkKind, StateVector, VehicleAnnouncement, VehicleKind, now_ms};
+use shoal_model::geo::LocalFrame;
+use shoal_model::{GeoPoint, LinkKind, StateVector, VehicleAnnouncement, VehicleKind, now_ms};
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
-/// Metres per degree of latitude.
-const M_PER_DEG: f64 = 111_194.93;
 /// Slices each reporting period is cut into; vehicle `i` reports in slice `i % SLICES`.
 const SLICES: usize = 20;
 /// Announcements are repeated this often (the station may have restarted).
@@ -85,7 +84,8 @@ impl SwarmSpec {
 #[derive(Debug, Clone)]
 struct Lite {
     id: String,
-    centre: (f64, f64),
+    /// East/north metres around the centre of its circle.
+    centre: LocalFrame,
     radius_m: f64,
     speed_mps: f64,
     depth_m: f64,
@@ -118,11 +118,13 @@ impl Lite {
         let half = (side as f64 - 1.0) / 2.0;
         let north = (row - half) * spec.spacing_m;
         let east = (col - half) * spec.spacing_m;
-        let lat = spec.latitude_deg + north / M_PER_DEG;
-        let lon = spec.longitude_deg + east / (M_PER_DEG * spec.latitude_deg.to_radians().cos());
+        let swarm = LocalFrame::new(GeoPoint {
+            latitude_deg: spec.latitude_deg,
+            longitude_deg: spec.longitude_deg,
+        });
         Self {
             id: format!("{}-{}", spec.prefix, i + 1),
-            centre: (lat, lon),
+            centre: LocalFrame::new(swarm.to_geo(east, north)),
             radius_m: 100.0 + 200.0 * unit(i, 1),
             speed_mps: 1.0 + unit(i, 2),
             depth_m: 5.0 + 45.0 * unit(i, 3),
@@ -151,8 +153,10 @@ impl Lite {
         self.battery_pct = (self.battery_pct - dt * 5.0 / 3600.0).max(0.0);
         let north = self.radius_m * self.phase.cos();
         let east = self.radius_m * self.phase.sin();
-        let lat = self.centre.0 + north / M_PER_DEG;
-        let lon = self.centre.1 + east / (M_PER_DEG * self.centre.0.to_radians().cos());
+        let GeoPoint {
+            latitude_deg: lat,
+            longitude_deg: lon,
+        } = self.centre.to_geo(east, north);
         // Counter-clockwise seen from above: the heading is the tangent.
         let yaw = (self.phase.to_degrees() + 90.0).rem_euclid(360.0);
         StateVector {

@@ -170,8 +170,10 @@ fn emulator_config(a: &ModemEmuArgs) -> Result<EmulatorConfig> {
     {
         bail!("--per must be a probability in [0, 1]");
     }
-    let (lat0, lon0) = (63.465_f64, 10.37_f64);
-    let metres_per_deg_lon = 111_320.0 * lat0.to_radians().cos();
+    let origin = shoal_model::geo::LocalFrame::new(shoal_model::GeoPoint {
+        latitude_deg: 63.465,
+        longitude_deg: 10.37,
+    });
     let modems = (1..=a.modems)
         .map(|i| {
             let offset = u16::from(i - 1);
@@ -182,13 +184,14 @@ fn emulator_config(a: &ModemEmuArgs) -> Result<EmulatorConfig> {
                     base.checked_add(offset).context("port out of range")
                 }
             };
+            let at = origin.to_geo(f64::from(offset) * a.spacing_m, 0.0);
             Ok(ModemConfig {
                 address: i,
                 name: format!("modem-{i}"),
                 at_port: port(a.at_port)?,
                 nl_port: port(a.nl_port)?,
-                latitude_deg: lat0,
-                longitude_deg: lon0 + f64::from(offset) * a.spacing_m / metres_per_deg_lon,
+                latitude_deg: at.latitude_deg,
+                longitude_deg: at.longitude_deg,
                 depth_m: a.depth_m,
             })
         })
@@ -273,9 +276,13 @@ mod tests {
             [9200, 9201, 9202]
         );
         assert!(c.modems.iter().all(|m| m.nl_port == 0));
-        let d = (c.modems[1].longitude_deg - c.modems[0].longitude_deg)
-            * 111_320.0
-            * 63.465f64.to_radians().cos();
+        let (a, b) = (&c.modems[0], &c.modems[1]);
+        let d = shoal_model::geo::distance_m(
+            a.latitude_deg,
+            a.longitude_deg,
+            b.latitude_deg,
+            b.longitude_deg,
+        );
         assert!((d - 500.0).abs() < 1.0, "{d}");
     }
 

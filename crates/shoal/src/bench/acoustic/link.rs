@@ -52,13 +52,20 @@ impl Rig {
         link_cfg: LinkConfig,
     ) -> Result<Self> {
         check(opts)?;
-        let m = |address: u8, east_m: f64| ModemConfig {
-            address,
-            name: format!("bench-{address}"),
+        let origin = shoal_model::geo::LocalFrame::new(shoal_model::GeoPoint {
             latitude_deg: 43.0,
-            longitude_deg: 5.0 + east_m / (111_194.93 * 43f64.to_radians().cos()),
-            depth_m: 20.0,
-            ..ModemConfig::default()
+            longitude_deg: 5.0,
+        });
+        let m = |address: u8, east_m: f64| {
+            let at = origin.to_geo(east_m, 0.0);
+            ModemConfig {
+                address,
+                name: format!("bench-{address}"),
+                latitude_deg: at.latitude_deg,
+                longitude_deg: at.longitude_deg,
+                depth_m: 20.0,
+                ..ModemConfig::default()
+            }
         };
         let mut cfg = EmulatorConfig {
             time_scale: opts.time_scale,

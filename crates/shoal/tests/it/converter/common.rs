@@ -29,13 +29,18 @@ pub const LON: f64 = 5.0;
 
 /// A modem `east_m` metres east of the AUV's start, 10 m deep.
 pub fn modem(address: u8, east_m: f64, at_port: u16, nl_port: u16) -> ModemConfig {
+    let at = shoal_model::geo::LocalFrame::new(GeoPoint {
+        latitude_deg: LAT,
+        longitude_deg: LON,
+    })
+    .to_geo(east_m, 0.0);
     ModemConfig {
         address,
         name: format!("m{address}"),
         at_port,
         nl_port,
-        latitude_deg: LAT,
-        longitude_deg: LON + east_m / (111_194.93 * LAT.to_radians().cos()),
+        latitude_deg: at.latitude_deg,
+        longitude_deg: at.longitude_deg,
         depth_m: 10.0,
     }
 }
