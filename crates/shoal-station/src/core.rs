@@ -148,7 +148,7 @@ impl StationHandle {
             // Back-pressure instead of loss: wait for the writer thread to make room.
             Err(SubmitError::Full(record)) => {
                 let w = self.core.history.clone();
-                let r = tokio::task::block_in_place(move || w.submit_blocking(*record));
+                let r = blocking(move || w.submit_blocking(*record));
                 if let Err(e) = r {
                     warn!(error = %e, "history store closed; record not stored");
                 }
@@ -167,5 +167,17 @@ impl StationHandle {
     /// The station's configuration.
     pub fn config(&self) -> &StationConfig {
         &self.core.config
+    }
+}
+
+/// Runs `f`, which may wait (on the bus, on the history writer) without stalling a tokio worker: other tasks move
+/// to another worker meanwhile. Outside a multi-threaded runtime (a test, a
+/// single-threaded tool) it just runs `f`.
+pub(crate) fn blocking<R>(f: impl FnOnce() -> R) -> R {
+    match tokio::runtime::Handle::try_current() {
+        Ok(h) if h.runtime_flavor() == tokio::runtime::RuntimeFlavor::MultiThread => {
+            tokio::task::block_in_place(f)
+        }
+        _ => f(),
     }
 }

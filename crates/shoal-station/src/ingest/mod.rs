@@ -125,7 +125,7 @@ impl StationHandle {
             // Typed and cheap: the RDF mirror is written coalesced, once a second per vehicle.
             let fired = lock(&self.core.semantic).update_state(&s);
             self.emit_fired(fired);
-            self.refresh_availability(&s.vehicle_id, now);
+            self.refresh_heard_availability(&s.vehicle_id, now);
             self.push_state(&s.vehicle_id);
         }
         self.store(Record::State(s));

@@ -15,7 +15,7 @@ use shoal_model::{
 use tracing::{info, warn};
 
 use crate::config::ms;
-use crate::core::{StationHandle, lock};
+use crate::core::{StationHandle, blocking, lock};
 use crate::error::DispatchError;
 use crate::register::Contact;
 use crate::reporters::LiveUpdate;
@@ -357,17 +357,6 @@ impl StationHandle {
     /// Remote readers matched by the station's (control-class) task writer now.
     pub fn task_readers(&self) -> i32 {
         self.core.outbox.task_readers()
-    }
-}
-
-/// Runs `f`, which may wait on the bus, without stalling a tokio worker: other tasks move
-/// to another worker meanwhile. Outside a multi-threaded runtime it just runs `f`.
-fn blocking<R>(f: impl FnOnce() -> R) -> R {
-    match tokio::runtime::Handle::try_current() {
-        Ok(h) if h.runtime_flavor() == tokio::runtime::RuntimeFlavor::MultiThread => {
-            tokio::task::block_in_place(f)
-        }
-        _ => f(),
     }
 }
 

@@ -68,6 +68,8 @@ pub(crate) struct Entry {
     pub(crate) left_ms: Option<i64>,
     /// What it can be asked to do, as last decided by [`Entry::refresh_availability`].
     pub(crate) availability: Availability,
+    /// A task is under way, as the Mission & Task Register last said.
+    pub(crate) busy: bool,
 }
 
 /// All vehicles by id.
@@ -103,6 +105,7 @@ impl Fleet {
                         participant: None,
                         left_ms: None,
                         availability: Availability::Idle,
+                        busy: false,
                     },
                 );
                 true
@@ -155,8 +158,8 @@ impl Fleet {
 
 impl Entry {
     /// Decides availability again; returns the new value when it changed.
-    pub(crate) fn refresh_availability(&mut self, busy: bool, now_ms: i64) -> Option<Availability> {
-        let now = self.decide_availability(busy, now_ms);
+    pub(crate) fn refresh_availability(&mut self, now_ms: i64) -> Option<Availability> {
+        let now = self.decide_availability(self.busy, now_ms);
         (now != self.availability).then(|| {
             self.availability = now;
             now

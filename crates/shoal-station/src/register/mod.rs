@@ -87,19 +87,37 @@ impl StationHandle {
         if let Some(v) = lock(&self.core.fleet).vehicles.get_mut(vehicle_id) {
             v.last_fault_ms = Some(now);
         }
-        self.refresh_availability(vehicle_id, now);
+        self.refresh_heard_availability(vehicle_id, now);
     }
 
-    /// Decides a vehicle's availability again (its tasks, contact, faults or charging may
-    /// have changed) and mirrors a change into the semantic model.
+    /// Decides a vehicle's availability again after its tasks changed (and maybe its
+    /// contact, faults or charging), asking the Mission & Task Register whether it is
+    /// busy, and mirrors a change into the semantic model.
     pub(crate) fn refresh_availability(&self, vehicle_id: &str, now: i64) {
         let busy = !lock(&self.core.tasks)
             .active_tasks_of(vehicle_id)
             .is_empty();
+        self.decide_availability(vehicle_id, now, Some(busy));
+    }
+
+    /// [`Self::refresh_availability`] when the vehicle's tasks did not change (a state
+    /// vector, a fault, contact): the busy flag the register holds stands, so only the
+    /// fleet's lock is taken. Ingest calls this for every state vector; asking the task
+    /// register would scan every task each time.
+    pub(crate) fn refresh_heard_availability(&self, vehicle_id: &str, now: i64) {
+        self.decide_availability(vehicle_id, now, None);
+    }
+
+    fn decide_availability(&self, vehicle_id: &str, now: i64, busy: Option<bool>) {
         let changed = lock(&self.core.fleet)
             .vehicles
             .get_mut(vehicle_id)
-            .and_then(|e| e.refresh_availability(busy, now));
+            .and_then(|e| {
+                if let Some(busy) = busy {
+                    e.busy = busy;
+                }
+                e.refresh_availability(now)
+            });
         if let Some(a) = changed {
             self.set_semantic_availability(vehicle_id, a);
         }
@@ -116,8 +134,8 @@ impl StationHandle {
             .vehicles
             .iter_mut()
             .filter_map(|(id, e)| {
-                e.refresh_availability(busy.contains(id), now)
-                    .map(|a| (id.clone(), a))
+                e.busy = busy.contains(id);
+                e.refresh_availability(now).map(|a| (id.clone(), a))
             })
             .collect();
         for (id, a) in changed {
@@ -179,7 +197,7 @@ impl StationHandle {
                 _ => {}
             }
             info!(vehicle = %id, from = ?from, to = ?to, "contact changed");
-            self.refresh_availability(&id, now);
+            self.refresh_heard_availability(&id, now);
             // Stale and lost happen exactly when the vehicle sends nothing, so no state
             // carries the change to live clients: push the vehicle's view now.
             if let Some(v) = self.vehicle(&id) {

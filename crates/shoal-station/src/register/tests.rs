@@ -157,6 +157,32 @@ fn a_vehicle_is_busy_while_a_task_is_under_way_and_the_model_follows() {
 }
 
 #[test]
+fn state_vectors_keep_a_busy_vehicle_busy() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap();
+    let t = now_ms();
+    for n in 1..=3 {
+        f.h.ingest_state(state("auv-1", t + n * 100, 80.0)).unwrap();
+        assert_eq!(
+            f.h.vehicle("auv-1").unwrap().availability,
+            Availability::Busy
+        );
+    }
+    // A fault outranks the task; when it ages out the vehicle is busy again, not idle.
+    f.h.fault_reported("auv-1");
+    assert_eq!(
+        f.h.vehicle("auv-1").unwrap().availability,
+        Availability::Fault
+    );
+    f.h.refresh_availability_all(now_ms() + 11 * 60_000);
+    assert_eq!(
+        f.h.vehicle("auv-1").unwrap().availability,
+        Availability::Busy
+    );
+}
+
+#[test]
 fn a_fault_ages_out_after_ten_minutes() {
     let f = Fixture::new();
     f.alive("auv-1");
