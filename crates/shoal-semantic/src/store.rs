@@ -2160,6 +2160,18 @@ mod tests {
     }
 
     #[test]
+    fn set_availability_refuses_an_id_that_cannot_be_an_iri_and_keeps_the_model() {
+        let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
+        let before = s.stats().unwrap();
+        for bad in ["", "a b", "<x>", &"v".repeat(MAX_VEHICLE_ID_LEN + 1)] {
+            let e = s.set_availability(bad, Availability::Idle).unwrap_err();
+            assert!(e.to_string().contains("vehicle_id"), "{bad:?}: {e}");
+        }
+        assert_eq!(s.stats().unwrap().vehicles, before.vehicles);
+        assert_eq!(s.stats().unwrap().quads, before.quads);
+    }
+
+    #[test]
     fn set_availability_on_an_unknown_vehicle_creates_it() {
         let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
         s.set_availability("usv-9", Availability::Fault).unwrap();
