@@ -538,6 +538,57 @@ pub(crate) fn write_cdr(writer: &Entity, ty: SerType, cdr: &mut [u8]) -> Result<
     if ret < 0 { Err(ret) } else { Ok(()) }
 }
 
+/// What ending an instance tells readers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Ending {
+    /// The instance no longer exists (DDS dispose), and this writer forgets it.
+    Dispose,
+    /// This writer forgets the instance; its last value stays valid for readers.
+    Unregister,
+}
+
+/// Ends one instance given as key-only CDR (with the 4-byte encapsulation header): the
+/// writer drops it from its history, so late joiners no longer receive it, and matched
+/// readers learn it was disposed or unregistered.
+pub(crate) fn end_instance_cdr(
+    writer: &Entity,
+    ty: SerType,
+    key_cdr: &mut [u8],
+    ending: Ending,
+) -> Result<(), i32> {
+    let iov = c::ddsrt_iovec_t {
+        iov_base: key_cdr.as_mut_ptr().cast(),
+        iov_len: key_cdr.len(),
+    };
+    // SAFETY: the iovec points at `key_cdr`, which outlives the call (Cyclone copies it).
+    let sd = unsafe {
+        c::ddsi_serdata_from_ser_iov(
+            ty.0,
+            c::ddsi_serdata_kind_SDK_KEY,
+            1,
+            &raw const iov,
+            key_cdr.len(),
+        )
+    };
+    if sd.is_null() {
+        return Err(c::DDS_RETCODE_BAD_PARAMETER);
+    }
+    let status = match ending {
+        Ending::Dispose => c::DDSI_STATUSINFO_DISPOSE | c::DDSI_STATUSINFO_UNREGISTER,
+        Ending::Unregister => c::DDSI_STATUSINFO_UNREGISTER,
+    };
+    // SAFETY: sd is a fresh serdata nobody else references yet, so setting its status and
+    // time is race-free; dds_forwardcdr (unlike dds_writecdr, which clears the status)
+    // sends it as it is and takes the reference. This is what dds_dispose and
+    // dds_unregister_instance do after building the key serdata from a C sample.
+    let ret = unsafe {
+        (*sd).statusinfo = status;
+        (*sd).timestamp.v = c::dds_time();
+        c::dds_forwardcdr(writer.0, sd)
+    };
+    if ret < 0 { Err(ret) } else { Ok(()) }
+}
+
 /// Cyclone's timeout code: a reliable write blocked past its limit.
 pub(crate) const TIMEOUT: i32 = c::DDS_RETCODE_TIMEOUT;
 

@@ -183,6 +183,18 @@ impl<T> WriteError<T> {
     }
 }
 
+/// An instance could not be disposed or unregistered.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum EndError {
+    /// The instance key could not be serialised.
+    #[error("instance key cannot be encoded: {0}")]
+    Encode(#[from] CdrError),
+    /// The DDS library refused it.
+    #[error("DDS could not end the instance: {0}")]
+    Dds(#[from] DdsError),
+}
+
 /// Why a sample was not sent, before it is handed back in a [`WriteError`].
 #[derive(Debug)]
 pub(crate) enum SendError {
@@ -278,6 +290,7 @@ mod tests {
         check::<TypeError>();
         check::<CdrError>();
         check::<ReadError>();
+        check::<EndError>();
         check::<WriteError<shoal_model::StateVector>>();
     }
 }

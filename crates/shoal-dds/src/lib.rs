@@ -26,7 +26,7 @@ mod shape;
 mod topics;
 
 pub use config::DdsConfig;
-pub use error::{CdrError, CreateError, DdsError, ReadError, TypeError, WriteError};
+pub use error::{CdrError, CreateError, DdsError, EndError, ReadError, TypeError, WriteError};
 pub use manager::{ParticipantEvent, PubSub, SampleMeta, Subscription, Writer};
 pub use qos::{Priority, QosProfile, WriterOptions};
 pub use secure::{SIGNED_TYPE_NAME, Security, SecurityCounts, signed_topic};

@@ -14,7 +14,9 @@ use tracing::{debug, info, warn};
 
 use crate::config::DdsConfig;
 use crate::cyclone::{self, Entity, QosReports, ReaderHandle, SerType, TopicRef};
-use crate::error::{CdrError, CreateError, DdsError, ReadError, SendError, TypeError, WriteError};
+use crate::error::{
+    CdrError, CreateError, DdsError, EndError, ReadError, SendError, TypeError, WriteError,
+};
 use crate::qos::WriterOptions;
 use crate::secure::{
     Refused, SIGNED_TYPE_NAME, Security, SecurityCounts, SignedWire, signed_topic,
@@ -446,6 +448,29 @@ impl<T: TopicType> Writer<T> {
     /// Like [`Writer::write`], for code that is not async.
     pub fn write_blocking(&self, sample: T) -> Result<(), WriteError<T>> {
         self.send_or_return(Self::check(sample)?)
+    }
+
+    /// Disposes the sample's instance and forgets it: matched readers learn it no longer
+    /// exists, and late joiners no longer receive it from this writer's history. What
+    /// keeps a transient-local topic's history bounded by live instances, not past ones.
+    pub fn dispose(&self, sample: &T) -> Result<(), EndError> {
+        self.end(sample, cyclone::Ending::Dispose)
+    }
+
+    /// Forgets the sample's instance without disposing it: its last value stays valid for
+    /// readers that have it, and late joiners no longer receive it.
+    pub fn unregister(&self, sample: &T) -> Result<(), EndError> {
+        self.end(sample, cyclone::Ending::Unregister)
+    }
+
+    fn end(&self, sample: &T, ending: cyclone::Ending) -> Result<(), EndError> {
+        // The key as this writer's topic holds it: the signed twin is keyed by key text.
+        let mut key = match &self.security {
+            Some(_) => crate::to_cdr_le(&sample.key_text())?,
+            None => crate::to_cdr_le(&sample.key())?,
+        };
+        cyclone::end_instance_cdr(&self.entity, self.sertype, &mut key, ending)
+            .map_err(|code| EndError::Dds(cyclone::error(code)))
     }
 
     /// How many readers are matched now.

@@ -21,7 +21,7 @@ pub trait TopicType:
     /// Priority class used when the caller does not choose one.
     const DEFAULT_PRIORITY: Priority;
     /// The instance key type (the IDL's `@key` fields in order).
-    type Key: std::fmt::Debug;
+    type Key: std::fmt::Debug + Serialize;
     /// The instance key of this sample.
     fn key(&self) -> Self::Key;
     /// The names of the key fields, in order (empty for an unkeyed type). DDS computes

@@ -99,6 +99,50 @@ async fn a_late_joining_reader_still_gets_transient_local_tasks() {
     assert_eq!(got.kind, TaskKind::Surface);
 }
 
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_disposed_task_is_not_handed_to_late_joiners_and_a_live_one_is() {
+    let station = PubSub::new(&config(48)).unwrap();
+    let w = station
+        .writer::<TaskAssignment>(WriterOptions::new(Priority::Control))
+        .unwrap();
+    // A reader matched before the dispose gets the task, then nothing more: the dispose
+    // carries no data and must not surface as a sample or an error.
+    let early = PubSub::new(&config(48)).unwrap();
+    let mut early_sub = early.subscribe::<TaskAssignment>().unwrap();
+    let ended = TaskAssignment::new("t-ended", "m1", "auv-7", 1_700_000_000_000, &Task::Surface);
+    let live = TaskAssignment::new("t-live", "m1", "auv-7", 1_700_000_000_001, &Task::Surface);
+    w.write(ended.clone()).await.unwrap();
+    let (got, _) = tokio::time::timeout(Duration::from_secs(15), early_sub.next())
+        .await
+        .expect("matched reader got no task")
+        .unwrap()
+        .unwrap();
+    assert_eq!(got.task_id, "t-ended");
+    w.dispose(&ended).unwrap();
+    w.write(live.clone()).await.unwrap();
+    let (got, _) = tokio::time::timeout(Duration::from_secs(15), early_sub.next())
+        .await
+        .expect("matched reader got no second task")
+        .unwrap()
+        .unwrap();
+    assert_eq!(got.task_id, "t-live", "the dispose surfaced as a sample");
+
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let vehicle = PubSub::new(&config(48)).unwrap();
+    let mut sub = vehicle.subscribe::<TaskAssignment>().unwrap();
+    let (got, _) = tokio::time::timeout(Duration::from_secs(15), sub.next())
+        .await
+        .expect("late joiner got no task")
+        .unwrap()
+        .unwrap();
+    assert_eq!(*got, live, "the disposed task was handed to a late joiner");
+    let more = tokio::time::timeout(Duration::from_secs(1), sub.next()).await;
+    assert!(
+        more.is_err(),
+        "a second task reached the late joiner: {more:?}"
+    );
+}
+
 /// A foreign writer with another idea of the type: the reader reports it and goes on.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn malformed_foreign_samples_are_reported_and_do_not_block_good_ones() {
