@@ -16,7 +16,7 @@ STATE_FIELDS = ["vehicle_id", "timestamp_ms", "latitude_deg", "longitude_deg", "
 ANN_FIELDS = ["vehicle_id", "name", "kind", "vendor", "capabilities", "sensors", "links",
               "max_speed_mps", "timestamp_ms"]
 TASK_FIELDS = ["task_id", "mission_id", "vehicle_id", "issued_ms", "kind", "area", "depth_m",
-               "altitude_m", "speed_mps", "line_spacing_m", "duration_s", "rate_hz"]
+               "altitude_m", "speed_mps", "line_spacing_m", "duration_s", "rate_hz", "issue_seq", "expires_ms"]
 
 
 class Fail(Exception):

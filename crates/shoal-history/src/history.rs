@@ -342,7 +342,9 @@ mod tests {
                 altitude_m: Some(5.0),
                 speed_mps: 1.0,
             };
-            let task = TaskAssignment::new("t-1", "m-1", "auv-1", T, &survey);
+            let mut task = TaskAssignment::new("t-1", "m-1", "auv-1", T, &survey);
+            task.issue_seq = 41;
+            task.expires_ms = T + 60_000;
             let status = TaskStatus {
                 task_id: "t-1".into(),
                 vehicle_id: "auv-1".into(),
@@ -390,6 +392,7 @@ mod tests {
             assert_eq!(reloaded[0].assignment.as_ref(), Some(&task));
             assert_eq!(reloaded[0].statuses, vec![status.clone()]);
             assert!(h.reader().tasks_since(task.issued_ms + 1, 10).unwrap().is_empty());
+            assert_eq!(h.reader().max_issue_seq().unwrap(), 41);
             let th = h.task_history("t-1").unwrap();
             assert_eq!(th.assignment.as_ref(), Some(&task));
             assert_eq!(th.assignment.unwrap().task(), Ok(survey));

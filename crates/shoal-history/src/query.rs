@@ -182,6 +182,9 @@ fn task_row(r: &dyn Fields) -> Result<TaskAssignment, HistoryError> {
         line_spacing_m: r.real(9)?,
         duration_s: r.real(10)?,
         rate_hz: r.real(11)?,
+        // The schema refuses negative sequences.
+        issue_seq: u64::try_from(r.int(12)?).unwrap_or(0),
+        expires_ms: r.int(13)?,
     })
 }
 
@@ -307,6 +310,17 @@ impl HistoryReader {
         )
     }
 
+    /// The highest issue sequence any stored task carries (0 when none does): where a
+    /// restarted station's sequence continues, so it never repeats one.
+    pub fn max_issue_seq(&self) -> Result<u64, HistoryError> {
+        let max = self.collect(
+            "SELECT coalesce(max(issue_seq), 0) FROM task_assignment",
+            vec![],
+            count_row,
+        )?;
+        Ok(max.first().map_or(0, |n| u64::try_from(*n).unwrap_or(0)))
+    }
+
     /// How many state vectors are stored, for one vehicle or for all.
     pub fn count_states(&self, vehicle_id: Option<&str>) -> Result<u64, HistoryError> {
         let counts = match vehicle_id {
@@ -368,8 +382,8 @@ impl HistoryReader {
         let assignment = self
             .collect(
                 "SELECT task_id, mission_id, vehicle_id, issued_ms, kind, area, depth_m, \
-                 altitude_m, speed_mps, line_spacing_m, duration_s, rate_hz \
-                 FROM task_assignment WHERE task_id = ?1",
+                 altitude_m, speed_mps, line_spacing_m, duration_s, rate_hz, issue_seq, \
+                 expires_ms FROM task_assignment WHERE task_id = ?1",
                 vec![task_id.into()],
                 task_row,
             )?
@@ -398,7 +412,7 @@ impl HistoryReader {
     ) -> Result<Vec<TaskHistory>, HistoryError> {
         let assignments = self.collect(
             "SELECT task_id, mission_id, vehicle_id, issued_ms, kind, area, depth_m, \
-             altitude_m, speed_mps, line_spacing_m, duration_s, rate_hz \
+             altitude_m, speed_mps, line_spacing_m, duration_s, rate_hz, issue_seq, expires_ms \
              FROM task_assignment WHERE issued_ms >= ?1 ORDER BY issued_ms, task_id LIMIT ?2",
             vec![since_ms.into(), sql_limit(limit)],
             task_row,

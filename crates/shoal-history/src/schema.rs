@@ -117,6 +117,12 @@ const MIGRATIONS: &[&str] = &[
         payload_json TEXT    NOT NULL
     ) STRICT;
     ",
+    // Version 2: tasks carry the station's issue sequence and an expiry (0 = none).
+    "
+    ALTER TABLE task_assignment
+        ADD COLUMN issue_seq INTEGER NOT NULL DEFAULT 0 CHECK (issue_seq >= 0);
+    ALTER TABLE task_assignment ADD COLUMN expires_ms INTEGER NOT NULL DEFAULT 0;
+    ",
 ];
 
 /// The schema version this build writes.
@@ -231,5 +237,43 @@ fn create_parent_dir(path: &Path) -> Result<(), HistoryError> {
             })
         }
         _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    #[test]
+    fn a_version_1_store_is_upgraded_in_place_and_keeps_its_tasks() {
+        let mut conn = Connection::open_in_memory().unwrap();
+        conn.execute_batch(MIGRATIONS[0]).unwrap();
+        conn.pragma_update(None, "user_version", 1).unwrap();
+        conn.execute(
+            "INSERT INTO task_assignment VALUES ('t-1', '', 'auv-1', 5, 'surface', '[]', \
+             -1, -1, 0, 0, 0, 0)",
+            [],
+        )
+        .unwrap();
+        migrate(&mut conn).unwrap();
+        let version: i64 = conn
+            .pragma_query_value(None, "user_version", |r| r.get(0))
+            .unwrap();
+        assert_eq!(version, SCHEMA_VERSION);
+        let (seq, expires): (i64, i64) = conn
+            .query_row(
+                "SELECT issue_seq, expires_ms FROM task_assignment WHERE task_id = 't-1'",
+                [],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .unwrap();
+        assert_eq!((seq, expires), (0, 0));
+        // The new column keeps its sanity bound.
+        let negative = conn.execute(
+            "UPDATE task_assignment SET issue_seq = -1 WHERE task_id = 't-1'",
+            [],
+        );
+        assert!(negative.is_err());
     }
 }

@@ -41,7 +41,8 @@ const UPSERT_VEHICLE: &str = "INSERT INTO vehicle (vehicle_id, name, kind, vendo
 
 const INSERT_TASK: &str = "INSERT OR REPLACE INTO task_assignment (task_id, mission_id, \
     vehicle_id, issued_ms, kind, area, depth_m, altitude_m, speed_mps, line_spacing_m, \
-    duration_s, rate_hz) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)";
+    duration_s, rate_hz, issue_seq, expires_ms) \
+    VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14)";
 
 const INSERT_TASK_STATUS: &str = "INSERT OR REPLACE INTO task_status (task_id, timestamp_ms, \
     state, progress_pct, message, vehicle_id) VALUES (?1, ?2, ?3, ?4, ?5, ?6)";
@@ -116,6 +117,12 @@ pub(crate) struct Outcome {
 
 /// The serde name of a unit enum variant (`snake_case` / `lowercase` as the model declares),
 /// so the database holds the same words as the JSON API and the IDL.
+/// An issue sequence as the databases store it (a signed 64-bit integer); a sequence
+/// past `i64::MAX` (never reached by a station counting from 1) saturates.
+pub(crate) fn seq_column(seq: u64) -> i64 {
+    i64::try_from(seq).unwrap_or(i64::MAX)
+}
+
 pub(crate) fn enum_name<T: Serialize>(value: &T) -> Result<String, serde_json::Error> {
     Ok(match serde_json::to_value(value)? {
         serde_json::Value::String(s) => s,
@@ -154,6 +161,8 @@ pub(crate) fn insert(conn: &Connection, record: &Record) -> Result<(), StoreErro
                 t.line_spacing_m,
                 t.duration_s,
                 t.rate_hz,
+                seq_column(t.issue_seq),
+                t.expires_ms,
             ])?;
         }
         Record::TaskStatus(s) => {

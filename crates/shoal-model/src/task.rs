@@ -142,6 +142,13 @@ pub struct TaskAssignment {
     pub duration_s: f64,
     /// `set_reporting_rate`: state vectors per second, (0, 100].
     pub rate_hz: f64,
+    /// The station's issue sequence: strictly increasing across the station's restarts, so
+    /// a vehicle can order tasks exactly; 0 when a tool, not a station, issued the task.
+    pub issue_seq: u64,
+    /// The last instant the vehicle may start the task, ms since the Unix epoch; a task
+    /// that arrives later is refused as expired (one already started is not stopped).
+    /// 0 when the issuer set none: the vehicle then applies its own maximum task age.
+    pub expires_ms: i64,
 }
 
 /// The typed view of a [`TaskAssignment`]'s kind and parameters.
@@ -227,6 +234,8 @@ impl TaskAssignment {
             line_spacing_m: 0.0,
             duration_s: 0.0,
             rate_hz: 0.0,
+            issue_seq: 0,
+            expires_ms: 0,
         };
         match task {
             Task::GotoWaypoint {
@@ -258,6 +267,15 @@ impl TaskAssignment {
             Task::Surface | Task::ReturnHome | Task::Abort | Task::RequestState => {}
         }
         a
+    }
+
+    /// Whether the task may still start at `now_ms`: before its expiry, or, when it has
+    /// none, no older than `max_age_ms` (if given).
+    pub fn may_start(&self, now_ms: i64, max_age_ms: Option<i64>) -> bool {
+        if self.expires_ms != 0 {
+            return now_ms <= self.expires_ms;
+        }
+        max_age_ms.is_none_or(|max| now_ms.saturating_sub(self.issued_ms) <= max)
     }
 
     /// The typed task, after validating every field that its kind uses.
@@ -343,6 +361,15 @@ impl Validate for TaskAssignment {
         finite_in("line_spacing_m", self.line_spacing_m, 0.0, 10_000.0)?;
         finite_in("duration_s", self.duration_s, 0.0, 86_400.0)?;
         finite_in("rate_hz", self.rate_hz, 0.0, 100.0)?;
+        if self.expires_ms != 0 {
+            timestamp("expires_ms", self.expires_ms)?;
+            if self.expires_ms < self.issued_ms {
+                return Err(ValidationError::Inconsistent {
+                    field: "expires_ms",
+                    rule: "a task cannot expire before it is issued (0 means no expiry)",
+                });
+            }
+        }
         let moves = matches!(self.kind, TaskKind::GotoWaypoint | TaskKind::SurveyArea);
         if moves && (self.depth_m == UNKNOWN) == (self.altitude_m == UNKNOWN) {
             return Err(ValidationError::Inconsistent {
@@ -484,6 +511,27 @@ mod tests {
     }
 
     const T: i64 = 1_700_000_000_000;
+
+    #[test]
+    fn a_task_starts_only_before_its_expiry_or_within_the_age_limit_without_one() {
+        let mut a = TaskAssignment::new("t", "", "v", T, &Task::Surface);
+        // No expiry: the vehicle's own age limit decides, and without one any age goes.
+        assert!(a.may_start(T + 59_000, Some(60_000)));
+        assert!(!a.may_start(T + 61_000, Some(60_000)));
+        assert!(a.may_start(T + 86_400_000, None));
+        // An expiry overrides the age limit both ways.
+        a.expires_ms = T + 10_000;
+        assert!(a.validate().is_ok());
+        assert!(a.may_start(T + 10_000, Some(1)));
+        assert!(!a.may_start(T + 10_001, None));
+        a.expires_ms = T - 1;
+        assert_eq!(
+            a.validate().unwrap_err().reason().to_string(),
+            "inconsistent:expires_ms"
+        );
+        a.expires_ms = -5;
+        assert!(a.validate().is_err());
+    }
 
     fn p(lat: f64, lon: f64) -> GeoPoint {
         GeoPoint {

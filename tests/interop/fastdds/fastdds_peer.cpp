@@ -164,6 +164,7 @@ struct CdrOut {
         c.serialize(s);
     }
     void i64(int64_t v) { c.serialize(v); }
+    void u64(uint64_t v) { c.serialize(v); }
     void f64(double v) { c.serialize(v); }
     void u32(uint32_t v) { c.serialize(v); }
 };
@@ -175,6 +176,7 @@ struct SizeOut {
     void align(size_t a) { off = (off + a - 1) & ~(a - 1); }
     void str(const std::string& s, size_t) { align(4); off += 4 + s.size() + 1; }
     void i64(int64_t) { align(8); off += 8; }
+    void u64(uint64_t) { align(8); off += 8; }
     void f64(double) { align(8); off += 8; }
     void u32(uint32_t) { align(4); off += 4; }
 };
@@ -190,6 +192,7 @@ struct CdrIn {
         return s;
     }
     int64_t i64() { int64_t v; c.deserialize(v); return v; }
+    uint64_t u64() { uint64_t v; c.deserialize(v); return v; }
     double f64() { double v; c.deserialize(v); return v; }
     uint32_t u32() { uint32_t v; c.deserialize(v); return v; }
     uint32_t seq_len(uint32_t bound)
@@ -363,6 +366,8 @@ struct TaskAssignment {
     uint32_t kind = 0;       // TaskKind
     std::vector<GeoPoint> area;  // sequence<GeoPoint, 256>
     double depth_m = 0, altitude_m = 0, speed_mps = 0, line_spacing_m = 0, duration_s = 0, rate_hz = 0;
+    uint64_t issue_seq = 0;
+    int64_t expires_ms = 0;
 
     template <class W> void write(W& w) const
     {
@@ -383,6 +388,8 @@ struct TaskAssignment {
         w.f64(line_spacing_m);
         w.f64(duration_s);
         w.f64(rate_hz);
+        w.u64(issue_seq);
+        w.i64(expires_ms);
     }
     template <class W> void write_key(W& w) const { w.str(task_id, 64); }
     void read(CdrIn& r)
@@ -403,6 +410,8 @@ struct TaskAssignment {
         line_spacing_m = r.f64();
         duration_s = r.f64();
         rate_hz = r.f64();
+        issue_seq = r.u64();
+        expires_ms = r.i64();
     }
     static TaskAssignment max_sample()
     {
@@ -424,7 +433,8 @@ struct TaskAssignment {
               << ",\"longitude_deg\":" << json_num(area[i].longitude_deg) << "}";
         o << "],\"depth_m\":" << json_num(depth_m) << ",\"altitude_m\":" << json_num(altitude_m)
           << ",\"speed_mps\":" << json_num(speed_mps) << ",\"line_spacing_m\":" << json_num(line_spacing_m)
-          << ",\"duration_s\":" << json_num(duration_s) << ",\"rate_hz\":" << json_num(rate_hz) << "}";
+          << ",\"duration_s\":" << json_num(duration_s) << ",\"rate_hz\":" << json_num(rate_hz)
+          << ",\"issue_seq\":" << issue_seq << ",\"expires_ms\":" << expires_ms << "}";
         return o.str();
     }
 };
@@ -698,6 +708,8 @@ static TaskAssignment make_task(const std::string& task_id, const std::string& v
     t.depth_m = 10.0;
     t.altitude_m = -1.0;
     t.speed_mps = 1.5;
+    t.issue_seq = 1;
+    t.expires_ms = t.issued_ms + 600000;
     return t;
 }
 
@@ -938,6 +950,7 @@ static int cmd_encode_demo(const Args& a)
     } else if (ty == "TaskAssignment") {
         TaskAssignment s = make_task("task-7", "auv-1");
         s.issued_ms = 1700000000123;
+        s.expires_ms = 1700000600123;
         s.mission_id = "m1";
         s.kind = 1;
         s.area = {GeoPoint{43.0, 5.9}, GeoPoint{43.001, 5.9}, GeoPoint{43.001, 5.901}};

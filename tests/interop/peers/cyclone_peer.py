@@ -157,6 +157,8 @@ class TaskAssignment(IdlStruct, typename="shoal::TaskAssignment"):
     line_spacing_m: t.float64
     duration_s: t.float64
     rate_hz: t.float64
+    issue_seq: t.uint64
+    expires_ms: t.int64
 
 
 @final

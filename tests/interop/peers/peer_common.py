@@ -95,6 +95,8 @@ def goto_task(task_id: str, vehicle_id: str) -> dict:
         "line_spacing_m": 0.0,
         "duration_s": 0.0,
         "rate_hz": 0.0,
+        "issue_seq": 1,
+        "expires_ms": now_ms() + 600_000,
     }
 
 

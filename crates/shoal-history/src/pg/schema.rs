@@ -113,6 +113,12 @@ pub(crate) const MIGRATIONS: &[&str] = &[
         payload_json TEXT COLLATE "C" NOT NULL
     );
     "#,
+    // Version 2: tasks carry the station's issue sequence and an expiry (0 = none).
+    r#"
+    ALTER TABLE task_assignment
+        ADD COLUMN IF NOT EXISTS issue_seq BIGINT NOT NULL DEFAULT 0 CHECK (issue_seq >= 0);
+    ALTER TABLE task_assignment ADD COLUMN IF NOT EXISTS expires_ms BIGINT NOT NULL DEFAULT 0;
+    "#,
 ];
 
 /// The schema version this build writes; the same number as SQLite's.
