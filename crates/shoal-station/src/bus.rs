@@ -35,6 +35,9 @@ impl PublishError {
 pub trait Outbox: Send + Sync + std::fmt::Debug {
     /// Publishes a task assignment; returns once the bus has it.
     fn publish_task(&self, task: TaskAssignment) -> Result<(), PublishError>;
+    /// Ends a published task's instance once the task has ended (DDS dispose), so the bus
+    /// no longer hands it to a vehicle that joins or restarts later.
+    fn retire_task(&self, task: &TaskAssignment) -> Result<(), PublishError>;
     /// Publishes an event the station raised (its own or a rule's).
     fn publish_event(&self, event: Event) -> Result<(), PublishError>;
     /// Remote readers of tasks matched now (a console shows whether anyone listens).
@@ -85,6 +88,17 @@ impl Outbox for DdsOutbox {
             &self.task
         };
         published(writer.write_blocking(task))
+    }
+
+    fn retire_task(&self, task: &TaskAssignment) -> Result<(), PublishError> {
+        let writer = if task.kind == TaskKind::Abort {
+            &self.abort
+        } else {
+            &self.task
+        };
+        writer
+            .dispose(task)
+            .map_err(|e| PublishError::new(TaskAssignment::TOPIC, e))
     }
 
     fn publish_event(&self, event: Event) -> Result<(), PublishError> {

@@ -119,6 +119,8 @@ impl StationHandle {
             }
         }
         tasks.restore(reloaded, now_ms());
+        // Sequences continue past every one ever issued, so none is repeated.
+        tasks.continue_sequence_after(reader.max_issue_seq().map_err(StationError::History)?);
         let core = Core {
             fleet: Mutex::new(fleet),
             tasks: Mutex::new(tasks),

@@ -20,6 +20,8 @@ use crate::core::StationHandle;
 pub(crate) struct RecordingOutbox {
     pub(crate) tasks: Mutex<Vec<TaskAssignment>>,
     pub(crate) events: Mutex<Vec<Event>>,
+    /// Ids of the tasks retired (disposed), in order.
+    pub(crate) retired: Mutex<Vec<String>>,
     pub(crate) refuse: AtomicBool,
 }
 
@@ -31,6 +33,10 @@ impl RecordingOutbox {
     pub(crate) fn events(&self) -> Vec<Event> {
         self.events.lock().unwrap().clone()
     }
+
+    pub(crate) fn retired(&self) -> Vec<String> {
+        self.retired.lock().unwrap().clone()
+    }
 }
 
 impl Outbox for RecordingOutbox {
@@ -39,6 +45,11 @@ impl Outbox for RecordingOutbox {
             return Err(PublishError::new("TaskAssignment", "refused by the test"));
         }
         self.tasks.lock().unwrap().push(task);
+        Ok(())
+    }
+
+    fn retire_task(&self, task: &TaskAssignment) -> Result<(), PublishError> {
+        self.retired.lock().unwrap().push(task.task_id.clone());
         Ok(())
     }
 

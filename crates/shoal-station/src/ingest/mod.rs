@@ -45,6 +45,10 @@ pub struct IngestStats {
     pub malformed: BTreeMap<String, u64>,
     /// Tasks the station dispatched.
     pub tasks_dispatched: u64,
+    /// Ended tasks retired from the bus (disposed), so no vehicle receives them again.
+    pub tasks_retired: u64,
+    /// Ended tasks the bus would not retire (each also logged).
+    pub tasks_not_retired: u64,
     /// Events raised by rules as data arrived.
     pub rule_firings: u64,
 }

@@ -12,7 +12,7 @@ use shoal_history::Record;
 use shoal_model::{
     EventKind, LinkKind, Severity, Task, TaskAssignment, TaskKind, TaskState, now_ms,
 };
-use tracing::{info, warn};
+use tracing::{debug, info, warn};
 
 use crate::config::ms;
 use crate::core::{StationHandle, blocking, lock};
@@ -127,6 +127,13 @@ impl StationHandle {
             .vehicles
             .get(&task.vehicle_id)
             .map_or(LinkKind::Ip, |v| v.link);
+        let Some(task) =
+            lock(&self.core.tasks).stamp(task_id, now_ms(), self.start_window_ms(link))
+        else {
+            return Err(DispatchError::UnknownTask(task_id.to_owned()));
+        };
+        // The history keeps the sequence and expiry the vehicle sees.
+        self.store(Record::Task(task.clone()));
         let (kind, vehicle) = (task.kind, task.vehicle_id.clone());
         match self.core.outbox.publish_task(task) {
             Ok(()) => {
@@ -148,6 +155,37 @@ impl StationHandle {
                 );
                 self.record_transitions();
                 Err(DispatchError::Publish(e))
+            }
+        }
+    }
+
+    /// How long after a send the vehicle may still start the task: three quarters of the
+    /// acknowledgement timeout on its link, so that its acceptance reaches the station
+    /// before the station gives up on the task and expires it.
+    fn start_window_ms(&self, link: LinkKind) -> i64 {
+        let cfg = &self.core.config;
+        let timeout = if link == LinkKind::Acoustic {
+            ms(cfg.acoustic_task_ack_timeout_s)
+        } else {
+            ms(cfg.task_ack_timeout_s)
+        };
+        timeout / 4 * 3
+    }
+
+    /// Retires from the bus the published tasks that have ended, so a vehicle that
+    /// restarts, or joins later, is never handed them again.
+    pub(crate) fn retire_ended_tasks(&self) {
+        let ended = lock(&self.core.tasks).take_ended_on_bus();
+        for task in ended {
+            match self.core.outbox.retire_task(&task) {
+                Ok(()) => {
+                    lock(&self.core.stats).tasks_retired += 1;
+                    debug!(task = %task.task_id, "ended task retired from the bus");
+                }
+                Err(e) => {
+                    lock(&self.core.stats).tasks_not_retired += 1;
+                    warn!(task = %task.task_id, error = %e, "ended task not retired from the bus");
+                }
             }
         }
     }
@@ -323,7 +361,17 @@ impl StationHandle {
     }
 
     /// The tasks restored missions are waiting for (after a restart); sent at once.
+    /// Tasks that were under way are published again first, unchanged, so a vehicle that
+    /// restarts can resume the one it was doing (one that already has it ignores it).
     pub(crate) fn resume_missions(&self) {
+        let under_way = lock(&self.core.tasks).under_way();
+        for task in under_way {
+            let id = task.task_id.clone();
+            match self.core.outbox.publish_task(task) {
+                Ok(()) => lock(&self.core.tasks).republished(&id),
+                Err(e) => warn!(task = %id, error = %e, "task under way not published again"),
+            }
+        }
         let due = lock(&self.core.tasks).due_tasks();
         if !due.is_empty() {
             info!(

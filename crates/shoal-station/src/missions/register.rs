@@ -11,8 +11,11 @@
 //!   when the previous is done. When a task fails, expires or is aborted, the vehicle's
 //!   remaining tasks in that mission are aborted ("skipped"); the mission ends `done` when
 //!   every task is done, otherwise `failed` (or `aborted` by an operator).
+//! - Each send stamps the task with the next issue sequence (never repeated, also across
+//!   restarts: it continues from the history's highest) and a start-by expiry. A task on
+//!   the bus is retired (disposed) once it has ended, so the bus holds live tasks only.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 
 use shoal_model::{LinkKind, TaskAssignment, TaskState, TaskStatus};
 
@@ -38,6 +41,10 @@ pub(crate) struct TaskRegister {
     /// State changes the station itself made (sent, skipped, aborted, expired), to be
     /// written to the history as task status reports so it holds every transition.
     transitions: Vec<TaskStatus>,
+    /// The last issue sequence given to a task.
+    last_seq: u64,
+    /// Tasks published and not yet retired from the bus.
+    on_bus: HashSet<String>,
 }
 
 /// Rank in the state machine; a report may only keep or raise it.
@@ -87,7 +94,7 @@ impl TaskRegister {
     }
 
     /// Vehicles with a task under way.
-    pub(crate) fn busy_vehicles(&self) -> std::collections::HashSet<&str> {
+    pub(crate) fn busy_vehicles(&self) -> HashSet<&str> {
         self.tasks
             .values()
             .filter(|t| under_way(t.state))
@@ -138,8 +145,34 @@ impl TaskRegister {
         );
     }
 
+    /// Continues the issue sequence after `seq` (the highest the history holds).
+    pub(crate) fn continue_sequence_after(&mut self, seq: u64) {
+        self.last_seq = self.last_seq.max(seq);
+    }
+
+    /// Stamps a task about to be published: its issue sequence (the next one, unless it
+    /// has one from an earlier send) and an expiry `start_window_ms` from now. Returns the
+    /// assignment to publish, or `None` for an unknown task.
+    pub(crate) fn stamp(
+        &mut self,
+        task_id: &str,
+        now_ms: i64,
+        start_window_ms: i64,
+    ) -> Option<TaskAssignment> {
+        let t = self.tasks.get_mut(task_id)?;
+        if t.assignment.issue_seq == 0 {
+            self.last_seq += 1;
+            t.assignment.issue_seq = self.last_seq;
+        }
+        t.assignment.expires_ms = now_ms
+            .saturating_add(start_window_ms)
+            .max(t.assignment.issued_ms);
+        Some(t.assignment.clone())
+    }
+
     /// Marks a task handed to a link.
     pub(crate) fn sent(&mut self, task_id: &str, link: LinkKind, now_ms: i64) {
+        self.on_bus.insert(task_id.to_owned());
         if let Some(t) = self.tasks.get_mut(task_id)
             && may_move(t.state, TaskState::Sent)
         {
@@ -150,6 +183,38 @@ impl TaskRegister {
             let record = transition(t, now_ms);
             self.transitions.push(record);
         }
+    }
+
+    /// Tasks on the bus that have ended since the last call, now forgotten as on the bus:
+    /// the ones to retire. Costs the number of tasks on the bus, which is bounded by the
+    /// live ones.
+    pub(crate) fn take_ended_on_bus(&mut self) -> Vec<TaskAssignment> {
+        let tasks = &self.tasks;
+        let mut ended = Vec::new();
+        self.on_bus.retain(|id| match tasks.get(id) {
+            Some(t) if t.state.is_final() => {
+                ended.push(t.assignment.clone());
+                false
+            }
+            Some(_) => true,
+            None => false,
+        });
+        ended
+    }
+
+    /// Tasks under way (sent, accepted or running): what a restarted station publishes
+    /// again, so a vehicle that restarts too can resume its task.
+    pub(crate) fn under_way(&self) -> Vec<TaskAssignment> {
+        self.tasks
+            .values()
+            .filter(|t| under_way(t.state))
+            .map(|t| t.assignment.clone())
+            .collect()
+    }
+
+    /// Marks a task published again after a restart, without changing its state.
+    pub(crate) fn republished(&mut self, task_id: &str) {
+        self.on_bus.insert(task_id.to_owned());
     }
 
     /// The station's own state changes since the last call, oldest first.

@@ -370,14 +370,101 @@ fn a_restarted_station_resumes_its_missions_where_they_were() {
 }
 
 #[test]
-fn a_restarted_station_does_not_send_again_a_task_it_had_sent() {
+fn a_restarted_station_publishes_a_task_under_way_again_unchanged_and_not_an_ended_one() {
     let f = Fixture::new();
     f.alive("auv-1");
     f.h.plan_mission(spec("m-1", &[("auv-1", goto())])).unwrap();
+    f.h.dispatch_now(assignment("t-done", "auv-1")).unwrap();
+    f.report("t-done", "auv-1", TaskState::Done);
     f.h.start_mission("m-1").unwrap();
-    f.out.refuse.store(false, Ordering::Relaxed);
+    let first = f
+        .out
+        .tasks()
+        .into_iter()
+        .find(|t| t.task_id == "m-1-1")
+        .unwrap();
     let f = f.restart();
-    // Sent before the restart: not sent again, so the vehicle does not run it twice.
     f.h.resume_missions();
-    assert!(f.out.tasks().is_empty());
+    // The same assignment, sequence and expiry included: a vehicle that restarted resumes
+    // it, one that has it already (its task ledger says so) ignores it. Not a new send.
+    assert_eq!(f.out.tasks(), vec![first]);
+    assert_eq!(f.h.stats().tasks_dispatched, 0);
+    assert_eq!(task_state(&f, "m-1-1"), TaskState::Sent);
+    // Once it ends, it is retired from the bus like any other.
+    f.report("m-1-1", "auv-1", TaskState::Done);
+    assert_eq!(f.out.retired(), vec!["m-1-1".to_string()]);
+}
+
+#[test]
+fn each_send_carries_the_next_issue_sequence_and_a_start_by_expiry_also_after_a_restart() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    let before = now_ms();
+    f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap();
+    f.h.dispatch_now(assignment("t-2", "auv-1")).unwrap();
+    let sent = f.out.tasks();
+    assert_eq!(
+        sent.iter().map(|t| t.issue_seq).collect::<Vec<_>>(),
+        vec![1, 2]
+    );
+    // Three quarters of the 60 s acknowledgement timeout on IP.
+    let window = sent[0].expires_ms - before;
+    assert!(
+        (45_000..46_000).contains(&window),
+        "start window {window} ms"
+    );
+    f.flush();
+    let stored =
+        f.h.history()
+            .task_history("t-2")
+            .unwrap()
+            .assignment
+            .unwrap();
+    assert_eq!(
+        (stored.issue_seq, stored.expires_ms),
+        (2, sent[1].expires_ms)
+    );
+    let f = f.restart();
+    f.alive("auv-1");
+    f.h.dispatch_now(assignment("t-3", "auv-1")).unwrap();
+    let t3 = f
+        .out
+        .tasks()
+        .into_iter()
+        .find(|t| t.task_id == "t-3")
+        .unwrap();
+    assert_eq!(t3.issue_seq, 3, "a restarted station repeated a sequence");
+}
+
+#[test]
+fn an_ended_task_is_retired_from_the_bus_once_and_an_unsent_one_never() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap();
+    f.report("t-1", "auv-1", TaskState::Running);
+    assert!(f.out.retired().is_empty(), "a running task was retired");
+    f.report("t-1", "auv-1", TaskState::Done);
+    f.report("t-1", "auv-1", TaskState::Done);
+    assert_eq!(f.out.retired(), vec!["t-1".to_string()]);
+    assert_eq!(f.h.stats().tasks_retired, 1);
+    // A mission task skipped after its predecessor failed never went out: nothing to retire.
+    f.h.plan_mission(spec("m-1", &[("auv-1", goto()), ("auv-1", goto())]))
+        .unwrap();
+    f.h.start_mission("m-1").unwrap();
+    f.report("m-1-1", "auv-1", TaskState::Failed);
+    assert_eq!(task_state(&f, "m-1-2"), TaskState::Aborted);
+    assert_eq!(
+        f.out.retired(),
+        vec!["t-1".to_string(), "m-1-1".to_string()]
+    );
+}
+
+#[test]
+fn an_expired_task_is_retired_so_a_late_vehicle_never_gets_it() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap();
+    f.h.expire_tasks(now_ms() + 61_000);
+    assert_eq!(task_state(&f, "t-1"), TaskState::Expired);
+    assert_eq!(f.out.retired(), vec!["t-1".to_string()]);
 }

@@ -326,6 +326,7 @@ impl StationHandle {
     /// Live consoles are told of each task that changed and of its mission once; the
     /// vehicles concerned have their availability decided again.
     pub(crate) fn record_transitions(&self) {
+        self.retire_ended_tasks();
         let records = lock(&self.core.tasks).take_transitions();
         let mut task_ids = BTreeSet::new();
         let mut vehicles = BTreeSet::new();
