@@ -20,6 +20,7 @@
 
 pub mod adapter;
 pub mod imc;
+pub mod ledger;
 mod link;
 pub mod mavlink;
 mod proxy;
@@ -32,13 +33,14 @@ use std::sync::Arc;
 use shoal_dds::{CreateError, PubSub};
 use shoal_model::{TaskAssignment, Validate, now_ms};
 use tokio_util::sync::CancellationToken;
-use tracing::info;
+use tracing::{info, warn};
 
 pub use adapter::{
     Acceptance, Refusal, TaskOrder, TaskUpdate, VehicleAdapter, VehicleEvent, VehicleOutput,
 };
 pub use proxy::{PROXY_CAPABILITIES, ProxyError, ProxyOptions};
 
+use crate::ledger::TaskLedger;
 use crate::proxy::DdsOutbox;
 use crate::sim::{SimAdapter, SimSettings, SimSpec};
 
@@ -65,10 +67,20 @@ pub async fn run_proxy<A: VehicleAdapter>(
     announcement.timestamp_ms = now_ms();
     announcement.validate().map_err(ProxyError::Announcement)?;
     let id = announcement.vehicle_id;
+    let max_age_ms = options
+        .max_task_age
+        .map(|d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX));
+    let ledger = match &options.ledger_dir {
+        Some(dir) => TaskLedger::open(dir, &id, max_age_ms)?,
+        None => {
+            warn!(vehicle = %id, "task ledger in memory only: a restart forgets which tasks ran");
+            TaskLedger::in_memory(&id, max_age_ms)
+        }
+    };
     let mut outbox = DdsOutbox::new(&dds, &id, &options)?;
     let tasks = dds.subscribe::<TaskAssignment>()?;
-    info!(vehicle = %id, kind = %announcement.kind, vendor = %announcement.vendor, "vehicle joined");
-    let result = proxy::serve(adapter, &mut outbox, tasks, options, shutdown).await;
+    info!(vehicle = %id, kind = %announcement.kind, vendor = %announcement.vendor, remembered_tasks = ledger.len(), "vehicle joined");
+    let result = proxy::serve(adapter, &mut outbox, tasks, options, ledger, shutdown).await;
     info!(vehicle = %id, "vehicle leaving");
     result.map_err(ProxyError::Adapter)
 }
@@ -99,6 +111,10 @@ pub async fn run_sim_with(
         Err(ProxyError::Dds(e)) => Err(e),
         Err(ProxyError::Announcement(e)) => Err(CreateError::Config(format!(
             "simulated vehicle {:?} cannot be announced: {e}",
+            spec.id
+        ))),
+        Err(ProxyError::Ledger(e)) => Err(CreateError::Config(format!(
+            "simulated vehicle {:?}: {e}",
             spec.id
         ))),
         Err(ProxyError::Adapter(never)) => match never {},

@@ -5,8 +5,9 @@
 //! it is tested without a network; [`crate::run_proxy`] plugs in the DDS writers and
 //! subscription.
 
-use std::collections::{HashMap, HashSet, VecDeque};
+use std::collections::HashMap;
 use std::future::Future;
+use std::path::PathBuf;
 use std::time::Duration;
 
 use futures::{Stream, StreamExt};
@@ -22,11 +23,10 @@ use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
 
 use crate::adapter::{TaskOrder, TaskUpdate, VehicleAdapter, VehicleEvent, VehicleOutput};
+use crate::ledger::{Admission, LedgerError, TaskLedger};
 
 /// Capabilities every vehicle behind [`crate::run_proxy`] has, because the proxy serves them.
 pub const PROXY_CAPABILITIES: [&str; 2] = ["request_state", "set_reporting_rate"];
-/// Task ids remembered to drop duplicates (transient-local replays, re-sent tasks).
-const SEEN_TASKS: usize = 4096;
 
 /// How a DDS Proxy runs, whatever the vehicle.
 #[derive(Debug, Clone, PartialEq)]
@@ -36,9 +36,13 @@ pub struct ProxyOptions {
     /// How often the announcement is repeated after the first one, so a station that
     /// restarts, or a reader that does not keep history, learns the vehicle again.
     pub announce_interval: Duration,
-    /// Tasks issued longer ago than this when they arrive are ignored: transient-local
-    /// history from before the proxy restarted must not run again. `None` takes any age.
+    /// Tasks that carry no expiry and were issued longer ago than this when they arrive
+    /// are refused as expired. `None` takes any age. (Station tasks carry an expiry.)
     pub max_task_age: Option<Duration>,
+    /// The directory of the vehicle's task ledger (`<id>.tasks.json`), which makes a task
+    /// run at most once across restarts. `None` keeps it in memory only, so a restart
+    /// forgets what ran: for tests and tools, never for a vehicle.
+    pub ledger_dir: Option<PathBuf>,
 }
 
 impl Default for ProxyOptions {
@@ -47,6 +51,7 @@ impl Default for ProxyOptions {
             state_rate_hz: 1.0,
             announce_interval: Duration::from_secs(60),
             max_task_age: Some(Duration::from_secs(15 * 60)),
+            ledger_dir: None,
         }
     }
 }
@@ -61,6 +66,9 @@ pub enum ProxyError<E> {
     /// The adapter's announcement is invalid, so the station would never accept the vehicle.
     #[error("the vehicle cannot be announced: {0}")]
     Announcement(ValidationError),
+    /// The task ledger cannot be opened: without it a task could run twice.
+    #[error("the vehicle's task ledger cannot be used: {0}")]
+    Ledger(#[from] LedgerError),
     /// The adapter failed for good.
     #[error("vehicle adapter failed: {0}")]
     Adapter(#[source] E),
@@ -173,37 +181,13 @@ fn clean_text(text: &str) -> String {
     out
 }
 
-/// The last few thousand task ids, to drop duplicates without growing for ever.
-#[derive(Debug, Default)]
-struct RecentIds {
-    set: HashSet<String>,
-    order: VecDeque<String>,
-}
-
-impl RecentIds {
-    /// True if the id is new (and remembers it).
-    fn insert(&mut self, id: &str) -> bool {
-        if self.set.contains(id) {
-            return false;
-        }
-        self.set.insert(id.to_string());
-        self.order.push_back(id.to_string());
-        while self.order.len() > SEEN_TASKS {
-            if let Some(old) = self.order.pop_front() {
-                self.set.remove(&old);
-            }
-        }
-        true
-    }
-}
-
-/// The proxy's own state: which tasks it has seen and which are live, the reporting rate
-/// and event numbering.
+/// The proxy's own state: the task ledger, which tasks are live, the reporting rate and
+/// event numbering.
 #[derive(Debug)]
 struct Proxy {
     vehicle_id: String,
     options: ProxyOptions,
-    seen: RecentIds,
+    ledger: TaskLedger,
     /// Tasks accepted and not yet final, with their last reported state.
     live: HashMap<String, TaskState>,
     event_prefix: String,
@@ -211,11 +195,11 @@ struct Proxy {
 }
 
 impl Proxy {
-    fn new(vehicle_id: &str, options: ProxyOptions, started_ms: i64) -> Self {
+    fn new(vehicle_id: &str, options: ProxyOptions, ledger: TaskLedger, started_ms: i64) -> Self {
         Self {
             vehicle_id: vehicle_id.to_string(),
             options,
-            seen: RecentIds::default(),
+            ledger,
             live: HashMap::new(),
             // Vehicle id (≤ 32) + start time + sequence, in hex: ≤ 61 bytes, unique across
             // restarts of the proxy, within the 64 an event id may have.
@@ -259,23 +243,12 @@ impl Proxy {
         })
     }
 
-    /// Whether an assignment is for this vehicle and new; logs why not.
-    fn wants(&mut self, a: &TaskAssignment) -> bool {
-        if a.vehicle_id != self.vehicle_id {
-            return false;
+    /// Records a task's end in the ledger; a failure is loud, since a restart would then
+    /// take the task for one still under way.
+    fn ended(&mut self, task_id: &str, state: TaskState) {
+        if let Err(e) = self.ledger.end(task_id, state, now_ms()) {
+            warn!(vehicle = %self.vehicle_id, task = task_id, error = %e, "task end not recorded in the ledger");
         }
-        if !self.seen.insert(&a.task_id) {
-            debug!(vehicle = %self.vehicle_id, task = %a.task_id, "duplicate task ignored");
-            return false;
-        }
-        if let Some(max) = self.options.max_task_age {
-            let age_ms = now_ms().saturating_sub(a.issued_ms);
-            if u128::try_from(age_ms).is_ok_and(|age| age > max.as_millis()) {
-                info!(vehicle = %self.vehicle_id, task = %a.task_id, age_s = age_ms / 1000, "stale task ignored");
-                return false;
-            }
-        }
-        true
     }
 
     /// What to publish for a vehicle output, if anything.
@@ -300,6 +273,7 @@ impl Proxy {
         *last = u.state;
         if u.state.is_final() {
             self.live.remove(&u.task_id);
+            self.ended(&u.task_id, u.state);
             info!(vehicle = %self.vehicle_id, task = %u.task_id, state = ?u.state, message = %u.message, "task ended");
         }
         Some(self.status(&u.task_id, u.state, u.progress_pct, &u.message))
@@ -330,6 +304,7 @@ pub(crate) async fn serve<A, O, S>(
     outbox: &mut O,
     mut tasks: S,
     options: ProxyOptions,
+    ledger: TaskLedger,
     shutdown: CancellationToken,
 ) -> Result<(), A::Error>
 where
@@ -339,7 +314,7 @@ where
 {
     let vehicle_id = adapter.announcement().vehicle_id;
     let announce_every = options.announce_interval.max(Duration::from_secs(1));
-    let mut proxy = Proxy::new(&vehicle_id, options, now_ms());
+    let mut proxy = Proxy::new(&vehicle_id, options, ledger, now_ms());
     outbox
         .publish(Outgoing::Announcement(proxy.announcement(&adapter)))
         .await;
@@ -383,6 +358,11 @@ where
     Ok(())
 }
 
+/// A task state as operators read it (`done`, `failed`, ...).
+fn state_name(state: TaskState) -> String {
+    format!("{state:?}").to_lowercase()
+}
+
 /// Serves one task assignment; returns the new reporting rate if it changed.
 async fn on_assignment<A: VehicleAdapter, O: Outbox>(
     proxy: &mut Proxy,
@@ -390,17 +370,53 @@ async fn on_assignment<A: VehicleAdapter, O: Outbox>(
     outbox: &mut O,
     a: TaskAssignment,
 ) -> Option<f64> {
-    if !proxy.wants(&a) {
+    if a.vehicle_id != proxy.vehicle_id {
         return None;
     }
     let vehicle = proxy.vehicle_id.clone();
-    info!(vehicle = %vehicle, task = %a.task_id, kind = ?a.kind, "task received");
+    let id = a.task_id.as_str();
+    let resumed = match proxy.ledger.admit(&a, now_ms()) {
+        Ok(Admission::Start) => false,
+        Ok(Admission::Resume) => true,
+        Ok(Admission::Duplicate) => {
+            debug!(vehicle = %vehicle, task = id, "duplicate task ignored");
+            return None;
+        }
+        Ok(Admission::Ended(state)) => {
+            // Never run again; say again how it ended, in case the station missed it.
+            info!(vehicle = %vehicle, task = id, ?state, "task already ended, not run again");
+            let msg = format!("already {} before; not run again", state_name(state));
+            let progress = if state == TaskState::Done { 100.0 } else { 0.0 };
+            outbox
+                .publish(proxy.status(id, state, progress, &msg))
+                .await;
+            return None;
+        }
+        Ok(Admission::Expired) => {
+            info!(vehicle = %vehicle, task = id, expires_ms = a.expires_ms, "expired task not started");
+            let msg = "arrived after its start-by time; not started";
+            outbox
+                .publish(proxy.status(id, TaskState::Expired, 0.0, msg))
+                .await;
+            return None;
+        }
+        Err(e) => {
+            warn!(vehicle = %vehicle, task = id, error = %e, "task refused: the ledger cannot record it");
+            let msg = format!("not started: the task ledger cannot record it ({e})");
+            outbox
+                .publish(proxy.status(id, TaskState::Failed, 0.0, &msg))
+                .await;
+            return None;
+        }
+    };
+    info!(vehicle = %vehicle, task = id, kind = ?a.kind, seq = a.issue_seq, resumed, "task received");
     let task = match a.task() {
         Ok(t) => t,
         Err(e) => {
             let msg = format!("invalid task: {e}");
+            proxy.ended(id, TaskState::Failed);
             outbox
-                .publish(proxy.status(&a.task_id, TaskState::Failed, 0.0, &msg))
+                .publish(proxy.status(id, TaskState::Failed, 0.0, &msg))
                 .await;
             return None;
         }
@@ -409,16 +425,21 @@ async fn on_assignment<A: VehicleAdapter, O: Outbox>(
         Task::RequestState => match proxy.state(adapter) {
             Some(s) => {
                 outbox.publish(Outgoing::State(s)).await;
-                proxy.status(&a.task_id, TaskState::Done, 100.0, "state vector sent")
+                proxy.ended(id, TaskState::Done);
+                proxy.status(id, TaskState::Done, 100.0, "state vector sent")
             }
-            None => proxy.status(&a.task_id, TaskState::Failed, 0.0, "no navigation fix yet"),
+            None => {
+                proxy.ended(id, TaskState::Failed);
+                proxy.status(id, TaskState::Failed, 0.0, "no navigation fix yet")
+            }
         },
         Task::SetReportingRate { rate_hz } => {
             proxy.options.state_rate_hz = rate_hz;
             info!(vehicle = %vehicle, rate_hz, "reporting rate changed");
             let msg = format!("reporting at {rate_hz} Hz");
+            proxy.ended(id, TaskState::Done);
             outbox
-                .publish(proxy.status(&a.task_id, TaskState::Done, 100.0, &msg))
+                .publish(proxy.status(id, TaskState::Done, 100.0, &msg))
                 .await;
             return Some(rate_hz);
         }
@@ -432,12 +453,18 @@ async fn on_assignment<A: VehicleAdapter, O: Outbox>(
             match adapter.submit(order).await {
                 Ok(acc) => {
                     proxy.live.insert(a.task_id.clone(), TaskState::Accepted);
-                    proxy.status(&a.task_id, TaskState::Accepted, 0.0, &acc.message)
+                    let msg = if resumed {
+                        format!("resumed after a restart: {}", acc.message)
+                    } else {
+                        acc.message
+                    };
+                    proxy.status(id, TaskState::Accepted, 0.0, &msg)
                 }
                 Err(refusal) => {
-                    info!(vehicle = %vehicle, task = %a.task_id, reason = %refusal, "task refused");
+                    info!(vehicle = %vehicle, task = id, reason = %refusal, "task refused");
                     let msg = format!("refused: {refusal}");
-                    proxy.status(&a.task_id, TaskState::Failed, 0.0, &msg)
+                    proxy.ended(id, TaskState::Failed);
+                    proxy.status(id, TaskState::Failed, 0.0, &msg)
                 }
             }
         }
@@ -448,6 +475,7 @@ async fn on_assignment<A: VehicleAdapter, O: Outbox>(
 
 #[cfg(test)]
 mod tests {
+    use std::collections::HashSet;
     use std::sync::{Arc, Mutex};
 
     use futures::channel::mpsc;
@@ -530,12 +558,23 @@ mod tests {
     }
 
     fn start<A: VehicleAdapter + 'static>(adapter: A, options: ProxyOptions) -> Running<A::Error> {
+        let ledger = TaskLedger::in_memory("auv-1", Some(15 * 60 * 1000));
+        start_with(adapter, options, ledger)
+    }
+
+    fn start_with<A: VehicleAdapter + 'static>(
+        adapter: A,
+        options: ProxyOptions,
+        ledger: TaskLedger,
+    ) -> Running<A::Error> {
         let out = Recorder::default();
         let (tasks, rx) = mpsc::unbounded();
         let stop = CancellationToken::new();
         let (mut outbox, token) = (out.clone(), stop.clone());
         let handle =
-            tokio::spawn(async move { serve(adapter, &mut outbox, rx, options, token).await });
+            tokio::spawn(
+                async move { serve(adapter, &mut outbox, rx, options, ledger, token).await },
+            );
         Running {
             out,
             tasks,
@@ -655,7 +694,7 @@ mod tests {
     }
 
     #[tokio::test(start_paused = true)]
-    async fn ignores_other_vehicles_duplicates_and_stale_replays() {
+    async fn ignores_other_vehicles_and_duplicates_and_refuses_stale_replays() {
         let p = start(sim(100.0, &quiet()), ProxyOptions::default());
         let hold = Task::Hold { duration_s: 20.0 };
         p.send(assign("theirs", "auv-2", &hold));
@@ -669,7 +708,8 @@ mod tests {
         p.send(stale);
         sleep_s(30.0).await;
         assert!(p.out.statuses("theirs").is_empty());
-        assert!(p.out.statuses("old").is_empty());
+        // Too old to start: refused, and the station is told so.
+        assert_eq!(states_of(&p.out.statuses("old")), [TaskState::Expired]);
         let st = p.out.statuses("mine");
         assert_eq!(
             states_of(&st)
@@ -991,16 +1031,90 @@ mod tests {
         assert_eq!(state_period(f64::INFINITY), Duration::from_millis(10));
     }
 
-    #[test]
-    fn recent_ids_forget_the_oldest_beyond_their_capacity() {
-        let mut ids = RecentIds::default();
-        assert!(ids.insert("t0"));
-        assert!(!ids.insert("t0"));
-        for i in 1..=SEEN_TASKS {
-            assert!(ids.insert(&format!("t{i}")));
-        }
-        assert!(ids.insert("t0"), "t0 was the oldest and is forgotten");
-        assert!(!ids.insert(&format!("t{SEEN_TASKS}")));
-        assert_eq!(ids.set.len(), SEEN_TASKS);
+    fn ledger_in(dir: &std::path::Path) -> TaskLedger {
+        TaskLedger::open(dir, "auv-1", Some(15 * 60 * 1000)).unwrap()
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_restarted_vehicle_never_runs_a_finished_task_again_and_says_how_it_ended() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut goto = assign("r-1-1", "auv-1", &goto(63.0005, 10.0));
+        goto.issue_seq = 1;
+        goto.expires_ms = now_ms() + 45_000;
+        let p = start_with(
+            sim(100.0, &quiet()),
+            ProxyOptions::default(),
+            ledger_in(dir.path()),
+        );
+        p.send(goto.clone());
+        sleep_s(300.0).await;
+        assert_eq!(
+            p.out.statuses("r-1-1").last().map(|s| s.state),
+            Some(TaskState::Done)
+        );
+        p.stop().await.unwrap();
+        // The same vehicle id starts again; transient-local history hands the task back.
+        let p = start_with(
+            sim(100.0, &quiet()),
+            ProxyOptions::default(),
+            ledger_in(dir.path()),
+        );
+        p.send(goto);
+        sleep_s(300.0).await;
+        let st = p.out.statuses("r-1-1");
+        assert_eq!(states_of(&st), [TaskState::Done], "{st:?}");
+        assert_eq!(st[0].message, "already done before; not run again");
+        p.stop().await.unwrap();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_task_under_way_when_the_vehicle_stopped_is_resumed_and_says_so() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut hold = assign("h-1", "auv-1", &Task::Hold { duration_s: 600.0 });
+        hold.expires_ms = now_ms() + 45_000;
+        let p = start_with(
+            sim(100.0, &quiet()),
+            ProxyOptions::default(),
+            ledger_in(dir.path()),
+        );
+        p.send(hold.clone());
+        sleep_s(10.0).await;
+        p.stop().await.unwrap();
+        // Restarted: it had started, so it resumes (whatever its start-by time; the
+        // ledger's own tests cover that).
+        let p = start_with(
+            sim(100.0, &quiet()),
+            ProxyOptions::default(),
+            ledger_in(dir.path()),
+        );
+        p.send(hold.clone());
+        p.send(hold);
+        sleep_s(1.0).await;
+        let st = p.out.statuses("h-1");
+        assert_eq!(st[0].state, TaskState::Accepted, "{st:?}");
+        assert!(
+            st[0].message.starts_with("resumed after a restart"),
+            "{}",
+            st[0].message
+        );
+        assert_eq!(
+            st.iter().filter(|s| s.state == TaskState::Accepted).count(),
+            1,
+            "the duplicate delivery ran it twice: {st:?}"
+        );
+        p.stop().await.unwrap();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_task_that_arrives_after_its_expiry_is_refused_as_expired() {
+        let p = start(sim(100.0, &quiet()), ProxyOptions::default());
+        let mut late = assign("late", "auv-1", &Task::Surface);
+        late.expires_ms = now_ms() - 1;
+        late.issued_ms = late.expires_ms - 45_000;
+        p.send(late);
+        sleep_s(1.0).await;
+        let st = p.out.statuses("late");
+        assert_eq!(states_of(&st), [TaskState::Expired]);
+        p.stop().await.unwrap();
     }
 }

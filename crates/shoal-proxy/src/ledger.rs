@@ -1,0 +1,450 @@
+//! The vehicle's task ledger: which tasks this vehicle has started and how each ended,
+//! kept in a small file per vehicle so that no restart (of the vehicle, its proxy or the
+//! station) makes it run a task a second time.
+//!
+//! - A task is written down as started *before* the vehicle is given it: if the write
+//!   fails, the task is refused rather than run without a record.
+//! - A task the ledger knows is never started again. One that ended is answered with its
+//!   final state again (the station may have missed it); one that was under way when the
+//!   process stopped is resumed, once, if the station still publishes it.
+//! - A task the ledger does not know starts only before its expiry (or, without one,
+//!   within the vehicle's maximum task age).
+//! - Entries are forgotten once their task could no longer start anyway (an hour after
+//!   the later of its expiry and its end, against clock skew), and the ledger holds at most
+//!   [`MAX_ENTRIES`], so the file stays small over a deployment of any length.
+//!
+//! The file is JSON, replaced atomically (written beside, synced, renamed), so a crash or
+//! power cut leaves either the old or the new ledger, never a torn one.
+
+use std::collections::BTreeMap;
+use std::fs::{self, File};
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use shoal_model::{TaskAssignment, TaskState};
+
+/// Most tasks the ledger remembers; beyond, the oldest ended ones are forgotten first.
+pub const MAX_ENTRIES: usize = 10_000;
+/// How long past a task's expiry (or end) it is still remembered: covers clock skew
+/// between the station and the vehicle.
+const FORGET_AFTER_MS: i64 = 3_600_000;
+/// The file layout version.
+const VERSION: u32 = 1;
+
+/// The ledger file could not be read or written.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LedgerError {
+    /// Reading, writing, syncing or renaming failed.
+    #[error("task ledger {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file is not a ledger this build can read.
+    #[error("task ledger {path} is unreadable: {detail}")]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        detail: String,
+    },
+}
+
+/// Where a remembered task got to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Progress {
+    /// Handed to the vehicle; no final state yet.
+    Started,
+    /// Ended in this state.
+    Ended(TaskState),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct Entry {
+    issue_seq: u64,
+    progress: Progress,
+    /// When the entry may be forgotten, ms since the Unix epoch.
+    forget_after_ms: i64,
+    /// Last change, ms since the Unix epoch (orders what to forget first at capacity).
+    updated_ms: i64,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+struct File1 {
+    version: u32,
+    vehicle_id: String,
+    tasks: BTreeMap<String, Entry>,
+}
+
+/// What to do with a task assignment addressed to this vehicle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Admission {
+    /// New and still in time: start it (the ledger has it as started).
+    Start,
+    /// Started before this process and still published: resume it (once).
+    Resume,
+    /// Already handed to the vehicle by this process: a duplicate, ignore it.
+    Duplicate,
+    /// It ended before, in this state: never again; report the state again.
+    Ended(TaskState),
+    /// New but past its expiry (or too old): refuse it as expired.
+    Expired,
+}
+
+/// The ledger of one vehicle, in memory or backed by a file.
+#[derive(Debug)]
+pub struct TaskLedger {
+    vehicle_id: String,
+    path: Option<PathBuf>,
+    tasks: BTreeMap<String, Entry>,
+    /// Tasks admitted (started or resumed) by this process, to tell a duplicate delivery
+    /// from a task left under way by a previous run.
+    this_run: std::collections::HashSet<String>,
+    max_age_ms: Option<i64>,
+    /// When entries were last checked for forgetting (the check is a full pass).
+    pruned_ms: i64,
+}
+
+/// How often, at most, the ledger looks for entries to forget.
+const PRUNE_EVERY_MS: i64 = 60_000;
+
+impl TaskLedger {
+    /// A ledger kept in memory only: a restart forgets it (tests, tools).
+    pub fn in_memory(vehicle_id: &str, max_age_ms: Option<i64>) -> Self {
+        Self {
+            vehicle_id: vehicle_id.to_owned(),
+            path: None,
+            tasks: BTreeMap::new(),
+            this_run: std::collections::HashSet::new(),
+            max_age_ms,
+            pruned_ms: i64::MIN,
+        }
+    }
+
+    /// Opens (or starts) the ledger of `vehicle_id` in `dir` (`<dir>/<vehicle_id>.tasks.json`),
+    /// creating the directory. A file for another vehicle, or one that does not parse, is
+    /// an error: silently starting afresh would forget what already ran.
+    pub fn open(
+        dir: &Path,
+        vehicle_id: &str,
+        max_age_ms: Option<i64>,
+    ) -> Result<Self, LedgerError> {
+        let path = dir.join(format!("{vehicle_id}.tasks.json"));
+        let io = |source| LedgerError::Io {
+            path: path.clone(),
+            source,
+        };
+        fs::create_dir_all(dir).map_err(|source| LedgerError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let tasks = match fs::read(&path) {
+            Ok(bytes) => {
+                let file: File1 =
+                    serde_json::from_slice(&bytes).map_err(|e| LedgerError::Corrupt {
+                        path: path.clone(),
+                        detail: e.to_string(),
+                    })?;
+                if file.version != VERSION || file.vehicle_id != vehicle_id {
+                    return Err(LedgerError::Corrupt {
+                        path,
+                        detail: format!(
+                            "version {} for vehicle {:?}; expected version {VERSION} for {vehicle_id:?}",
+                            file.version, file.vehicle_id
+                        ),
+                    });
+                }
+                file.tasks
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => BTreeMap::new(),
+            Err(e) => return Err(io(e)),
+        };
+        Ok(Self {
+            vehicle_id: vehicle_id.to_owned(),
+            path: Some(path),
+            tasks,
+            this_run: std::collections::HashSet::new(),
+            max_age_ms,
+            pruned_ms: i64::MIN,
+        })
+    }
+
+    /// How many tasks it remembers.
+    pub fn len(&self) -> usize {
+        self.tasks.len()
+    }
+
+    /// Whether it remembers no task.
+    pub fn is_empty(&self) -> bool {
+        self.tasks.is_empty()
+    }
+
+    /// Where a task got to, if the ledger remembers it.
+    pub fn progress(&self, task_id: &str) -> Option<Progress> {
+        self.tasks.get(task_id).map(|e| e.progress)
+    }
+
+    /// Decides what to do with an assignment at `now_ms`; a task to start or resume is
+    /// written down as started first (the error means: do not run it).
+    pub fn admit(&mut self, a: &TaskAssignment, now_ms: i64) -> Result<Admission, LedgerError> {
+        match self.tasks.get(&a.task_id).map(|e| e.progress) {
+            Some(Progress::Ended(state)) => Ok(Admission::Ended(state)),
+            Some(Progress::Started) if self.this_run.contains(&a.task_id) => {
+                Ok(Admission::Duplicate)
+            }
+            Some(Progress::Started) => {
+                self.this_run.insert(a.task_id.clone());
+                Ok(Admission::Resume)
+            }
+            None if !a.may_start(now_ms, self.max_age_ms) => Ok(Admission::Expired),
+            None => {
+                let forget_after_ms = self.forget_after(a, now_ms);
+                self.tasks.insert(
+                    a.task_id.clone(),
+                    Entry {
+                        issue_seq: a.issue_seq,
+                        progress: Progress::Started,
+                        forget_after_ms,
+                        updated_ms: now_ms,
+                    },
+                );
+                if let Err(e) = self.save(now_ms) {
+                    self.tasks.remove(&a.task_id);
+                    return Err(e);
+                }
+                self.this_run.insert(a.task_id.clone());
+                Ok(Admission::Start)
+            }
+        }
+    }
+
+    /// Records that a task ended (a final state); unknown tasks are ignored.
+    pub fn end(&mut self, task_id: &str, state: TaskState, now_ms: i64) -> Result<(), LedgerError> {
+        let Some(e) = self.tasks.get_mut(task_id) else {
+            return Ok(());
+        };
+        if e.progress == Progress::Ended(state) {
+            return Ok(());
+        }
+        e.progress = Progress::Ended(state);
+        e.updated_ms = now_ms;
+        e.forget_after_ms = e
+            .forget_after_ms
+            .max(now_ms.saturating_add(FORGET_AFTER_MS));
+        self.save(now_ms)
+    }
+
+    /// When an entry for `a` may go: an hour after the last instant it could still start.
+    fn forget_after(&self, a: &TaskAssignment, now_ms: i64) -> i64 {
+        let last_start = if a.expires_ms != 0 {
+            a.expires_ms
+        } else {
+            match self.max_age_ms {
+                Some(max) => a.issued_ms.saturating_add(max),
+                // Any age may start: remember it as long as capacity allows.
+                None => i64::MAX - FORGET_AFTER_MS,
+            }
+        };
+        last_start.max(now_ms).saturating_add(FORGET_AFTER_MS)
+    }
+
+    /// Forgets ended entries that can no longer matter, then the oldest ended ones beyond
+    /// capacity. Tasks still under way are kept whatever their age.
+    fn prune(&mut self, now_ms: i64) {
+        let over = self.tasks.len() > MAX_ENTRIES;
+        if !over && now_ms.saturating_sub(self.pruned_ms) < PRUNE_EVERY_MS {
+            return;
+        }
+        self.pruned_ms = now_ms;
+        self.tasks.retain(|_, e| {
+            !(matches!(e.progress, Progress::Ended(_)) && e.forget_after_ms < now_ms)
+        });
+        if self.tasks.len() > MAX_ENTRIES {
+            let mut ended: Vec<(i64, String)> = self
+                .tasks
+                .iter()
+                .filter(|(_, e)| matches!(e.progress, Progress::Ended(_)))
+                .map(|(id, e)| (e.updated_ms, id.clone()))
+                .collect();
+            ended.sort_unstable();
+            let excess = self.tasks.len() - MAX_ENTRIES;
+            for (_, id) in ended.into_iter().take(excess) {
+                self.tasks.remove(&id);
+            }
+        }
+        let tasks = &self.tasks;
+        self.this_run.retain(|id| tasks.contains_key(id));
+    }
+
+    fn save(&mut self, now_ms: i64) -> Result<(), LedgerError> {
+        self.prune(now_ms);
+        let Some(path) = &self.path else {
+            return Ok(());
+        };
+        let file = File1 {
+            version: VERSION,
+            vehicle_id: self.vehicle_id.clone(),
+            tasks: self.tasks.clone(),
+        };
+        let io = |source| LedgerError::Io {
+            path: path.clone(),
+            source,
+        };
+        let bytes = serde_json::to_vec(&file).map_err(|e| LedgerError::Corrupt {
+            path: path.clone(),
+            detail: e.to_string(),
+        })?;
+        let tmp = path.with_extension("json.tmp");
+        let mut f = File::create(&tmp).map_err(io)?;
+        f.write_all(&bytes).map_err(io)?;
+        f.sync_all().map_err(io)?;
+        drop(f);
+        fs::rename(&tmp, path).map_err(io)?;
+        // The rename itself must reach the disk before the task runs.
+        if let Some(dir) = path.parent() {
+            File::open(dir).and_then(|d| d.sync_all()).map_err(io)?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use shoal_model::Task;
+
+    use super::*;
+
+    const T: i64 = 1_800_000_000_000;
+
+    fn task(id: &str, seq: u64, expires_ms: i64) -> TaskAssignment {
+        let mut a = TaskAssignment::new(id, "", "auv-9", T, &Task::Surface);
+        a.issue_seq = seq;
+        a.expires_ms = expires_ms;
+        a
+    }
+
+    #[test]
+    fn a_finished_task_is_never_started_again_after_a_restart() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = task("r-1-1", 1, T + 45_000);
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        assert_eq!(l.admit(&a, T + 1).unwrap(), Admission::Start);
+        assert_eq!(l.admit(&a, T + 2).unwrap(), Admission::Duplicate);
+        l.end("r-1-1", TaskState::Done, T + 60_000).unwrap();
+        drop(l);
+        // The process restarts; the bus hands the same task back.
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        assert_eq!(
+            l.admit(&a, T + 61_000).unwrap(),
+            Admission::Ended(TaskState::Done)
+        );
+        assert_eq!(
+            l.admit(&a, T + 30_000).unwrap(),
+            Admission::Ended(TaskState::Done)
+        );
+    }
+
+    #[test]
+    fn a_task_under_way_at_a_restart_is_resumed_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = task("r-1-2", 2, T + 45_000);
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        assert_eq!(l.admit(&a, T).unwrap(), Admission::Start);
+        drop(l);
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        // Past its start-by time, but it had started: resumed, then a duplicate.
+        assert_eq!(l.admit(&a, T + 600_000).unwrap(), Admission::Resume);
+        assert_eq!(l.admit(&a, T + 600_001).unwrap(), Admission::Duplicate);
+    }
+
+    #[test]
+    fn a_new_task_starts_only_in_time() {
+        let mut l = TaskLedger::in_memory("auv-9", Some(900_000));
+        assert_eq!(
+            l.admit(&task("late", 3, T + 45_000), T + 45_001).unwrap(),
+            Admission::Expired
+        );
+        assert_eq!(
+            l.progress("late"),
+            None,
+            "an expired task is not written down"
+        );
+        // No expiry: the vehicle's own maximum age.
+        assert_eq!(
+            l.admit(&task("old", 0, 0), T + 900_001).unwrap(),
+            Admission::Expired
+        );
+        assert_eq!(
+            l.admit(&task("fresh", 0, 0), T + 899_999).unwrap(),
+            Admission::Start
+        );
+    }
+
+    #[test]
+    fn old_ended_entries_are_forgotten_and_capacity_is_bounded() {
+        let mut l = TaskLedger::in_memory("auv-9", None);
+        let a = task("a", 1, T + 1_000);
+        l.admit(&a, T).unwrap();
+        l.end("a", TaskState::Done, T + 500).unwrap();
+        // Still remembered within the skew margin, forgotten after it.
+        l.admit(&task("b", 2, T + FORGET_AFTER_MS), T + FORGET_AFTER_MS)
+            .unwrap();
+        assert_eq!(l.progress("a"), Some(Progress::Ended(TaskState::Done)));
+        l.admit(
+            &task("c", 3, T + 3 * FORGET_AFTER_MS),
+            T + 2 * FORGET_AFTER_MS,
+        )
+        .unwrap();
+        assert_eq!(l.progress("a"), None);
+        assert_eq!(
+            l.progress("b"),
+            Some(Progress::Started),
+            "a task under way is kept"
+        );
+
+        let mut l = TaskLedger::in_memory("auv-9", None);
+        for i in 0..(MAX_ENTRIES + 50) {
+            let id = format!("t-{i}");
+            let now = T + i64::try_from(i).unwrap();
+            l.admit(&task(&id, 1, now + 10_000), now).unwrap();
+            l.end(&id, TaskState::Done, now).unwrap();
+        }
+        assert_eq!(l.len(), MAX_ENTRIES);
+        assert_eq!(l.progress("t-0"), None, "the oldest go first");
+        assert!(l.progress(&format!("t-{}", MAX_ENTRIES + 49)).is_some());
+    }
+
+    #[test]
+    fn a_ledger_that_cannot_be_written_refuses_to_start_the_task() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        // The directory goes away under the vehicle (a full or failed disk).
+        drop(dir);
+        assert!(l.admit(&task("t", 1, T + 45_000), T).is_err());
+        assert_eq!(l.progress("t"), None);
+    }
+
+    #[test]
+    fn a_corrupt_or_foreign_ledger_is_an_error_not_a_fresh_start() {
+        let dir = tempfile::tempdir().unwrap();
+        fs::write(dir.path().join("auv-9.tasks.json"), b"{not json").unwrap();
+        let err = TaskLedger::open(dir.path(), "auv-9", None).unwrap_err();
+        assert!(err.to_string().contains("auv-9.tasks.json"), "{err}");
+        let mut other = TaskLedger::open(dir.path(), "auv-8", None).unwrap();
+        other.admit(&task("t", 1, T + 45_000), T).unwrap();
+        fs::rename(
+            dir.path().join("auv-8.tasks.json"),
+            dir.path().join("auv-9.tasks.json"),
+        )
+        .unwrap();
+        let err = TaskLedger::open(dir.path(), "auv-9", None).unwrap_err();
+        assert!(err.to_string().contains("\"auv-8\""), "{err}");
+    }
+}
