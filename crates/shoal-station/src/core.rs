@@ -5,11 +5,11 @@ use std::sync::atomic::AtomicU64;
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use shoal_history::{History, HistoryReader, HistoryWriter, Record, SubmitError};
-use shoal_model::now_ms;
 use shoal_semantic::SemanticStore;
 use tracing::{info, warn};
 
 use crate::bus::Outbox;
+use crate::clock::Clock;
 use crate::config::StationConfig;
 use crate::error::StationError;
 use crate::ingest::IngestStats;
@@ -41,6 +41,10 @@ pub(crate) struct Core {
     /// Numbers the station's own events, tasks and subscriptions.
     pub(crate) seq: AtomicU64,
     pub(crate) started_ms: i64,
+    /// Station time: every timeout and timestamp the station makes (see [`Clock`]).
+    pub(crate) clock: Clock,
+    /// The system clock's distance from station time when last reported.
+    pub(crate) reported_skew_ms: std::sync::atomic::AtomicI64,
 }
 
 /// Locks a mutex, recovering the data if a panicking thread poisoned it: the station's
@@ -70,7 +74,19 @@ impl StationHandle {
         history: &History,
         outbox: Arc<dyn Outbox>,
     ) -> Result<Self, StationError> {
+        Self::with_clock(config, history, outbox, Clock::system())
+    }
+
+    /// [`Self::new`] on a given clock (tests drive time and step the system clock).
+    pub fn with_clock(
+        config: StationConfig,
+        history: &History,
+        outbox: Arc<dyn Outbox>,
+        clock: Clock,
+    ) -> Result<Self, StationError> {
         config.check()?;
+        let start = clock.clone();
+        let now_ms = move || start.now_ms();
         for key in config.semantic.retired_keys() {
             warn!(
                 key = %format_args!("station.semantic.{key}"),
@@ -133,6 +149,8 @@ impl StationHandle {
             rules_file: Mutex::new(()),
             seq: AtomicU64::new(0),
             started_ms: now_ms(),
+            clock,
+            reported_skew_ms: std::sync::atomic::AtomicI64::new(0),
             config,
         };
         let handle = Self {
@@ -141,6 +159,16 @@ impl StationHandle {
         // Restored tasks make vehicles busy before any of them is heard again.
         handle.refresh_availability_all(now_ms());
         Ok(handle)
+    }
+
+    /// Station time now, ms since the Unix epoch: monotonic, immune to system clock steps.
+    pub fn now(&self) -> i64 {
+        self.core.clock.now_ms()
+    }
+
+    /// How far the system clock is from station time (after a step, for health reports).
+    pub fn clock_skew_ms(&self) -> i64 {
+        self.core.clock.skew_ms()
     }
 
     /// Hands a record to the history writer; waits for room rather than lose it.

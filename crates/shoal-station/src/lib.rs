@@ -18,6 +18,7 @@
 #![forbid(unsafe_code)]
 
 mod bus;
+mod clock;
 mod config;
 mod core;
 mod error;
@@ -31,6 +32,7 @@ mod station;
 mod testing;
 
 pub use bus::{DdsOutbox, EventOrigin, Outbox, PublishError};
+pub use clock::{Clock, ManualTime};
 pub use config::StationConfig;
 pub use core::StationHandle;
 pub use error::{

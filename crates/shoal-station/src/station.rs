@@ -10,7 +10,7 @@ use serde::Serialize;
 use shoal_dds::{ParticipantEvent, PubSub, SampleMeta, Subscription, TopicType};
 use shoal_history::History;
 use shoal_model::{
-    EnvironmentObservation, Event, StateVector, TaskStatus, Validated, VehicleAnnouncement, now_ms,
+    EnvironmentObservation, Event, StateVector, TaskStatus, Validated, VehicleAnnouncement,
 };
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
@@ -141,7 +141,7 @@ impl Station {
         loop {
             tokio::select! {
                 () = shutdown.cancelled() => break,
-                _ = flush.tick() => h.semantic_flush_step(now_ms()),
+                _ = flush.tick() => h.semantic_flush_step(h.now()),
                 _ = tick.tick() => {
                     for ev in self.dds.participant_events() {
                         log_participant_event(&ev);
@@ -149,7 +149,7 @@ impl Station {
                             h.participant_left(participant, reason);
                         }
                     }
-                    h.tick(now_ms());
+                    h.tick(h.now());
                     if !summary_every.is_zero() && last_summary.elapsed() >= summary_every {
                         last_summary = tokio::time::Instant::now();
                         h.log_summary();
@@ -179,10 +179,29 @@ impl StationHandle {
     /// The once-a-second work at `now`: contact, task expiry, time rules, availability
     /// (faults age out).
     pub(crate) fn tick(&self, now: i64) {
+        self.watch_clock();
         self.refresh_contact(now);
         self.expire_tasks(now);
         self.semantic_tick(now);
         self.refresh_availability_all(now);
+    }
+}
+
+impl StationHandle {
+    /// Warns when the system clock moves away from station time by more than a second
+    /// since the last warning: station time does not follow it until a restart.
+    fn watch_clock(&self) {
+        use std::sync::atomic::Ordering;
+        let skew = self.clock_skew_ms();
+        let reported = self.core.reported_skew_ms.load(Ordering::Relaxed);
+        if (skew - reported).abs() > 1_000 {
+            self.core.reported_skew_ms.store(skew, Ordering::Relaxed);
+            warn!(
+                skew_s = skew / 1000,
+                "the system clock moved away from station time; timeouts and timestamps keep \
+                 station time (monotonic) until the station restarts"
+            );
+        }
     }
 }
 

@@ -12,6 +12,7 @@ use shoal_model::{
 };
 
 use crate::bus::{Outbox, PublishError};
+use crate::clock::{Clock, ManualTime};
 use crate::config::StationConfig;
 use crate::core::StationHandle;
 
@@ -85,6 +86,21 @@ impl Fixture {
 
     /// A core over the history and rules file in `dir` (e.g. to restart one).
     pub(crate) fn in_dir(dir: tempfile::TempDir, change: impl FnOnce(&mut StationConfig)) -> Self {
+        Self::in_dir_on(dir, change, Clock::system())
+    }
+
+    /// A core on the default configuration whose clock the test drives.
+    pub(crate) fn manual_clock() -> (Self, ManualTime) {
+        let (clock, time) = Clock::manual(now_ms());
+        let dir = tempfile::tempdir().unwrap();
+        (Self::in_dir_on(dir, |_| {}, clock), time)
+    }
+
+    fn in_dir_on(
+        dir: tempfile::TempDir,
+        change: impl FnOnce(&mut StationConfig),
+        clock: Clock,
+    ) -> Self {
         let mut config = StationConfig {
             rules_path: dir.path().join("rules.json"),
             summary_interval_s: 0.0,
@@ -98,7 +114,7 @@ impl Fixture {
         })
         .unwrap();
         let out = Arc::new(RecordingOutbox::default());
-        let h = StationHandle::new(config, &history, out.clone()).unwrap();
+        let h = StationHandle::with_clock(config, &history, out.clone(), clock).unwrap();
         Self {
             h,
             out,

@@ -18,7 +18,7 @@ use serde::Serialize;
 use shoal_dds::{ReadError, TopicType};
 use shoal_history::Record;
 use shoal_model::{
-    EnvironmentObservation, Event, EventKind, Severity, StateVector, TaskStatus, Validated, now_ms,
+    EnvironmentObservation, Event, EventKind, Severity, StateVector, TaskStatus, Validated,
 };
 use tracing::{debug, warn};
 
@@ -96,7 +96,7 @@ impl StationHandle {
     /// reason, quarantined with its payload and reported as an event.
     pub fn ingest_validated_state(&self, s: Validated<StateVector>) -> Result<(), Rejection> {
         let s = s.into_inner();
-        let now = now_ms();
+        let now = self.now();
         let Some((verdict, newer)) = self.judge_state(&s, now) else {
             let why = Rejection::UnknownVehicle(s.vehicle_id.clone());
             self.reject(StateVector::TOPIC, &s.vehicle_id, &why, payload(&s));
@@ -181,7 +181,7 @@ impl StationHandle {
         timestamp_ms: i64,
         json: &dyn Fn() -> String,
     ) -> Result<(), Rejection> {
-        match preprocess::check_time(&self.core.config.plausibility, timestamp_ms, now_ms()) {
+        match preprocess::check_time(&self.core.config.plausibility, timestamp_ms, self.now()) {
             None => Ok(()),
             Some(why) => {
                 let why = Rejection::Implausible(why);

@@ -9,9 +9,7 @@ mod register;
 mod views;
 
 use shoal_history::Record;
-use shoal_model::{
-    EventKind, LinkKind, Severity, Task, TaskAssignment, TaskKind, TaskState, now_ms,
-};
+use shoal_model::{EventKind, LinkKind, Severity, Task, TaskAssignment, TaskKind, TaskState};
 use tracing::{debug, info, warn};
 
 use crate::config::ms;
@@ -89,7 +87,7 @@ impl StationHandle {
             if reg.contains_task(&task.task_id) {
                 return Err(DispatchError::DuplicateTask(task.task_id));
             }
-            reg.add_task(task.clone(), now_ms());
+            reg.add_task(task.clone(), self.now());
         }
         self.register_task(&task);
         // The outcome of the write itself: reading the register afterwards would race the
@@ -128,7 +126,7 @@ impl StationHandle {
             .get(&task.vehicle_id)
             .map_or(LinkKind::Ip, |v| v.link);
         let Some(task) =
-            lock(&self.core.tasks).stamp(task_id, now_ms(), self.start_window_ms(link))
+            lock(&self.core.tasks).stamp(task_id, self.now(), self.start_window_ms(link))
         else {
             return Err(DispatchError::UnknownTask(task_id.to_owned()));
         };
@@ -139,9 +137,9 @@ impl StationHandle {
             Ok(()) => {
                 info!(task = task_id, vehicle = %vehicle, ?kind, ?link, "task dispatched");
                 lock(&self.core.stats).tasks_dispatched += 1;
-                lock(&self.core.tasks).sent(task_id, link, now_ms());
+                lock(&self.core.tasks).sent(task_id, link, self.now());
                 self.record_transitions();
-                self.refresh_availability(&vehicle, now_ms());
+                self.refresh_availability(&vehicle, self.now());
                 self.push_task(task_id);
                 Ok(())
             }
@@ -151,7 +149,7 @@ impl StationHandle {
                     task_id,
                     TaskState::Failed,
                     &format!("could not be published: {e}"),
-                    now_ms(),
+                    self.now(),
                 );
                 self.record_transitions();
                 Err(DispatchError::Publish(e))
@@ -192,7 +190,7 @@ impl StationHandle {
 
     /// Ends a task in `state` on the station's own account and moves its mission on.
     fn task_ended(&self, task_id: &str, state: TaskState, message: &str) {
-        lock(&self.core.tasks).finish(task_id, state, message, now_ms());
+        lock(&self.core.tasks).finish(task_id, state, message, self.now());
         self.task_changed(task_id, state, message);
     }
 
@@ -223,7 +221,7 @@ impl StationHandle {
         if lock(&self.core.tasks).contains_mission(&spec.mission_id) {
             return Err(DispatchError::DuplicateMission(spec.mission_id));
         }
-        let now = now_ms();
+        let now = self.now();
         let mut assignments: Vec<TaskAssignment> = Vec::with_capacity(spec.tasks.len());
         for (n, t) in spec.tasks.iter().enumerate() {
             let id = t
@@ -267,7 +265,7 @@ impl StationHandle {
     /// Starts a planned mission: each vehicle's first task goes out.
     pub fn start_mission(&self, mission_id: &str) -> Result<MissionView, DispatchError> {
         let first = lock(&self.core.tasks)
-            .start(mission_id, now_ms())
+            .start(mission_id, self.now())
             .ok_or_else(|| DispatchError::UnknownMission(mission_id.to_owned()))?;
         info!(mission = mission_id, "mission started");
         self.send_all(first);
@@ -279,7 +277,7 @@ impl StationHandle {
     /// (emergency surface) on the emergency class.
     pub fn abort_mission(&self, mission_id: &str) -> Result<MissionView, DispatchError> {
         let busy = lock(&self.core.tasks)
-            .abort_mission(mission_id, now_ms())
+            .abort_mission(mission_id, self.now())
             .ok_or_else(|| DispatchError::UnknownMission(mission_id.to_owned()))?;
         self.record_transitions();
         warn!(mission = mission_id, vehicles = ?busy, "mission aborted");
@@ -303,7 +301,7 @@ impl StationHandle {
     pub fn abort_all(&self) -> Vec<String> {
         let missions = lock(&self.core.tasks).open_missions();
         for m in &missions {
-            let _ = lock(&self.core.tasks).abort_mission(m, now_ms());
+            let _ = lock(&self.core.tasks).abort_mission(m, self.now());
         }
         self.record_transitions();
         let vehicles: Vec<String> = lock(&self.core.fleet)
@@ -337,8 +335,8 @@ impl StationHandle {
             .chars()
             .take(shoal_model::MAX_ID_LEN)
             .collect();
-        let a = TaskAssignment::new(&id, "", vehicle_id, now_ms(), &Task::Abort);
-        lock(&self.core.tasks).add_task(a.clone(), now_ms());
+        let a = TaskAssignment::new(&id, "", vehicle_id, self.now(), &Task::Abort);
+        lock(&self.core.tasks).add_task(a.clone(), self.now());
         self.register_task(&a);
         if let Err(e) = self.send_registered(&id) {
             warn!(vehicle = vehicle_id, error = %e, "abort not sent");

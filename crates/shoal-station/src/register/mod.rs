@@ -7,7 +7,7 @@
 mod fleet;
 
 use shoal_history::Record;
-use shoal_model::{Availability, EventKind, LinkStatus, Severity, VehicleAnnouncement, now_ms};
+use shoal_model::{Availability, EventKind, LinkStatus, Severity, VehicleAnnouncement};
 use tracing::{debug, info, warn};
 
 use crate::config::ms;
@@ -63,7 +63,7 @@ impl StationHandle {
 
     /// DDS discovery says a participant left: the vehicles heard through it are lost now.
     pub fn participant_left(&self, participant: &str, reason: &str) {
-        let gone = lock(&self.core.fleet).participant_left(participant, now_ms());
+        let gone = lock(&self.core.fleet).participant_left(participant, self.now());
         for id in gone {
             info!(vehicle = %id, %participant, reason, "the vehicle's DDS participant left");
         }
@@ -83,7 +83,7 @@ impl StationHandle {
 
     /// A vehicle reported a fault: unavailable for a while.
     pub(crate) fn fault_reported(&self, vehicle_id: &str) {
-        let now = now_ms();
+        let now = self.now();
         if let Some(v) = lock(&self.core.fleet).vehicles.get_mut(vehicle_id) {
             v.last_fault_ms = Some(now);
         }
@@ -224,7 +224,7 @@ impl StationHandle {
     /// after the fleet's lock is released, since ingest takes it for every state vector.
     pub(crate) fn log_summary(&self) {
         const VEHICLE_LINES_UP_TO: usize = 20;
-        let now = now_ms();
+        let now = self.now();
         let (mut lines, mut counts) = (Vec::new(), None);
         let fleet = lock(&self.core.fleet);
         let total = fleet.vehicles.len();

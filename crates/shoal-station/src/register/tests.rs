@@ -232,3 +232,49 @@ fn a_restarted_station_knows_its_vehicles_and_their_latest_state() {
     assert_eq!(v.announcement.vehicle_id, "auv-1");
     assert!(mirrored(&f, "auv-1", "Idle"));
 }
+
+#[test]
+fn a_system_clock_step_of_an_hour_either_way_changes_no_contact_and_expires_no_task() {
+    let (f, time) = Fixture::manual_clock();
+    let heard = |id: &str| {
+        // The vehicles' clocks are right; only the station's system clock steps.
+        f.h.ingest_state(state(id, f.h.now(), 80.0)).unwrap();
+    };
+    f.announce("auv-1");
+    f.announce("auv-2");
+    heard("auv-1");
+    heard("auv-2");
+    f.h.tick(f.h.now());
+    f.h.dispatch_now(assignment("t-1", "auv-1")).unwrap();
+    for step in [3_600_000, -3_600_000, -3_600_000] {
+        time.step_system_clock(step);
+        for _ in 0..3 {
+            time.advance(1_000);
+            heard("auv-1");
+            heard("auv-2");
+            f.h.tick(f.h.now());
+        }
+        for id in ["auv-1", "auv-2"] {
+            assert_eq!(
+                f.h.vehicle(id).unwrap().contact,
+                Contact::Alive,
+                "{id} after {step}"
+            );
+        }
+        assert_eq!(f.h.task("t-1").unwrap().state, TaskState::Sent);
+    }
+    assert_eq!(f.h.clock_skew_ms(), -3_600_000);
+    assert_eq!(
+        f.h.stats().total_rejected(),
+        0,
+        "good data refused after the step"
+    );
+    // Real silence still counts: 31 s without a state and auv-2 is lost.
+    for _ in 0..31 {
+        time.advance(1_000);
+        heard("auv-1");
+        f.h.tick(f.h.now());
+    }
+    assert_eq!(f.h.vehicle("auv-2").unwrap().contact, Contact::Lost);
+    assert_eq!(f.h.vehicle("auv-1").unwrap().contact, Contact::Alive);
+}

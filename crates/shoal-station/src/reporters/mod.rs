@@ -10,7 +10,7 @@ use std::sync::Mutex;
 
 use shoal_history::Record;
 use shoal_model::{
-    EnvironmentObservation, Event, EventKind, Severity, TaskState, TaskStatus, Validate, now_ms,
+    EnvironmentObservation, Event, EventKind, Severity, TaskState, TaskStatus, Validate,
 };
 use tracing::{info, warn};
 
@@ -77,7 +77,7 @@ impl StationHandle {
         if self.reporters().live.receiver_count() == 0 {
             return;
         }
-        let now = now_ms();
+        let now = self.now();
         {
             let mut last = lock(&self.reporters().live_state_ms);
             if last.get(vehicle_id).is_some_and(|t| now - t < 1000) {
@@ -104,7 +104,7 @@ impl StationHandle {
     ) {
         let e = Event {
             event_id: format!("station-{}-{}", self.core.started_ms, self.next_seq()),
-            timestamp_ms: now_ms(),
+            timestamp_ms: self.now(),
             severity,
             kind,
             vehicle_id: vehicle_id.to_string(),
@@ -168,7 +168,7 @@ impl StationHandle {
         reason: &str,
         detail: &str,
     ) {
-        let now = now_ms();
+        let now = self.now();
         let key = (vehicle_id.to_string(), reason.to_string());
         let raise = {
             let mut alerts = lock(&self.reporters().rejection_alerts);
@@ -223,7 +223,7 @@ impl StationHandle {
                 None => {
                     let a = Ack {
                         by: by.clone(),
-                        at_ms: now_ms(),
+                        at_ms: self.now(),
                     };
                     acks.insert(event_id.to_owned(), a.clone());
                     (a, true)
@@ -255,7 +255,7 @@ impl StationHandle {
 
     /// A vehicle's report on a task moves the task's state machine and its mission on.
     pub(crate) fn task_reported(&self, s: TaskStatus) -> Result<(), Rejection> {
-        let now = now_ms();
+        let now = self.now();
         // A relay that gave up on delivering a task acoustically: send it again while
         // retries last, instead of expiring it.
         if s.state == TaskState::Expired {
@@ -314,9 +314,9 @@ impl StationHandle {
             };
             self.raise(severity, EventKind::Task, &vehicle, task_id, &text);
         }
-        let next = lock(&self.core.tasks).advance(task_id, now_ms());
+        let next = lock(&self.core.tasks).advance(task_id, self.now());
         self.record_transitions();
-        self.refresh_availability(&vehicle, now_ms());
+        self.refresh_availability(&vehicle, self.now());
         self.send_all(next);
         self.push_mission_of(task_id);
     }
@@ -338,7 +338,7 @@ impl StationHandle {
             vehicles.insert(s.vehicle_id.clone());
             self.store(Record::TaskStatus(s));
         }
-        let now = now_ms();
+        let now = self.now();
         for v in vehicles {
             self.refresh_availability(&v, now);
         }
@@ -401,7 +401,7 @@ impl StationHandle {
 
     /// Offers an observation to every subscription; live clients hear of each match.
     pub(crate) fn offer_observation(&self, o: &EnvironmentObservation) {
-        let now = now_ms();
+        let now = self.now();
         let matched: Vec<String> = lock(&self.reporters().env_subs)
             .values_mut()
             .filter_map(|sub| sub.offer(o, now).then(|| sub.id.clone()))
