@@ -20,7 +20,6 @@
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
 use std::sync::Arc;
 
-use axum::extract::rejection::JsonRejection;
 use axum::extract::{FromRef, Path, Query, Request, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::middleware::Next;
@@ -35,10 +34,15 @@ use shoal_station::{
 use tokio_util::sync::CancellationToken;
 use tracing::{error, info, warn};
 
+use crate::extract::ApiJson;
+
 pub mod auth;
 mod capable;
 pub mod export;
+mod extract;
 mod live;
+mod negotiate;
+mod sparql;
 pub mod web;
 
 pub use auth::{Auth, AuthConfig, AuthError, Identity, Role};
@@ -96,6 +100,18 @@ pub enum ApiError {
     /// The request was right but could not be answered in time.
     #[error("{0}")]
     Unavailable(String),
+    /// The request accepts no format the answer can be sent in; the message lists them.
+    #[error("{0}")]
+    NotAcceptable(String),
+    /// The body is too large.
+    #[error("{0}")]
+    PayloadTooLarge(String),
+    /// The body is not sent in a media type this operation reads.
+    #[error("{0}")]
+    UnsupportedMediaType(String),
+    /// The body is well-formed JSON of the wrong shape (a missing or unknown member).
+    #[error("{0}")]
+    Unprocessable(String),
     /// The station failed; details are logged, not shown.
     #[error("internal error")]
     Internal(String),
@@ -115,6 +131,10 @@ impl IntoResponse for ApiError {
             Self::Unauthorized(_) => StatusCode::UNAUTHORIZED,
             Self::Forbidden(_) => StatusCode::FORBIDDEN,
             Self::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
+            Self::NotAcceptable(_) => StatusCode::NOT_ACCEPTABLE,
+            Self::PayloadTooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
+            Self::UnsupportedMediaType(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            Self::Unprocessable(_) => StatusCode::UNPROCESSABLE_ENTITY,
             Self::Internal(detail) => {
                 error!(%detail, "API request failed");
                 StatusCode::INTERNAL_SERVER_ERROR
@@ -190,7 +210,7 @@ pub fn console_router(station: StationHandle, auth: Arc<Auth>) -> Router {
             "/api/rules/{id}",
             get(rule).patch(patch_rule).delete(delete_rule),
         )
-        .route("/api/sparql", get(sparql_get).post(sparql_post))
+        .route("/api/sparql", get(sparql::get).post(sparql::post))
         .route("/api/auth/login", post(login))
         .route("/api/auth/logout", post(logout))
         .route("/api/auth/session", get(session))
@@ -200,6 +220,7 @@ pub fn console_router(station: StationHandle, auth: Arc<Auth>) -> Router {
         .route("/api/auth/tokens/{id}", axum::routing::delete(delete_token))
         .fallback(web::serve)
         .layer(axum::middleware::from_fn_with_state(state.clone(), guard))
+        .layer(axum::middleware::from_fn(extract::json_errors))
         .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY))
         .with_state(state)
 }
@@ -402,9 +423,8 @@ async fn tasks(State(s): State<StationHandle>) -> impl IntoResponse {
 
 async fn dispatch(
     State(s): State<StationHandle>,
-    body: Result<Json<TaskAssignment>, JsonRejection>,
+    ApiJson(task): ApiJson<TaskAssignment>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let Json(task) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let id = task.task_id.clone();
     s.dispatch(task).await?;
     Ok((
@@ -431,131 +451,6 @@ async fn rejected(
         .map_err(|e| ApiError::Internal(e.to_string()))?
         .map_err(|e| ApiError::Internal(e.to_string()))?;
     Ok(Json(rows))
-}
-
-/// The SPARQL 1.1 Protocol's query parameters (query operation).
-#[derive(Debug, Deserialize)]
-struct SparqlParams {
-    query: Option<String>,
-    /// Shortcut for the `Accept` header: `json` or `csv`.
-    format: Option<String>,
-    #[serde(rename = "default-graph-uri")]
-    default_graph_uri: Option<String>,
-    #[serde(rename = "named-graph-uri")]
-    named_graph_uri: Option<String>,
-}
-
-fn result_format(
-    params_format: Option<&str>,
-    headers: &HeaderMap,
-) -> Result<shoal_semantic::ResultFormat, ApiError> {
-    use shoal_semantic::ResultFormat;
-    if let Some(f) = params_format {
-        return match f {
-            "json" => Ok(ResultFormat::Json),
-            "csv" => Ok(ResultFormat::Csv),
-            "tsv" => Ok(ResultFormat::Tsv),
-            "xml" => Ok(ResultFormat::Xml),
-            other => Err(ApiError::BadRequest(format!(
-                "unknown format {other:?}: use json, csv, tsv or xml"
-            ))),
-        };
-    }
-    let accept = headers
-        .get(header::ACCEPT)
-        .and_then(|v| v.to_str().ok())
-        .unwrap_or("");
-    Ok(if accept.contains("text/csv") {
-        ResultFormat::Csv
-    } else if accept.contains("text/tab-separated-values") {
-        ResultFormat::Tsv
-    } else if accept.contains("application/sparql-results+xml") {
-        ResultFormat::Xml
-    } else {
-        ResultFormat::Json
-    })
-}
-
-async fn run_sparql(
-    s: StationHandle,
-    query: String,
-    format: shoal_semantic::ResultFormat,
-) -> Result<Response, ApiError> {
-    use shoal_semantic::QueryError;
-    let snapshot = s.semantic_snapshot();
-    let out = tokio::task::spawn_blocking(move || {
-        let result = snapshot.query(&query, &shoal_semantic::QueryLimits::default())?;
-        result.write(format, Vec::new())
-    })
-    .await
-    .map_err(|e| ApiError::Internal(e.to_string()))?;
-    match out {
-        Ok(bytes) => Ok(([(header::CONTENT_TYPE, format.media_type())], bytes).into_response()),
-        Err(e @ QueryError::Timeout(_)) => Err(ApiError::Unavailable(e.to_string())),
-        Err(e @ (QueryError::Evaluation(_) | QueryError::Serialize(_))) => {
-            Err(ApiError::Internal(e.to_string()))
-        }
-        Err(e) => Err(ApiError::BadRequest(e.to_string())),
-    }
-}
-
-fn check_dataset(p: &SparqlParams) -> Result<(), ApiError> {
-    if p.default_graph_uri.is_some() || p.named_graph_uri.is_some() {
-        return Err(ApiError::BadRequest(
-            "default-graph-uri and named-graph-uri are not supported: queries run over the whole model".into(),
-        ));
-    }
-    Ok(())
-}
-
-async fn sparql_get(
-    State(s): State<StationHandle>,
-    headers: HeaderMap,
-    q: Result<Query<SparqlParams>, axum::extract::rejection::QueryRejection>,
-) -> Result<Response, ApiError> {
-    let Query(p) = q.map_err(|e| ApiError::BadRequest(e.body_text()))?;
-    check_dataset(&p)?;
-    let format = result_format(p.format.as_deref(), &headers)?;
-    let query = p
-        .query
-        .ok_or_else(|| ApiError::BadRequest("missing the `query` parameter".into()))?;
-    run_sparql(s, query, format).await
-}
-
-/// POST: `application/sparql-query` (the query is the body) or
-/// `application/x-www-form-urlencoded` (`query=...`), as in the SPARQL 1.1 Protocol.
-async fn sparql_post(
-    State(s): State<StationHandle>,
-    headers: HeaderMap,
-    q: Result<Query<SparqlParams>, axum::extract::rejection::QueryRejection>,
-    body: String,
-) -> Result<Response, ApiError> {
-    let Query(url) = q.map_err(|e| ApiError::BadRequest(e.body_text()))?;
-    let content_type = headers
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    let (query, form_format) = if content_type.starts_with("application/sparql-query") {
-        (body, None)
-    } else if content_type.starts_with("application/x-www-form-urlencoded") {
-        let p: SparqlParams =
-            serde_urlencoded::from_str(&body).map_err(|e| ApiError::BadRequest(e.to_string()))?;
-        check_dataset(&p)?;
-        (
-            p.query
-                .ok_or_else(|| ApiError::BadRequest("missing the `query` field".into()))?,
-            p.format,
-        )
-    } else {
-        return Err(ApiError::BadRequest(
-            "send the query as application/sparql-query or application/x-www-form-urlencoded"
-                .into(),
-        ));
-    };
-    check_dataset(&url)?;
-    let format = result_format(form_format.as_deref().or(url.format.as_deref()), &headers)?;
-    run_sparql(s, query, format).await
 }
 
 impl From<RuleChangeError> for ApiError {
@@ -590,9 +485,8 @@ async fn rule(
 
 async fn create_rule(
     State(s): State<StationHandle>,
-    body: Result<Json<RuleDoc>, JsonRejection>,
+    ApiJson(doc): ApiJson<RuleDoc>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let Json(doc) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let created = s.create_rule(&doc)?;
     Ok((StatusCode::CREATED, Json(created)))
 }
@@ -615,9 +509,8 @@ struct RulePatch {
 async fn patch_rule(
     State(s): State<StationHandle>,
     Path(id): Path<String>,
-    body: Result<Json<RulePatch>, JsonRejection>,
+    ApiJson(patch): ApiJson<RulePatch>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let Json(patch) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let current = s
         .rule(&id)
         .ok_or_else(|| ApiError::NotFound(format!("no rule {id:?}")))?;
@@ -704,9 +597,8 @@ async fn task(
 
 async fn register_vehicle(
     State(s): State<StationHandle>,
-    body: Result<Json<shoal_model::VehicleAnnouncement>, JsonRejection>,
+    ApiJson(a): ApiJson<shoal_model::VehicleAnnouncement>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let Json(a) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let id = a.vehicle_id.clone();
     s.register_vehicle(a)
         .map_err(|e| ApiError::BadRequest(format!("invalid vehicle: {e}")))?;
@@ -739,10 +631,9 @@ struct PlanQuery {
 async fn plan_mission(
     State(s): State<StationHandle>,
     q: Result<Query<PlanQuery>, axum::extract::rejection::QueryRejection>,
-    body: Result<Json<MissionSpec>, JsonRejection>,
+    ApiJson(spec): ApiJson<MissionSpec>,
 ) -> Result<impl IntoResponse, ApiError> {
     let Query(q) = q.map_err(|e| ApiError::BadRequest(e.body_text()))?;
-    let Json(spec) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let mut view = s.plan_mission(spec)?;
     if q.start {
         view = s.start_mission(&view.mission_id)?;
@@ -772,9 +663,8 @@ struct Confirm {
 
 async fn abort_all(
     State(s): State<StationHandle>,
-    body: Result<Json<Confirm>, JsonRejection>,
+    ApiJson(c): ApiJson<Confirm>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let Json(c) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     if !c.confirm {
         return Err(ApiError::BadRequest(
             "confirm: send {\"confirm\": true} to abort every vehicle".into(),
@@ -796,12 +686,24 @@ async fn ack_event(
     State(s): State<StationHandle>,
     who: Option<Extension<Identity>>,
     Path(id): Path<String>,
-    body: Option<Json<AckBody>>,
+    headers: HeaderMap,
+    body: Result<axum::body::Bytes, axum::extract::rejection::BytesRejection>,
 ) -> Result<impl IntoResponse, ApiError> {
+    // The body is optional: none at all, or a JSON object.
+    let body = body.map_err(|e| extract::bytes_rejection(&e))?;
+    let body: Option<AckBody> = if body.is_empty() {
+        None
+    } else if extract::is_json(&headers) {
+        Some(extract::parse(&body)?)
+    } else {
+        return Err(ApiError::UnsupportedMediaType(
+            "send the body as application/json, or no body".into(),
+        ));
+    };
     let by = match who {
         Some(Extension(who)) => who.name,
         None => body
-            .and_then(|Json(b)| b.by)
+            .and_then(|b| b.by)
             .filter(|b| !b.trim().is_empty())
             .unwrap_or_else(|| "operator".into()),
     };
@@ -816,9 +718,8 @@ async fn env_subscriptions(State(s): State<StationHandle>) -> impl IntoResponse 
 
 async fn env_subscribe(
     State(s): State<StationHandle>,
-    body: Result<Json<EnvSubscriptionSpec>, JsonRejection>,
+    ApiJson(spec): ApiJson<EnvSubscriptionSpec>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let Json(spec) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let sub = s
         .subscribe_environment(spec)
         .map_err(|e| ApiError::BadRequest(e.to_string()))?;
@@ -961,9 +862,8 @@ impl SessionView {
 
 async fn login(
     State(auth): State<Arc<Auth>>,
-    body: Result<Json<LoginBody>, JsonRejection>,
+    ApiJson(b): ApiJson<LoginBody>,
 ) -> Result<Response, ApiError> {
-    let Json(b) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let a = auth.clone();
     // Argon2 takes tens of milliseconds on purpose: not on the async threads.
     let (session, who) = tokio::task::spawn_blocking(move || a.login(&b.user, &b.password))
@@ -1010,9 +910,8 @@ struct UserBody {
 
 async fn set_user(
     State(auth): State<Arc<Auth>>,
-    body: Result<Json<UserBody>, JsonRejection>,
+    ApiJson(b): ApiJson<UserBody>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let Json(b) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let a = auth.clone();
     let (name, role) = (b.name.clone(), b.role);
     tokio::task::spawn_blocking(move || a.set_user(&b.name, &b.password, b.role))
@@ -1043,9 +942,8 @@ struct TokenBody {
 
 async fn create_token(
     State(auth): State<Arc<Auth>>,
-    body: Result<Json<TokenBody>, JsonRejection>,
+    ApiJson(b): ApiJson<TokenBody>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let Json(b) = body.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let (info, token) = auth.create_token(&b.name, b.role)?;
     Ok((
         StatusCode::CREATED,
