@@ -4,8 +4,9 @@
 #     build: Cyclone DDS from source), iproute2 (network namespaces), cyclonedds-tools (ddsperf),
 #     libfastrtps-dev + libfastcdr-dev (Fast DDS 2.9 / Fast CDR 1.0), g++, make,
 #     python3-venv
-#   - $REPO/.venv with PyPI cyclonedds and rticonnextdds-connector (DDS peers) and
-#     rdflib (independent SPARQL engine for the semantic cross-check)
+#   - $REPO/.venv with PyPI cyclonedds and rticonnextdds-connector (DDS peers),
+#     rdflib (independent SPARQL engine for the semantic cross-check and SPARQL protocol
+#     client) and schemathesis (OpenAPI conformance, scripts/api-conformance.sh)
 #   - the Fast DDS C++ peer, built into tests/interop/build/ (gitignored)
 #   - pymavlink and imcpy in the venv, the vehicle proxies' test peers
 #     (scripts/install-proxy-peers.sh)
@@ -13,7 +14,8 @@
 # Run as root, non-interactively (CI=true, no stdin is fine).
 #
 # Environment overrides: PYTHON (interpreter for the venv, default python3),
-# SHOAL_PIP_CYCLONEDDS / SHOAL_PIP_RTI (pip requirement specs).
+# SHOAL_PIP_CYCLONEDDS / SHOAL_PIP_RTI / SHOAL_PIP_RDFLIB / SHOAL_PIP_SCHEMATHESIS (pip
+# requirement specs).
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -22,6 +24,7 @@ PYTHON="${PYTHON:-python3}"
 PIP_CYCLONEDDS="${SHOAL_PIP_CYCLONEDDS:-cyclonedds==11.0.1}"
 PIP_RTI="${SHOAL_PIP_RTI:-rticonnextdds-connector==1.2.4}"
 PIP_RDFLIB="${SHOAL_PIP_RDFLIB:-rdflib==7.6.0}"
+PIP_SCHEMATHESIS="${SHOAL_PIP_SCHEMATHESIS:-schemathesis==4.32.5}"
 export DEBIAN_FRONTEND=noninteractive
 
 say() { echo "install-test-deps: $*"; }
@@ -39,18 +42,19 @@ fi
 # ---------------------------------------------------------------- venv
 venv_ok() {
     [[ -x "$VENV/bin/python" ]] &&
-        "$VENV/bin/python" -c 'import cyclonedds.domain, rticonnextdds_connector, rdflib' 2>/dev/null
+        "$VENV/bin/python" -c 'import cyclonedds.domain, rticonnextdds_connector, rdflib, schemathesis' 2>/dev/null
 }
 if venv_ok; then
-    say "venv $VENV ready (cyclonedds, rticonnextdds-connector, rdflib importable)"
+    say "venv $VENV ready (cyclonedds, rticonnextdds-connector, rdflib, schemathesis importable)"
 else
     if [[ ! -x "$VENV/bin/python" ]]; then
         say "creating venv $VENV with $(command -v "$PYTHON")"
         "$PYTHON" -m venv "$VENV"
     fi
-    say "pip install $PIP_CYCLONEDDS $PIP_RTI $PIP_RDFLIB"
-    "$VENV/bin/python" -m pip install -q --disable-pip-version-check "$PIP_CYCLONEDDS" "$PIP_RTI" "$PIP_RDFLIB"
-    venv_ok || { say "venv still cannot import cyclonedds / rticonnextdds_connector / rdflib" >&2; exit 1; }
+    say "pip install $PIP_CYCLONEDDS $PIP_RTI $PIP_RDFLIB $PIP_SCHEMATHESIS"
+    "$VENV/bin/python" -m pip install -q --disable-pip-version-check "$PIP_CYCLONEDDS" "$PIP_RTI" \
+        "$PIP_RDFLIB" "$PIP_SCHEMATHESIS"
+    venv_ok || { say "venv still cannot import cyclonedds / rticonnextdds_connector / rdflib / schemathesis" >&2; exit 1; }
 fi
 
 # ---------------------------------------------------------------- Fast DDS peer
