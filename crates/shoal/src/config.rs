@@ -4,13 +4,30 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use figment::error::{Kind, OneOf};
+use figment::value::{Dict, Map, Value};
+use figment::{Figment, Metadata, Profile, Provider};
 use serde::{Deserialize, Serialize};
+#[cfg(feature = "console")]
 use shoal_console::ConsoleConfig;
 use shoal_dds::DdsConfig;
+#[cfg(feature = "console")]
 use shoal_history::HistoryConfig;
 use shoal_model::VehicleKind;
 use shoal_proxy::sim::{SimSettings, SimSpec};
+#[cfg(feature = "console")]
 use shoal_station::StationConfig;
+
+/// A section of the station side in a build without it (no `console` feature): kept as
+/// read, unchecked, so one configuration file serves the station and its vehicles.
+#[cfg(not(feature = "console"))]
+pub type StationSide = toml::Table;
+#[cfg(not(feature = "console"))]
+type StationConfig = StationSide;
+#[cfg(not(feature = "console"))]
+type HistoryConfig = StationSide;
+#[cfg(not(feature = "console"))]
+type ConsoleConfig = StationSide;
 
 /// The commented default configuration, kept in the repository; a test parses it so it
 /// cannot drift from the code.
@@ -155,20 +172,248 @@ impl Default for FleetConfig {
     }
 }
 
-/// Loads the configuration: `path` (or `SHOAL_CONFIG`) if given, then environment overrides.
-pub fn load(path: Option<&Path>) -> Result<ShoalConfig> {
+/// The values given on the command line, the last layer (`shoal station --listen/--db`).
+#[derive(Debug, Clone, Default)]
+pub struct Flags {
+    /// `--listen`: `console.listen`.
+    #[cfg(feature = "console")]
+    pub listen: Option<std::net::SocketAddr>,
+    /// `--db`: `history.path`.
+    #[cfg(feature = "console")]
+    pub db: Option<PathBuf>,
+}
+
+impl Flags {
+    /// Each flag given: its name, the key it sets and the value.
+    fn given(&self) -> Result<Vec<(&'static str, &'static str, Value)>> {
+        #[allow(unused_mut)] // Without the station, no flag sets a configuration key.
+        let mut given = Vec::new();
+        #[cfg(feature = "console")]
+        {
+            if let Some(l) = self.listen {
+                given.push(("--listen", "console.listen", Value::from(l.to_string())));
+            }
+            if let Some(db) = &self.db {
+                given.push(("--db", "history.path", Value::serialize(db)?));
+            }
+        }
+        Ok(given)
+    }
+}
+
+/// Loads the configuration: defaults, then the file `path` (or `SHOAL_CONFIG`), then the
+/// `SHOAL_<SECTION>__<KEY>` environment variables, then `flags`.
+pub fn load(path: Option<&Path>, flags: &Flags) -> Result<ShoalConfig> {
     let env_path = std::env::var_os("SHOAL_CONFIG").map(PathBuf::from);
     let path = path.map(Path::to_path_buf).or(env_path);
-    let mut table = match &path {
-        Some(p) => {
-            let text = std::fs::read_to_string(p)
-                .with_context(|| format!("cannot read config file {}", p.display()))?;
-            parse_table(&text).with_context(|| format!("config file {}", p.display()))?
+    let mut env = Vec::new();
+    for (name, value) in std::env::vars_os() {
+        // Only Shoal's own variables need be text; other programs' may be anything.
+        let Some(name) = name.to_str().filter(|n| n.starts_with(ENV_PREFIX)) else {
+            continue;
+        };
+        let Some(value) = value.to_str() else {
+            bail!("environment variable {name}: the value is not UTF-8");
+        };
+        env.push((name.to_string(), value.to_string()));
+    }
+    load_from(path.as_deref(), env, flags)
+}
+
+/// [`load`] with the environment given: what the tests call.
+fn load_from(
+    path: Option<&Path>,
+    env: impl IntoIterator<Item = (String, String)>,
+    flags: &Flags,
+) -> Result<ShoalConfig> {
+    // Defaults are the serde defaults of the types (every struct is `#[serde(default)]`),
+    // so a layer needs to hold only what it changes.
+    let mut figment = Figment::new();
+    if let Some(p) = path {
+        let text = std::fs::read_to_string(p)
+            .with_context(|| format!("cannot read config file {}", p.display()))?;
+        let table = parse_table(&text).with_context(|| format!("config file {}", p.display()))?;
+        figment = figment.merge(Layer::file(p, &table)?);
+    }
+    figment = figment.merge(Layer::env(env)?);
+    figment = figment.merge(Layer::flags(flags.given()?)?);
+    let config: ShoalConfig = figment
+        .extract()
+        .map_err(|e| anyhow::anyhow!("{}", describe(&figment, &e)))?;
+    check(&config)?;
+    Ok(config)
+}
+
+/// The environment variables Shoal reads its configuration from start with this.
+const ENV_PREFIX: &str = "SHOAL_";
+/// Separates the section, nested sections and the key in a variable's name.
+const ENV_SEPARATOR: &str = "__";
+
+/// One layer of the configuration: the keys it sets and where they came from.
+struct Layer {
+    metadata: Metadata,
+    dict: Dict,
+}
+
+impl Layer {
+    /// A configuration file, already parsed (so that a syntax error names its line).
+    fn file(path: &Path, table: &toml::Table) -> Result<Self> {
+        let shown = format!("config file {}", path.display());
+        let metadata = Metadata::from("config file", path).interpolater(move |_, _| shown.clone());
+        Ok(Self {
+            metadata,
+            dict: as_dict(Value::serialize(table)?),
+        })
+    }
+
+    /// `SHOAL_<SECTION>__<KEY>=value` variables, sections nested with `__`
+    /// (`SHOAL_CONSOLE__AUTH__ENABLED`); a value is TOML where it parses as TOML (numbers,
+    /// booleans, arrays, inline tables, quoted strings), a string otherwise. Variables
+    /// without `__` (`SHOAL_CONFIG`, the test scripts' own) are not configuration.
+    fn env(vars: impl IntoIterator<Item = (String, String)>) -> Result<Self> {
+        let mut vars: Vec<(String, Vec<String>, String)> = vars
+            .into_iter()
+            .filter_map(|(name, raw)| {
+                let rest = name.strip_prefix(ENV_PREFIX)?;
+                let keys = rest.contains(ENV_SEPARATOR).then(|| {
+                    rest.split(ENV_SEPARATOR)
+                        .map(str::to_ascii_lowercase)
+                        .collect()
+                })?;
+                Some((name, keys, raw))
+            })
+            .collect();
+        // The environment's order is arbitrary; a conflict must be reported the same way
+        // every time.
+        vars.sort();
+        let mut dict = Dict::new();
+        for (name, keys, raw) in &vars {
+            if keys.iter().any(String::is_empty) {
+                bail!("environment variable {name}: expected SHOAL_<SECTION>__<KEY>");
+            }
+            let value = format!("v = {raw}")
+                .parse::<toml::Table>()
+                .ok()
+                .and_then(|mut t| t.remove("v"))
+                .unwrap_or_else(|| toml::Value::String(raw.clone()));
+            insert(&mut dict, keys, Value::serialize(value)?)
+                .map_err(|e| anyhow::anyhow!("environment variable {name}: {e}"))?;
         }
-        None => toml::Table::new(),
+        // An error names the variable that set the key: one naming the key or a section
+        // above it (`SHOAL_CONSOLE__AUTH={ enabled = 3 }`), or the first under it (an
+        // unknown section is reported at the section).
+        let names: Vec<(Vec<String>, String)> = vars
+            .into_iter()
+            .map(|(name, keys, _)| (keys, name))
+            .collect();
+        let metadata =
+            Metadata::named("environment variable").interpolater(move |_, path: &[&str]| {
+                let set = names
+                    .iter()
+                    .find(|(keys, _)| keys.iter().zip(path).all(|(k, p)| k == p));
+                match set {
+                    Some((_, name)) => format!("environment variable {name}"),
+                    None => "the environment".to_string(),
+                }
+            });
+        Ok(Self { metadata, dict })
+    }
+
+    /// Command-line flags: (flag, key, value).
+    fn flags(given: Vec<(&'static str, &'static str, Value)>) -> Result<Self> {
+        let mut dict = Dict::new();
+        let mut names = Vec::new();
+        for (flag, key, value) in given {
+            let keys: Vec<String> = key.split('.').map(str::to_string).collect();
+            insert(&mut dict, &keys, value).map_err(|e| anyhow::anyhow!("{flag}: {e}"))?;
+            names.push((keys, flag));
+        }
+        let metadata =
+            Metadata::named("command-line flag").interpolater(move |_, path: &[&str]| {
+                names
+                    .iter()
+                    .find(|(keys, _)| keys.iter().zip(path).all(|(k, p)| k == p))
+                    .map_or_else(|| "a flag".to_string(), |(_, flag)| format!("flag {flag}"))
+            });
+        Ok(Self { metadata, dict })
+    }
+}
+
+impl Provider for Layer {
+    fn metadata(&self) -> Metadata {
+        self.metadata.clone()
+    }
+
+    fn data(&self) -> Result<Map<Profile, Dict>, figment::Error> {
+        Ok(Profile::Default.collect(self.dict.clone()))
+    }
+}
+
+fn as_dict(value: Value) -> Dict {
+    value.into_dict().unwrap_or_default()
+}
+
+/// Puts `value` at `keys` (a section path and a key) in `dict`, making the sections.
+fn insert(dict: &mut Dict, keys: &[String], value: Value) -> Result<(), String> {
+    let Some((last, sections)) = keys.split_last() else {
+        return Err("no key".to_string());
     };
-    apply_env(&mut table, std::env::vars())?;
-    from_table(table)
+    let mut at = dict;
+    for (i, section) in sections.iter().enumerate() {
+        let entry = at
+            .entry(section.clone())
+            .or_insert_with(|| Value::from(Dict::new()));
+        at = match entry {
+            Value::Dict(_, d) => d,
+            _ => return Err(format!("`{}` is not a section", keys[..=i].join("."))),
+        };
+    }
+    if matches!(at.get(last), Some(Value::Dict(..))) {
+        return Err(format!("`{}` is a section, not a key", keys.join(".")));
+    }
+    at.insert(last.clone(), value);
+    Ok(())
+}
+
+/// One line for a configuration error: the key, the layer that set it (file, variable or
+/// flag), and what is wrong.
+fn describe(figment: &Figment, error: &figment::Error) -> String {
+    // figment chains one error per failing value; the first is enough to act on.
+    let mut path = error.path.clone();
+    let mut metadata = error.metadata.clone();
+    if let Kind::UnknownField(field, _) = &error.kind {
+        // The layer that set the unknown key is the one to name; the error carries the
+        // section's, which may have come from another layer.
+        if path.last() != Some(field) {
+            path.push(field.clone());
+        }
+        if let Some(m) = figment.find_metadata(&path.join(".")) {
+            metadata = Some(m.clone());
+        }
+    }
+    let from = metadata
+        .map(|m| format!(" ({})", m.interpolate(&Profile::Default, &path)))
+        .unwrap_or_default();
+    // figment's own wording quotes the list of keys twice; a custom message may run over
+    // several lines: keep one.
+    let kind = match &error.kind {
+        Kind::UnknownField(field, expected) => {
+            format!("unknown key `{field}`, expected {}", OneOf(expected))
+        }
+        Kind::UnknownVariant(value, expected) => {
+            format!("unknown value `{value}`, expected {}", OneOf(expected))
+        }
+        other => other.to_string(),
+    };
+    let what = kind.lines().next().unwrap_or_default();
+    if path.is_empty() {
+        format!("invalid configuration{from}: {what}")
+    } else {
+        format!(
+            "invalid configuration at `{}`{from}: {what}",
+            path.join(".")
+        )
+    }
 }
 
 fn parse_table(text: &str) -> Result<toml::Table> {
@@ -182,52 +427,19 @@ fn parse_table(text: &str) -> Result<toml::Table> {
     })
 }
 
-/// Applies `SHOAL_<SECTION>__<KEY>=value` overrides; values are TOML when they parse as
-/// TOML (numbers, booleans, arrays), strings otherwise.
-fn apply_env(table: &mut toml::Table, vars: impl Iterator<Item = (String, String)>) -> Result<()> {
-    for (name, raw) in vars {
-        let Some(rest) = name.strip_prefix("SHOAL_") else {
-            continue;
-        };
-        let Some((section, key)) = rest.split_once("__") else {
-            continue;
-        };
-        let (section, key) = (section.to_ascii_lowercase(), key.to_ascii_lowercase());
-        if section.is_empty() || key.is_empty() {
-            bail!("environment variable {name}: expected SHOAL_<SECTION>__<KEY>");
-        }
-        let value = format!("v = {raw}")
-            .parse::<toml::Table>()
-            .ok()
-            .and_then(|mut t| t.remove("v"))
-            .unwrap_or(toml::Value::String(raw));
-        let entry = table
-            .entry(section.clone())
-            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-        let Some(sec) = entry.as_table_mut() else {
-            bail!("environment variable {name}: [{section}] is not a section");
-        };
-        sec.insert(key, value);
+/// The checks across keys that serde cannot make; each error names the key.
+fn check(config: &ShoalConfig) -> Result<()> {
+    #[cfg(feature = "console")]
+    {
+        config
+            .station
+            .check()
+            .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
+        config
+            .history
+            .check()
+            .map_err(|e| anyhow::anyhow!("invalid configuration in [history]: {e}"))?;
     }
-    Ok(())
-}
-
-fn from_table(table: toml::Table) -> Result<ShoalConfig> {
-    let config: ShoalConfig =
-        serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
-            // toml appends the key on a second line; the path is already in front.
-            let inner = e.inner().to_string();
-            let first = inner.lines().next().unwrap_or_default().to_string();
-            anyhow::anyhow!("invalid configuration at `{}`: {first}", e.path())
-        })?;
-    config
-        .station
-        .check()
-        .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
-    config
-        .history
-        .check()
-        .map_err(|e| anyhow::anyhow!("invalid configuration in [history]: {e}"))?;
     config
         .security
         .check()
@@ -236,113 +448,378 @@ fn from_table(table: toml::Table) -> Result<ShoalConfig> {
         .fleet
         .check()
         .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
-    Ok(config)
+    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
-    #![allow(clippy::unwrap_used)]
+    #![allow(clippy::unwrap_used, clippy::panic)]
     use super::*;
+
+    /// Loads `text` as the configuration file, with `env` as the environment.
+    fn load_text(text: &str, env: &[(&str, &str)], flags: &Flags) -> Result<ShoalConfig> {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("shoal.toml");
+        std::fs::write(&path, text).unwrap();
+        let env = env
+            .iter()
+            .map(|(k, v)| ((*k).to_string(), (*v).to_string()));
+        load_from(Some(&path), env, flags)
+    }
+
+    fn file(text: &str) -> Result<ShoalConfig> {
+        load_text(text, &[], &Flags::default())
+    }
+
+    fn env(vars: &[(&str, &str)]) -> Result<ShoalConfig> {
+        let vars = vars
+            .iter()
+            .map(|(k, v)| ((*k).to_string(), (*v).to_string()));
+        load_from(None, vars, &Flags::default())
+    }
 
     #[test]
     fn the_shipped_default_config_parses_and_equals_the_built_in_defaults() {
-        let parsed = from_table(parse_table(DEFAULT_CONFIG).unwrap()).unwrap();
+        #[allow(unused_mut)] // Changed only in a vehicle build.
+        let mut parsed = file(DEFAULT_CONFIG).unwrap();
+        #[cfg(not(feature = "console"))]
+        {
+            // The station's sections are kept unchecked, so they are what the file says.
+            parsed.station.clear();
+            parsed.history.clear();
+            parsed.console.clear();
+        }
         assert_eq!(parsed, ShoalConfig::default());
+        assert_eq!(env(&[]).unwrap(), ShoalConfig::default());
     }
 
     #[test]
     fn an_older_file_with_the_retired_same_host_loopback_key_still_loads() {
-        let parsed =
-            from_table(parse_table("[dds]\nsame_host_loopback = true\n").unwrap()).unwrap();
+        let parsed = file("[dds]\nsame_host_loopback = true\n").unwrap();
         assert_eq!(parsed.dds.same_host_loopback, Some(true));
-        assert!(from_table(parse_table("[dds]\nsame_host_loopback = 3\n").unwrap()).is_err());
+        assert!(file("[dds]\nsame_host_loopback = 3\n").is_err());
     }
 
+    #[cfg(feature = "console")]
     #[test]
     fn an_older_file_with_the_retired_lost_contact_factor_still_loads() {
-        let text = "[station.semantic]\nlost_contact_factor = 5.0\n";
-        let parsed = from_table(parse_table(text).unwrap()).unwrap();
+        let parsed = file("[station.semantic]\nlost_contact_factor = 5.0\n").unwrap();
         assert_eq!(
             parsed.station.semantic.retired_keys(),
             ["lost_contact_factor"]
         );
-        let bad = "[station.semantic]\nlost_contact_factor = 0.5\n";
-        assert!(from_table(parse_table(bad).unwrap()).is_err());
+        assert!(file("[station.semantic]\nlost_contact_factor = 0.5\n").is_err());
     }
 
+    /// One key of every section and nested section, set from the environment. A section
+    /// added to config/shoal.toml without a row here fails the test.
     #[test]
-    fn environment_overrides_the_file() {
-        let mut t = parse_table("[dds]\ndomain_id = 3\n").unwrap();
-        let vars = [
-            ("SHOAL_DDS__DOMAIN_ID".to_string(), "7".to_string()),
+    fn every_section_can_be_set_from_the_environment() {
+        type Check = fn(&ShoalConfig) -> bool;
+        let mut rows: Vec<(&str, &str, &str, Check)> = vec![
+            ("dds", "SHOAL_DDS__DOMAIN_ID", "7", |c| c.dds.domain_id == 7),
             (
-                "SHOAL_CONSOLE__LISTEN".to_string(),
-                "127.0.0.1:9999".to_string(),
+                "security",
+                "SHOAL_SECURITY__BUNDLE",
+                "/etc/shoal/bundle",
+                |c| c.security.bundle == Path::new("/etc/shoal/bundle"),
             ),
-            ("UNRELATED".to_string(), "x".to_string()),
+            ("fleet", "SHOAL_FLEET__ACOUSTIC_DEMO", "false", |c| {
+                !c.fleet.acoustic_demo
+            }),
+            ("fleet.sim", "SHOAL_FLEET__SIM__RESERVE_PCT", "15.5", |c| {
+                c.fleet.sim.reserve_pct == 15.5
+            }),
+            (
+                "fleet.vehicles",
+                "SHOAL_FLEET__VEHICLES",
+                r#"[{ id = "usv-9", kind = "usv", latitude_deg = 63.4, longitude_deg = 10.3 }]"#,
+                |c| c.fleet.vehicles.len() == 1 && c.fleet.vehicles[0].id == "usv-9",
+            ),
         ];
-        apply_env(&mut t, vars.into_iter()).unwrap();
-        let c = from_table(t).unwrap();
-        assert_eq!(c.dds.domain_id, 7);
-        assert_eq!(c.console.listen.port(), 9999);
+        #[cfg(feature = "console")]
+        rows.extend::<[(&str, &str, &str, Check); 7]>([
+            ("station", "SHOAL_STATION__LOST_AFTER_S", "45", |c| {
+                c.station.lost_after_s == 45.0
+            }),
+            (
+                "station.plausibility",
+                "SHOAL_STATION__PLAUSIBILITY__ENABLED",
+                "false",
+                |c| !c.station.plausibility.enabled,
+            ),
+            (
+                "station.semantic",
+                "SHOAL_STATION__SEMANTIC__OPERATING_AREA",
+                "[{ latitude_deg = 63.4, longitude_deg = 10.2 }, \
+                  { latitude_deg = 63.4, longitude_deg = 10.5 }, \
+                  { latitude_deg = 63.5, longitude_deg = 10.5 }]",
+                |c| c.station.semantic.operating_area.len() == 3,
+            ),
+            ("history", "SHOAL_HISTORY__PATH", ":memory:", |c| {
+                c.history.path == Path::new(":memory:")
+            }),
+            ("console", "SHOAL_CONSOLE__LISTEN", "127.0.0.1:9999", |c| {
+                c.console.listen.port() == 9999
+            }),
+            // The variable docs/console.md gives, which once stopped the station.
+            (
+                "console.auth",
+                "SHOAL_CONSOLE__AUTH__ENABLED",
+                "true",
+                |c| c.console.auth.enabled,
+            ),
+            (
+                "console.auth.users_path",
+                "SHOAL_CONSOLE__AUTH__USERS_PATH",
+                "/var/lib/shoal/users.json",
+                |c| c.console.auth.users_path == Path::new("/var/lib/shoal/users.json"),
+            ),
+        ]);
+        #[cfg(not(feature = "console"))]
+        rows.push((
+            "console.auth",
+            "SHOAL_CONSOLE__AUTH__ENABLED",
+            "true",
+            |c| c.console["auth"]["enabled"].as_bool() == Some(true),
+        ));
+        for (_, var, value, landed) in &rows {
+            let c = env(&[(var, value)]).unwrap_or_else(|e| panic!("{var}={value}: {e}"));
+            assert!(landed(&c), "{var}={value} did not land");
+        }
+        // All at once, too: sections set by different variables merge.
+        let all: Vec<(&str, &str)> = rows.iter().map(|(_, k, v, _)| (*k, *v)).collect();
+        let c = env(&all).unwrap();
+        for (_, var, _, landed) in &rows {
+            assert!(landed(&c), "{var} lost when set with the others");
+        }
+        let mut sections = Vec::new();
+        collect_sections(&parse_table(DEFAULT_CONFIG).unwrap(), "", &mut sections);
+        #[cfg(not(feature = "console"))]
+        sections.retain(|s| {
+            !["station", "history", "console"]
+                .iter()
+                .any(|p| s.starts_with(p))
+        });
+        for section in sections {
+            assert!(
+                rows.iter().any(|(s, ..)| *s == section),
+                "no environment test for [{section}]"
+            );
+        }
+    }
+
+    /// Every table and array of tables in `table`, as dotted paths.
+    fn collect_sections(table: &toml::Table, prefix: &str, out: &mut Vec<String>) {
+        for (key, value) in table {
+            let path = format!("{prefix}{key}");
+            match value {
+                toml::Value::Table(t) => {
+                    out.push(path.clone());
+                    collect_sections(t, &format!("{path}."), out);
+                }
+                toml::Value::Array(a) if a.iter().all(toml::Value::is_table) && !a.is_empty() => {
+                    out.push(path);
+                }
+                _ => {}
+            }
+        }
     }
 
     #[test]
-    fn a_bad_value_gives_one_line_naming_the_key() {
-        let e = from_table(parse_table("[dds]\ndomain_id = \"seven\"\n").unwrap())
+    fn an_environment_value_that_is_not_toml_is_a_string() {
+        let c = env(&[("SHOAL_SECURITY__STORE", "keys dir/[1]")]).unwrap();
+        assert_eq!(c.security.store, Path::new("keys dir/[1]"));
+        let c = env(&[("SHOAL_SECURITY__STORE", "\"quoted\"")]).unwrap();
+        assert_eq!(c.security.store, Path::new("quoted"));
+    }
+
+    #[test]
+    fn variables_without_the_separator_are_not_configuration() {
+        let c = env(&[
+            ("SHOAL_CONFIG", "/nowhere.toml"),
+            ("SHOAL_INTEROP_REQUIRED", "1"),
+            ("UNRELATED__KEY", "x"),
+        ])
+        .unwrap();
+        assert_eq!(c, ShoalConfig::default());
+    }
+
+    #[test]
+    fn a_malformed_variable_name_is_named() {
+        let e = env(&[("SHOAL_DDS____DOMAIN_ID", "3")])
             .unwrap_err()
             .to_string();
-        assert!(e.contains("dds.domain_id"), "{e}");
+        assert!(e.contains("SHOAL_DDS____DOMAIN_ID"), "{e}");
+        let e = env(&[
+            ("SHOAL_DDS__DOMAIN_ID", "3"),
+            ("SHOAL_DDS__DOMAIN_ID__X", "4"),
+        ])
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("SHOAL_DDS__DOMAIN_ID__X") && e.contains("not a section"),
+            "{e}"
+        );
+    }
+
+    #[cfg(feature = "console")]
+    #[test]
+    fn precedence_is_file_then_environment_then_flags() {
+        let text = "[dds]\ndomain_id = 3\n[console]\nlisten = \"127.0.0.1:1001\"\n\
+                    [history]\npath = \"from-file.db\"\n[security]\nmax_age_s = 40\n";
+        let vars = [
+            ("SHOAL_CONSOLE__LISTEN", "127.0.0.1:1002"),
+            ("SHOAL_HISTORY__PATH", "from-env.db"),
+            ("SHOAL_SECURITY__MAX_AGE_S", "50"),
+        ];
+        let flags = Flags {
+            listen: Some("127.0.0.1:1003".parse().unwrap()),
+            db: None,
+        };
+        let c = load_text(text, &vars, &flags).unwrap();
+        assert_eq!(c.dds.domain_id, 3, "the file over the defaults");
+        assert_eq!(c.security.max_age_s, 50, "the environment over the file");
+        assert_eq!(
+            c.history.path,
+            Path::new("from-env.db"),
+            "no flag: the environment"
+        );
+        assert_eq!(c.console.listen.port(), 1003, "the flag over both");
+        let flags = Flags {
+            listen: None,
+            db: Some(PathBuf::from("from-flag.db")),
+        };
+        let c = load_text(text, &vars, &flags).unwrap();
+        assert_eq!(c.history.path, Path::new("from-flag.db"));
+        assert_eq!(c.console.listen.port(), 1002);
+        // Untouched keys of a section the environment sets keep the file's values.
+        let c = load_text(
+            "[console.auth]\nsession_ttl_s = 60\n",
+            &[("SHOAL_CONSOLE__AUTH__ENABLED", "true")],
+            &Flags::default(),
+        )
+        .unwrap();
+        assert!(c.console.auth.enabled);
+        assert_eq!(c.console.auth.session_ttl_s, 60);
+    }
+
+    #[test]
+    fn the_environment_overrides_the_file() {
+        let c = load_text(
+            "[dds]\ndomain_id = 3\n[fleet.sim]\nreserve_pct = 12.0\n",
+            &[("SHOAL_DDS__DOMAIN_ID", "7")],
+            &Flags::default(),
+        )
+        .unwrap();
+        assert_eq!(c.dds.domain_id, 7);
+        assert_eq!(c.fleet.sim.reserve_pct, 12.0);
+    }
+
+    #[test]
+    fn a_bad_value_gives_one_line_naming_the_key_and_the_file() {
+        let e = file("[dds]\ndomain_id = \"seven\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("dds.domain_id") && e.contains("shoal.toml"),
+            "{e}"
+        );
         assert!(!e.contains('\n'), "{e}");
     }
 
     #[test]
-    fn an_unknown_key_is_named() {
-        let e = from_table(parse_table("[station]\nstale_after = 3\n").unwrap())
+    fn a_bad_value_from_the_environment_names_the_variable() {
+        let e = load_text(
+            "[fleet.sim]\nreserve_pct = 12.0\n",
+            &[("SHOAL_FLEET__SIM__RESERVE_PCT", "lots")],
+            &Flags::default(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("fleet.sim.reserve_pct") && e.contains("SHOAL_FLEET__SIM__RESERVE_PCT"),
+            "{e}"
+        );
+        assert!(!e.contains("shoal.toml") && !e.contains('\n'), "{e}");
+    }
+
+    #[test]
+    fn an_unknown_key_is_named_with_where_it_came_from() {
+        let e = file("[security]\nstale_after = 3\n")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("stale_after"), "{e}");
+        assert!(
+            e.contains("security.stale_after") && e.contains("shoal.toml"),
+            "{e}"
+        );
+        // The section comes from the file, the unknown key from the environment.
+        let e = load_text(
+            "[fleet.sim]\nreserve_pct = 12.0\n",
+            &[("SHOAL_FLEET__SIM__RESERVE", "3")],
+            &Flags::default(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("fleet.sim.reserve") && e.contains("SHOAL_FLEET__SIM__RESERVE"),
+            "{e}"
+        );
+        let e = env(&[("SHOAL_FLEET__SIMS__RESERVE_PCT", "3")])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("SHOAL_FLEET__SIMS__RESERVE_PCT"), "{e}");
+        // A whole section as an inline table: the variable that set it is named.
+        let e = env(&[("SHOAL_FLEET__SIM", "{ reserve_pct = \"x\" }")])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("fleet.sim.reserve_pct") && e.contains("variable SHOAL_FLEET__SIM)"),
+            "{e}"
+        );
     }
 
     #[test]
     fn a_syntax_error_names_the_line() {
-        let e = parse_table("[dds]\ndomain_id = = 3\n")
-            .unwrap_err()
-            .to_string();
-        assert!(e.starts_with("line 2"), "{e}");
+        let e = format!("{:#}", file("[dds]\ndomain_id = = 3\n").unwrap_err());
+        assert!(e.contains("shoal.toml: line 2"), "{e}");
     }
 
     #[test]
     fn inconsistent_values_are_explained() {
-        let e =
-            from_table(parse_table("[station]\nstale_after_s = 10\nlost_after_s = 5\n").unwrap())
+        #[cfg(feature = "console")]
+        {
+            let e = file("[station]\nstale_after_s = 10\nlost_after_s = 5\n")
                 .unwrap_err()
                 .to_string();
-        assert!(e.contains("station.lost_after_s"), "{e}");
-        let e = from_table(
-            parse_table(
+            assert!(e.contains("station.lost_after_s"), "{e}");
+            let e = file(
                 "[station.semantic]\noperating_area = [{ latitude_deg = 1.0, longitude_deg = 2.0 }]\n",
             )
-            .unwrap(),
-        )
-        .unwrap_err()
-        .to_string();
-        assert!(e.contains("station.semantic: operating_area"), "{e}");
-        let e = from_table(parse_table("[security]\nmax_age_s = 0\n").unwrap())
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("station.semantic: operating_area"), "{e}");
+        }
+        let e = env(&[("SHOAL_SECURITY__MAX_AGE_S", "0")])
             .unwrap_err()
             .to_string();
         assert!(e.contains("security.max_age_s"), "{e}");
     }
 
+    #[cfg(feature = "console")]
     #[test]
     fn an_operating_area_in_the_file_reaches_the_semantic_model() {
-        let c = from_table(
-            parse_table(
-                "[station.semantic]\noperating_area = [\n { latitude_deg = 63.4, longitude_deg = 10.2 },\n { latitude_deg = 63.4, longitude_deg = 10.5 },\n { latitude_deg = 63.5, longitude_deg = 10.5 },\n]\n",
-            )
-            .unwrap(),
+        let c = file(
+            "[station.semantic]\noperating_area = [\n { latitude_deg = 63.4, longitude_deg = 10.2 },\n { latitude_deg = 63.4, longitude_deg = 10.5 },\n { latitude_deg = 63.5, longitude_deg = 10.5 },\n]\n",
         )
         .unwrap();
         assert_eq!(c.station.semantic.operating_area.len(), 3);
+    }
+
+    #[cfg(not(feature = "console"))]
+    #[test]
+    fn a_vehicle_build_keeps_the_station_sections_unchecked() {
+        let c = file("[station]\nlost_after_s = 45.0\n[history]\nanything = 1\n").unwrap();
+        assert_eq!(c.station["lost_after_s"].as_float(), Some(45.0));
     }
 }

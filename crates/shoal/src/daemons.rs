@@ -1,15 +1,20 @@
 //! The long-running commands: `station`, `vehicle`, and `up` which starts them all.
+//! `station` and `up` are the station side (the `console` feature); the rest is the
+//! vehicle side, which builds without it.
 
 use std::path::Path;
+#[cfg(feature = "console")]
 use std::process::Stdio;
 use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use shoal_dds::PubSub;
+#[cfg(feature = "console")]
 use shoal_history::History;
 use shoal_model::Validate;
 use shoal_proxy::sim::{SimSpec, SimVehicle};
+#[cfg(feature = "console")]
 use shoal_station::Station;
 use tokio::io::AsyncReadExt;
 use tokio_util::sync::CancellationToken;
@@ -89,6 +94,7 @@ fn vehicle_dds(cfg: &ShoalConfig, vehicle_id: &str) -> Result<Arc<PubSub>> {
 }
 
 /// `shoal station`.
+#[cfg(feature = "console")]
 pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> {
     let shutdown = shutdown_signal(exit_on_stdin_close);
     let listener = tokio::net::TcpListener::bind(cfg.console.listen)
@@ -150,11 +156,13 @@ pub async fn vehicle(cfg: &ShoalConfig, spec: SimSpec, exit_on_stdin_close: bool
         .context("simulated vehicle failed")
 }
 
+#[cfg(feature = "console")]
 struct Child {
     name: String,
     child: tokio::process::Child,
 }
 
+#[cfg(feature = "console")]
 fn spawn(
     exe: &Path,
     config: Option<&Path>,
@@ -201,6 +209,7 @@ pub async fn acoustic_demo(cfg: &ShoalConfig, exit_on_stdin_close: bool) -> Resu
 }
 
 /// Waits for a child asked to stop; kills it after 10 s.
+#[cfg(feature = "console")]
 async fn stop_child(mut c: Child) {
     match tokio::time::timeout(Duration::from_secs(10), c.child.wait()).await {
         Ok(Ok(status)) if status.success() => {}
@@ -214,6 +223,7 @@ async fn stop_child(mut c: Child) {
 }
 
 /// What `shoal up` starts besides the station.
+#[cfg(feature = "console")]
 #[derive(Debug, Clone, Copy)]
 pub struct UpOptions {
     /// No simulated vehicles at all.
@@ -244,6 +254,7 @@ pub async fn swarm(
 
 /// `shoal up`: a station and the configured fleet, each its own process (its own DDS
 /// participant, as on real vehicles), stopped together.
+#[cfg(feature = "console")]
 pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Result<()> {
     let UpOptions {
         no_fleet,

@@ -92,7 +92,15 @@ impl From<Reason> for RevokeReason {
     }
 }
 
-use crate::bench::utc_date as date;
+/// The UTC calendar date of a time in ms since the Unix epoch, e.g. `2026-11-21`.
+pub(crate) fn utc_date(ms: i64) -> String {
+    match time::OffsetDateTime::from_unix_timestamp(ms.div_euclid(1000)) {
+        Ok(t) => format!("{:04}-{:02}-{:02}", t.year(), u8::from(t.month()), t.day()),
+        Err(_) => "(date out of range)".to_string(),
+    }
+}
+
+use utc_date as date;
 
 /// Runs `shoal keys ...`; prints what it did on standard output.
 pub fn run(args: KeysArgs, cfg: &SecurityConfig) -> Result<()> {
@@ -268,6 +276,7 @@ pub fn vehicle(cfg: &SecurityConfig, vehicle_id: &str) -> Result<Security> {
 /// For `shoal up --secure`: the key store (created if missing), a certificate for each
 /// vehicle that has none, and a fresh bundle per vehicle next to the store. Returns each
 /// vehicle's bundle directory.
+#[cfg(feature = "console")]
 pub fn prepare_fleet(
     cfg: &SecurityConfig,
     vehicle_ids: &[&str],

@@ -3,10 +3,12 @@
 #![forbid(unsafe_code)]
 
 mod acoustic;
+#[cfg(feature = "console")]
 mod bench;
 mod config;
 mod daemons;
 mod keys;
+#[cfg(feature = "console")]
 mod query;
 mod relay;
 
@@ -27,6 +29,7 @@ static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 /// Shoal: semantic publish/subscribe middleware for fleets of maritime robots.
 #[derive(Debug, Parser)]
 #[command(version, about, long_about = None)]
+#[cfg_attr(not(feature = "console"), command(after_help = VEHICLE_BUILD))]
 struct Cli {
     /// Configuration file (TOML); see config/shoal.toml for every key. Also SHOAL_CONFIG.
     #[arg(long, global = true, value_name = "FILE")]
@@ -35,8 +38,19 @@ struct Cli {
     command: Command,
 }
 
+/// What `--help` says in a build without the `console` feature.
+#[cfg(not(feature = "console"))]
+const VEHICLE_BUILD: &str = "This build is the vehicle side only (built without the `console` \
+feature): the station and its web console, and `up`, `station`, `query` and `bench`, are left \
+out.";
+
+/// The commands a build without the `console` feature leaves out.
+#[cfg(not(feature = "console"))]
+const STATION_COMMANDS: [&str; 4] = ["up", "station", "query", "bench"];
+
 #[derive(Debug, Subcommand)]
 enum Command {
+    #[cfg(feature = "console")]
     /// Start everything on this host: a station, the simulated fleet of [fleet] and the
     /// HTTP API. Ctrl-C stops it all.
     Up {
@@ -75,6 +89,7 @@ enum Command {
         #[arg(long, hide = true)]
         exit_on_stdin_close: bool,
     },
+    #[cfg(feature = "console")]
     /// Run the Command and Control Station: ingest, history, register, HTTP API.
     Station {
         /// Address of the HTTP API (overrides console.listen).
@@ -139,12 +154,14 @@ enum Command {
         #[arg(long)]
         exit_on_stdin_close: bool,
     },
+    #[cfg(feature = "console")]
     /// Benchmarks that print figures: `suite` runs every target in one table beside its
     /// peer (Cyclone DDS, raw SQLite, DCCL); the others measure one part each.
     Bench {
         #[command(subcommand)]
         which: bench::BenchCommand,
     },
+    #[cfg(feature = "console")]
     /// Run a read-only SPARQL query against a running station's semantic model.
     Query {
         /// The SPARQL query; `-` reads it from standard input. The prefixes shoal:, geo:,
@@ -253,17 +270,35 @@ fn init_logging(label: &str) {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            #[cfg(not(feature = "console"))]
+            if let Some(name) = left_out_command(&e) {
+                eprintln!(
+                    "shoal: error: `shoal {name}` is not in this build: it is the vehicle side \
+                     only, built without the `console` feature (see docs/integrator-guide.md, \
+                     \"Building the vehicle side\")"
+                );
+                return ExitCode::from(2);
+            }
+            e.exit()
+        }
+    };
     let label = match &cli.command {
+        #[cfg(feature = "console")]
         Command::Up { .. } => "up".to_string(),
+        #[cfg(feature = "console")]
         Command::Station { .. } => "station".to_string(),
         Command::Vehicle { id, .. } => id.clone(),
         Command::Swarm { .. } => "swarm".to_string(),
         Command::AcousticDemo { .. } => "acoustic".to_string(),
+        #[cfg(feature = "console")]
         Command::Bench { .. } => "bench".to_string(),
         Command::Config { .. } => "config".to_string(),
         Command::Keys(_) => "keys".to_string(),
         Command::Pdu { .. } => "pdu".to_string(),
+        #[cfg(feature = "console")]
         Command::Query { .. } => "query".to_string(),
         Command::ModemEmu(_) => "modem-emu".to_string(),
     };
@@ -278,12 +313,36 @@ fn main() -> ExitCode {
     }
 }
 
+/// The station command a parse error is about, if this build leaves it out.
+#[cfg(not(feature = "console"))]
+fn left_out_command(e: &clap::Error) -> Option<String> {
+    use clap::error::{ContextKind, ContextValue, ErrorKind};
+    if e.kind() != ErrorKind::InvalidSubcommand {
+        return None;
+    }
+    match e.get(ContextKind::InvalidSubcommand) {
+        Some(ContextValue::String(name)) if STATION_COMMANDS.contains(&name.as_str()) => {
+            Some(name.clone())
+        }
+        _ => None,
+    }
+}
+
 fn run(cli: Cli) -> anyhow::Result<()> {
-    let mut cfg = config::load(cli.config.as_deref())?;
+    let flags = match &cli.command {
+        #[cfg(feature = "console")]
+        Command::Station { listen, db, .. } => config::Flags {
+            listen: *listen,
+            db: db.clone(),
+        },
+        _ => config::Flags::default(),
+    };
+    let cfg = config::load(cli.config.as_deref(), &flags)?;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
     match cli.command {
+        #[cfg(feature = "console")]
         Command::Up {
             no_fleet,
             secure,
@@ -316,19 +375,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             rt.block_on(daemons::swarm(&cfg, spec, exit_on_stdin_close))
         }
         Command::Keys(args) => keys::run(args, &cfg.security),
+        // --listen and --db are in `cfg` already: flags are its last layer.
+        #[cfg(feature = "console")]
         Command::Station {
-            listen,
-            db,
             exit_on_stdin_close,
-        } => {
-            if let Some(l) = listen {
-                cfg.console.listen = l;
-            }
-            if let Some(db) = db {
-                cfg.history.path = db;
-            }
-            rt.block_on(daemons::station(cfg, exit_on_stdin_close))
-        }
+            ..
+        } => rt.block_on(daemons::station(cfg, exit_on_stdin_close)),
         Command::Vehicle {
             sim,
             proxy: Some(kind),
@@ -370,11 +422,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             };
             rt.block_on(daemons::vehicle(&cfg, spec, exit_on_stdin_close))
         }
+        #[cfg(feature = "console")]
         Command::Bench { which } => rt.block_on(bench::run(which, &cfg)),
         Command::AcousticDemo {
             exit_on_stdin_close,
         } => rt.block_on(daemons::acoustic_demo(&cfg, exit_on_stdin_close)),
         Command::Pdu { which } => acoustic::pdu(which),
+        #[cfg(feature = "console")]
         Command::Query {
             sparql,
             format,

@@ -82,13 +82,8 @@ pub(super) fn date() -> String {
     utc_date(now_ms())
 }
 
-/// The UTC calendar date of a time in ms since the Unix epoch, e.g. `2026-11-21`.
-pub(crate) fn utc_date(ms: i64) -> String {
-    match time::OffsetDateTime::from_unix_timestamp(ms.div_euclid(1000)) {
-        Ok(t) => format!("{:04}-{:02}-{:02}", t.year(), u8::from(t.month()), t.day()),
-        Err(_) => "(date out of range)".to_string(),
-    }
-}
+// Lives with `shoal keys`, which the vehicle side builds without the benchmarks.
+use crate::keys::utc_date;
 
 pub(super) fn rss_mb() -> f64 {
     rss_mb_of("self")

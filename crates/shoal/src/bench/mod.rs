@@ -36,8 +36,6 @@ mod suite;
 use anyhow::Result;
 use clap::Subcommand;
 
-pub(crate) use helpers::utc_date;
-
 use crate::config::ShoalConfig;
 
 /// Which benchmark to run.
