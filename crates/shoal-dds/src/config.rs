@@ -25,6 +25,10 @@ pub struct DdsConfig {
     pub topic_cache_samples: i32,
     /// Kernel receive buffer per UDP socket, bytes.
     pub socket_receive_buffer: usize,
+    /// Largest sample, serialised, that DDS sends or accepts, bytes; larger ones are
+    /// dropped on arrival before they are reassembled (a 10 MB sample costs nothing).
+    /// Shoal's largest valid sample is a few kilobytes.
+    pub max_sample_bytes: u32,
 }
 
 impl Default for DdsConfig {
@@ -35,6 +39,7 @@ impl Default for DdsConfig {
             same_host_loopback: None,
             topic_cache_samples: 8192,
             socket_receive_buffer: 8 * 1024 * 1024,
+            max_sample_bytes: 64 * 1024,
         }
     }
 }

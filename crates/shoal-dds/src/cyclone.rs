@@ -221,8 +221,9 @@ pub(crate) fn domain_xml(config: &DdsConfig) -> String {
     format!(
         "<CycloneDDS><Domain id=\"any\"><General><Interfaces>{interfaces}</Interfaces>\
          <AllowMulticast>spdp</AllowMulticast></General>\
-         <Internal><SocketReceiveBufferSize min=\"{}B\"/></Internal></Domain></CycloneDDS>",
-        config.socket_receive_buffer
+         <Internal><SocketReceiveBufferSize min=\"{}B\"/>\
+         <MaxSampleSize>{}B</MaxSampleSize></Internal></Domain></CycloneDDS>",
+        config.socket_receive_buffer, config.max_sample_bytes
     )
 }
 
@@ -823,12 +824,23 @@ pub(crate) fn watch_malformed(w: std::sync::Weak<dyn Wake>) {
     }
 }
 
-/// Records a "deserialization <topic>/<type> failed" warning of Cyclone's receive path.
+/// Records a "deserialization <topic>/<type> failed" warning of Cyclone's receive path,
+/// or a "dropping oversize (N > M) sample S from remote writer G <topic>/<type>" one (a
+/// sample over `max_sample_bytes`, dropped before it was reassembled).
 fn note_malformed(message: &str) {
-    let Some(rest) = message.split(": deserialization ").nth(1) else {
+    let what = if let Some(rest) = message.split(": deserialization ").nth(1) {
+        rest.split(" failed").next().unwrap_or(rest)
+    } else if message.contains("dropping oversize (")
+        && message.contains(" from remote writer ")
+        && !message.contains(" SPDP ")
+    {
+        match message.trim_end().rsplit_once(' ') {
+            Some((_, what)) => what,
+            None => return,
+        }
+    } else {
         return;
     };
-    let what = rest.split(" failed").next().unwrap_or(rest);
     // "<topic>/<type>": topic names contain '/', type names do not.
     let topic = what.rsplit_once('/').map_or(what, |(t, _)| t).to_string();
     if let Ok(mut m) = MALFORMED.lock() {
@@ -846,7 +858,7 @@ fn note_malformed(message: &str) {
 
 unsafe extern "C" fn log_sink(_arg: *mut c_void, data: *const c::dds_log_data_t) {
     // SAFETY: Cyclone passes a valid record whose message holds `size` bytes.
-    let (priority, message) = unsafe {
+    let (priority, message, full) = unsafe {
         let d = &*data;
         let bytes = std::slice::from_raw_parts(d.message.cast::<u8>(), d.size);
         // The header (time, thread) Cyclone prepends is of no use in tracing's output.
@@ -854,13 +866,16 @@ unsafe extern "C" fn log_sink(_arg: *mut c_void, data: *const c::dds_log_data_t)
         (
             d.priority,
             String::from_utf8_lossy(body).trim_end().to_string(),
+            String::from_utf8_lossy(bytes),
         )
     };
     if message.is_empty() {
         return;
     }
-    if message.contains(": deserialization ") {
-        note_malformed(&message);
+    // Matched on the whole record: some records (the oversize drop) come without the
+    // header `hdrsize` announces, so the body alone would lose their start.
+    if full.contains(": deserialization ") || full.contains("dropping oversize (") {
+        note_malformed(&full);
     }
     match priority {
         c::DDS_LC_FATAL | c::DDS_LC_ERROR => tracing::error!(target: "cyclonedds", "{message}"),
@@ -898,7 +913,16 @@ mod tests {
         assert!(last.contains("#1"), "{last}");
         // Other warnings are not counted.
         note_malformed("something else entirely");
-        assert_eq!(malformed_count("test/malformed/topic"), before + 1);
+        // An oversize sample dropped before reassembly counts against its topic too.
+        note_malformed(
+            "dropping oversize (10485808 > 65536) sample 3 from remote writer \
+             1611f8f4:4b0fce8e:66120000:102 test/malformed/topic/shoal::StateVector",
+        );
+        assert_eq!(malformed_count("test/malformed/topic"), before + 2);
+        // Oversize discovery names no topic: not counted against one.
+        note_malformed("dropping oversize (70000 > 65536) SPDP sample 1 from remote writer x");
+        assert_eq!(malformed_count("test/malformed/topic"), before + 2);
+        assert_eq!(malformed_count("x"), 0);
     }
 
     /// Cyclone has one configuration per domain and process: a second, different one is

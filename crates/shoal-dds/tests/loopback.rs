@@ -226,6 +226,65 @@ async fn malformed_foreign_samples_are_reported_and_do_not_block_good_ones() {
     }
 }
 
+/// A sample over `max_sample_bytes` is dropped before it is reassembled, counted against
+/// its topic as malformed, and the good samples after it still arrive.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_oversize_foreign_sample_is_dropped_and_counted_and_good_ones_still_arrive() {
+    use rustdds::Keyed;
+    #[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
+    struct Huge {
+        vehicle_id: String,
+        padding: String,
+    }
+    impl Keyed for Huge {
+        type K = String;
+        fn key(&self) -> String {
+            self.vehicle_id.clone()
+        }
+    }
+    let station = PubSub::new(&config(49)).unwrap();
+    let mut sub = station.subscribe::<StateVector>().unwrap();
+    let foreign = Foreign::new(49, "shoal/state_vector", "shoal::StateVector");
+    let huge_writer = foreign
+        .publisher
+        .create_datawriter_cdr::<Huge>(&foreign.topic, None)
+        .unwrap();
+    let good = PubSub::new(&config(49)).unwrap();
+    let good_writer = good
+        .writer::<StateVector>(WriterOptions::new(Priority::Telemetry))
+        .unwrap();
+    wait_matched(&good_writer).await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    huge_writer
+        .write(
+            Huge {
+                vehicle_id: "evil".into(),
+                padding: "x".repeat(1_000_000),
+            },
+            None,
+        )
+        .unwrap();
+    good_writer.write(state(3)).await.unwrap();
+    let (mut oversize, mut good_seen) = (false, false);
+    while !(good_seen && oversize) {
+        match tokio::time::timeout(Duration::from_secs(15), sub.next())
+            .await
+            .unwrap_or_else(|_| panic!("timed out: good {good_seen}, oversize {oversize}"))
+            .unwrap()
+        {
+            Ok((s, _)) => {
+                assert_eq!(s.vehicle_id, "auv-7");
+                good_seen = true;
+            }
+            Err(ReadError::Malformed { detail, .. }) => {
+                assert!(detail.contains("oversize"), "{detail}");
+                oversize = true;
+            }
+            Err(e) => panic!("unexpected {e}"),
+        }
+    }
+}
+
 #[test]
 fn the_wire_bytes_are_plain_little_endian_cdr() {
     let bytes = shoal_dds::to_cdr_le(&state(0)).unwrap();
