@@ -240,11 +240,13 @@ impl PubSub {
             priority = options.priority.as_str(),
             "writer created"
         );
+        let limit = options.kept_instances.or(T::PROFILE.kept_instances());
         Ok(Writer {
             entity,
             sertype,
             security,
             options,
+            kept: limit.map(|limit| Mutex::new(KeptInstances::new(limit))),
             _participant: Arc::clone(&self.participant),
             _type: PhantomData,
         })
@@ -385,6 +387,46 @@ pub enum ParticipantEvent {
     },
 }
 
+/// The instances a writer keeps, oldest first, by key (as key-only CDR).
+#[derive(Debug)]
+struct KeptInstances {
+    limit: usize,
+    order: VecDeque<Vec<u8>>,
+    keys: std::collections::HashSet<Vec<u8>>,
+}
+
+impl KeptInstances {
+    fn new(limit: usize) -> Self {
+        Self {
+            limit: limit.max(1),
+            order: VecDeque::new(),
+            keys: std::collections::HashSet::new(),
+        }
+    }
+
+    /// Notes a written key; returns the keys to unregister, oldest first.
+    fn written(&mut self, key: Vec<u8>) -> Vec<Vec<u8>> {
+        if self.keys.insert(key.clone()) {
+            self.order.push_back(key);
+        }
+        let mut out = Vec::new();
+        while self.order.len() > self.limit {
+            if let Some(old) = self.order.pop_front() {
+                self.keys.remove(&old);
+                out.push(old);
+            }
+        }
+        out
+    }
+
+    /// Forgets a key the writer ended itself.
+    fn ended(&mut self, key: &[u8]) {
+        if self.keys.remove(key) {
+            self.order.retain(|k| k != key);
+        }
+    }
+}
+
 /// A typed DDS writer in one priority class.
 pub struct Writer<T: TopicType> {
     entity: Entity,
@@ -392,6 +434,8 @@ pub struct Writer<T: TopicType> {
     /// Set when samples go signed on the topic's twin.
     security: Option<Arc<Security>>,
     options: WriterOptions,
+    /// The instances kept for late joiners, when the writer bounds them.
+    kept: Option<Mutex<KeptInstances>>,
     _participant: Arc<Participant>,
     _type: PhantomData<fn(T)>,
 }
@@ -428,7 +472,39 @@ impl<T: TopicType> Writer<T> {
     }
 
     fn send_or_return(&self, sample: T) -> Result<(), WriteError<T>> {
-        self.send(&sample).map_err(|e| e.with(sample))
+        self.send(&sample).map_err(|e| e.with(sample.clone()))?;
+        self.bound_instances(&sample);
+        Ok(())
+    }
+
+    /// Unregisters the oldest instances beyond the writer's limit, if it has one.
+    fn bound_instances(&self, sample: &T) {
+        let Some(kept) = &self.kept else { return };
+        let Ok(key) = self.key_cdr(sample) else {
+            return;
+        };
+        let old = kept
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .written(key);
+        for mut key in old {
+            if let Err(code) = cyclone::end_instance_cdr(
+                &self.entity,
+                self.sertype,
+                &mut key,
+                cyclone::Ending::Unregister,
+            ) {
+                warn!(topic = T::TOPIC, error = %cyclone::error(code), "old instance not unregistered");
+            }
+        }
+    }
+
+    /// The sample's key as this writer's topic holds it (the signed twin is keyed by text).
+    fn key_cdr(&self, sample: &T) -> Result<Vec<u8>, CdrError> {
+        match &self.security {
+            Some(_) => crate::to_cdr_le(&sample.key_text()),
+            None => crate::to_cdr_le(&sample.key()),
+        }
     }
 
     /// Validates and publishes one sample; on failure the sample comes back in the error.
@@ -464,11 +540,12 @@ impl<T: TopicType> Writer<T> {
     }
 
     fn end(&self, sample: &T, ending: cyclone::Ending) -> Result<(), EndError> {
-        // The key as this writer's topic holds it: the signed twin is keyed by key text.
-        let mut key = match &self.security {
-            Some(_) => crate::to_cdr_le(&sample.key_text())?,
-            None => crate::to_cdr_le(&sample.key())?,
-        };
+        let mut key = self.key_cdr(sample)?;
+        if let Some(kept) = &self.kept {
+            kept.lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .ended(&key);
+        }
         cyclone::end_instance_cdr(&self.entity, self.sertype, &mut key, ending)
             .map_err(|code| EndError::Dds(cyclone::error(code)))
     }

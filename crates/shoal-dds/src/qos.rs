@@ -68,6 +68,9 @@ pub struct WriterOptions {
     pub deadline: Option<Duration>,
     /// How long a reliable write may block when the history is full of unacknowledged data.
     pub max_blocking: Duration,
+    /// How many instances the writer keeps for late joiners; beyond, the oldest is
+    /// unregistered. `None` takes the topic's default ([`QosProfile::kept_instances`]).
+    pub kept_instances: Option<usize>,
 }
 
 impl WriterOptions {
@@ -77,6 +80,7 @@ impl WriterOptions {
             priority,
             deadline: None,
             max_blocking: Duration::from_millis(200),
+            kept_instances: None,
         }
     }
 }
@@ -119,6 +123,18 @@ impl Policies {
 }
 
 impl QosProfile {
+    /// How many instances a writer of the topic keeps by default: events and task status
+    /// reports are a new instance each, and would otherwise pile up in the writer's
+    /// transient-local history for ever (and reach every late joiner). Tasks are disposed
+    /// when they end; states and announcements are one instance per vehicle.
+    pub fn kept_instances(self) -> Option<usize> {
+        match self {
+            Self::Events => Some(256),
+            Self::TaskStatus => Some(1024),
+            _ => None,
+        }
+    }
+
     /// Durability and writer history depth of the profile.
     fn base(self) -> (bool, i32) {
         match self {

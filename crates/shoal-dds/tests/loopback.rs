@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use futures::StreamExt;
 use shoal_dds::{Priority, PubSub, ReadError, WriterOptions};
-use shoal_model::{StateVector, Task, TaskAssignment, TaskKind};
+use shoal_model::{Event, EventKind, Severity, StateVector, Task, TaskAssignment, TaskKind};
 
 mod common;
 use common::{Foreign, config};
@@ -141,6 +141,38 @@ async fn a_disposed_task_is_not_handed_to_late_joiners_and_a_live_one_is() {
         more.is_err(),
         "a second task reached the late joiner: {more:?}"
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_writer_keeps_only_its_newest_instances_for_late_joiners() {
+    let vehicle = PubSub::new(&config(50)).unwrap();
+    let options = WriterOptions {
+        kept_instances: Some(3),
+        ..WriterOptions::new(Priority::Control)
+    };
+    let w = vehicle.writer::<Event>(options).unwrap();
+    for i in 0..5 {
+        w.write(Event {
+            event_id: format!("e-{i}"),
+            timestamp_ms: 1_700_000_000_000 + i,
+            severity: Severity::Info,
+            kind: EventKind::Other,
+            vehicle_id: "auv-7".into(),
+            task_id: String::new(),
+            text: String::new(),
+        })
+        .await
+        .unwrap();
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let station = PubSub::new(&config(50)).unwrap();
+    let mut sub = station.subscribe::<Event>().unwrap();
+    let mut got = Vec::new();
+    while let Ok(Some(item)) = tokio::time::timeout(Duration::from_secs(3), sub.next()).await {
+        got.push(item.unwrap().0.event_id.clone());
+    }
+    got.sort();
+    assert_eq!(got, ["e-2", "e-3", "e-4"]);
 }
 
 /// A foreign writer with another idea of the type: the reader reports it and goes on.
