@@ -472,7 +472,9 @@ impl<T: TopicType> Writer<T> {
     }
 
     fn send_or_return(&self, sample: T) -> Result<(), WriteError<T>> {
-        self.send(&sample).map_err(|e| e.with(sample.clone()))?;
+        if let Err(e) = self.send(&sample) {
+            return Err(e.with(sample));
+        }
         self.bound_instances(&sample);
         Ok(())
     }
