@@ -8,7 +8,8 @@
 #      namespace (loopback only, multicast routed to lo), so no DDS discovery traffic
 #      can leave the machine,
 #   4. builds the release binary and drives the web console in Debian's Chromium
-#      (Playwright) against `shoal up`, inside the namespace,
+#      (Playwright) against `shoal up`, then checks the HTTP API against its OpenAPI
+#      document with schemathesis, inside the namespace,
 #   5. runs each cargo-fuzz target for a short smoke run.
 # Environment: SHOAL_SKIP_FUZZ=1 skips step 5; SHOAL_NETNS names the namespace.
 set -euo pipefail
@@ -47,6 +48,9 @@ passed=$(grep -Eo 'test result: ok\. [0-9]+ passed' "$results" | awk '{s += $4} 
 step "web console in a real browser (Playwright + Chromium against shoal up, inside $NS)"
 cargo build --release --locked -p shoal
 SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" scripts/console-e2e.sh "$NS"
+
+step "the HTTP API against its OpenAPI document (schemathesis, all checks, inside $NS)"
+SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" scripts/api-conformance.sh "$NS"
 
 if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
     step "fuzz smoke run (every cargo-fuzz target, 20 s each)"
