@@ -449,3 +449,37 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::panic)]
+    use super::*;
+
+    /// A vehicle build names the station commands it lacks instead of "unrecognized
+    /// subcommand", and says so in --help.
+    #[cfg(not(feature = "console"))]
+    #[test]
+    fn a_vehicle_build_says_which_commands_it_leaves_out() {
+        use clap::CommandFactory;
+        for name in STATION_COMMANDS {
+            let e = Cli::try_parse_from(["shoal", "--config", "x.toml", name]).unwrap_err();
+            assert_eq!(left_out_command(&e).as_deref(), Some(name));
+        }
+        let e = Cli::try_parse_from(["shoal", "statoin"]).unwrap_err();
+        assert_eq!(left_out_command(&e), None);
+        let help = Cli::command().render_long_help().to_string();
+        assert!(help.contains("vehicle side only"), "{help}");
+        assert!(!help.contains("\n  station "), "{help}");
+        assert!(Cli::try_parse_from(["shoal", "vehicle", "--sim", "auv", "--id", "a"]).is_ok());
+    }
+
+    #[cfg(feature = "console")]
+    #[test]
+    fn station_flags_become_the_last_configuration_layer() {
+        let cli = Cli::try_parse_from(["shoal", "station", "--db", ":memory:"]).unwrap();
+        let Command::Station { db, .. } = cli.command else {
+            panic!("not the station command");
+        };
+        assert_eq!(db, Some(PathBuf::from(":memory:")));
+    }
+}
