@@ -22,6 +22,7 @@ mod clock;
 mod config;
 mod core;
 mod error;
+mod health;
 mod ingest;
 mod missions;
 mod register;
@@ -37,6 +38,9 @@ pub use config::StationConfig;
 pub use core::StationHandle;
 pub use error::{
     ConfigError, DispatchError, Rejection, RuleChangeError, StationError, SubscriptionError,
+};
+pub use health::{
+    DdsHealth, HealthThresholds, HealthVerdict, HistoryHealth, SemanticHealth, StationHealth,
 };
 pub use ingest::IngestStats;
 pub use ingest::preprocess::{Implausible, PlausibilityConfig};
