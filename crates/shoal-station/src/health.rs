@@ -334,7 +334,10 @@ mod tests {
     fn a_held_semantic_lock_is_measured_and_the_probe_gives_up() {
         let f = Fixture::new();
         let h = f.h.health(Duration::from_millis(200));
-        assert!(h.semantic.lock_taken && h.semantic.lock_wait_ms < 200, "{h:?}");
+        assert!(
+            h.semantic.lock_taken && h.semantic.lock_wait_ms < 200,
+            "{h:?}"
+        );
         assert!(h.history.writer_running && h.dds.participant_up);
         let core = f.h.core.clone();
         let (held_tx, held_rx) = std::sync::mpsc::channel();
