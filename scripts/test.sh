@@ -3,7 +3,8 @@
 #   1. installs what the tests need (apt packages, the Python venv with the foreign DDS
 #      peers, the Fast DDS C++ peer, cargo-fuzz) and starts a private PostgreSQL inside
 #      the namespace (the history tests run against SQLite and PostgreSQL),
-#   2. checks formatting and clippy, builds every test binary OUTSIDE the namespace,
+#   2. checks formatting and clippy (also of the vehicle-side build without the console,
+#      and `cargo check` of it for aarch64), builds every test binary OUTSIDE the namespace,
 #   3. runs the foreign-peer matrix and every Rust test INSIDE a private network
 #      namespace (loopback only, multicast routed to lo), so no DDS discovery traffic
 #      can leave the machine,
@@ -28,6 +29,10 @@ echo "PostgreSQL: $pg_url"
 step "formatting and lints"
 cargo fmt --all --check
 cargo clippy --workspace --all-targets --locked -- -D warnings
+
+step "the vehicle side: no console feature (no Node), clippy-clean, and checked for aarch64"
+cargo clippy -p shoal --no-default-features --all-targets --locked -- -D warnings
+scripts/check-vehicle-aarch64.sh
 
 step "building tests (outside the namespace)"
 cargo test --workspace --locked --no-run
