@@ -1011,6 +1011,23 @@ impl SemanticStore {
         Ok(events)
     }
 
+    /// Forgets a task (its triples and its rules' memory of it), e.g. once the station's
+    /// retention has passed; returns whether it was known. Its mission's triples go with
+    /// its last task.
+    pub fn forget_task(&mut self, task_id: &str) -> Result<bool, StoreError> {
+        if self.tasks.remove(task_id).is_none() {
+            return Ok(false);
+        }
+        self.drop_entity(EntityKind::Task, task_id)?;
+        self.rules.forget(task_iri(task_id).as_str());
+        Ok(true)
+    }
+
+    /// How many tasks the model holds.
+    pub fn task_count(&self) -> usize {
+        self.tasks.len()
+    }
+
     /// The state of a task, if known.
     pub fn task_state(&self, task_id: &str) -> Option<TaskState> {
         self.tasks.get(task_id).map(|t| t.state)
@@ -1642,6 +1659,26 @@ mod tests {
             ["auv-1"]
         );
         assert!(select_ids(&s, "SELECT ?v WHERE { ?v a shoal:AUV }").is_empty());
+    }
+
+    #[test]
+    fn a_forgotten_task_leaves_no_triple_and_its_mission_goes_with_its_last_task() {
+        let mut s = SemanticStore::new(StoreConfig::default()).unwrap();
+        s.upsert_vehicle(&announce("auv-1", VehicleKind::Auv, &[], &[]))
+            .unwrap();
+        s.upsert_task(&goto("t1", "auv-1")).unwrap();
+        s.upsert_task(&goto("t2", "auv-1")).unwrap();
+        let tasks = "SELECT ?x WHERE { ?x shoal:taskId ?t }";
+        let missions = "SELECT ?x WHERE { ?x shoal:missionId ?m }";
+        assert!(s.forget_task("t1").unwrap());
+        assert!(!s.forget_task("t1").unwrap(), "forgotten twice");
+        assert_eq!(select_ids(&s, tasks), ["t2"]);
+        assert_eq!(select_ids(&s, missions), ["m1"]);
+        assert!(s.forget_task("t2").unwrap());
+        assert!(select_ids(&s, tasks).is_empty());
+        assert!(select_ids(&s, missions).is_empty());
+        assert_eq!(s.task_count(), 0);
+        assert!(s.task_state("t2").is_none());
     }
 
     #[test]

@@ -38,6 +38,9 @@ pub struct StationConfig {
     pub min_dispatch_battery_pct: f64,
     /// Where user rules (and the enabled state of built-in ones) are kept across restarts.
     pub rules_path: PathBuf,
+    /// Seconds an ended task (and an ended mission, with its tasks) stays in the Mission &
+    /// Task Register and the semantic model; older ones live on in the history only.
+    pub task_retention_s: f64,
 }
 
 impl Default for StationConfig {
@@ -55,6 +58,7 @@ impl Default for StationConfig {
             acoustic_task_retries: 2,
             min_dispatch_battery_pct: 20.0,
             rules_path: PathBuf::from("shoal-data/rules.json"),
+            task_retention_s: 24.0 * 3600.0,
         }
     }
 }
@@ -91,6 +95,12 @@ impl StationConfig {
             return Err(ConfigError::new(
                 "acoustic_task_ack_timeout_s",
                 "station.acoustic_task_ack_timeout_s must be a positive number of seconds",
+            ));
+        }
+        if !(self.task_retention_s.is_finite() && self.task_retention_s >= 60.0) {
+            return Err(ConfigError::new(
+                "task_retention_s",
+                "station.task_retention_s must be at least 60 seconds",
             ));
         }
         if !(0.0..=100.0).contains(&self.min_dispatch_battery_pct) {

@@ -182,6 +182,7 @@ impl StationHandle {
         self.watch_clock();
         self.refresh_contact(now);
         self.expire_tasks(now);
+        self.prune_tasks(now);
         self.semantic_tick(now);
         self.refresh_availability_all(now);
     }

@@ -49,6 +49,8 @@ pub struct IngestStats {
     pub tasks_retired: u64,
     /// Ended tasks the bus would not retire (each also logged).
     pub tasks_not_retired: u64,
+    /// Ended tasks forgotten by the register and the semantic model after their retention.
+    pub tasks_forgotten: u64,
     /// Events raised by rules as data arrived.
     pub rule_firings: u64,
 }

@@ -13,6 +13,9 @@ use shoal_model::{EventKind, LinkKind, Severity, Task, TaskAssignment, TaskKind,
 use tracing::{debug, info, warn};
 
 use crate::config::ms;
+
+/// How often, at most, ended tasks past their retention are looked for.
+const PRUNE_EVERY_MS: i64 = 60_000;
 use crate::core::{StationHandle, blocking, lock};
 use crate::error::DispatchError;
 use crate::register::Contact;
@@ -356,6 +359,35 @@ impl StationHandle {
             lock(&self.core.tasks).finish(&id, TaskState::Expired, msg, now);
             self.task_changed(&id, TaskState::Expired, msg);
         }
+    }
+
+    /// Forgets tasks and missions that ended longer than `task_retention_s` ago, in the
+    /// register and the semantic model (the history keeps them). Runs at most once a
+    /// minute: it walks every task.
+    pub(crate) fn prune_tasks(&self, now: i64) {
+        let gone = {
+            let mut reg = lock(&self.core.tasks);
+            if now - reg.pruned_ms < PRUNE_EVERY_MS {
+                return;
+            }
+            reg.pruned_ms = now;
+            reg.prune(now - ms(self.core.config.task_retention_s))
+        };
+        if gone.is_empty() {
+            return;
+        }
+        let mut semantic = lock(&self.core.semantic);
+        for id in &gone {
+            if let Err(e) = semantic.forget_task(id) {
+                warn!(task = %id, error = %e, "ended task not removed from the semantic model");
+            }
+        }
+        drop(semantic);
+        lock(&self.core.stats).tasks_forgotten += gone.len() as u64;
+        info!(
+            tasks = gone.len(),
+            "ended tasks past their retention forgotten (the history keeps them)"
+        );
     }
 
     /// The tasks restored missions are waiting for (after a restart); sent at once.

@@ -45,6 +45,8 @@ pub(crate) struct TaskRegister {
     last_seq: u64,
     /// Tasks published and not yet retired from the bus.
     on_bus: HashSet<String>,
+    /// When retention last ran (station time).
+    pub(crate) pruned_ms: i64,
 }
 
 /// Rank in the state machine; a report may only keep or raise it.
@@ -200,6 +202,40 @@ impl TaskRegister {
             None => false,
         });
         ended
+    }
+
+    /// Forgets what ended before `before_ms`: tasks outside missions, and missions with all
+    /// their tasks once the mission has ended. Returns the task ids forgotten. Nothing
+    /// that is live, or belongs to a live mission, is touched.
+    pub(crate) fn prune(&mut self, before_ms: i64) -> Vec<String> {
+        let old_missions: Vec<String> = self
+            .missions
+            .values()
+            .filter(|m| m.ended_ms.is_some_and(|t| t < before_ms))
+            .map(|m| m.mission_id.clone())
+            .collect();
+        let mut gone: Vec<String> = Vec::new();
+        for id in old_missions {
+            if let Some(m) = self.missions.remove(&id) {
+                gone.extend(m.task_ids);
+            }
+        }
+        gone.extend(
+            self.tasks
+                .values()
+                .filter(|t| {
+                    t.state.is_final()
+                        && t.updated_ms < before_ms
+                        && !self.mission_of.contains_key(&t.assignment.task_id)
+                })
+                .map(|t| t.assignment.task_id.clone()),
+        );
+        for id in &gone {
+            self.tasks.remove(id);
+            self.mission_of.remove(id);
+            self.on_bus.remove(id);
+        }
+        gone
     }
 
     /// Tasks under way (sent, accepted or running): what a restarted station publishes

@@ -468,3 +468,53 @@ fn an_expired_task_is_retired_so_a_late_vehicle_never_gets_it() {
     assert_eq!(task_state(&f, "t-1"), TaskState::Expired);
     assert_eq!(f.out.retired(), vec!["t-1".to_string()]);
 }
+
+#[test]
+fn ended_tasks_and_missions_past_their_retention_are_forgotten_and_live_ones_kept() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.alive("auv-2");
+    f.h.dispatch_now(assignment("t-old", "auv-1")).unwrap();
+    f.report("t-old", "auv-1", TaskState::Done);
+    f.h.dispatch_now(assignment("t-live", "auv-2")).unwrap();
+    f.report("t-live", "auv-2", TaskState::Running);
+    f.h.plan_mission(spec("m-done", &[("auv-1", goto())]))
+        .unwrap();
+    f.h.start_mission("m-done").unwrap();
+    f.report("m-done-1", "auv-1", TaskState::Done);
+    f.h.plan_mission(spec("m-run", &[("auv-2", goto()), ("auv-2", goto())]))
+        .unwrap();
+    f.h.start_mission("m-run").unwrap();
+    f.report("m-run-1", "auv-2", TaskState::Done);
+    let in_model = |id: &str| {
+        let q = format!("ASK {{ ?t shoal:taskId \"{id}\" }}");
+        matches!(
+            f.h.sparql(&q, &shoal_semantic::QueryLimits::default())
+                .unwrap(),
+            shoal_semantic::QueryResult::Boolean(true)
+        )
+    };
+    assert!(in_model("t-old"));
+    // A day and a minute later.
+    f.h.prune_tasks(now_ms() + 24 * 3_600_000 + 61_000);
+    for gone in ["t-old", "m-done-1"] {
+        assert!(f.h.task(gone).is_none(), "{gone} kept");
+        assert!(!in_model(gone), "{gone} still in the model");
+    }
+    assert!(f.h.mission("m-done").is_none());
+    // Live, or part of a live mission: kept.
+    for kept in ["t-live", "m-run-1", "m-run-2"] {
+        assert!(f.h.task(kept).is_some(), "{kept} forgotten");
+        assert!(in_model(kept), "{kept} not in the model");
+    }
+    assert_eq!(f.h.stats().tasks_forgotten, 2);
+    // The history still has them.
+    f.flush();
+    assert!(
+        f.h.history()
+            .task_history("t-old")
+            .unwrap()
+            .assignment
+            .is_some()
+    );
+}
