@@ -609,8 +609,12 @@ pub fn session_set_cookie(id: Option<&str>, max_age_s: i64) -> String {
 }
 
 /// The least role a request needs, or `None` for what anyone may fetch (the console's
-/// files, health, the API description, logging in and out, who am I).
+/// files, health, the API description, logging in and out, who am I). `/metrics` is a
+/// read like any other: a scraper sends a viewer token.
 pub fn required_role(method: &Method, path: &str) -> Option<Role> {
+    if path == "/metrics" {
+        return Some(Role::Viewer);
+    }
     if !path.starts_with("/api/") {
         return None;
     }
@@ -669,6 +673,8 @@ mod tests {
         assert_eq!(required_role(&M::POST, "/api/auth/login"), None);
         assert_eq!(required_role(&M::GET, "/api/fleet"), Some(Role::Viewer));
         assert_eq!(required_role(&M::GET, "/api/ws"), Some(Role::Viewer));
+        assert_eq!(required_role(&M::GET, "/metrics"), Some(Role::Viewer));
+        assert_eq!(required_role(&M::GET, "/api/health"), None);
         assert_eq!(required_role(&M::POST, "/api/sparql"), Some(Role::Viewer));
         assert_eq!(
             required_role(&M::POST, "/api/missions"),

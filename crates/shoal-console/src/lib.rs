@@ -4,6 +4,12 @@
 //!   [`console_router`] takes an [`Auth`] store. Tests drive both without sockets.
 //! - [`serve_with`] runs it on a listener until shutdown, with the `[console]` configuration
 //!   ([`ConsoleConfig`], authentication included); [`serve`] uses the defaults.
+//! - [`LimitsConfig`] (`[console.limits]`) bounds connections, slow clients, requests,
+//!   bodies, live feed clients and SPARQL queries ([`limits`]); each limit hit is counted
+//!   in `/api/stats`, `/api/health` and `/metrics`.
+//! - `/api/health` answers 503 when the station is degraded by the thresholds of
+//!   [`HealthConfig`] (`[console.health]`); `/metrics` serves the same figures and the
+//!   ingest counters to Prometheus.
 //! - [`ApiError`] is the one error type: client errors are explained in a JSON body,
 //!   internal ones are logged and hidden.
 //!
@@ -40,12 +46,18 @@ pub mod auth;
 mod capable;
 pub mod export;
 mod extract;
+mod health;
+pub mod limits;
 mod live;
+mod metrics;
 mod negotiate;
 mod sparql;
 pub mod web;
 
 pub use auth::{Auth, AuthConfig, AuthError, Identity, Role};
+pub use health::HealthConfig;
+use limits::Limits;
+pub use limits::{LimitHits, LimitsConfig};
 
 /// The `[console]` section of Shoal's configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -55,6 +67,11 @@ pub struct ConsoleConfig {
     pub listen: SocketAddr,
     /// Logins, roles and API tokens (`[console.auth]`); off by default.
     pub auth: AuthConfig,
+    /// Bounds on connections, requests, bodies, live feed clients and SPARQL queries
+    /// (`[console.limits]`).
+    pub limits: LimitsConfig,
+    /// When `/api/health` answers 503 (`[console.health]`).
+    pub health: HealthConfig,
 }
 
 impl Default for ConsoleConfig {
@@ -62,6 +79,8 @@ impl Default for ConsoleConfig {
         Self {
             listen: SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, 8640)),
             auth: AuthConfig::default(),
+            limits: LimitsConfig::default(),
+            health: HealthConfig::default(),
         }
     }
 }
@@ -100,6 +119,10 @@ pub enum ApiError {
     /// The request was right but could not be answered in time.
     #[error("{0}")]
     Unavailable(String),
+    /// A limit of `[console.limits]` is reached; the client should try again shortly
+    /// (503 with `Retry-After`).
+    #[error("{0}")]
+    Busy(String),
     /// The request accepts no format the answer can be sent in; the message lists them.
     #[error("{0}")]
     NotAcceptable(String),
@@ -130,7 +153,7 @@ impl IntoResponse for ApiError {
             Self::Conflict(_) => StatusCode::CONFLICT,
             Self::Unauthorized(_) => StatusCode::UNAUTHORIZED,
             Self::Forbidden(_) => StatusCode::FORBIDDEN,
-            Self::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
+            Self::Unavailable(_) | Self::Busy(_) => StatusCode::SERVICE_UNAVAILABLE,
             Self::NotAcceptable(_) => StatusCode::NOT_ACCEPTABLE,
             Self::PayloadTooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             Self::UnsupportedMediaType(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
@@ -141,15 +164,31 @@ impl IntoResponse for ApiError {
             }
         };
         let msg = self.to_string();
-        (status, Json(ErrorBody { error: &msg })).into_response()
+        let mut res = (status, Json(ErrorBody { error: &msg })).into_response();
+        if matches!(self, Self::Busy(_)) {
+            // A second is long enough for a running query or request to finish.
+            res.headers_mut()
+                .insert(header::RETRY_AFTER, header::HeaderValue::from_static("1"));
+        }
+        res
     }
 }
 
-/// What every handler can reach: the station and the authentication store.
+/// What every handler can reach: the station, the authentication store, the limits and
+/// what health needs.
 #[derive(Debug, Clone)]
 pub(crate) struct AppState {
     station: StationHandle,
     auth: Arc<Auth>,
+    limits: Arc<Limits>,
+    health: Arc<HealthConfig>,
+    commits: Arc<health::CommitClock>,
+}
+
+impl FromRef<AppState> for Arc<Limits> {
+    fn from_ref(app: &AppState) -> Self {
+        app.limits.clone()
+    }
 }
 
 impl FromRef<AppState> for StationHandle {
@@ -169,14 +208,37 @@ pub fn router(station: StationHandle) -> Router {
     console_router(station, Arc::new(Auth::disabled()))
 }
 
-/// Builds the console and API router; `auth` decides who may do what.
+/// Builds the console and API router; `auth` decides who may do what. The limits and
+/// health thresholds are the defaults.
 pub fn console_router(station: StationHandle, auth: Arc<Auth>) -> Router {
-    // Every request body is small JSON; anything beyond this is refused before parsing.
-    const MAX_BODY: usize = 1 << 20;
-    let state = AppState { station, auth };
-    Router::new()
+    console_router_with(station, auth, &ConsoleConfig::default())
+}
+
+/// Builds the console and API router with `config`'s limits and health thresholds
+/// (`config.listen` and `config.auth` are the caller's: `auth` is loaded already).
+/// Without [`serve_with`]'s server loop, the connection limits do not apply.
+pub fn console_router_with(
+    station: StationHandle,
+    auth: Arc<Auth>,
+    config: &ConsoleConfig,
+) -> Router {
+    build(station, auth, config).0
+}
+
+/// The router and the limits it shares with the server loop.
+fn build(station: StationHandle, auth: Arc<Auth>, config: &ConsoleConfig) -> (Router, Arc<Limits>) {
+    let limits = Arc::new(Limits::new(config.limits.clone()));
+    let state = AppState {
+        commits: health::CommitClock::follow(&station),
+        station,
+        auth,
+        limits: limits.clone(),
+        health: Arc::new(config.health.clone()),
+    };
+    let router = Router::new()
         .route("/status.html", get(status_page))
-        .route("/api/health", get(health))
+        .route("/api/health", get(health::health))
+        .route("/metrics", get(metrics::metrics))
         .route("/api/fleet", get(fleet))
         .route("/api/fleet/capable", get(capable::capable))
         .route("/api/vehicles/{id}", get(vehicle))
@@ -221,8 +283,17 @@ pub fn console_router(station: StationHandle, auth: Arc<Auth>) -> Router {
         .fallback(web::serve)
         .layer(axum::middleware::from_fn_with_state(state.clone(), guard))
         .layer(axum::middleware::from_fn(extract::json_errors))
-        .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY))
-        .with_state(state)
+        // Every request body is small JSON; anything beyond this is refused before parsing.
+        .layer(axum::extract::DefaultBodyLimit::max(
+            config.limits.max_body_bytes,
+        ))
+        // Outermost: requests beyond the limit are refused before anything else is done.
+        .layer(axum::middleware::from_fn_with_state(
+            limits.clone(),
+            limits::limit_requests,
+        ))
+        .with_state(state);
+    (router, limits)
 }
 
 /// Serves the console on `listener` until `shutdown` is cancelled, without
@@ -248,9 +319,7 @@ pub async fn serve_with(
     config: ConsoleConfig,
     shutdown: CancellationToken,
 ) -> Result<(), ConsoleError> {
-    let ConsoleConfig {
-        auth: auth_config, ..
-    } = config;
+    let auth_config = config.auth.clone();
     let (auth, boot) = tokio::task::spawn_blocking(move || Auth::load(&auth_config))
         .await
         .map_err(std::io::Error::other)??;
@@ -273,17 +342,8 @@ pub async fn serve_with(
         }
         info!(%addr, "console: http://{addr}/  API: http://{addr}/api/fleet");
     }
-    // Live updates are small writes: with Nagle's algorithm on, each one after an
-    // unacknowledged one waited for the client's delayed ACK (40 ms on Linux), which was
-    // the whole tail of the vehicle → console latency.
-    let listener = axum::serve::ListenerExt::tap_io(listener, |tcp| {
-        if let Err(e) = tcp.set_nodelay(true) {
-            warn!(error = %e, "cannot set TCP_NODELAY on a console connection");
-        }
-    });
-    axum::serve(listener, console_router(station, Arc::new(auth)))
-        .with_graceful_shutdown(shutdown.cancelled_owned())
-        .await?;
+    let (router, limits) = build(station, Arc::new(auth), &config);
+    limits::serve_connections(listener, router, limits, shutdown).await?;
     Ok(())
 }
 
@@ -338,21 +398,6 @@ async fn status_page() -> Html<&'static str> {
     Html(include_str!("status.html"))
 }
 
-#[derive(Serialize)]
-struct Health {
-    status: &'static str,
-    vehicles: usize,
-    history_committed: u64,
-}
-
-async fn health(State(s): State<StationHandle>) -> Json<Health> {
-    Json(Health {
-        status: "ok",
-        vehicles: s.fleet().len(),
-        history_committed: s.history_committed(),
-    })
-}
-
 async fn fleet(State(s): State<StationHandle>) -> impl IntoResponse {
     Json(s.fleet())
 }
@@ -404,12 +449,25 @@ async fn track(
 struct Stats {
     ingest: shoal_station::IngestStats,
     history_committed: u64,
+    /// How often each HTTP limit was hit, and what is in use now.
+    http: HttpStats,
 }
 
-async fn stats(State(s): State<StationHandle>) -> Json<Stats> {
+#[derive(Serialize)]
+struct HttpStats {
+    #[serde(flatten)]
+    hits: LimitHits,
+    in_use: limits::InUse,
+}
+
+async fn stats(State(app): State<AppState>) -> Json<Stats> {
     Json(Stats {
-        ingest: s.stats(),
-        history_committed: s.history_committed(),
+        ingest: app.station.stats(),
+        history_committed: app.station.history_committed(),
+        http: HttpStats {
+            hits: app.limits.hits(),
+            in_use: app.limits.in_use(),
+        },
     })
 }
 
@@ -996,7 +1054,7 @@ mod tests {
                     .map(|l| &l[1..]),
             )
             .filter_map(|l| l.split('"').next())
-            .filter(|p| p.starts_with("/api/"))
+            .filter(|p| p.starts_with("/api/") || *p == "/metrics")
             .collect();
         served.sort_unstable();
         served.dedup();

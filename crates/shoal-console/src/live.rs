@@ -1,21 +1,35 @@
 //! `GET /api/ws`: the live feed over a WebSocket, one JSON message per update
 //! (`{"type": "event" | "task" | "mission" | "vehicle" | "observation", "data": ...}`).
 
+use std::sync::Arc;
+
 use axum::extract::State;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
-use axum::response::Response;
+use axum::response::{IntoResponse, Response};
 use shoal_station::StationHandle;
+use tokio::sync::OwnedSemaphorePermit;
 use tokio::sync::broadcast::error::RecvError;
 use tracing::{debug, warn};
 
-pub(crate) async fn ws(State(s): State<StationHandle>, upgrade: WebSocketUpgrade) -> Response {
+/// Opens the live feed for one more client, within `[console.limits] max_ws_clients`.
+pub(crate) async fn ws(
+    State(s): State<StationHandle>,
+    State(limits): State<Arc<crate::limits::Limits>>,
+    upgrade: WebSocketUpgrade,
+) -> Response {
+    let place = match limits.ws_client() {
+        Ok(p) => p,
+        Err(e) => return e.into_response(),
+    };
     let rx = s.live();
-    upgrade.on_upgrade(move |socket| forward(socket, rx))
+    upgrade.on_upgrade(move |socket| forward(socket, rx, place))
 }
 
+/// Sends updates until the client leaves; `_place` is its place among the clients.
 async fn forward(
     mut socket: WebSocket,
     mut rx: tokio::sync::broadcast::Receiver<shoal_station::LiveUpdate>,
+    _place: OwnedSemaphorePermit,
 ) {
     loop {
         tokio::select! {

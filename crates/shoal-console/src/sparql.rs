@@ -9,6 +9,8 @@
 //! Accept`; what the client accepts but cannot be served gets 406 Not Acceptable naming
 //! what can (SPARQL 1.1 Protocol §2.1.5 leaves the choice to HTTP negotiation).
 
+use std::sync::Arc;
+
 use axum::body::Bytes;
 use axum::extract::rejection::{BytesRejection, QueryRejection};
 use axum::extract::{Query, State};
@@ -21,6 +23,7 @@ use shoal_semantic::{QueryError, QueryLimits, QueryResult, ResultFormat};
 use shoal_station::StationHandle;
 
 use crate::ApiError;
+use crate::limits::Limits;
 use crate::negotiate::Accept;
 
 /// What SELECT and ASK results can be sent as, in the order preferred when the client
@@ -224,9 +227,18 @@ pub(crate) fn render(
     }
 }
 
-async fn run(s: StationHandle, query: String, n: Negotiated) -> Result<Response, ApiError> {
+async fn run(
+    s: StationHandle,
+    limits: &Limits,
+    query: String,
+    n: Negotiated,
+) -> Result<Response, ApiError> {
+    // The turn is held by the query itself, not the request: one whose client gave up
+    // still counts until it has finished.
+    let turn = limits.sparql_turn().await?;
     let snapshot = s.semantic_snapshot();
     let result = tokio::task::spawn_blocking(move || {
+        let _turn = turn;
         let result = snapshot.query(&query, &QueryLimits::default())?;
         Ok::<_, QueryError>((render(&result, n), result.len()))
     })
@@ -261,6 +273,7 @@ fn check_dataset(p: &SparqlParams) -> Result<(), ApiError> {
 /// `GET /api/sparql?query=...`.
 pub(crate) async fn get(
     State(s): State<StationHandle>,
+    State(limits): State<Arc<Limits>>,
     headers: HeaderMap,
     q: Result<Query<SparqlParams>, QueryRejection>,
 ) -> Result<Response, ApiError> {
@@ -270,13 +283,14 @@ pub(crate) async fn get(
         .query
         .ok_or_else(|| ApiError::BadRequest("missing the `query` parameter".into()))?;
     let n = negotiate(p.format.as_deref(), &headers)?;
-    run(s, query, n).await
+    run(s, &limits, query, n).await
 }
 
 /// `POST /api/sparql`: `application/sparql-query` (the query is the body) or
 /// `application/x-www-form-urlencoded` (`query=...`), as in the SPARQL 1.1 Protocol §2.1.
 pub(crate) async fn post(
     State(s): State<StationHandle>,
+    State(limits): State<Arc<Limits>>,
     headers: HeaderMap,
     q: Result<Query<SparqlParams>, QueryRejection>,
     body: Result<Bytes, BytesRejection>,
@@ -312,7 +326,7 @@ pub(crate) async fn post(
         )
     };
     let n = negotiate(form_format.as_deref().or(url.format.as_deref()), &headers)?;
-    run(s, query, n).await
+    run(s, &limits, query, n).await
 }
 
 #[cfg(test)]
