@@ -193,7 +193,16 @@ impl TaskLedger {
     /// Decides what to do with an assignment at `now_ms`; a task to start or resume is
     /// written down as started first (the error means: do not run it).
     pub fn admit(&mut self, a: &TaskAssignment, now_ms: i64) -> Result<Admission, LedgerError> {
-        match self.tasks.get(&a.task_id).map(|e| e.progress) {
+        // The same id under another issue sequence is another task that reuses the id (a
+        // station whose history was wiped): what the ledger holds is not about it.
+        let same_issue =
+            |e: &&Entry| e.issue_seq == a.issue_seq || e.issue_seq == 0 || a.issue_seq == 0;
+        match self
+            .tasks
+            .get(&a.task_id)
+            .filter(same_issue)
+            .map(|e| e.progress)
+        {
             Some(Progress::Ended(state)) => Ok(Admission::Ended(state)),
             Some(Progress::Started) if self.this_run.contains(&a.task_id) => {
                 Ok(Admission::Duplicate)
@@ -348,6 +357,29 @@ mod tests {
         assert_eq!(
             l.admit(&a, T + 30_000).unwrap(),
             Admission::Ended(TaskState::Done)
+        );
+    }
+
+    #[test]
+    fn a_reused_task_id_under_a_new_issue_sequence_is_a_new_task() {
+        let mut l = TaskLedger::in_memory("auv-9", None);
+        l.admit(&task("r-1-1", 5_000, T + 45_000), T).unwrap();
+        l.end("r-1-1", TaskState::Done, T + 1_000).unwrap();
+        assert_eq!(
+            l.admit(&task("r-1-1", 5_000, T + 45_000), T + 2_000)
+                .unwrap(),
+            Admission::Ended(TaskState::Done)
+        );
+        // A station that lost its history issues r-1-1 again, with a later sequence.
+        assert_eq!(
+            l.admit(&task("r-1-1", 9_000, T + 99_000), T + 50_000)
+                .unwrap(),
+            Admission::Start
+        );
+        assert_eq!(
+            l.admit(&task("r-1-1", 9_000, T + 99_000), T + 50_001)
+                .unwrap(),
+            Admission::Duplicate
         );
     }
 

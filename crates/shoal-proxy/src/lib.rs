@@ -101,9 +101,22 @@ pub async fn run_sim_with(
     dds: Arc<PubSub>,
     shutdown: CancellationToken,
 ) -> Result<(), CreateError> {
+    let options = ProxyOptions::default();
+    run_sim_on(spec, settings, options, dds, shutdown).await
+}
+
+/// Runs one simulated vehicle with the given settings and proxy options (its task ledger,
+/// for one) on DDS until `shutdown` is cancelled; the spec's rate is the reporting rate.
+pub async fn run_sim_on(
+    spec: SimSpec,
+    settings: SimSettings,
+    options: ProxyOptions,
+    dds: Arc<PubSub>,
+    shutdown: CancellationToken,
+) -> Result<(), CreateError> {
     let options = ProxyOptions {
         state_rate_hz: spec.rate_hz,
-        ..ProxyOptions::default()
+        ..options
     };
     let adapter = SimAdapter::new(&spec, &settings);
     match run_proxy(adapter, dds, options, shutdown).await {

@@ -135,8 +135,12 @@ impl StationHandle {
             }
         }
         tasks.restore(reloaded, now_ms());
-        // Sequences continue past every one ever issued, so none is repeated.
-        tasks.continue_sequence_after(reader.max_issue_seq().map_err(StationError::History)?);
+        // Sequences continue past every one ever issued, so none is repeated; and past the
+        // start time in microseconds, so that even a station whose history was wiped never
+        // issues a sequence a vehicle's task ledger already holds for a reused task id.
+        let floor = u64::try_from(now_ms()).unwrap_or(0).saturating_mul(1000);
+        let stored = reader.max_issue_seq().map_err(StationError::History)?;
+        tasks.continue_sequence_after(stored.max(floor));
         let core = Core {
             fleet: Mutex::new(fleet),
             tasks: Mutex::new(tasks),

@@ -280,11 +280,14 @@ mod tests {
         }
     }
 
+    /// Makes a healthy measurement unhealthy in one way.
+    type Spoil = fn(&mut StationHealth);
+
     #[test]
     fn each_condition_degrades_and_says_why() {
         let t = HealthThresholds::default();
         assert_eq!(healthy().verdict(&t), HealthVerdict::default());
-        let cases: [(fn(&mut StationHealth), &str); 6] = [
+        let cases: [(Spoil, &str); 6] = [
             (|h| h.dds.participant_up = false, "DDS participant"),
             (|h| h.history.writer_running = false, "writer stopped"),
             (|h| h.history.lag = 20_001, "20001 records behind"),

@@ -49,6 +49,44 @@ pub struct ShoalConfig {
     pub security: SecurityConfig,
     /// The simulated fleet `shoal up` starts.
     pub fleet: FleetConfig,
+    /// What a vehicle (`shoal vehicle`, or one of `shoal up`'s fleet) keeps across restarts.
+    pub vehicle: VehicleConfig,
+}
+
+/// The `[vehicle]` section.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VehicleConfig {
+    /// Directory of each vehicle's task ledger (`<id>.tasks.json`): which tasks it started
+    /// and how they ended, so no restart makes it run a task twice.
+    pub state_dir: PathBuf,
+    /// Seconds after which a task that carries no expiry of its own is refused as too old.
+    pub max_task_age_s: u32,
+}
+
+impl Default for VehicleConfig {
+    fn default() -> Self {
+        Self {
+            state_dir: PathBuf::from("shoal-data/vehicles"),
+            max_task_age_s: 900,
+        }
+    }
+}
+
+impl VehicleConfig {
+    /// Checks the values; the error names the key.
+    pub fn check(&self) -> Result<(), String> {
+        if self.state_dir.as_os_str().is_empty() {
+            return Err("vehicle.state_dir must name a directory".into());
+        }
+        if !(1..=86_400).contains(&self.max_task_age_s) {
+            return Err(format!(
+                "vehicle.max_task_age_s = {} is outside [1, 86400]",
+                self.max_task_age_s
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// The `[security]` section.
@@ -448,6 +486,10 @@ fn check(config: &ShoalConfig) -> Result<()> {
         .fleet
         .check()
         .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
+    config
+        .vehicle
+        .check()
+        .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
     Ok(())
 }
 
@@ -530,6 +572,12 @@ mod tests {
             ("fleet.sim", "SHOAL_FLEET__SIM__RESERVE_PCT", "15.5", |c| {
                 c.fleet.sim.reserve_pct == 15.5
             }),
+            (
+                "vehicle",
+                "SHOAL_VEHICLE__STATE_DIR",
+                "/var/lib/shoal/vehicles",
+                |c| c.vehicle.state_dir == Path::new("/var/lib/shoal/vehicles"),
+            ),
             (
                 "fleet.vehicles",
                 "SHOAL_FLEET__VEHICLES",

@@ -82,6 +82,17 @@ fn station_dds(cfg: &ShoalConfig, shutdown: &CancellationToken) -> Result<Arc<Pu
 }
 
 /// A vehicle's participant: with `[security]` on, signing with its bundle's certificate.
+/// A vehicle's proxy options: its reporting rate, and its task ledger where `[vehicle]`
+/// says, so a task runs at most once across restarts.
+fn vehicle_options(cfg: &ShoalConfig, rate_hz: f64) -> shoal_proxy::ProxyOptions {
+    shoal_proxy::ProxyOptions {
+        state_rate_hz: rate_hz,
+        max_task_age: Some(Duration::from_secs(u64::from(cfg.vehicle.max_task_age_s))),
+        ledger_dir: Some(cfg.vehicle.state_dir.clone()),
+        ..shoal_proxy::ProxyOptions::default()
+    }
+}
+
 fn vehicle_dds(cfg: &ShoalConfig, vehicle_id: &str) -> Result<Arc<PubSub>> {
     warn_if_not_loopback(cfg);
     let dds = if cfg.security.enabled {
@@ -151,7 +162,8 @@ pub async fn vehicle(cfg: &ShoalConfig, spec: SimSpec, exit_on_stdin_close: bool
         .context("start position is invalid")?;
     let dds = vehicle_dds(cfg, &spec.id)?;
     let shutdown = shutdown_signal(exit_on_stdin_close);
-    shoal_proxy::run_sim_with(spec, cfg.fleet.sim.clone(), dds, shutdown)
+    let options = vehicle_options(cfg, spec.rate_hz);
+    shoal_proxy::run_sim_on(spec, cfg.fleet.sim.clone(), options, dds, shutdown)
         .await
         .context("simulated vehicle failed")
 }
@@ -445,7 +457,7 @@ pub async fn proxy(
     flags: ProxyFlags,
     exit_on_stdin_close: bool,
 ) -> Result<()> {
-    use shoal_proxy::{ProxyOptions, imc, mavlink, ros2, run_proxy};
+    use shoal_proxy::{imc, mavlink, ros2, run_proxy};
     if !(flags.rate_hz > 0.0 && flags.rate_hz <= 100.0) {
         bail!(
             "--rate must be in (0, 100] state vectors per second, not {}",
@@ -458,10 +470,7 @@ pub async fn proxy(
             flags.id
         );
     }
-    let options = ProxyOptions {
-        state_rate_hz: flags.rate_hz,
-        ..ProxyOptions::default()
-    };
+    let options = vehicle_options(cfg, flags.rate_hz);
     let file = flags.config_file.as_deref();
     let shutdown = shutdown_signal(exit_on_stdin_close);
     match kind {

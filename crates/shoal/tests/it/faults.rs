@@ -1,7 +1,8 @@
 //! Faults with the `shoal` binary: a station killed with SIGKILL under load loses no record
 //! it had committed, finds its vehicles again after a restart, and its Task Register picks
 //! up the task under way (domain 54); processes stopped and resumed (SIGSTOP/SIGCONT) go
-//! on exchanging data (domain 90).
+//! on exchanging data (domain 90); a vehicle restarted after finishing a task does not run
+//! it again (domain 91).
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -201,4 +202,73 @@ fn processes_stopped_and_resumed_go_on_exchanging_data() {
         text()
     );
     assert!(!text().contains("panicked"), "{}", text());
+}
+
+/// The bug as a new user met it: a one-goto task reaches `done`; the vehicle process is
+/// stopped and started again with the same id; transient-local history used to hand the
+/// task back and the vehicle drove to the old waypoint again. Domain 91.
+#[test]
+fn a_vehicle_restarted_after_finishing_a_task_does_not_run_it_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = crate::common::free_port();
+    let _station = station_on(dir.path(), port, 91);
+    let vehicle = |log: &str| {
+        Proc(
+            Command::new(env!("CARGO_BIN_EXE_shoal"))
+                .args(["vehicle", "--sim", "auv", "--id", "auv-9", "--lat", "63.0"])
+                .args(["--lon", "10.0"])
+                .current_dir(dir.path())
+                .env("SHOAL_DDS__DOMAIN_ID", "91")
+                .stdout(Stdio::null())
+                .stderr(std::fs::File::create(dir.path().join(log)).unwrap())
+                .spawn()
+                .unwrap(),
+        )
+    };
+    let mut first = vehicle("first.log");
+    wait_for(60, "auv-9 alive", || alive(port) == 1);
+    let task = TaskAssignment::new(
+        "r-1-1",
+        "",
+        "auv-9",
+        now_ms(),
+        &Task::GotoWaypoint {
+            target: shoal_model::GeoPoint {
+                latitude_deg: 63.0002,
+                longitude_deg: 10.0,
+            },
+            depth_m: Some(2.0),
+            altitude_m: None,
+            speed_mps: 2.0,
+        },
+    );
+    let (code, body) =
+        http_post(port, "/api/tasks", &serde_json::to_string(&task).unwrap()).unwrap();
+    assert_eq!(code, 202, "{body}");
+    wait_for(120, "the goto done", || {
+        json(port, "/api/tasks/r-1-1")["state"] == "done"
+    });
+    first.0.kill().unwrap();
+    first.0.wait().unwrap();
+
+    let _second = vehicle("second.log");
+    wait_for(60, "auv-9 alive again", || {
+        json(port, "/api/vehicles/auv-9")["latest"]["timestamp_ms"]
+            .as_i64()
+            .is_some_and(|ts| now_ms() - ts < 2_000)
+    });
+    // Give DDS time to hand over whatever it still holds for late joiners.
+    std::thread::sleep(Duration::from_secs(5));
+    let log = std::fs::read_to_string(dir.path().join("second.log")).unwrap();
+    assert!(
+        !log.contains("task received"),
+        "the restarted vehicle took the finished task again:\n{log}"
+    );
+    assert_eq!(json(port, "/api/tasks/r-1-1")["state"], "done");
+    // The vehicle's ledger is where [vehicle] puts it.
+    assert!(
+        dir.path()
+            .join("shoal-data/vehicles/auv-9.tasks.json")
+            .exists()
+    );
 }
