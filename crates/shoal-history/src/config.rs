@@ -34,6 +34,8 @@ pub struct HistoryConfig {
     /// SQLite only: how hard SQLite syncs to disk at each commit. (PostgreSQL commits with
     /// the server's own `synchronous_commit` setting.)
     pub synchronous: Synchronous,
+    /// What is kept, and for how long: the writer's periodic maintenance pass.
+    pub retention: RetentionConfig,
 }
 
 impl Default for HistoryConfig {
@@ -47,6 +49,7 @@ impl Default for HistoryConfig {
             flush_interval_ms: 20,
             queue_capacity: 200_000,
             synchronous: Synchronous::Normal,
+            retention: RetentionConfig::default(),
         }
     }
 }
@@ -90,6 +93,7 @@ impl HistoryConfig {
                 "queue_capacity must be at least 1".into(),
             ));
         }
+        self.retention.check()?;
         match self.backend {
             Backend::Sqlite if self.path.as_os_str().is_empty() => {
                 Err(HistoryError::Config("path must not be empty".into()))
@@ -126,6 +130,107 @@ impl HistoryConfig {
         Ok(config)
     }
 }
+
+/// Retention of the history (`[history.retention]`): a maintenance pass on the writer
+/// thread every `interval_s` thins old state vectors, drops what is older than the maximum
+/// age, and enforces the row cap, in statements of at most `batch_rows` rows with the
+/// queued records committed between two of them. See `crate::retention` for the policy.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RetentionConfig {
+    /// False: nothing is ever deleted (the history grows without bound).
+    pub enabled: bool,
+    /// Seconds between two maintenance passes; the first runs one interval after open.
+    pub interval_s: u64,
+    /// Most rows one maintenance statement may delete; between two statements the writer
+    /// commits what producers queued, so ingest waits at most one such statement.
+    pub batch_rows: u64,
+    /// State vectors younger than this many hours are kept as received (full rate).
+    pub full_rate_hours: u64,
+    /// Older state vectors are thinned to the first one per vehicle in each interval of
+    /// this many seconds (aligned to the Unix epoch); 0 keeps them at full rate.
+    pub downsample_interval_s: u64,
+    /// Everything older than this many days is deleted (state vectors, observations,
+    /// events, quarantine, ended tasks, vehicles with nothing newer); 0: no age limit.
+    pub max_age_days: u64,
+    /// Most rows kept in the history's tables together; over it the oldest data goes
+    /// first, thinned before it is dropped (down to 90 % of the cap); 0: no cap. Checking it
+    /// counts every row once per pass.
+    pub max_rows: u64,
+}
+
+impl Default for RetentionConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            interval_s: 300,
+            batch_rows: 5_000,
+            full_rate_hours: 24,
+            downsample_interval_s: 60,
+            max_age_days: 30,
+            max_rows: 0,
+        }
+    }
+}
+
+impl RetentionConfig {
+    /// No deletion at all (the behaviour before retention existed).
+    pub fn disabled() -> Self {
+        Self {
+            enabled: false,
+            ..Self::default()
+        }
+    }
+
+    /// Rejects settings that would make maintenance delete what it should keep, or never
+    /// finish.
+    pub fn check(&self) -> Result<(), HistoryError> {
+        let bad = |m: String| Err(HistoryError::Config(format!("retention: {m}")));
+        if !self.enabled {
+            return Ok(());
+        }
+        if self.interval_s == 0 {
+            return bad("interval_s must be at least 1".into());
+        }
+        if self.batch_rows == 0 {
+            return bad("batch_rows must be at least 1".into());
+        }
+        // Bounds that keep every product in i64 milliseconds, with room to spare.
+        const MAX_DAYS: u64 = 365 * 1000;
+        if self.max_age_days > MAX_DAYS || self.full_rate_hours > MAX_DAYS * 24 {
+            return bad(format!("ages are limited to {MAX_DAYS} days"));
+        }
+        if self.downsample_interval_s > MAX_DAYS * 86_400 {
+            return bad(format!(
+                "downsample_interval_s is limited to {MAX_DAYS} days"
+            ));
+        }
+        if self.max_age_days > 0 && self.full_rate_hours > self.max_age_days * 24 {
+            return bad(format!(
+                "full_rate_hours ({}) is longer than max_age_days ({} = {} hours): state \
+                 vectors would be deleted before they are ever downsampled",
+                self.full_rate_hours,
+                self.max_age_days,
+                self.max_age_days * 24
+            ));
+        }
+        Ok(())
+    }
+
+    /// True when a pass has something to do.
+    pub(crate) fn is_active(&self) -> bool {
+        self.enabled
+            && (self.downsample_interval_s > 0 || self.max_age_days > 0 || self.max_rows > 0)
+    }
+
+    /// The pass interval as a duration.
+    pub fn interval(&self) -> Duration {
+        Duration::from_secs(self.interval_s)
+    }
+}
+
+/// One hour in ms.
+pub(crate) const HOUR_MS: i64 = 3_600_000;
 
 /// The default `postgres_url`: the private server `scripts/postgres.sh start` runs.
 pub const DEFAULT_POSTGRES_URL: &str = "host=127.0.0.1 port=54329 user=shoal dbname=shoal";
@@ -302,6 +407,59 @@ mod tests {
         assert!(serde_json::from_str::<HistoryConfig>(r#"{"synchronous": "off"}"#).is_err());
         let c: HistoryConfig = serde_json::from_str(r#"{"synchronous": "full"}"#).unwrap();
         assert_eq!(c.synchronous, Synchronous::Full);
+    }
+
+    #[test]
+    fn retention_has_defaults_and_refuses_nonsense_with_the_key_named() {
+        let c: HistoryConfig =
+            serde_json::from_str(r#"{"retention": {"max_rows": 1000}}"#).unwrap();
+        let r = &c.retention;
+        assert!(r.enabled && r.is_active());
+        assert_eq!(
+            (
+                r.interval_s,
+                r.batch_rows,
+                r.full_rate_hours,
+                r.downsample_interval_s,
+                r.max_age_days
+            ),
+            (300, 5_000, 24, 60, 30)
+        );
+        assert_eq!(r.max_rows, 1000);
+        assert!(serde_json::from_str::<HistoryConfig>(r#"{"retention": {"max_age": 3}}"#).is_err());
+        let error = |f: fn(&mut RetentionConfig)| {
+            let mut r = RetentionConfig::default();
+            f(&mut r);
+            match (HistoryConfig {
+                retention: r,
+                ..HistoryConfig::in_memory()
+            })
+            .check()
+            {
+                Err(HistoryError::Config(m)) => m,
+                other => panic!("expected a config error, got {other:?}"),
+            }
+        };
+        assert!(error(|r| r.interval_s = 0).contains("retention: interval_s"));
+        assert!(error(|r| r.batch_rows = 0).contains("retention: batch_rows"));
+        let m = error(|r| r.full_rate_hours = 24 * 31);
+        assert!(
+            m.contains("full_rate_hours") && m.contains("max_age_days"),
+            "{m}"
+        );
+        assert!(error(|r| r.max_age_days = u64::MAX).contains("limited"));
+        // Off, or with nothing to enforce, anything goes and no pass runs.
+        let off = RetentionConfig {
+            interval_s: 0,
+            ..RetentionConfig::disabled()
+        };
+        assert!(off.check().is_ok() && !off.is_active());
+        let nothing = RetentionConfig {
+            downsample_interval_s: 0,
+            max_age_days: 0,
+            ..RetentionConfig::default()
+        };
+        assert!(nothing.check().is_ok() && !nothing.is_active());
     }
 
     #[test]

@@ -12,6 +12,7 @@ use crate::backend::WriteStore;
 use crate::pg::Target;
 use crate::pg::reader::PgReader;
 use crate::pg::store::PgWriter;
+use crate::retention::{Maintainer, MaintenanceStats};
 use crate::schema::{self, Location};
 use crate::writer::{self, Shared};
 use crate::{
@@ -50,7 +51,7 @@ impl History {
                 // Opened after the writer created the schema, so a fresh database is never
                 // seen without its tables.
                 let reader = HistoryReader::sqlite(schema::open_reader(&location)?);
-                let thread = spawn_writer(&shared, move || Ok(WriteStore::Sqlite(conn)))?;
+                let thread = spawn_writer(&shared, config, move || Ok(WriteStore::Sqlite(conn)))?;
                 info!(path = %config.path.display(), schema = schema::SCHEMA_VERSION, "history store open (SQLite)");
                 (thread, reader)
             }
@@ -60,7 +61,7 @@ impl History {
                 let for_writer = target.clone();
                 // Connected on the writer thread itself: the connection's runtime must
                 // never be entered (or dropped) on the caller's thread, which may be async.
-                let thread = spawn_writer(&shared, move || {
+                let thread = spawn_writer(&shared, config, move || {
                     PgWriter::open(for_writer).map(|w| WriteStore::Postgres(Box::new(w)))
                 })?;
                 // Started after the writer created the schema, like SQLite's reader.
@@ -147,6 +148,16 @@ impl History {
         self.writer.stats()
     }
 
+    /// See [`HistoryWriter::maintenance_stats`].
+    pub fn maintenance_stats(&self) -> MaintenanceStats {
+        self.writer.maintenance_stats()
+    }
+
+    /// See [`HistoryWriter::maintain`].
+    pub fn maintain(&self, timeout: Duration) -> Result<MaintenanceStats, WaitError> {
+        self.writer.maintain(timeout)
+    }
+
     /// See [`HistoryReader::track`].
     pub fn track(
         &self,
@@ -206,17 +217,22 @@ impl History {
 /// that whatever the store needs stays there), and waits until that succeeded or failed.
 fn spawn_writer(
     shared: &Arc<Shared>,
+    config: &HistoryConfig,
     open: impl FnOnce() -> Result<WriteStore, HistoryError> + Send + 'static,
 ) -> Result<JoinHandle<()>, HistoryError> {
     let (ready_tx, ready_rx) = mpsc::sync_channel(1);
     let shared = Arc::clone(shared);
+    let maintainer = config
+        .retention
+        .is_active()
+        .then(|| Maintainer::new(config.retention.clone()));
     let thread = std::thread::Builder::new()
         .name("shoal-history".into())
         .spawn(move || match open() {
             Ok(store) => {
                 // `spawn_writer` waits for this message; it cannot be gone.
                 let _ = ready_tx.send(Ok(()));
-                writer::run(store, &shared);
+                writer::run(store, &shared, maintainer);
             }
             Err(e) => {
                 let _ = ready_tx.send(Err(e));
@@ -1048,8 +1064,11 @@ mod tests {
             crate::testing::pg_exec(
                 url,
                 Some(schema),
-                "DO $$ BEGIN IF (SELECT version FROM shoal_schema_version) <> 1 \
-                 THEN RAISE 'bad version'; END IF; END $$",
+                &format!(
+                    "DO $$ BEGIN IF (SELECT version FROM shoal_schema_version) <> {} \
+                     THEN RAISE 'bad version'; END IF; END $$",
+                    crate::SCHEMA_VERSION
+                ),
             )
             .unwrap();
         }

@@ -20,6 +20,10 @@
 //! - [`HistoryReader`] (from [`History::reader`]) answers queries on a separate
 //!   connection: tracks, latest states, vehicles, events, task histories, observations and
 //!   quarantined records.
+//! - Retention ([`RetentionConfig`], `[history.retention]`) keeps the database bounded: the
+//!   writer thread runs a maintenance pass every interval that thins old state vectors,
+//!   drops data past a maximum age and enforces a row cap, in bounded statements with ingest
+//!   committed between them; [`History::maintenance_stats`] reports what it did.
 //! - [`HistoryConfig`] holds the settings, among them the [`Backend`]; [`raw_insert_baseline`]
 //!   is the plain-SQLite reference the ingest benchmark compares against.
 //!
@@ -42,6 +46,7 @@ mod history;
 mod pg;
 mod query;
 mod record;
+mod retention;
 mod schema;
 mod store;
 #[cfg(test)]
@@ -50,12 +55,14 @@ mod writer;
 
 pub use baseline::raw_insert_baseline;
 pub use config::{
-    Backend, DEFAULT_POSTGRES_SCHEMA, DEFAULT_POSTGRES_URL, HistoryConfig, Synchronous,
+    Backend, DEFAULT_POSTGRES_SCHEMA, DEFAULT_POSTGRES_URL, HistoryConfig, RetentionConfig,
+    Synchronous,
 };
 pub use error::{HistoryError, SubmitError, WaitError};
 pub use history::History;
 pub use query::HistoryReader;
 pub use record::{Record, RejectedRecord, TaskHistory};
+pub use retention::MaintenanceStats;
 pub use writer::{HistoryStats, HistoryWriter};
 
 /// The schema version this build reads and writes (SQLite's `PRAGMA user_version`,

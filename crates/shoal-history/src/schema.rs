@@ -15,9 +15,16 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use rusqlite::{Connection, OpenFlags};
-use tracing::{debug, warn};
+use tracing::{debug, info, warn};
 
 use crate::{HistoryConfig, HistoryError};
+
+/// `PRAGMA auto_vacuum` value of incremental auto-vacuum.
+pub(crate) const AUTO_VACUUM_INCREMENTAL: i64 = 2;
+
+/// Size the WAL file is truncated back to after a checkpoint: a maintenance pass that
+/// deletes a lot writes a lot of WAL, which should not stay on disk afterwards.
+const JOURNAL_SIZE_LIMIT: i64 = 64 * 1024 * 1024;
 
 /// How long a connection waits for a lock held by another connection before failing.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(5);
@@ -203,6 +210,12 @@ pub(crate) fn open_writer(
         | OpenFlags::SQLITE_OPEN_NO_MUTEX;
     let mut conn = location.open(flags)?;
     conn.busy_timeout(BUSY_TIMEOUT)?;
+    // Incremental auto-vacuum lets retention give freed pages back to the file system in
+    // small steps (`PRAGMA incremental_vacuum`). SQLite honours it only before the first
+    // table is created; on an older database the setting is a no-op (its free pages are
+    // still reused) until an offline VACUUM, which the operator guide describes: a VACUUM
+    // here would rewrite the whole file while the station waits.
+    conn.pragma_update(None, "auto_vacuum", AUTO_VACUUM_INCREMENTAL)?;
     // WAL: a commit appends to the log instead of rewriting pages, readers never block the
     // writer, and a committed transaction survives a process crash (it is replayed from the
     // log on the next open). That is what makes "committed" mean "acknowledged".
@@ -214,7 +227,16 @@ pub(crate) fn open_writer(
         _ => debug!(mode, "history journal mode"),
     }
     conn.pragma_update(None, "synchronous", config.synchronous.pragma())?;
+    conn.pragma_update(None, "journal_size_limit", JOURNAL_SIZE_LIMIT)?;
     migrate(&mut conn)?;
+    let auto_vacuum: i64 = conn.pragma_query_value(None, "auto_vacuum", |r| r.get(0))?;
+    if auto_vacuum != AUTO_VACUUM_INCREMENTAL && config.retention.is_active() {
+        info!(
+            auto_vacuum,
+            "history database predates incremental auto-vacuum: space freed by retention is \
+             reused but not given back to the file system (see the operator guide)"
+        );
+    }
     Ok(conn)
 }
 

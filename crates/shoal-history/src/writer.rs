@@ -12,7 +12,7 @@
 //! writer when it has a reason to wake (work arrived, or a batch is full).
 
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
@@ -20,6 +20,7 @@ use tokio::sync::watch;
 use tracing::{debug, error, warn};
 
 use crate::backend::WriteStore;
+use crate::retention::{self, Maintainer, MaintenanceStats, PassError};
 use crate::store::Outcome;
 use crate::{Record, SubmitError, WaitError};
 
@@ -89,6 +90,11 @@ pub(crate) struct Shared {
     batches: AtomicU64,
     retries: AtomicU64,
     abandoned_rows: AtomicU64,
+    /// What maintenance did; `maintained` is signalled after each pass.
+    maintenance: Mutex<MaintenanceStats>,
+    maintained: Condvar,
+    /// A pass was asked for (`History::maintain`): run one now, whatever the schedule.
+    maintenance_requested: AtomicBool,
 }
 
 /// Locks a mutex even if a thread panicked while holding it: every critical section here
@@ -138,7 +144,68 @@ impl Shared {
             batches: AtomicU64::new(0),
             retries: AtomicU64::new(0),
             abandoned_rows: AtomicU64::new(0),
+            maintenance: Mutex::new(MaintenanceStats::default()),
+            maintained: Condvar::new(),
+            maintenance_requested: AtomicBool::new(false),
         }
+    }
+
+    /// The maintenance counters.
+    pub(crate) fn maintenance_stats(&self) -> MaintenanceStats {
+        lock(&self.maintenance).clone()
+    }
+
+    /// Asks the writer for a maintenance pass now and waits until one has ended (or the
+    /// writer stopped, or `timeout` passed); returns the counters then.
+    pub(crate) fn maintain(&self, timeout: Duration) -> Result<MaintenanceStats, WaitError> {
+        let deadline = Instant::now().checked_add(timeout);
+        let mut stats = lock(&self.maintenance);
+        if !stats.enabled {
+            return Ok(stats.clone());
+        }
+        let before = stats.passes + stats.failed_passes;
+        {
+            // Set under the queue lock, so the writer cannot miss the wake-up between
+            // checking the flag and waiting.
+            let _q = lock(&self.queue);
+            self.maintenance_requested.store(true, Ordering::SeqCst);
+            self.work.notify_one();
+        }
+        loop {
+            if stats.passes + stats.failed_passes > before {
+                return Ok(stats.clone());
+            }
+            if !lock(&self.ack).writer_alive {
+                let committed = lock(&self.ack).committed;
+                return Err(WaitError::Stopped {
+                    target: 0,
+                    committed,
+                });
+            }
+            let (g, waited) = wait_until(&self.maintained, stats, deadline);
+            stats = g;
+            if !waited {
+                return Err(WaitError::Timeout {
+                    target: 0,
+                    committed: lock(&self.ack).committed,
+                });
+            }
+        }
+    }
+
+    /// Takes what is queued, up to a batch, without lingering; `None` when nothing is.
+    fn take_ready(&self, batch: &mut Vec<Record>) -> Option<u64> {
+        let mut q = lock(&self.queue);
+        if q.records.is_empty() {
+            return None;
+        }
+        let n = q.records.len().min(self.batch_max);
+        batch.extend(q.records.drain(..n));
+        q.taken += n as u64;
+        let last = q.taken;
+        drop(q);
+        self.space.notify_all();
+        Some(last)
     }
 
     /// Appends to the queue (the caller checked there is room) and returns the number.
@@ -161,19 +228,28 @@ impl Shared {
         self.space.notify_all();
     }
 
-    /// Takes the next batch into `batch` (empty on entry); `None` when closed and drained.
+    /// Takes the next batch into `batch` (empty on entry): `Next::Idle` when the queue
+    /// stayed empty until `wake` (maintenance is due) or a pass was asked for,
+    /// `Next::Closed` when closed and drained.
     ///
     /// Once there is work the writer lingers up to `linger` for a full batch, so that a
     /// trickle of records costs one transaction (one fsync with `synchronous = full`) per
     /// interval rather than one per record. The interval counts from the first record, not
     /// from the last one, so that a steady trickle cannot delay a commit indefinitely.
-    fn next_batch(&self, batch: &mut Vec<Record>) -> Option<u64> {
+    fn next_batch(&self, batch: &mut Vec<Record>, wake: Option<Instant>) -> Next {
         let mut q = lock(&self.queue);
         while q.records.is_empty() {
             if q.closing {
-                return None;
+                return Next::Closed;
             }
-            q = wait_until(&self.work, q, None).0;
+            if self.maintenance_requested.load(Ordering::SeqCst) {
+                return Next::Idle;
+            }
+            let (g, waited) = wait_until(&self.work, q, wake);
+            q = g;
+            if !waited {
+                return Next::Idle;
+            }
         }
         if !self.linger.is_zero() {
             let deadline = Instant::now().checked_add(self.linger);
@@ -191,7 +267,7 @@ impl Shared {
         let last = q.taken;
         drop(q);
         self.space.notify_all();
-        Some(last)
+        Next::Batch(last)
     }
 
     fn is_closing(&self) -> bool {
@@ -253,30 +329,124 @@ impl Drop for WriterAlive<'_> {
     }
 }
 
-/// The writer thread's body: batches until closed and drained.
-pub(crate) fn run(mut store: WriteStore, shared: &Shared) {
+/// What [`Shared::next_batch`] found.
+enum Next {
+    /// A batch, up to this sequence number.
+    Batch(u64),
+    /// No records, and maintenance is due (or was asked for).
+    Idle,
+    /// Closed and drained.
+    Closed,
+}
+
+/// The writer thread's body: batches until closed and drained, and a maintenance pass
+/// whenever one is due (with `maintainer`).
+pub(crate) fn run(mut store: WriteStore, shared: &Shared, mut maintainer: Option<Maintainer>) {
     let _alive = WriterAlive(shared);
     let mut batch = Vec::with_capacity(shared.batch_max);
-    while let Some(last_seq) = shared.next_batch(&mut batch) {
-        if !commit_with_retries(&mut store, shared, &batch, last_seq) {
-            // The database keeps failing and we are closing: what is left cannot be stored
-            // either. It was never acknowledged, so nothing acknowledged is lost.
-            let mut q = lock(&shared.queue);
-            let left = batch.len() + q.records.len();
-            q.records.clear();
-            drop(q);
-            shared
-                .abandoned_rows
-                .fetch_add(left as u64, Ordering::Relaxed);
-            error!(
-                records = left,
-                "history store closed with records it could not store"
-            );
-            return;
+    if maintainer.is_some() {
+        let bytes = store.database_bytes().unwrap_or(0);
+        let mut stats = lock(&shared.maintenance);
+        stats.enabled = true;
+        stats.database_bytes = bytes;
+    }
+    loop {
+        if let Some(m) = maintainer.as_mut() {
+            let asked = shared.maintenance_requested.swap(false, Ordering::SeqCst);
+            if (asked || Instant::now() >= m.next_due()) && !shared.is_closing() {
+                if !maintain(&mut store, shared, m, &mut batch) {
+                    return give_up(shared, &mut batch);
+                }
+                continue;
+            }
         }
-        batch.clear();
+        let wake = maintainer.as_ref().map(Maintainer::next_due);
+        match shared.next_batch(&mut batch, wake) {
+            Next::Batch(last_seq) => {
+                if !commit_with_retries(&mut store, shared, &batch, last_seq) {
+                    return give_up(shared, &mut batch);
+                }
+                batch.clear();
+            }
+            Next::Idle => {}
+            Next::Closed => break,
+        }
     }
     debug!("history writer drained and stopped");
+}
+
+/// The database keeps failing and we are closing: what is left cannot be stored either.
+/// It was never acknowledged, so nothing acknowledged is lost.
+fn give_up(shared: &Shared, batch: &mut Vec<Record>) {
+    let mut q = lock(&shared.queue);
+    let left = batch.len() + q.records.len();
+    q.records.clear();
+    drop(q);
+    batch.clear();
+    shared
+        .abandoned_rows
+        .fetch_add(left as u64, Ordering::Relaxed);
+    error!(
+        records = left,
+        "history store closed with records it could not store"
+    );
+}
+
+/// Runs one maintenance pass, committing queued records between its statements, and
+/// records what it did. False when a batch could not be committed at shutdown (give up).
+fn maintain(
+    store: &mut WriteStore,
+    shared: &Shared,
+    maintainer: &mut Maintainer,
+    batch: &mut Vec<Record>,
+) -> bool {
+    let started = Instant::now();
+    let mut committed_ok = true;
+    let mut between = |store: &mut WriteStore| {
+        if let Some(last_seq) = shared.take_ready(batch) {
+            if !commit_with_retries(store, shared, batch, last_seq) {
+                committed_ok = false;
+                return false;
+            }
+            batch.clear();
+        }
+        !shared.is_closing()
+    };
+    let result = maintainer
+        .run_pass(store, shoal_model::now_ms(), &mut between)
+        .and_then(|report| retention::release_free_pages(store, &mut between).map(|_| report));
+    let took = started.elapsed();
+    let bytes = store.database_bytes().ok();
+    let mut stats = lock(&shared.maintenance);
+    match result {
+        Ok(report) => {
+            retention::log_pass(&report, took);
+            stats.passes += 1;
+            stats.rows_downsampled += report.downsampled;
+            stats.rows_deleted += report.deleted;
+            stats.statements += report.statements;
+            stats.cap_passes += u64::from(report.cap_acted);
+            stats.rows = report.rows;
+            stats.last_error = None;
+        }
+        Err(PassError::Stopped) => {
+            debug!("history maintenance pass stopped: the store is closing");
+            return committed_ok;
+        }
+        Err(PassError::Store(e)) => {
+            warn!(error = %e, "history maintenance pass failed; retrying at the next interval");
+            stats.failed_passes += 1;
+            stats.last_error = Some(e.to_string());
+        }
+    }
+    stats.last_pass_ms = shoal_model::now_ms();
+    stats.last_duration_ms = u64::try_from(took.as_millis()).unwrap_or(u64::MAX);
+    if let Some(bytes) = bytes {
+        stats.database_bytes = bytes;
+    }
+    drop(stats);
+    shared.maintained.notify_all();
+    committed_ok
 }
 
 /// Commits one batch, retrying environment failures with backoff for as long as the store
@@ -409,5 +579,19 @@ impl HistoryWriter {
     /// Current counters.
     pub fn stats(&self) -> HistoryStats {
         self.shared.stats()
+    }
+
+    /// What retention maintenance has done so far (rows downsampled and deleted, the last
+    /// pass's time and duration, the database size); see [`MaintenanceStats`].
+    pub fn maintenance_stats(&self) -> MaintenanceStats {
+        self.shared.maintenance_stats()
+    }
+
+    /// Runs a maintenance pass now rather than at its next interval, and waits until it
+    /// has ended: `Ok` with the counters then (also when it failed: see
+    /// [`MaintenanceStats::last_error`]), at once when retention is off. Ingest goes on
+    /// meanwhile, as it does during scheduled passes.
+    pub fn maintain(&self, timeout: Duration) -> Result<MaintenanceStats, WaitError> {
+        self.shared.maintain(timeout)
     }
 }

@@ -167,7 +167,7 @@ async fn run(
 
 /// SQLite's `?N` placeholders as PostgreSQL's `$N`. The queries are the crate's own and
 /// hold no `?` anywhere else (no string literal contains one).
-fn placeholders(sql: &str) -> String {
+pub(crate) fn placeholders(sql: &str) -> String {
     sql.replace('?', "$")
 }
 

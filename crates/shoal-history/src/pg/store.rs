@@ -21,8 +21,11 @@ use tokio_postgres::types::ToSql;
 use tokio_postgres::{Client, Statement, Transaction};
 use tracing::{debug, error, warn};
 
+use super::reader::placeholders;
 use super::{Conn, Target, schema};
+use crate::backend::FromRow;
 use crate::error::pg_text;
+use crate::query::Param;
 use crate::store::{Outcome, StoreError, enum_name};
 use crate::{HistoryError, Record};
 
@@ -191,6 +194,40 @@ impl PgWriter {
     /// Commits a batch like `crate::store::write_batch`: `Err` is an environment failure,
     /// and nothing of the batch was committed.
     pub(crate) fn write_batch(&mut self, batch: &[Record]) -> Result<Outcome, StoreError> {
+        self.run(async |s: &mut Session| write_batch(s, batch).await)
+    }
+
+    /// Runs one maintenance statement (SQLite-style placeholders) on its own, returning the
+    /// rows it changed.
+    pub(crate) fn execute(&mut self, sql: &str, params: &[Param]) -> Result<u64, StoreError> {
+        let sql = placeholders(sql);
+        let params: Vec<&(dyn ToSql + Sync)> = params.iter().map(Param::as_pg).collect();
+        self.run(async |s: &mut Session| Ok(s.conn.client.execute(sql.as_str(), &params).await?))
+    }
+
+    /// Runs one maintenance query (SQLite-style placeholders) and decodes its rows.
+    pub(crate) fn query<T: FromRow>(
+        &mut self,
+        sql: &str,
+        params: &[Param],
+    ) -> Result<Vec<T>, StoreError> {
+        let sql = placeholders(sql);
+        let params: Vec<&(dyn ToSql + Sync)> = params.iter().map(Param::as_pg).collect();
+        self.run(async |s: &mut Session| {
+            let rows = s.conn.client.query(sql.as_str(), &params).await?;
+            Ok(rows
+                .iter()
+                .map(T::postgres)
+                .collect::<Result<Vec<T>, _>>()?)
+        })
+    }
+
+    /// Runs `job` on the session (connecting first if the last one broke), within
+    /// [`BATCH_TIMEOUT`]; any failure ends the session.
+    fn run<T>(
+        &mut self,
+        job: impl AsyncFnOnce(&mut Session) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
         let Self {
             runtime,
             target,
@@ -210,7 +247,7 @@ impl PgWriter {
                     session.insert(opened.await?)
                 }
             };
-            match tokio::time::timeout(BATCH_TIMEOUT, write_batch(s, batch)).await {
+            match tokio::time::timeout(BATCH_TIMEOUT, job(s)).await {
                 Ok(result) => result,
                 Err(_) => Err(StoreError::Timeout(BATCH_TIMEOUT)),
             }
