@@ -195,3 +195,48 @@ mod tests {
         assert_eq!(Refusal::new("no battery").to_string(), "no battery");
     }
 }
+
+/// Commands an adapter queues for its link task; a vehicle that stops reading its link
+/// cannot make the proxy hold more than this.
+pub(crate) const COMMAND_QUEUE: usize = 16;
+
+/// The refusal for a command the link's queue would not take.
+pub(crate) fn queue_refusal<T>(
+    link: &str,
+    e: &tokio::sync::mpsc::error::TrySendError<T>,
+) -> Refusal {
+    match e {
+        tokio::sync::mpsc::error::TrySendError::Full(_) => Refusal::new(format!(
+            "the {link} link is not keeping up: {COMMAND_QUEUE} commands already queued"
+        )),
+        tokio::sync::mpsc::error::TrySendError::Closed(_) => {
+            Refusal::new(format!("the {link} link has stopped"))
+        }
+    }
+}
+
+#[cfg(test)]
+mod queue_tests {
+    use super::*;
+
+    #[test]
+    fn a_full_command_queue_refuses_with_a_reason_and_a_closed_one_says_stopped() {
+        let (tx, rx) = tokio::sync::mpsc::channel::<u8>(COMMAND_QUEUE);
+        for _ in 0..COMMAND_QUEUE {
+            tx.try_send(0).unwrap();
+        }
+        let full = tx.try_send(0).unwrap_err();
+        assert!(
+            queue_refusal("MAVLink", &full)
+                .to_string()
+                .contains("not keeping up: 16 commands already queued")
+        );
+        drop(rx);
+        let closed = tx.try_send(0).unwrap_err();
+        assert!(
+            queue_refusal("IMC", &closed)
+                .to_string()
+                .contains("the IMC link has stopped")
+        );
+    }
+}

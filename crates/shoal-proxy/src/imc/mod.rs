@@ -209,7 +209,7 @@ pub struct ImcAdapter {
     config: ImcConfig,
     shared: Arc<Mutex<Shared>>,
     counters: Arc<Counters>,
-    commands: mpsc::UnboundedSender<Command>,
+    commands: mpsc::Sender<Command>,
     outputs: mpsc::Receiver<VehicleOutput>,
     link: JoinHandle<Result<(), ImcError>>,
     local: SocketAddr,
@@ -238,7 +238,7 @@ impl ImcAdapter {
         info!(vehicle = %config.vehicle_id, %local, remote = %config.vehicle, "IMC link open");
         let shared = Arc::new(Mutex::new(Shared::default()));
         let counters = Arc::new(Counters::default());
-        let (commands, command_rx) = mpsc::unbounded_channel();
+        let (commands, command_rx) = mpsc::channel(crate::adapter::COMMAND_QUEUE);
         let (output_tx, outputs) = Outputs::channel(Arc::clone(&counters.outputs_dropped));
         let link = Link {
             config: config.clone(),
@@ -573,8 +573,8 @@ impl VehicleAdapter for ImcAdapter {
             }
         };
         self.commands
-            .send(command)
-            .map_err(|_| Refusal::new("the IMC link has stopped"))?;
+            .try_send(command)
+            .map_err(|e| crate::adapter::queue_refusal("IMC", &e))?;
         Ok(Acceptance::with_message(note))
     }
 }
@@ -628,7 +628,7 @@ struct Link {
 }
 
 impl Link {
-    async fn run(mut self, mut commands: mpsc::UnboundedReceiver<Command>) -> Result<(), ImcError> {
+    async fn run(mut self, mut commands: mpsc::Receiver<Command>) -> Result<(), ImcError> {
         let mut buf = vec![0u8; MAX_DATAGRAM];
         let mut heartbeat =
             tokio::time::interval(Duration::from_millis(self.config.heartbeat_interval_ms));

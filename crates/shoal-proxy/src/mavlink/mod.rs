@@ -359,7 +359,7 @@ pub struct MavlinkAdapter {
     config: MavlinkConfig,
     shared: Arc<Mutex<Shared>>,
     counters: Arc<Counters>,
-    commands: mpsc::UnboundedSender<Command>,
+    commands: mpsc::Sender<Command>,
     outputs: mpsc::Receiver<VehicleOutput>,
     link: JoinHandle<()>,
     local: SocketAddr,
@@ -396,7 +396,7 @@ impl MavlinkAdapter {
         info!(vehicle = %config.vehicle_id, %local, address = %config.address, "MAVLink link open");
         let shared = Arc::new(Mutex::new(Shared::default()));
         let counters = Arc::new(Counters::default());
-        let (commands, command_rx) = mpsc::unbounded_channel();
+        let (commands, command_rx) = mpsc::channel(crate::adapter::COMMAND_QUEUE);
         let (output_tx, outputs) = Outputs::channel(Arc::clone(&counters.outputs_dropped));
         let link = Link {
             vehicle: config.vehicle_system_id.map(|s| (s, AUTOPILOT_COMPONENT)),
@@ -782,8 +782,8 @@ impl VehicleAdapter for MavlinkAdapter {
         let job = self.job_for(&order)?;
         let note = format!("{} step(s) to send", job.steps.len());
         self.commands
-            .send(Command { job, abort })
-            .map_err(|_| Refusal::new("the MAVLink link has stopped"))?;
+            .try_send(Command { job, abort })
+            .map_err(|e| crate::adapter::queue_refusal("MAVLink", &e))?;
         Ok(Acceptance::with_message(note))
     }
 }
@@ -806,7 +806,7 @@ struct Link {
 }
 
 impl Link {
-    async fn run(mut self, mut commands: mpsc::UnboundedReceiver<Command>) {
+    async fn run(mut self, mut commands: mpsc::Receiver<Command>) {
         let mut buf = vec![0u8; 65_536];
         let mut heartbeat =
             tokio::time::interval(Duration::from_millis(self.config.heartbeat_interval_ms));

@@ -283,7 +283,7 @@ pub struct Ros2Adapter {
     shared: Arc<Mutex<Shared>>,
     counters: Arc<Counters>,
     goals: Arc<Writer<PoseStamped>>,
-    commands: mpsc::UnboundedSender<Command>,
+    commands: mpsc::Sender<Command>,
     outputs: mpsc::Receiver<VehicleOutput>,
     link: JoinHandle<()>,
 }
@@ -399,7 +399,7 @@ impl Ros2Adapter {
             ..Shared::default()
         }));
         let counters = Arc::new(Counters::default());
-        let (commands, command_rx) = mpsc::unbounded_channel();
+        let (commands, command_rx) = mpsc::channel(crate::adapter::COMMAND_QUEUE);
         let (output_tx, outputs) = Outputs::channel(Arc::clone(&counters.outputs_dropped));
         let link = Link {
             logger_prefix: format!("{}.", config.namespace.trim_matches('/').replace('/', ".")),
@@ -557,8 +557,8 @@ impl VehicleAdapter for Ros2Adapter {
         let job = self.job_for(&order)?;
         let legs = job.legs.len();
         self.commands
-            .send(Command { job, abort })
-            .map_err(|_| Refusal::new("the ROS 2 link has stopped"))?;
+            .try_send(Command { job, abort })
+            .map_err(|e| crate::adapter::queue_refusal("ROS 2", &e))?;
         Ok(Acceptance::with_message(format!(
             "{legs} goal(s) for {subscribers} subscriber(s)"
         )))
@@ -578,7 +578,7 @@ struct Link {
 }
 
 impl Link {
-    async fn run(mut self, mut t: Topics, mut commands: mpsc::UnboundedReceiver<Command>) {
+    async fn run(mut self, mut t: Topics, mut commands: mpsc::Receiver<Command>) {
         let mut watch = tokio::time::interval(WATCH_EVERY);
         watch.set_missed_tick_behavior(MissedTickBehavior::Delay);
         loop {
