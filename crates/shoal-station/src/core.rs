@@ -120,6 +120,7 @@ impl StationHandle {
                 e.latest = Some(s);
             }
         }
+        fleet.recount_unheard();
         // The Mission & Task Register resumes where it was: tasks of the last day with the
         // state their recorded transitions reached.
         let mut tasks = TaskRegister::default();
@@ -168,6 +169,16 @@ impl StationHandle {
     /// Station time now, ms since the Unix epoch: monotonic, immune to system clock steps.
     pub fn now(&self) -> i64 {
         self.core.clock.now_ms()
+    }
+
+    /// What the history's retention has done (rows thinned and deleted, database size).
+    pub fn history_maintenance(&self) -> shoal_history::MaintenanceStats {
+        self.core.history.maintenance_stats()
+    }
+
+    /// Tasks and missions the Mission & Task Register holds now (bounded by retention).
+    pub fn register_sizes(&self) -> (usize, usize) {
+        lock(&self.core.tasks).sizes()
     }
 
     /// How far the system clock is from station time (after a step, for health reports).

@@ -67,6 +67,13 @@ pub enum Rejection {
         /// The vehicle that reported it.
         vehicle_id: String,
     },
+    /// A new vehicle announced itself while too many known vehicles have sent nothing
+    /// but an announcement (`station.max_unheard_vehicles`).
+    #[error("{max} vehicles have announced themselves and sent no state yet; a new one is refused")]
+    TooManyUnheard {
+        /// The limit.
+        max: usize,
+    },
 }
 
 impl Rejection {
@@ -78,6 +85,7 @@ impl Rejection {
             Self::Implausible(why) => why.reason().to_owned(),
             Self::UnknownVehicle(_) => "unknown_vehicle".to_owned(),
             Self::UnknownTask { .. } => "unknown_task".to_owned(),
+            Self::TooManyUnheard { .. } => "too_many_unheard_vehicles".to_owned(),
         }
     }
 }

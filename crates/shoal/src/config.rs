@@ -586,7 +586,7 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 7]>([
+        rows.extend::<[(&str, &str, &str, Check); 8]>([
             ("station", "SHOAL_STATION__LOST_AFTER_S", "45", |c| {
                 c.station.lost_after_s == 45.0
             }),
@@ -607,6 +607,12 @@ mod tests {
             ("history", "SHOAL_HISTORY__PATH", ":memory:", |c| {
                 c.history.path == Path::new(":memory:")
             }),
+            (
+                "history.retention",
+                "SHOAL_HISTORY__RETENTION__MAX_ROWS",
+                "1000",
+                |c| c.history.retention.max_rows == 1000,
+            ),
             ("console", "SHOAL_CONSOLE__LISTEN", "127.0.0.1:9999", |c| {
                 c.console.listen.port() == 9999
             }),

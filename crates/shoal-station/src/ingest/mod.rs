@@ -161,6 +161,7 @@ impl StationHandle {
             .latest
             .as_ref()
             .is_none_or(|l| l.timestamp_ms < s.timestamp_ms);
+        let mut first_state = false;
         if !matches!(verdict, Verdict::Reject(_)) {
             // A late sample (acoustic store-and-forward) goes to the history only.
             if newer {
@@ -168,9 +169,13 @@ impl StationHandle {
                     .latest
                     .as_ref()
                     .is_some_and(|l| s.battery_pct > l.battery_pct && l.battery_pct >= 0.0);
+                first_state = e.latest.is_none();
                 e.latest = Some(s.clone());
             }
             e.states_accepted += 1;
+        }
+        if first_state {
+            fleet.unheard = fleet.unheard.saturating_sub(1);
         }
         Some((verdict, newer))
     }

@@ -238,6 +238,11 @@ impl TaskRegister {
         gone
     }
 
+    /// How many tasks and missions it holds.
+    pub(crate) fn sizes(&self) -> (usize, usize) {
+        (self.tasks.len(), self.missions.len())
+    }
+
     /// Tasks under way (sent, accepted or running): what a restarted station publishes
     /// again, so a vehicle that restarts too can resume its task.
     pub(crate) fn under_way(&self) -> Vec<TaskAssignment> {

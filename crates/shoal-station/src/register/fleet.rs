@@ -76,6 +76,9 @@ pub(crate) struct Entry {
 #[derive(Debug, Default)]
 pub(crate) struct Fleet {
     pub(crate) vehicles: BTreeMap<String, Entry>,
+    /// Vehicles known by their announcement only (no state vector yet): what a flood of
+    /// announcements with made-up ids would grow, so it is capped.
+    pub(crate) unheard: usize,
 }
 
 impl Fleet {
@@ -88,6 +91,7 @@ impl Fleet {
                 false
             }
             None => {
+                self.unheard += 1;
                 self.vehicles.insert(
                     a.vehicle_id.clone(),
                     Entry {
@@ -111,6 +115,15 @@ impl Fleet {
                 true
             }
         }
+    }
+
+    /// Counts the vehicles known by announcement only again (after a restart's reload).
+    pub(crate) fn recount_unheard(&mut self) {
+        self.unheard = self
+            .vehicles
+            .values()
+            .filter(|e| e.latest.is_none())
+            .count();
     }
 
     /// Re-evaluates contact status at `now_ms`; returns the vehicles whose status changed.

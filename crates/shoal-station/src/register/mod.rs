@@ -12,6 +12,7 @@ use tracing::{debug, info, warn};
 
 use crate::config::ms;
 use crate::core::{StationHandle, lock};
+use crate::error::Rejection;
 use crate::reporters::LiveUpdate;
 pub(crate) use fleet::Fleet;
 pub use fleet::{Contact, VehicleView};
@@ -43,6 +44,14 @@ impl StationHandle {
         let id = a.vehicle_id.clone();
         let new = {
             let mut fleet = lock(&self.core.fleet);
+            let max = self.core.config.max_unheard_vehicles;
+            if fleet.unheard >= max && !fleet.vehicles.contains_key(&id) {
+                drop(fleet);
+                let why = Rejection::TooManyUnheard { max };
+                self.count_rejection(&why.reason());
+                self.alert_rejection("vehicle announcement", "", &why.reason(), &why.to_string());
+                return;
+            }
             let new = fleet.register(a.clone());
             if let (Some(p), Some(e)) = (participant, fleet.vehicles.get_mut(&id)) {
                 e.participant = Some(p.to_owned());

@@ -278,3 +278,28 @@ fn a_system_clock_step_of_an_hour_either_way_changes_no_contact_and_expires_no_t
     assert_eq!(f.h.vehicle("auv-2").unwrap().contact, Contact::Lost);
     assert_eq!(f.h.vehicle("auv-1").unwrap().contact, Contact::Alive);
 }
+
+#[test]
+fn a_flood_of_announcements_with_made_up_ids_is_capped_and_real_vehicles_go_on() {
+    let f = Fixture::with(|c| c.max_unheard_vehicles = 20);
+    f.alive("auv-1");
+    for i in 0..500 {
+        f.announce(&format!("ghost-{i}"));
+    }
+    let stats = f.h.stats();
+    assert_eq!(stats.rejected.get("too_many_unheard_vehicles"), Some(&480));
+    assert!(f.h.vehicle("ghost-19").is_some());
+    assert!(f.h.vehicle("ghost-20").is_none());
+    // The real vehicle is still ingested, and re-announcing a known one is not refused.
+    f.h.ingest_state(state("auv-1", now_ms(), 79.0)).unwrap();
+    f.announce("auv-1");
+    f.announce("ghost-3");
+    assert_eq!(
+        f.h.stats().rejected.get("too_many_unheard_vehicles"),
+        Some(&480)
+    );
+    // A ghost that starts reporting frees a place.
+    f.h.ingest_state(state("ghost-3", now_ms(), 50.0)).unwrap();
+    f.announce("usv-7");
+    assert!(f.h.vehicle("usv-7").is_some());
+}

@@ -23,6 +23,8 @@ pub use types::{Ack, EnvSubscription, EnvSubscriptionSpec, EventView, LiveUpdate
 const LIVE_BUFFER: usize = 4096;
 /// Least time between two data-rejected events for one vehicle and reason.
 const REJECTION_ALERT_EVERY_MS: i64 = 60_000;
+/// Most (vehicle, reason) pairs remembered for rate-limiting rejection alerts.
+const MAX_REJECTION_ALERTS: usize = 4096;
 
 /// What the reporters keep.
 #[derive(Debug)]
@@ -172,9 +174,16 @@ impl StationHandle {
         let key = (vehicle_id.to_string(), reason.to_string());
         let raise = {
             let mut alerts = lock(&self.reporters().rejection_alerts);
+            // The ids are the senders' to choose: past the cap, entries whose minute has
+            // passed go, and if a flood of fresh ids still fills it, no alert is raised
+            // for new ones (each rejection is still counted and quarantined).
+            if alerts.len() >= MAX_REJECTION_ALERTS && !alerts.contains_key(&key) {
+                alerts.retain(|_, t| now - *t < REJECTION_ALERT_EVERY_MS);
+            }
             let due = alerts
                 .get(&key)
-                .is_none_or(|t| now - t >= REJECTION_ALERT_EVERY_MS);
+                .is_none_or(|t| now - t >= REJECTION_ALERT_EVERY_MS)
+                && (alerts.len() < MAX_REJECTION_ALERTS || alerts.contains_key(&key));
             if due {
                 alerts.insert(key, now);
             }
