@@ -46,6 +46,10 @@ pub struct StoreConfig {
     /// such rule (default).
     #[serde(with = "area")]
     pub operating_area: Vec<GeoPoint>,
+    /// Longest a SPARQL rule may take to evaluate on one insert, ms (default 50): rules run
+    /// while the model is locked, so a rule over budget is cancelled, disabled, and an
+    /// event says so; ingest goes on.
+    pub rule_budget_ms: u64,
 }
 
 impl Default for StoreConfig {
@@ -58,6 +62,7 @@ impl Default for StoreConfig {
             low_battery_pct: 20.0,
             task_deadline_ms: 3_600_000,
             operating_area: Vec::new(),
+            rule_budget_ms: 50,
         }
     }
 }

@@ -185,7 +185,7 @@ pub(crate) struct Watchdog {
 }
 
 impl Watchdog {
-    fn watch(&self, deadline: Instant, token: CancellationToken) {
+    pub(crate) fn watch(&self, deadline: Instant, token: CancellationToken) {
         let sender = self.sender.get_or_init(|| {
             let (tx, rx) = mpsc::channel::<(Instant, CancellationToken)>();
             let spawned = std::thread::Builder::new()

@@ -78,6 +78,8 @@ pub struct StoreStats {
     pub states_stale: u64,
     /// State mirrors written to RDF by `flush_dirty`.
     pub state_flushes: u64,
+    /// SPARQL rules disabled because an evaluation ran over `rule_budget_ms`.
+    pub rules_over_budget: u64,
 }
 
 /// The ontology's individual of `shoal:Availability` naming `a`.
@@ -1237,16 +1239,17 @@ impl SemanticStore {
             }
         }
         let mut events = Vec::new();
+        let budget = Duration::from_millis(self.config.rule_budget_ms);
+        let mut over_budget: Vec<(Arc<Compiled>, Duration)> = Vec::new();
         for rule in candidates {
             let Some(prepared) = &rule.prepared else {
                 continue;
             };
-            let result = crate::query::evaluate(
-                prepared,
-                &self.data,
-                CancellationToken::new(),
-                Some(entity.clone().into()),
-            );
+            let token = CancellationToken::new();
+            let started = Instant::now();
+            self.watchdog.watch(started + budget, token.clone());
+            let result =
+                crate::query::evaluate(prepared, &self.data, token, Some(entity.clone().into()));
             let evaluated = result.and_then(|r| match r {
                 QueryResults::Boolean(b) => Ok((b, String::new())),
                 QueryResults::Solutions(mut rows) => match rows.next().transpose()? {
@@ -1261,6 +1264,11 @@ impl SemanticStore {
                 },
                 QueryResults::Graph(_) => Ok((false, String::new())),
             });
+            let took = started.elapsed();
+            if took > budget {
+                over_budget.push((Arc::clone(&rule), took));
+                continue;
+            }
             let (holds, detail) = match evaluated {
                 Ok(r) => r,
                 Err(e) => {
@@ -1282,6 +1290,24 @@ impl SemanticStore {
                 }
                 events.push(self.rules.event(&rule, ts, vehicle_id, task_id, &msg));
             }
+        }
+        for (rule, took) in over_budget {
+            // Disabled in the model, which every later insert sees; the operator turns it
+            // back on (after fixing it) through the rules API.
+            tracing::warn!(rule = %rule.id, took_ms = took.as_millis(), budget_ms = budget.as_millis(), "rule over its time budget disabled");
+            self.stats.rules_over_budget += 1;
+            if let Err(e) = self.set_rule_enabled(&rule.id, false) {
+                tracing::warn!(rule = %rule.id, error = %e, "rule over budget could not be disabled");
+            }
+            let msg = format!(
+                "rule disabled: one evaluation took {} ms, over the budget of {} ms",
+                took.as_millis(),
+                budget.as_millis()
+            );
+            let mut e = self.rules.event(&rule, ts, vehicle_id, task_id, &msg);
+            e.severity = Severity::Warning;
+            e.kind = EventKind::Other;
+            events.push(e);
         }
         Ok(events)
     }
@@ -1854,6 +1880,62 @@ mod tests {
             s.delete_rule(builtin::LOW_BATTERY),
             Err(RuleError::BuiltIn(builtin::LOW_BATTERY.into()))
         );
+    }
+
+    #[test]
+    fn a_rule_over_its_time_budget_is_cancelled_disabled_and_reported_and_ingest_goes_on() {
+        let mut s = SemanticStore::new(StoreConfig {
+            rule_budget_ms: 20,
+            ..StoreConfig::default()
+        })
+        .unwrap();
+        for i in 0..30 {
+            s.upsert_vehicle(&announce(&format!("v{i}"), VehicleKind::Auv, &[], &[]))
+                .unwrap();
+        }
+        // Paths over the whole model from every node reached: quadratic in the model, and
+        // every step reads the index, which is where evaluation can be cancelled.
+        s.create_rule(RuleSpec {
+            id: "cartesian".into(),
+            description: "A pathological rule".into(),
+            severity: Severity::Info,
+            kind: EventKind::Rule,
+            condition: Condition::Sparql {
+                query: "ASK { ?this shoal:batteryLevel ?b . ?a (!shoal:none)* ?x . \
+                        ?x (^!shoal:none)* ?y . ?y (!shoal:none)* ?z \
+                        FILTER(STRLEN(STR(?z)) < ?b - 100) }"
+                    .into(),
+                watches: vec!["shoal:batteryLevel".into()],
+            },
+        })
+        .unwrap();
+        s.update_state(&state("v1", T, 40.0)).unwrap();
+        let started = Instant::now();
+        let events = s.flush_dirty(T + 1000).unwrap();
+        assert!(
+            started.elapsed() < Duration::from_secs(5),
+            "the rule was not cut short: {:?}",
+            started.elapsed()
+        );
+        let warning = events
+            .iter()
+            .find(|e| e.text.contains("rule disabled"))
+            .unwrap_or_else(|| panic!("no event says the rule was disabled: {events:?}"));
+        assert_eq!(warning.severity, Severity::Warning);
+        assert!(warning.text.contains("cartesian"), "{}", warning.text);
+        assert_eq!(s.stats().unwrap().rules_over_budget, 1);
+        let rule = s
+            .rules()
+            .into_iter()
+            .find(|r| r.spec.id == "cartesian")
+            .unwrap();
+        assert!(!rule.enabled);
+        // Ingest goes on, and the disabled rule no longer runs.
+        s.update_state(&state("v2", T + 1000, 40.0)).unwrap();
+        let started = Instant::now();
+        s.flush_dirty(T + 2000).unwrap();
+        assert!(started.elapsed() < Duration::from_secs(1));
+        assert_eq!(s.latest_state("v2").unwrap().battery_pct, 40.0);
     }
 
     #[test]
