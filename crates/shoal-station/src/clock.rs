@@ -53,6 +53,17 @@ impl Clock {
         }
     }
 
+    /// The real clock, with `offset` ms added to the system time it reads: a benchmark
+    /// steps the system clock of a running process by changing the offset.
+    pub fn system_offset(offset: Arc<AtomicI64>) -> Self {
+        let wall = move || shoal_model::now_ms().saturating_add(offset.load(Ordering::SeqCst));
+        Self {
+            origin_wall_ms: wall(),
+            elapsed: Elapsed::Real(Instant::now()),
+            wall: Arc::new(wall),
+        }
+    }
+
     /// A clock for tests: starts at `start_ms`; [`ManualTime`] advances its monotonic
     /// time and steps its system time independently.
     pub fn manual(start_ms: i64) -> (Self, ManualTime) {

@@ -16,6 +16,7 @@ use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
 use crate::bus::DdsOutbox;
+use crate::clock::Clock;
 use crate::config::StationConfig;
 use crate::core::StationHandle;
 use crate::error::StationError;
@@ -55,8 +56,18 @@ impl Station {
         dds: Arc<PubSub>,
         history: History,
     ) -> Result<Self, StationError> {
+        Self::with_clock(config, dds, history, Clock::system())
+    }
+
+    /// [`Self::new`] on a given clock (a benchmark steps its system clock).
+    pub fn with_clock(
+        config: StationConfig,
+        dds: Arc<PubSub>,
+        history: History,
+        clock: Clock,
+    ) -> Result<Self, StationError> {
         let outbox = Arc::new(DdsOutbox::new(&dds)?);
-        let handle = StationHandle::new(config, &history, outbox)?;
+        let handle = StationHandle::with_clock(config, &history, outbox, clock)?;
         Ok(Self {
             handle,
             dds,

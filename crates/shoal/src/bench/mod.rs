@@ -23,6 +23,7 @@
 
 mod acoustic;
 mod bus;
+mod endurance;
 mod helpers;
 mod ingest;
 mod late_joiner;
@@ -175,6 +176,26 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 26)]
         domain: u16,
     },
+    /// A deployment's lifetime compressed: back-to-back tasks for a simulated fleet with
+    /// vehicle restarts, a station restart and a clock step; memory, history size, the
+    /// late-joiner burst and the tasks-by-state query over time, and tasks run twice.
+    Endurance {
+        /// Number of vehicles.
+        #[arg(long, default_value_t = 200)]
+        vehicles: usize,
+        /// Tasks to complete.
+        #[arg(long, default_value_t = 100_000)]
+        tasks: u64,
+        /// Completed tasks between two rows of the report.
+        #[arg(long, default_value_t = 10_000)]
+        report_every: u64,
+        /// DDS domain for the measurement.
+        #[arg(long, default_value_t = 40)]
+        domain: u16,
+        /// Also write the report (Markdown) here, e.g. under bench/runs/.
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
     /// (helper) Echo pings back as pongs.
     #[command(hide = true)]
     Pong {
@@ -250,6 +271,22 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             seconds,
             domain,
         } => scale::scale(vehicles, rate, seconds, domain).await,
+        BenchCommand::Endurance {
+            vehicles,
+            tasks,
+            report_every,
+            domain,
+            out,
+        } => {
+            let plan = endurance::Plan {
+                vehicles,
+                tasks,
+                report_every,
+                domain,
+                out,
+            };
+            endurance::endurance(cfg, plan).await
+        }
         BenchCommand::Pong { domain } => bus::pong(cfg, domain).await,
         BenchCommand::Sink { domain } => bus::sink(cfg, domain).await,
         BenchCommand::Load {

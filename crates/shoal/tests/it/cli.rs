@@ -227,3 +227,30 @@ fn keys_swarm_and_up_refuse_bad_input_with_one_line() {
         "--sim-vehicles",
     );
 }
+
+/// The short version of `shoal bench endurance` (the long one is run by hand and saved
+/// under bench/runs/): it fails if a task ran twice or the clock step changed contact.
+/// Domain 92.
+#[test]
+fn the_endurance_benchmark_runs_short_with_no_task_twice_and_no_contact_change() {
+    let out = shoal()
+        .args(["bench", "endurance", "--vehicles", "10", "--tasks", "600"])
+        .args(["--report-every", "200", "--domain", "92"])
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("tasks executed twice, counted by the vehicles: 0"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("contact changes caused by the clock step: 0"),
+        "{stdout}"
+    );
+}

@@ -162,8 +162,9 @@ async fn the_api_explains_bad_requests_and_survives_them() {
     assert_eq!(status, StatusCode::BAD_REQUEST);
     assert!(body["error"].as_str().unwrap().len() > 5);
 
+    // JSON of the wrong shape: 422, as the OpenAPI document says.
     let (status, body) = call(&router, "POST", "/api/tasks", r#"{"task_id": 5}"#).await;
-    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
 
     let task = TaskAssignment::new("t-x", "", "nobody", now_ms(), &Task::Surface);
     let (status, body) = call(
@@ -219,15 +220,19 @@ async fn the_api_explains_bad_requests_and_survives_them() {
     );
     assert!(station.handle.vehicle("auv-bad-reg").is_none());
     let (status, body) = call(&router, "POST", "/api/vehicles", "[1, 2]").await;
-    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
-    for bad_sub in [
-        r#"{"max_rate_hz": 0}"#,
-        r#"{"area": [{"latitude_deg": 1, "longitude_deg": 2}]}"#,
-        r#"{"property": 5}"#,
-        r#"{"colour": "red"}"#,
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    // Values the station refuses are 400; JSON of the wrong shape is 422.
+    for (bad_sub, expected) in [
+        (r#"{"max_rate_hz": 0}"#, StatusCode::BAD_REQUEST),
+        (
+            r#"{"area": [{"latitude_deg": 1, "longitude_deg": 2}]}"#,
+            StatusCode::BAD_REQUEST,
+        ),
+        (r#"{"property": 5}"#, StatusCode::UNPROCESSABLE_ENTITY),
+        (r#"{"colour": "red"}"#, StatusCode::UNPROCESSABLE_ENTITY),
     ] {
         let (status, body) = call(&router, "POST", "/api/environment/subscriptions", bad_sub).await;
-        assert_eq!(status, StatusCode::BAD_REQUEST, "{bad_sub}: {body}");
+        assert_eq!(status, expected, "{bad_sub}: {body}");
     }
     assert!(station.handle.environment_subscriptions().is_empty());
     let (status, body) = call(&router, "POST", "/api/abort-all", r#"{"confirm": false}"#).await;
@@ -237,7 +242,7 @@ async fn the_api_explains_bad_requests_and_survives_them() {
         "{body}"
     );
     let (status, _) = call(&router, "POST", "/api/missions", r#"{"mission_id": "m"}"#).await;
-    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY);
     let empty = r#"{"mission_id": "m", "tasks": []}"#;
     let (status, body) = call(&router, "POST", "/api/missions", empty).await;
     assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
@@ -251,7 +256,7 @@ async fn the_api_explains_bad_requests_and_survives_them() {
         r#"{"enabled": "yes"}"#,
     )
     .await;
-    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY);
     assert!(station.handle.missions().is_empty());
 
     let (status, health) = call(&router, "GET", "/api/health", "").await;
@@ -494,7 +499,7 @@ async fn the_sparql_endpoint_explains_malformed_requests() {
     assert!(body["error"].as_str().unwrap().contains("yaml"), "{body}");
     // `call` sends application/json, which the SPARQL protocol does not accept.
     let (status, body) = call(&router, "POST", "/api/sparql", "ASK {}").await;
-    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert_eq!(status, StatusCode::UNSUPPORTED_MEDIA_TYPE);
     assert!(
         body["error"]
             .as_str()
@@ -671,7 +676,7 @@ async fn rules_are_managed_through_the_api_and_survive_a_restart() {
     let unknown_field =
         r#"{"id":"x3","colour":"red","condition":{"type":"threshold","expr":"depth_m > 3"}}"#;
     let (status, body) = call(&router, "POST", "/api/rules", unknown_field).await;
-    assert_eq!(status, StatusCode::BAD_REQUEST);
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY);
     assert!(body["error"].as_str().unwrap().contains("colour"), "{body}");
 
     // Evaluated on insert.
