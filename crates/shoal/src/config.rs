@@ -586,7 +586,7 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 8]>([
+        rows.extend::<[(&str, &str, &str, Check); 10]>([
             ("station", "SHOAL_STATION__LOST_AFTER_S", "45", |c| {
                 c.station.lost_after_s == 45.0
             }),
@@ -616,6 +616,18 @@ mod tests {
             ("console", "SHOAL_CONSOLE__LISTEN", "127.0.0.1:9999", |c| {
                 c.console.listen.port() == 9999
             }),
+            (
+                "console.health",
+                "SHOAL_CONSOLE__HEALTH__MAX_HISTORY_LAG",
+                "123",
+                |c| c.console.health.max_history_lag == 123,
+            ),
+            (
+                "console.limits",
+                "SHOAL_CONSOLE__LIMITS__MAX_WS_CLIENTS",
+                "7",
+                |c| c.console.limits.max_ws_clients == 7,
+            ),
             // The variable docs/console.md gives, which once stopped the station.
             (
                 "console.auth",
