@@ -27,6 +27,28 @@ impl StationHandle {
     /// Checks a task can go to its vehicle now: well-formed, the vehicle registered and
     /// in contact, able to do it (its announced capabilities, the register's part of the
     /// information model) and with battery enough for anything but going home or up.
+    /// A surface vehicle (USV, ASV) told to go somewhere with neither a depth nor an
+    /// altitude goes at the surface: the only depth it has.
+    fn surface_by_default(&self, mut task: TaskAssignment) -> TaskAssignment {
+        let moves = matches!(task.kind, TaskKind::GotoWaypoint | TaskKind::SurveyArea);
+        if moves && task.depth_m == shoal_model::UNKNOWN && task.altitude_m == shoal_model::UNKNOWN
+        {
+            let surface = lock(&self.core.fleet)
+                .vehicles
+                .get(&task.vehicle_id)
+                .is_some_and(|v| {
+                    matches!(
+                        v.announcement.kind,
+                        shoal_model::VehicleKind::Usv | shoal_model::VehicleKind::Asv
+                    )
+                });
+            if surface {
+                task.depth_m = 0.0;
+            }
+        }
+        task
+    }
+
     fn check_task(&self, task: &TaskAssignment) -> Result<(), DispatchError> {
         shoal_model::Validate::validate(task).map_err(DispatchError::Invalid)?;
         task.task().map_err(DispatchError::Invalid)?;
@@ -84,6 +106,7 @@ impl StationHandle {
 
     /// [`Self::dispatch`] for code that is not async.
     pub fn dispatch_now(&self, task: TaskAssignment) -> Result<(), DispatchError> {
+        let task = self.surface_by_default(task);
         self.check_task(&task)?;
         {
             let mut reg = lock(&self.core.tasks);
@@ -233,7 +256,13 @@ impl StationHandle {
                 .unwrap_or_else(|| format!("{}-{}", spec.mission_id, n + 1));
             // One millisecond apart, so that the history keeps the mission's order.
             let issued = now + i64::try_from(n).unwrap_or(0);
-            let a = TaskAssignment::new(id, &spec.mission_id, &t.vehicle_id, issued, &t.task);
+            let a = self.surface_by_default(TaskAssignment::new(
+                id,
+                &spec.mission_id,
+                &t.vehicle_id,
+                issued,
+                &t.task,
+            ));
             let in_mission = |error| DispatchError::InMission {
                 index: n,
                 error: Box::new(error),

@@ -520,3 +520,37 @@ fn ended_tasks_and_missions_past_their_retention_are_forgotten_and_live_ones_kep
             .is_some()
     );
 }
+
+#[test]
+fn a_surface_vehicle_sent_somewhere_without_depth_or_altitude_goes_at_the_surface() {
+    use crate::testing::{announcement, state as state_at, valid};
+    let f = Fixture::new();
+    let mut usv = announcement("usv-1");
+    usv.kind = shoal_model::VehicleKind::Usv;
+    f.h.ingest_announcement(valid(usv), "writer-1", "participant-1");
+    f.h.ingest_state(state_at("usv-1", now_ms(), 80.0)).unwrap();
+    f.h.tick(now_ms());
+    f.alive("auv-1");
+    let goto = |depth_m| Task::GotoWaypoint {
+        target: shoal_model::GeoPoint {
+            latitude_deg: 43.001,
+            longitude_deg: 5.9,
+        },
+        depth_m,
+        altitude_m: None,
+        speed_mps: 1.0,
+    };
+    let a = shoal_model::TaskAssignment::new("t-usv", "", "usv-1", now_ms(), &goto(None));
+    f.h.dispatch_now(a).unwrap();
+    assert_eq!(f.out.tasks()[0].depth_m, 0.0);
+    // In a mission too.
+    f.h.plan_mission(spec("m-usv", &[("usv-1", goto(None))]))
+        .unwrap();
+    assert_eq!(f.h.task("m-usv-1").unwrap().assignment.depth_m, 0.0);
+    // An underwater vehicle still has to be told.
+    let a = shoal_model::TaskAssignment::new("t-auv", "", "auv-1", now_ms(), &goto(None));
+    assert!(matches!(
+        f.h.dispatch_now(a),
+        Err(DispatchError::Invalid(_))
+    ));
+}
