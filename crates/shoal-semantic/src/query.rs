@@ -37,6 +37,9 @@ pub struct QueryLimits {
     pub max_rows: usize,
     /// Longest accepted query text, in bytes.
     pub max_len: usize,
+    /// Most solutions an `ORDER BY` may sort (it must hold them all); a query that would
+    /// sort more is refused with a message instead of filling memory.
+    pub max_sorted_rows: usize,
 }
 
 impl Default for QueryLimits {
@@ -46,6 +49,7 @@ impl Default for QueryLimits {
             timeout: Duration::from_secs(10),
             max_rows: 10_000,
             max_len: 64 * 1024,
+            max_sorted_rows: 100_000,
         }
     }
 }
@@ -283,10 +287,6 @@ impl QuerySnapshot {
 /// Solutions as [`QueryResult::Solutions`] holds them.
 type Rows = Vec<QuerySolution>;
 
-/// Rows the sorted path materialises before it leaves a huge result to the engine,
-/// whose own sort keeps rows in a more compact form.
-const MAX_SORTED_ROWS: usize = 1_000_000;
-
 fn run_query(
     data: &Dataset,
     watchdog: &Watchdog,
@@ -367,8 +367,14 @@ fn run_sorted(
         return Ok(None);
     };
     let variables = solutions.variables().to_vec();
-    let (mut rows, too_many) = collect(solutions, MAX_SORTED_ROWS, limits, deadline)?;
-    if too_many || !crate::order::sort(&mut rows, &variables, &split.keys) {
+    let (mut rows, too_many) = collect(solutions, limits.max_sorted_rows, limits, deadline)?;
+    if too_many {
+        return Err(QueryError::Evaluation(format!(
+            "the query would sort more than {} solutions; narrow it (e.g. by a FILTER)",
+            limits.max_sorted_rows
+        )));
+    }
+    if !crate::order::sort(&mut rows, &variables, &split.keys) {
         return Ok(None);
     }
     rows.drain(..split.offset.min(rows.len()));
@@ -520,6 +526,24 @@ mod tests {
             } => assert_eq!((rows.len(), truncated), (7, true)),
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn a_sort_over_more_solutions_than_allowed_is_refused_with_a_reason() {
+        let limits = QueryLimits {
+            max_sorted_rows: 10,
+            ..QueryLimits::default()
+        };
+        let e = store()
+            .query("SELECT ?s WHERE { ?s ?p ?o } ORDER BY ?s", &limits)
+            .unwrap_err();
+        assert!(e.to_string().contains("more than 10 solutions"), "{e}");
+        // Within the cap, the sort runs.
+        let ok = store().query(
+            "SELECT ?s WHERE { ?s a shoal:Vehicle } ORDER BY ?s",
+            &limits,
+        );
+        assert!(ok.is_ok(), "{ok:?}");
     }
 
     #[test]
