@@ -67,6 +67,9 @@ summary_interval_s = 0.0
 [history]
 path = "$work/history.db"
 
+[vehicle]
+state_dir = "$work/vehicles"
+
 [console]
 listen = "127.0.0.1:$port"
 

@@ -79,6 +79,7 @@ fn a_station_killed_under_load_loses_no_committed_record_and_resumes() {
                     .arg("63.0")
                     .arg("--lon")
                     .arg("10.0")
+                    .current_dir(dir.path())
                     .env("SHOAL_DDS__DOMAIN_ID", "54")
                     .stdout(Stdio::null())
                     .stderr(Stdio::null())

@@ -35,11 +35,20 @@ fn strings(args: &[&str]) -> Vec<String> {
 /// `shoal vehicle --proxy <kind> --id <id> <args>` on DDS domain `domain`, publishing
 /// state twice a second; [`stop_proxy`] ends it by closing its stdin.
 fn start_proxy(kind: &str, id: &str, domain: u16, args: &[&str]) -> Child {
+    // Each proxy its own task ledger: runs must not inherit what an earlier one executed.
+    static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let ledgers = std::env::temp_dir().join(format!(
+        "shoal-it-ledgers-{}-{n}-{}",
+        std::process::id(),
+        shoal_model::now_ms()
+    ));
     Command::new(env!("CARGO_BIN_EXE_shoal"))
         .args(["vehicle", "--proxy", kind, "--id", id, "--rate", "2"])
         .args(args)
         .arg("--exit-on-stdin-close")
         .env("SHOAL_DDS__DOMAIN_ID", domain.to_string())
+        .env("SHOAL_VEHICLE__STATE_DIR", &ledgers)
         .stdin(Stdio::piped())
         .stdout(Stdio::null())
         .stderr(Stdio::inherit())
