@@ -41,6 +41,9 @@ pub struct StationConfig {
     /// Seconds an ended task (and an ended mission, with its tasks) stays in the Mission &
     /// Task Register and the semantic model; older ones live on in the history only.
     pub task_retention_s: f64,
+    /// Most ended tasks kept in the register and the semantic model, whatever their age;
+    /// beyond, the oldest go first (an ended mission with all its tasks).
+    pub max_ended_tasks: usize,
     /// Most vehicles known by their announcement only (no state vector yet); a new
     /// vehicle's announcement beyond is refused and counted (a flood of made-up ids).
     pub max_unheard_vehicles: usize,
@@ -62,6 +65,7 @@ impl Default for StationConfig {
             min_dispatch_battery_pct: 20.0,
             rules_path: PathBuf::from("shoal-data/rules.json"),
             task_retention_s: 24.0 * 3600.0,
+            max_ended_tasks: 2000,
             max_unheard_vehicles: 1000,
         }
     }

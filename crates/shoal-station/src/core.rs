@@ -130,12 +130,17 @@ impl StationHandle {
         if !reloaded.is_empty() {
             info!(tasks = reloaded.len(), "tasks reloaded from the history");
         }
-        for t in reloaded.iter().filter_map(|t| t.assignment.as_ref()) {
-            if let Err(err) = semantic.upsert_task(t) {
-                warn!(task = %t.task_id, error = %err, "task not in the semantic model");
+        tasks.restore(reloaded, now_ms());
+        // Only what retention keeps goes on to the semantic model.
+        tasks.prune(
+            now_ms() - crate::config::ms(config.task_retention_s),
+            config.max_ended_tasks,
+        );
+        for t in tasks.tasks() {
+            if let Err(err) = semantic.upsert_task(&t.assignment) {
+                warn!(task = %t.assignment.task_id, error = %err, "task not in the semantic model");
             }
         }
-        tasks.restore(reloaded, now_ms());
         // Sequences continue past every one ever issued, so none is repeated; and past the
         // start time in microseconds, so that even a station whose history was wiped never
         // issues a sequence a vehicle's task ledger already holds for a reused task id.

@@ -14,8 +14,9 @@ use tracing::{debug, info, warn};
 
 use crate::config::ms;
 
-/// How often, at most, ended tasks past their retention are looked for.
-const PRUNE_EVERY_MS: i64 = 60_000;
+/// How often, at most, ended tasks past their retention are looked for (a walk over the
+/// register, which retention keeps small).
+const PRUNE_EVERY_MS: i64 = 1_000;
 use crate::core::{StationHandle, blocking, lock};
 use crate::error::DispatchError;
 use crate::register::Contact;
@@ -390,9 +391,9 @@ impl StationHandle {
         }
     }
 
-    /// Forgets tasks and missions that ended longer than `task_retention_s` ago, in the
-    /// register and the semantic model (the history keeps them). Runs at most once a
-    /// minute: it walks every task.
+    /// Forgets tasks and missions that ended longer than `task_retention_s` ago, and the
+    /// oldest ended ones beyond `max_ended_tasks`, in the register and the semantic model
+    /// (the history keeps them). Runs at most once a second: it walks every task.
     pub(crate) fn prune_tasks(&self, now: i64) {
         let gone = {
             let mut reg = lock(&self.core.tasks);
@@ -400,7 +401,10 @@ impl StationHandle {
                 return;
             }
             reg.pruned_ms = now;
-            reg.prune(now - ms(self.core.config.task_retention_s))
+            reg.prune(
+                now - ms(self.core.config.task_retention_s),
+                self.core.config.max_ended_tasks,
+            )
         };
         if gone.is_empty() {
             return;

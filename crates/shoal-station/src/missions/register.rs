@@ -207,29 +207,40 @@ impl TaskRegister {
     /// Forgets what ended before `before_ms`: tasks outside missions, and missions with all
     /// their tasks once the mission has ended. Returns the task ids forgotten. Nothing
     /// that is live, or belongs to a live mission, is touched.
-    pub(crate) fn prune(&mut self, before_ms: i64) -> Vec<String> {
-        let old_missions: Vec<String> = self
+    /// Beyond `max_ended` ended tasks, the oldest go too (an ended mission goes whole), so
+    /// a fleet that finishes tasks fast cannot grow the register within the time.
+    pub(crate) fn prune(&mut self, before_ms: i64, max_ended: usize) -> Vec<String> {
+        // What may go, oldest first: ended missions (with their tasks) and ended tasks
+        // outside missions, each with when it ended.
+        let mut units: Vec<(i64, Option<String>, Vec<String>)> = self
             .missions
             .values()
-            .filter(|m| m.ended_ms.is_some_and(|t| t < before_ms))
-            .map(|m| m.mission_id.clone())
+            .filter_map(|m| {
+                m.ended_ms
+                    .map(|t| (t, Some(m.mission_id.clone()), m.task_ids.clone()))
+            })
             .collect();
-        let mut gone: Vec<String> = Vec::new();
-        for id in old_missions {
-            if let Some(m) = self.missions.remove(&id) {
-                gone.extend(m.task_ids);
-            }
-        }
-        gone.extend(
+        units.extend(
             self.tasks
                 .values()
                 .filter(|t| {
-                    t.state.is_final()
-                        && t.updated_ms < before_ms
-                        && !self.mission_of.contains_key(&t.assignment.task_id)
+                    t.state.is_final() && !self.mission_of.contains_key(&t.assignment.task_id)
                 })
-                .map(|t| t.assignment.task_id.clone()),
+                .map(|t| (t.updated_ms, None, vec![t.assignment.task_id.clone()])),
         );
+        units.sort_unstable_by_key(|(t, ..)| *t);
+        let mut ended: usize = units.iter().map(|(_, _, ids)| ids.len()).sum();
+        let mut gone: Vec<String> = Vec::new();
+        for (t, mission, ids) in units {
+            if t >= before_ms && ended <= max_ended {
+                break;
+            }
+            ended -= ids.len();
+            if let Some(m) = mission {
+                self.missions.remove(&m);
+            }
+            gone.extend(ids);
+        }
         for id in &gone {
             self.tasks.remove(id);
             self.mission_of.remove(id);

@@ -554,3 +554,25 @@ fn a_surface_vehicle_sent_somewhere_without_depth_or_altitude_goes_at_the_surfac
         Err(DispatchError::Invalid(_))
     ));
 }
+
+#[test]
+fn beyond_max_ended_tasks_the_oldest_ended_go_first_and_live_ones_stay() {
+    let f = Fixture::with(|c| c.max_ended_tasks = 3);
+    f.alive("auv-1");
+    f.alive("auv-2");
+    for i in 0..6 {
+        let id = format!("t-{i}");
+        f.h.dispatch_now(assignment(&id, "auv-1")).unwrap();
+        f.report(&id, "auv-1", TaskState::Done);
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    f.h.dispatch_now(assignment("t-live", "auv-2")).unwrap();
+    f.h.prune_tasks(now_ms() + 2_000);
+    for gone in ["t-0", "t-1", "t-2"] {
+        assert!(f.h.task(gone).is_none(), "{gone} kept");
+    }
+    for kept in ["t-3", "t-4", "t-5", "t-live"] {
+        assert!(f.h.task(kept).is_some(), "{kept} forgotten");
+    }
+    assert_eq!(f.h.stats().tasks_forgotten, 3);
+}
