@@ -41,7 +41,7 @@ fn start_proxy(kind: &str, id: &str, domain: u16, args: &[&str]) -> Child {
     let ledgers = std::env::temp_dir().join(format!(
         "shoal-it-ledgers-{}-{n}-{}",
         std::process::id(),
-        shoal_model::now_ms()
+        now_ms()
     ));
     Command::new(env!("CARGO_BIN_EXE_shoal"))
         .args(["vehicle", "--proxy", kind, "--id", id, "--rate", "2"])
