@@ -10,10 +10,11 @@
 # mimalloc are compiled with. apt needs root.
 #
 # Runs `cargo check`; with `--build` it builds the release binary instead, to copy to a
-# vehicle (target/vehicle-aarch64/aarch64-unknown-linux-gnu/release/shoal).
+# vehicle (~/.cache/shoal/vehicle-aarch64/aarch64-unknown-linux-gnu/release/shoal).
 #
-# Environment: CARGO_TARGET_DIR (default target/vehicle-aarch64: its own directory, so the
-# check neither waits on nor churns the host build in target/).
+# Environment: CARGO_TARGET_DIR (default ~/.cache/shoal/vehicle-aarch64: its own directory,
+# outside the checkout, so the check neither waits on nor churns the host build in target/,
+# and a fresh clone reuses the cross-built Cyclone DDS).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 say() { echo "check-vehicle-aarch64: $*"; }
