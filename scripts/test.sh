@@ -58,7 +58,7 @@ step "the HTTP API against its OpenAPI document (schemathesis, all checks, insid
 SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" scripts/api-conformance.sh "$NS"
 
 if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
-    step "fuzz smoke run (every cargo-fuzz target, 20 s each)"
+    step "fuzz smoke run (every cargo-fuzz target, 10 s each; scripts/fuzz-long.sh runs them for longer)"
     # cargo-fuzz needs the nightly toolchain (fuzzing only: the product builds on stable).
     if ! cargo +nightly --version >/dev/null 2>&1; then
         rustup toolchain install nightly --profile minimal
@@ -67,7 +67,7 @@ if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
         cargo +nightly install cargo-fuzz --locked
     fi
     for target in $(cd fuzz && cargo +nightly fuzz list); do
-        (cd fuzz && cargo +nightly fuzz run "$target" -- -max_total_time=20 -print_final_stats=0)
+        (cd fuzz && cargo +nightly fuzz run "$target" -- -max_total_time=10 -print_final_stats=0)
     done
 fi
 
