@@ -45,6 +45,10 @@ pub enum LedgerError {
         #[source]
         source: std::io::Error,
     },
+    /// [`MAX_ENTRIES`] tasks are under way and none has ended: a flood of tasks, refused
+    /// rather than remembered without limit.
+    #[error("task ledger full: {0} tasks under way")]
+    Full(usize),
     /// The file is not a ledger this build can read.
     #[error("task ledger {path} is unreadable: {detail}")]
     Corrupt {
@@ -213,6 +217,11 @@ impl TaskLedger {
             }
             None if !a.may_start(now_ms, self.max_age_ms) => Ok(Admission::Expired),
             None => {
+                // Room for one more: the oldest ended entries go first.
+                self.prune(now_ms, MAX_ENTRIES - 1);
+                if self.tasks.len() >= MAX_ENTRIES && !self.tasks.contains_key(&a.task_id) {
+                    return Err(LedgerError::Full(self.tasks.len()));
+                }
                 let forget_after_ms = self.forget_after(a, now_ms);
                 self.tasks.insert(
                     a.task_id.clone(),
@@ -265,8 +274,8 @@ impl TaskLedger {
 
     /// Forgets ended entries that can no longer matter, then the oldest ended ones beyond
     /// capacity. Tasks still under way are kept whatever their age.
-    fn prune(&mut self, now_ms: i64) {
-        let over = self.tasks.len() > MAX_ENTRIES;
+    fn prune(&mut self, now_ms: i64, limit: usize) {
+        let over = self.tasks.len() > limit;
         if !over && now_ms.saturating_sub(self.pruned_ms) < PRUNE_EVERY_MS {
             return;
         }
@@ -274,7 +283,7 @@ impl TaskLedger {
         self.tasks.retain(|_, e| {
             !(matches!(e.progress, Progress::Ended(_)) && e.forget_after_ms < now_ms)
         });
-        if self.tasks.len() > MAX_ENTRIES {
+        if self.tasks.len() > limit {
             let mut ended: Vec<(i64, String)> = self
                 .tasks
                 .iter()
@@ -282,7 +291,7 @@ impl TaskLedger {
                 .map(|(id, e)| (e.updated_ms, id.clone()))
                 .collect();
             ended.sort_unstable();
-            let excess = self.tasks.len() - MAX_ENTRIES;
+            let excess = self.tasks.len() - limit;
             for (_, id) in ended.into_iter().take(excess) {
                 self.tasks.remove(&id);
             }
@@ -292,7 +301,7 @@ impl TaskLedger {
     }
 
     fn save(&mut self, now_ms: i64) -> Result<(), LedgerError> {
-        self.prune(now_ms);
+        self.prune(now_ms, MAX_ENTRIES);
         let Some(path) = &self.path else {
             return Ok(());
         };
@@ -451,6 +460,31 @@ mod tests {
         assert_eq!(l.len(), MAX_ENTRIES);
         assert_eq!(l.progress("t-0"), None, "the oldest go first");
         assert!(l.progress(&format!("t-{}", MAX_ENTRIES + 49)).is_some());
+    }
+
+    #[test]
+    fn a_flood_of_tasks_that_never_end_fills_the_ledger_and_is_refused_not_remembered() {
+        let mut l = TaskLedger::in_memory("auv-9", None);
+        for i in 0..MAX_ENTRIES {
+            let id = format!("f-{i}");
+            assert_eq!(
+                l.admit(&task(&id, 1, T + 45_000), T).unwrap(),
+                Admission::Start
+            );
+        }
+        let err = l.admit(&task("one-more", 1, T + 45_000), T).unwrap_err();
+        assert!(
+            matches!(err, LedgerError::Full(n) if n == MAX_ENTRIES),
+            "{err}"
+        );
+        assert_eq!(l.len(), MAX_ENTRIES);
+        // A task that ends makes room: ended entries go first at capacity.
+        l.end("f-0", TaskState::Done, T).unwrap();
+        assert_eq!(
+            l.admit(&task("next", 2, T + 45_000), T).unwrap(),
+            Admission::Start
+        );
+        assert_eq!(l.progress("f-0"), None);
     }
 
     #[test]
