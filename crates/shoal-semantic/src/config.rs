@@ -123,6 +123,14 @@ impl StoreConfig {
 
     /// Checks every value; the first problem found is returned.
     pub fn check(&self) -> Result<(), ConfigError> {
+        // 0 would disable every rule at its first evaluation.
+        if !(1..=60_000).contains(&self.rule_budget_ms) {
+            return Err(out_of_range(
+                "rule_budget_ms",
+                "within [1, 60000]",
+                &self.rule_budget_ms,
+            ));
+        }
         if self.min_state_interval_ms < 0 {
             return Err(out_of_range(
                 "min_state_interval_ms",

@@ -675,6 +675,33 @@ mod tests {
         }
     }
 
+    /// The limits this wave added refuse values that would break the station or vehicle,
+    /// each error naming its key.
+    #[test]
+    fn bad_values_of_the_lifetime_limits_are_refused_naming_the_key() {
+        for (var, value, key) in [
+            ("SHOAL_STATION__TASK_RETENTION_S", "10", "task_retention_s"),
+            (
+                "SHOAL_VEHICLE__MAX_TASK_AGE_S",
+                "0",
+                "vehicle.max_task_age_s",
+            ),
+            ("SHOAL_VEHICLE__STATE_DIR", "\"\"", "vehicle.state_dir"),
+            (
+                "SHOAL_STATION__SEMANTIC__RULE_BUDGET_MS",
+                "0",
+                "rule_budget_ms",
+            ),
+        ] {
+            #[cfg(not(feature = "console"))]
+            if var.starts_with("SHOAL_STATION") {
+                continue;
+            }
+            let err = env(&[(var, value)]).expect_err(var).to_string();
+            assert!(err.contains(key), "{var}={value}: {err}");
+        }
+    }
+
     /// Every table and array of tables in `table`, as dotted paths.
     fn collect_sections(table: &toml::Table, prefix: &str, out: &mut Vec<String>) {
         for (key, value) in table {
