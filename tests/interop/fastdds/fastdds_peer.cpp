@@ -15,6 +15,19 @@
 //   publish-task   --vehicle-id ID --task-id T [--linger S] [--wait-match S]
 //   subscribe-state --expect N --timeout S [--vehicle-id ID] [--expect-announcements K]
 //   --domain D (anywhere; default 0)
+// Options for the secure interop tests (tests/interop/README.md, "Secure peers");
+// without them the peer behaves exactly as before:
+//   --security DIR     OMG DDS Security 1.1 builtin plugins (PKI-DH, Access-Permissions,
+//                      AES-GCM-GMAC) from an SROS2-style enclave directory: identity_ca.cert.pem,
+//                      cert.pem, key.pem, permissions_ca.cert.pem, governance.p7s, permissions.p7s
+//   --partition P      PARTITION QoS of the Publisher of every writer (default: none)
+//   --read-partition P PARTITION QoS of the Subscriber of every reader (default: none;
+//                      wildcards allowed, e.g. 'shoal.vehicle.*')
+//   --attack           for publish-state / publish-task: an attempt the remote side should
+//                      refuse. Never gives up: a refused writer, no matched reader or a failed
+//                      write is reported on stdout ("attack ..." lines) and the peer goes on;
+//                      exit 0 once the attempt is made (1 only on a usage/setup error)
+//   --match-timeout S  how long publish-state waits for a StateVector reader (default 20)
 // Extra, no DDS traffic:
 //   encode-demo <StateVector|VehicleAnnouncement|TaskAssignment>
 //       prints a fixed sample as a JSON line, then its XCDR1 little-endian
@@ -29,12 +42,16 @@
 #include <fastdds/dds/core/policy/QosPolicies.hpp>
 #include <fastdds/dds/domain/DomainParticipant.hpp>
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <fastdds/dds/log/Log.hpp>
+#include <fastdds/dds/log/StdoutErrConsumer.hpp>
 #include <fastdds/dds/publisher/DataWriter.hpp>
 #include <fastdds/dds/publisher/Publisher.hpp>
+#include <fastdds/dds/publisher/qos/PublisherQos.hpp>
 #include <fastdds/dds/publisher/qos/DataWriterQos.hpp>
 #include <fastdds/dds/subscriber/DataReader.hpp>
 #include <fastdds/dds/subscriber/SampleInfo.hpp>
 #include <fastdds/dds/subscriber/Subscriber.hpp>
+#include <fastdds/dds/subscriber/qos/SubscriberQos.hpp>
 #include <fastdds/dds/subscriber/qos/DataReaderQos.hpp>
 #include <fastdds/dds/topic/Topic.hpp>
 #include <fastdds/dds/topic/TopicDataType.hpp>
@@ -48,10 +65,12 @@
 #include <csignal>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <functional>
 #include <iostream>
 #include <map>
+#include <memory>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -582,13 +601,45 @@ static const char* TOPIC_ANNOUNCEMENT = "shoal/vehicle_announcement";
 static const char* TOPIC_TASK = "shoal/task_assignment";
 static const double MATCH_TIMEOUT_S = 20.0;
 
+// Secure-test options (all empty: the peer as it always was).
+struct SecOpts {
+    std::string security;        // enclave directory
+    std::string partition;       // writers' Publisher partition
+    std::string read_partition;  // readers' Subscriber partition
+};
+
+// "file://" URI of an enclave file, absolute (Fast DDS strips "file://").
+static std::string enclave_uri(const std::string& dir, const char* file)
+{
+    std::string path = dir + "/" + file;
+    std::unique_ptr<char, decltype(&std::free)> abs(realpath(path.c_str(), nullptr), &std::free);
+    if (!abs) throw std::runtime_error("security: cannot read " + path);
+    return std::string("file://") + abs.get();
+}
+
+// OMG DDS Security 1.1 builtin plugins, configured as Fast DDS documents them.
+static void add_security(DomainParticipantQos& pq, const std::string& dir)
+{
+    auto& p = pq.properties().properties();
+    p.emplace_back("dds.sec.auth.plugin", "builtin.PKI-DH");
+    p.emplace_back("dds.sec.auth.builtin.PKI-DH.identity_ca", enclave_uri(dir, "identity_ca.cert.pem"));
+    p.emplace_back("dds.sec.auth.builtin.PKI-DH.identity_certificate", enclave_uri(dir, "cert.pem"));
+    p.emplace_back("dds.sec.auth.builtin.PKI-DH.private_key", enclave_uri(dir, "key.pem"));
+    p.emplace_back("dds.sec.access.plugin", "builtin.Access-Permissions");
+    p.emplace_back("dds.sec.access.builtin.Access-Permissions.permissions_ca",
+                   enclave_uri(dir, "permissions_ca.cert.pem"));
+    p.emplace_back("dds.sec.access.builtin.Access-Permissions.governance", enclave_uri(dir, "governance.p7s"));
+    p.emplace_back("dds.sec.access.builtin.Access-Permissions.permissions", enclave_uri(dir, "permissions.p7s"));
+    p.emplace_back("dds.sec.crypto.plugin", "builtin.AES-GCM-GMAC");
+}
+
 struct Peer {
     DomainParticipant* dp = nullptr;
     Publisher* pub = nullptr;
     Subscriber* sub = nullptr;
     std::map<std::string, Topic*> topics;
 
-    explicit Peer(int domain)
+    explicit Peer(int domain, const SecOpts& so = SecOpts())
     {
         DomainParticipantQos pq = PARTICIPANT_QOS_DEFAULT;
         pq.name("shoal-interop-fastdds");
@@ -597,10 +648,32 @@ struct Peer {
         // see Fast DDS's SHM locators (kind 16) as unreachable.
         pq.transport().use_builtin_transports = false;
         pq.transport().user_transports.push_back(std::make_shared<UDPv4TransportDescriptor>());
+        if (!so.security.empty()) {
+            // Fast DDS logs (e.g. access-control refusals) go to stdout by default:
+            // keep stdout for data and "attack" lines.
+            auto consumer = std::make_unique<eprosima::fastdds::dds::StdoutErrConsumer>();
+            consumer->stderr_threshold(eprosima::fastdds::dds::Log::Kind::Info);
+            eprosima::fastdds::dds::Log::ClearConsumers();
+            eprosima::fastdds::dds::Log::RegisterConsumer(std::move(consumer));
+            add_security(pq, so.security);
+            log("security: DDS Security builtin plugins, enclave " + so.security);
+        }
         dp = DomainParticipantFactory::get_instance()->create_participant(domain, pq);
         if (!dp) throw std::runtime_error("create_participant failed");
-        pub = dp->create_publisher(PUBLISHER_QOS_DEFAULT);
-        sub = dp->create_subscriber(SUBSCRIBER_QOS_DEFAULT);
+        if (so.partition.empty()) {
+            pub = dp->create_publisher(PUBLISHER_QOS_DEFAULT);
+        } else {
+            PublisherQos q = dp->get_default_publisher_qos();
+            q.partition().push_back(so.partition.c_str());
+            pub = dp->create_publisher(q);
+        }
+        if (so.read_partition.empty()) {
+            sub = dp->create_subscriber(SUBSCRIBER_QOS_DEFAULT);
+        } else {
+            SubscriberQos q = dp->get_default_subscriber_qos();
+            q.partition().push_back(so.read_partition.c_str());
+            sub = dp->create_subscriber(q);
+        }
         if (!pub || !sub) throw std::runtime_error("create_publisher/subscriber failed");
     }
     ~Peer()
@@ -721,6 +794,7 @@ struct Args {
     std::map<std::string, std::string> opt;
     int domain = 0;
 
+    bool has(const std::string& k) const { return opt.count(k) != 0; }
     std::string get(const std::string& k, const std::string& def = "") const
     {
         auto it = opt.find(k);
@@ -748,7 +822,9 @@ static void usage()
         "  publish-task    --vehicle-id ID --task-id T [--linger S] [--wait-match S]\n"
         "  subscribe-state [--expect N] [--timeout S] [--vehicle-id ID] [--expect-announcements K]\n"
         "  encode-demo <StateVector|VehicleAnnouncement|TaskAssignment>\n"
-        "  key-hash <StateVector|VehicleAnnouncement|TaskAssignment> <key>\n";
+        "  key-hash <StateVector|VehicleAnnouncement|TaskAssignment> <key>\n"
+        "secure tests: [--security ENCLAVE_DIR] [--partition P] [--read-partition P]\n"
+        "              [--attack] [--match-timeout S]\n";
 }
 
 static Args parse(int argc, char** argv)
@@ -763,6 +839,10 @@ static Args parse(int argc, char** argv)
         if (s.rfind("--", 0) == 0) {
             std::string k = s.substr(2), v;
             auto eq = k.find('=');
+            if (k == "attack") {  // the one flag without a value
+                a.opt[k] = "1";
+                continue;
+            }
             if (eq != std::string::npos) {
                 v = k.substr(eq + 1);
                 k = k.substr(0, eq);
@@ -783,12 +863,121 @@ static Args parse(int argc, char** argv)
 
 // ------------------------------------------------------------ commands
 
+static SecOpts sec_opts(const Args& a)
+{
+    SecOpts so;
+    so.security = a.get("security");
+    so.partition = a.get("partition");
+    so.read_partition = a.get("read-partition");
+    return so;
+}
+
+// --attack: publish what the remote side's access control should refuse, and
+// report every step on stdout instead of giving up ("attack ..." lines).
+static std::string partition_desc(const Args& a)
+{
+    std::string p = a.get("partition");
+    return p.empty() ? "(default partition)" : "partition=" + p;
+}
+
+template <class T> static DataWriter* attack_writer(Peer& p, const Args& a, const char* topic, bool tl,
+                                                    int32_t depth)
+{
+    try {
+        DataWriter* w = p.writer<T>(topic, tl, depth);
+        emit(std::string("attack writer ") + topic + " " + partition_desc(a) + ": created");
+        return w;
+    } catch (const std::exception& e) {
+        emit(std::string("attack writer ") + topic + " " + partition_desc(a) +
+             ": refused locally (" + e.what() + ")");
+        return nullptr;
+    }
+}
+
+static int matched_count(DataWriter* w)
+{
+    PublicationMatchedStatus st;
+    if (w->get_publication_matched_status(st) != ReturnCode_t::RETCODE_OK) return -1;
+    return st.current_count;
+}
+
+static void attack_report_delivery(DataWriter* w, const char* topic, int ok, int failed, double linger)
+{
+    emit(std::string("attack write ") + topic + " ok=" + std::to_string(ok) +
+         " failed=" + std::to_string(failed));
+    bool acked = w->wait_for_acknowledgments(eprosima::fastrtps::Duration_t(linger)) ==
+                 ReturnCode_t::RETCODE_OK;
+    emit(std::string("attack matched ") + std::to_string(matched_count(w)) + " readers on " + topic +
+         "; acknowledged by all: " + (acked ? "yes" : "no"));
+}
+
+static int cmd_attack_state(const Args& a)
+{
+    std::string id = a.need("vehicle-id");
+    int count = static_cast<int>(a.num("count", 10));
+    double rate = a.num("rate", 10.0), linger = a.num("linger", 3.0), settle = a.num("settle", 1.0);
+    double match_timeout = a.num("match-timeout", MATCH_TIMEOUT_S);
+    Peer p(a.domain, sec_opts(a));
+    emit("attack publish-state vehicle_id=" + id + " " + partition_desc(a) + " enclave=" +
+         a.get("security", "(none)"));
+    DataWriter* aw = attack_writer<VehicleAnnouncement>(p, a, TOPIC_ANNOUNCEMENT, true, 1);
+    if (aw) {
+        VehicleAnnouncement ann = make_announcement(id);
+        bool ok = static_cast<bool>(aw->write(&ann));
+        wait_matched(aw, std::min(match_timeout, 5.0));
+        attack_report_delivery(aw, TOPIC_ANNOUNCEMENT, ok ? 1 : 0, ok ? 0 : 1, std::min(linger, 5.0));
+    }
+    DataWriter* w = attack_writer<StateVector>(p, a, TOPIC_STATE, false, 100);
+    int sent = 0, failed = 0;
+    if (w) {
+        bool m = wait_matched(w, match_timeout);
+        if (g_stop) return g_stop_code;
+        emit(std::string("attack matched ") + std::to_string(matched_count(w)) + " readers on " +
+             TOPIC_STATE + (m ? "" : " (none within --match-timeout)"));
+        if (!sleep_unless_stopped(settle)) return g_stop_code;
+        double period = rate > 0 ? 1.0 / rate : 0.0;
+        for (int i = 0; i < count && !g_stop; ++i) {
+            StateVector s = make_state(id, i);
+            if (w->write(&s)) ++sent; else ++failed;
+            if (i + 1 < count && !sleep_unless_stopped(period)) break;
+        }
+        if (g_stop) return g_stop_code;
+        attack_report_delivery(w, TOPIC_STATE, sent, failed, linger);
+        sleep_unless_stopped(linger);
+    }
+    emit("published " + std::to_string(sent));
+    return g_stop ? g_stop_code.load() : 0;
+}
+
+static int cmd_attack_task(const Args& a)
+{
+    std::string id = a.need("vehicle-id"), task = a.need("task-id");
+    double linger = a.num("linger", 3.0), wait_match = a.num("wait-match", 0.0);
+    Peer p(a.domain, sec_opts(a));
+    emit("attack publish-task task_id=" + task + " vehicle_id=" + id + " " + partition_desc(a) +
+         " enclave=" + a.get("security", "(none)"));
+    DataWriter* w = attack_writer<TaskAssignment>(p, a, TOPIC_TASK, true, 100);
+    int sent = 0;
+    if (w) {
+        if (wait_match > 0) wait_matched(w, wait_match);
+        if (g_stop) return g_stop_code;
+        emit(std::string("attack matched ") + std::to_string(matched_count(w)) + " readers on " + TOPIC_TASK);
+        TaskAssignment t = make_task(task, id);
+        bool ok = static_cast<bool>(w->write(&t));
+        sent = ok ? 1 : 0;
+        attack_report_delivery(w, TOPIC_TASK, sent, 1 - sent, linger);
+        sleep_unless_stopped(linger);
+    }
+    emit("published " + std::to_string(sent));
+    return g_stop ? g_stop_code.load() : 0;
+}
+
 static int cmd_publish_state(const Args& a)
 {
     std::string id = a.need("vehicle-id");
     int count = static_cast<int>(a.num("count", 10));
     double rate = a.num("rate", 10.0), linger = a.num("linger", 3.0), settle = a.num("settle", 1.0);
-    Peer p(a.domain);
+    Peer p(a.domain, sec_opts(a));
     DataWriter* aw = p.writer<VehicleAnnouncement>(TOPIC_ANNOUNCEMENT, true, 1);
     VehicleAnnouncement ann = make_announcement(id);
     if (!aw->write(&ann)) {
@@ -836,7 +1025,7 @@ static int cmd_publish_task(const Args& a)
 {
     std::string id = a.need("vehicle-id"), task = a.need("task-id");
     double linger = a.num("linger", 3.0), wait_match = a.num("wait-match", 0.0);
-    Peer p(a.domain);
+    Peer p(a.domain, sec_opts(a));
     DataWriter* w = p.writer<TaskAssignment>(TOPIC_TASK, true, 100);
     if (wait_match > 0 && !wait_matched(w, wait_match))
         log("no TaskAssignment reader matched yet; publishing anyway (transient-local)");
@@ -856,7 +1045,7 @@ static int cmd_subscribe_task(const Args& a)
     std::string id = a.need("vehicle-id");
     int expect = static_cast<int>(a.num("expect", 1));
     double timeout = a.num("timeout", 30.0);
-    Peer p(a.domain);
+    Peer p(a.domain, sec_opts(a));
     DataReader* r = p.reader<TaskAssignment>(TOPIC_TASK, true, 100);
     auto end = std::chrono::steady_clock::now() +
                std::chrono::milliseconds(static_cast<int64_t>(timeout * 1000));
@@ -884,7 +1073,7 @@ static int cmd_subscribe_state(const Args& a)
     int expect_ann = static_cast<int>(a.num("expect-announcements", 0));
     double timeout = a.num("timeout", 30.0);
     std::string id = a.get("vehicle-id");
-    Peer p(a.domain);
+    Peer p(a.domain, sec_opts(a));
     DataReader* r = p.reader<StateVector>(TOPIC_STATE, false, 100);
     DataReader* ra = expect_ann > 0 ? p.reader<VehicleAnnouncement>(TOPIC_ANNOUNCEMENT, true, 1) : nullptr;
     auto end = std::chrono::steady_clock::now() +
@@ -1000,8 +1189,8 @@ int main(int argc, char** argv)
     std::signal(SIGTERM, on_signal);
     try {
         Args a = parse(argc, argv);
-        if (a.cmd == "publish-state") return cmd_publish_state(a);
-        if (a.cmd == "publish-task") return cmd_publish_task(a);
+        if (a.cmd == "publish-state") return a.has("attack") ? cmd_attack_state(a) : cmd_publish_state(a);
+        if (a.cmd == "publish-task") return a.has("attack") ? cmd_attack_task(a) : cmd_publish_task(a);
         if (a.cmd == "subscribe-task") return cmd_subscribe_task(a);
         if (a.cmd == "subscribe-state") return cmd_subscribe_state(a);
         if (a.cmd == "encode-demo") return cmd_encode_demo(a);
