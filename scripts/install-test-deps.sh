@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
 # Installs everything Shoal's DDS interop tests need on a Debian 12 machine:
 #   - apt, through scripts/install-build-deps.sh: cmake + libclang-dev (Shoal's own
-#     build: Cyclone DDS from source), iproute2 (network namespaces), cyclonedds-tools (ddsperf),
-#     libfastrtps-dev + libfastcdr-dev (Fast DDS 2.9 / Fast CDR 1.0), g++, make,
-#     python3-venv
+#     build: Cyclone DDS from source), iproute2 (network namespaces), cyclonedds-tools (ddsperf,
+#     idlc), cyclonedds-dev (Debian's Cyclone DDS 0.10 C headers; libddsc0debian with the DDS
+#     Security plugins), libfastrtps-dev + libfastcdr-dev (Fast DDS 2.9 / Fast CDR 1.0), gcc,
+#     g++, make, openssl (test keystores), python3-venv
 #   - $REPO/.venv with PyPI cyclonedds and rticonnextdds-connector (DDS peers),
 #     rdflib (independent SPARQL engine for the semantic cross-check and SPARQL protocol
 #     client) and schemathesis (OpenAPI conformance, scripts/api-conformance.sh)
-#   - the Fast DDS C++ peer, built into tests/interop/build/ (gitignored)
+#   - the Fast DDS C++ peer and the Cyclone DDS C peer, built into tests/interop/build/
+#     (gitignored; the C peer's type support is generated there by idlc)
 #   - pymavlink and imcpy in the venv, the vehicle proxies' test peers
 #     (scripts/install-proxy-peers.sh)
 # Idempotent: every step is skipped when already done, so a re-run is fast.
@@ -36,8 +38,8 @@ fi
 
 # ---------------------------------------------------------------- apt
 # The build's own packages (cmake, libclang-dev) and the tests', in one apt run.
-"$REPO/scripts/install-build-deps.sh" iproute2 cyclonedds-tools libfastrtps-dev libfastcdr-dev \
-    g++ make python3 python3-venv
+"$REPO/scripts/install-build-deps.sh" iproute2 cyclonedds-tools cyclonedds-dev libfastrtps-dev \
+    libfastcdr-dev gcc g++ make openssl python3 python3-venv
 
 # ---------------------------------------------------------------- venv
 venv_ok() {
@@ -64,6 +66,16 @@ if make -q -C "$REPO/tests/interop/fastdds" BUILD="$REPO/tests/interop/build" >/
 else
     say "building Fast DDS peer -> tests/interop/build/fastdds_peer"
     make -C "$REPO/tests/interop/fastdds" BUILD="$REPO/tests/interop/build"
+fi
+
+# ---------------------------------------------------------------- Cyclone DDS C peer
+# Debian's Cyclone DDS 0.10.2 from C; make regenerates the type support (idlc) and
+# rebuilds only when cyclone_c_peer.c, idl/shoal.idl or the Makefile changed.
+if make -q -C "$REPO/tests/interop/cyclone_c" BUILD="$REPO/tests/interop/build" >/dev/null 2>&1; then
+    say "Cyclone DDS C peer up to date: tests/interop/build/cyclone_c_peer"
+else
+    say "building Cyclone DDS C peer -> tests/interop/build/cyclone_c_peer"
+    make -C "$REPO/tests/interop/cyclone_c" BUILD="$REPO/tests/interop/build"
 fi
 
 # ---------------------------------------------------------------- vehicle proxy peers
