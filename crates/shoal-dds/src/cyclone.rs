@@ -172,6 +172,29 @@ impl Qos {
         unsafe { c::dds_qset_resource_limits(self.0, samples, instances, per_instance) }
     }
 
+    /// The PARTITION policy: the names a writer publishes in, or the names (and `*`
+    /// patterns) a reader listens to.
+    pub(crate) fn partitions(&mut self, names: &[&str]) -> Result<(), DdsError> {
+        let owned: Vec<CString> = names
+            .iter()
+            .map(|n| c_string(n))
+            .collect::<Result<_, _>>()?;
+        let mut ptrs: Vec<*const std::os::raw::c_char> = owned.iter().map(|c| c.as_ptr()).collect();
+        let n = u32::try_from(ptrs.len()).unwrap_or(u32::MAX);
+        // SAFETY: self.0 is live; `ptrs` points at `owned`'s C strings, both alive for the
+        // call; Cyclone copies the strings.
+        unsafe { c::dds_qset_partition(self.0, n, ptrs.as_mut_ptr()) };
+        Ok(())
+    }
+
+    /// A PROPERTY policy entry (DDS Security reads its configuration from these).
+    pub(crate) fn property(&mut self, name: &str, value: &str) -> Result<(), DdsError> {
+        let (n, v) = (c_string(name)?, c_string(value)?);
+        // SAFETY: self.0 is live; both C strings live for the call; Cyclone copies them.
+        unsafe { c::dds_qset_prop(self.0, n.as_ptr(), v.as_ptr()) };
+        Ok(())
+    }
+
     /// Plain CDR version 1 only: Shoal's codec reads no XCDR2, so writers offering only
     /// XCDR2 must not match rather than deliver samples nobody can decode.
     pub(crate) fn xcdr1_only(&mut self) {
@@ -250,10 +273,18 @@ pub(crate) fn domain(config: &DdsConfig) -> Result<(), DdsError> {
     Ok(())
 }
 
-/// Joins `domain_id` (created with [`domain`]) as a participant named `name`.
-pub(crate) fn participant(domain_id: u16, name: &str) -> Result<Entity, DdsError> {
+/// Joins `domain_id` (created with [`domain`]) as a participant named `name`, with
+/// `properties` (DDS Security's configuration, when it is on) in its QoS.
+pub(crate) fn participant(
+    domain_id: u16,
+    name: &str,
+    properties: &[(String, String)],
+) -> Result<Entity, DdsError> {
     let mut qos = Qos::new();
     qos.entity_name(name);
+    for (k, v) in properties {
+        qos.property(k, v)?;
+    }
     // SAFETY: the domain exists; QoS is live for the call; no listener.
     Entity::new(unsafe { c::dds_create_participant(u32::from(domain_id), qos.ptr(), null()) })
 }
@@ -679,17 +710,35 @@ pub(crate) fn take_cdr(
     Ok(())
 }
 
-/// The GUID of a writer matched with `reader`, from its instance handle there.
-pub(crate) fn publication_guid(reader: &Entity, publication: u64) -> Option<Guid> {
-    // SAFETY: returns null or an endpoint record that is freed below.
+/// The GUID and partitions of a writer matched with `reader`, from its instance handle
+/// there.
+pub(crate) fn publication_info(reader: &Entity, publication: u64) -> Option<(Guid, Vec<String>)> {
+    // SAFETY: returns null or an endpoint record that is freed below; the partition
+    // strings are copied out before it is.
     unsafe {
         let ep = c::dds_get_matched_publication_data(reader.0, publication);
         if ep.is_null() {
             return None;
         }
         let g = (*ep).key.v;
+        let mut partitions = Vec::new();
+        let mut n: u32 = 0;
+        let mut ps: *mut *mut std::os::raw::c_char = null_mut();
+        if !(*ep).qos.is_null()
+            && c::dds_qget_partition((*ep).qos, &raw mut n, &raw mut ps)
+            && !ps.is_null()
+        {
+            for i in 0..n as usize {
+                let p = *ps.add(i);
+                if !p.is_null() {
+                    partitions.push(CStr::from_ptr(p).to_string_lossy().into_owned());
+                }
+                c::dds_free(p.cast());
+            }
+            c::dds_free(ps.cast());
+        }
         c::dds_builtintopic_free_endpoint(ep);
-        Some(g)
+        Some((g, partitions))
     }
 }
 

@@ -36,6 +36,10 @@ pub enum CreateError {
     /// The configuration cannot work.
     #[error("invalid DDS configuration: {0}")]
     Config(String),
+    /// A DDS Security file (certificate, key, governance, permissions, revocation list) is
+    /// missing or unusable: nothing is created half-secured.
+    #[error("DDS Security: {0}")]
+    Credentials(#[from] shoal_security::FileError),
 }
 
 /// A call into the DDS library (Cyclone DDS) failed.
@@ -265,6 +269,19 @@ pub enum ReadError {
         reason: &'static str,
         /// The details.
         detail: String,
+    },
+    /// The sample came from a writer in one vehicle's partition (so, on a secured bus, from
+    /// that authenticated vehicle) but speaks for another vehicle.
+    #[error(
+        "sample on {topic} refused: published as vehicle {publisher} but about vehicle {claimed}"
+    )]
+    Impersonation {
+        /// Topic name.
+        topic: &'static str,
+        /// The vehicle whose partition the writer publishes in.
+        publisher: String,
+        /// The vehicle the sample names.
+        claimed: String,
     },
     /// Any other reader failure reported by DDS.
     #[error("DDS read failed on {topic}: {detail}")]

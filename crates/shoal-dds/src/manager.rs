@@ -17,6 +17,7 @@ use crate::cyclone::{self, Entity, QosReports, ReaderHandle, SerType, TopicRef};
 use crate::error::{
     CdrError, CreateError, DdsError, EndError, ReadError, SendError, TypeError, WriteError,
 };
+use crate::omg::{Credentials, Impersonations, READ_PARTITIONS, partition_vehicle};
 use crate::qos::WriterOptions;
 use crate::secure::{
     Refused, SIGNED_TYPE_NAME, Security, SecurityCounts, SignedWire, signed_topic,
@@ -97,6 +98,11 @@ pub struct PubSub {
     participant: Arc<Participant>,
     config: DdsConfig,
     security: Option<Arc<Security>>,
+    /// OMG DDS Security credentials, when the participant was created with them.
+    credentials: Option<Credentials>,
+    /// The partition every writer publishes in (a vehicle's own), if any.
+    writer_partition: Option<String>,
+    impersonations: Arc<Impersonations>,
 }
 
 impl std::fmt::Debug for PubSub {
@@ -111,6 +117,30 @@ impl std::fmt::Debug for PubSub {
 impl PubSub {
     /// Joins the configured DDS domain on the configured interfaces.
     pub fn new(config: &DdsConfig) -> Result<Self, CreateError> {
+        Self::create(config, None)
+    }
+
+    /// Joins the domain with OMG DDS Security on: authenticated, access-controlled and
+    /// encrypted as the enclave's governance and permissions say. Every file is checked
+    /// first; a bad one is an error naming it, and no participant is created.
+    pub fn with_credentials(
+        config: &DdsConfig,
+        credentials: Credentials,
+    ) -> Result<Self, CreateError> {
+        let now_s = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| i64::try_from(d.as_secs()).unwrap_or(i64::MAX));
+        let info = credentials.enclave().check(now_s)?;
+        let pubsub = Self::create(config, Some(credentials))?;
+        info!(
+            identity = %info.common_name,
+            certificate_expires = %info.not_after,
+            "DDS Security on (OMG DDS Security 1.1: authenticated, access-controlled, encrypted)"
+        );
+        Ok(pubsub)
+    }
+
+    fn create(config: &DdsConfig, credentials: Option<Credentials>) -> Result<Self, CreateError> {
         if config.domain_id > 232 {
             // RTPS 9.6.1.1: port numbers overflow 65535 above domain 232.
             return Err(CreateError::Config(format!(
@@ -133,7 +163,11 @@ impl PubSub {
         }
         cyclone::domain(config).map_err(|e| dds_err("the domain", e))?;
         let name = format!("shoal {}", std::process::id());
-        let entity = cyclone::participant(config.domain_id, &name)
+        let properties = credentials
+            .as_ref()
+            .map(Credentials::properties)
+            .unwrap_or_default();
+        let entity = cyclone::participant(config.domain_id, &name, &properties)
             .map_err(|e| dds_err("the participant", e))?;
         let reports = Arc::new(QosReports::default());
         cyclone::listen_for_qos(&entity, &reports);
@@ -156,7 +190,21 @@ impl PubSub {
             }),
             config: config.clone(),
             security: None,
+            writer_partition: credentials.as_ref().and_then(Credentials::writer_partition),
+            credentials,
+            impersonations: Arc::new(Impersonations::default()),
         })
+    }
+
+    /// The DDS Security credentials this participant was created with, if any.
+    pub fn credentials(&self) -> Option<&Credentials> {
+        self.credentials.as_ref()
+    }
+
+    /// Samples refused so far because they spoke for another vehicle than the one whose
+    /// partition they were published in.
+    pub fn impersonations_refused(&self) -> u64 {
+        self.impersonations.total()
     }
 
     /// Like [`PubSub::new`] with security on: Shoal's topics are written signed on their
@@ -226,7 +274,11 @@ impl PubSub {
         topic_name: &str,
         options: WriterOptions,
     ) -> Result<Writer<T>, CreateError> {
-        let qos = T::PROFILE.writer_qos(&options).to_qos();
+        let mut qos = T::PROFILE.writer_qos(&options).to_qos();
+        if let Some(p) = &self.writer_partition {
+            qos.partitions(&[p])
+                .map_err(|e| dds_err(format!("a writer on {topic_name}"), e))?;
+        }
         let security = self.security.as_ref().filter(|_| T::SIGNED).cloned();
         let (topic, sertype) = if security.is_some() {
             self.signed_topic(&signed_topic(topic_name))?
@@ -260,9 +312,11 @@ impl PubSub {
         &self,
         topic_name: &str,
     ) -> Result<Subscription<T>, CreateError> {
-        let qos = T::PROFILE
+        let mut qos = T::PROFILE
             .reader_qos(self.config.topic_cache_samples)
             .to_qos();
+        qos.partitions(&READ_PARTITIONS)
+            .map_err(|e| dds_err(format!("a reader on {topic_name}"), e))?;
         let signal = Arc::new(Signal::default());
         let reader = |topic: TopicRef| {
             cyclone::reader(&self.participant.entity, topic, &qos, Arc::clone(&signal))
@@ -279,6 +333,7 @@ impl PubSub {
                 samples: Samples {
                     decode: Decode::Signed(Arc::clone(security)),
                     writers: HashMap::new(),
+                    impersonations: Arc::clone(&self.impersonations),
                 },
             });
         }
@@ -292,6 +347,7 @@ impl PubSub {
                     None => Decode::Plain,
                 },
                 writers: HashMap::new(),
+                impersonations: Arc::clone(&self.impersonations),
             },
         });
         let watch: Arc<dyn cyclone::Wake> = signal.clone();
@@ -573,6 +629,9 @@ pub struct SampleMeta {
     pub participant: String,
     /// The writer's source timestamp, ms since the Unix epoch, when it sent one.
     pub source_timestamp_ms: Option<i64>,
+    /// The vehicle whose partition the writer publishes in (`shoal.vehicle.<id>`), if any:
+    /// with DDS Security on, the authenticated vehicle that sent the sample.
+    pub publisher_vehicle: Option<String>,
 }
 
 /// Wakes a subscription's task when its readers have data (or a malformed report).
@@ -609,24 +668,30 @@ struct Source {
 /// How one reader's samples are turned into stream items.
 struct Samples {
     decode: Decode,
-    /// Writer and participant GUIDs as text, by the writer's instance handle in this reader:
-    /// formatted once per writer rather than once per sample.
-    writers: HashMap<u64, (String, String)>,
+    /// Writer and participant GUIDs as text and the vehicle whose partition the writer
+    /// publishes in, by the writer's instance handle in this reader: looked up once per
+    /// writer rather than once per sample.
+    writers: HashMap<u64, (String, String, Option<String>)>,
+    impersonations: Arc<Impersonations>,
 }
 
 impl Samples {
     fn meta(&mut self, reader: &Entity, taken: &cyclone::Taken) -> SampleMeta {
-        let (writer, participant) = self.writers.entry(taken.publication).or_insert_with(|| {
-            let guid = cyclone::publication_guid(reader, taken.publication).unwrap_or_default();
-            let participant = hex::encode(&guid[..12]);
-            (
-                format!("{participant}.{}", hex::encode(&guid[12..])),
-                participant,
-            )
-        });
+        let (writer, participant, vehicle) =
+            self.writers.entry(taken.publication).or_insert_with(|| {
+                let (guid, partitions) =
+                    cyclone::publication_info(reader, taken.publication).unwrap_or_default();
+                let participant = hex::encode(&guid[..12]);
+                (
+                    format!("{participant}.{}", hex::encode(&guid[12..])),
+                    participant,
+                    partition_vehicle(&partitions),
+                )
+            });
         SampleMeta {
             writer: writer.clone(),
             participant: participant.clone(),
+            publisher_vehicle: vehicle.clone(),
             source_timestamp_ms: (taken.source_timestamp_ns > 0)
                 .then_some(taken.source_timestamp_ns / 1_000_000),
         }
@@ -649,6 +714,21 @@ impl Samples {
             Decode::Plain => {
                 let value: T = crate::from_cdr(taken.cdr).map_err(malformed)?;
                 let meta = self.meta(reader, taken);
+                if let (Some(publisher), Some(claimed)) =
+                    (meta.publisher_vehicle.as_deref(), value.owner_vehicle())
+                    && publisher != claimed
+                {
+                    self.impersonations.count();
+                    warn!(
+                        topic = T::TOPIC,
+                        publisher, claimed, "sample about another vehicle refused"
+                    );
+                    return Err(ReadError::Impersonation {
+                        topic: T::TOPIC,
+                        publisher: publisher.to_string(),
+                        claimed: claimed.to_string(),
+                    });
+                }
                 validated(value, meta)
             }
             Decode::Unsigned(security) => {

@@ -546,6 +546,7 @@ mod tests {
                 writer: "station".into(),
                 participant: "station".into(),
                 source_timestamp_ms: None,
+                publisher_vehicle: None,
             };
             let a = Validated::new(a).expect("a test task is valid");
             self.tasks.unbounded_send(Ok((a, meta))).unwrap();

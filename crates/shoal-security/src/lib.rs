@@ -102,6 +102,7 @@
 
 pub mod acoustic;
 pub mod cert;
+pub mod dds;
 pub mod envelope;
 pub mod files;
 pub mod identity;

@@ -1,0 +1,162 @@
+//! OMG DDS Security 1.1 on IP links, through Cyclone DDS's built-in plugins (PKI-DH
+//! authentication, Permissions access control, AES-GCM-GMAC cryptography), linked into
+//! the process.
+//!
+//! A participant with [`Credentials`] is created with the standard `dds.sec.*` properties
+//! pointing at its enclave's files. Cyclone then authenticates every remote participant
+//! against the identity CA, checks its signed permissions for every endpoint it creates or
+//! matches, and encrypts what the governance document says. A vehicle's writers publish
+//! in its own partition (`shoal.vehicle.<id>`), the only one its permissions allow; a
+//! subscriber then knows which authenticated vehicle a sample came from and refuses one
+//! that speaks about another vehicle ([`crate::ReadError::Impersonation`]).
+
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use shoal_security::dds::{Enclave, VEHICLE_PARTITION_PREFIX, names, vehicle_partition};
+
+/// The partitions every Shoal reader listens to: the default one (the station's writers,
+/// and unmodified vehicles when security is off) and every vehicle's own.
+pub(crate) const READ_PARTITIONS: [&str; 2] = ["", "shoal.vehicle.*"];
+
+/// Who a participant is on a secured bus.
+#[derive(Debug, Clone)]
+pub struct Credentials {
+    enclave: Enclave,
+    vehicle_id: Option<String>,
+}
+
+impl Credentials {
+    /// The station's credentials: it publishes in the default partition.
+    pub fn station(enclave: Enclave) -> Self {
+        Self {
+            enclave,
+            vehicle_id: None,
+        }
+    }
+
+    /// A vehicle's credentials: it publishes in its own partition.
+    pub fn vehicle(enclave: Enclave, vehicle_id: &str) -> Self {
+        Self {
+            enclave,
+            vehicle_id: Some(vehicle_id.to_string()),
+        }
+    }
+
+    /// The enclave the participant loads.
+    pub fn enclave(&self) -> &Enclave {
+        &self.enclave
+    }
+
+    /// The partition this participant's writers use.
+    pub(crate) fn writer_partition(&self) -> Option<String> {
+        self.vehicle_id.as_deref().map(vehicle_partition)
+    }
+
+    /// The participant QoS properties that turn the plugins on.
+    pub(crate) fn properties(&self) -> Vec<(String, String)> {
+        let file = |name: &str| uri(&self.enclave.file(name));
+        let mut p: Vec<(String, String)> = [
+            ("dds.sec.auth.library.path", "dds_security_auth".to_string()),
+            ("dds.sec.auth.library.init", "init_authentication".into()),
+            (
+                "dds.sec.auth.library.finalize",
+                "finalize_authentication".into(),
+            ),
+            ("dds.sec.crypto.library.path", "dds_security_crypto".into()),
+            ("dds.sec.crypto.library.init", "init_crypto".into()),
+            ("dds.sec.crypto.library.finalize", "finalize_crypto".into()),
+            ("dds.sec.access.library.path", "dds_security_ac".into()),
+            ("dds.sec.access.library.init", "init_access_control".into()),
+            (
+                "dds.sec.access.library.finalize",
+                "finalize_access_control".into(),
+            ),
+            ("dds.sec.auth.identity_ca", file(names::IDENTITY_CA)),
+            ("dds.sec.auth.identity_certificate", file(names::CERT)),
+            ("dds.sec.auth.private_key", file(names::KEY)),
+            ("dds.sec.access.permissions_ca", file(names::PERMISSIONS_CA)),
+            ("dds.sec.access.governance", file(names::GOVERNANCE)),
+            ("dds.sec.access.permissions", file(names::PERMISSIONS)),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect();
+        if let Some(crl) = self.enclave.crl() {
+            p.push(("org.eclipse.cyclonedds.sec.auth.crl".into(), uri(crl)));
+        }
+        p
+    }
+}
+
+fn uri(path: &Path) -> String {
+    let abs = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    format!("file:{}", abs.display())
+}
+
+/// The vehicle a writer's partitions name, if it publishes in one vehicle's partition.
+pub(crate) fn partition_vehicle(partitions: &[String]) -> Option<String> {
+    match partitions {
+        [one] => one
+            .strip_prefix(VEHICLE_PARTITION_PREFIX)
+            .map(str::to_string),
+        _ => None,
+    }
+}
+
+/// Samples refused because their publisher spoke about another vehicle, by topic.
+#[derive(Debug, Default)]
+pub(crate) struct Impersonations {
+    total: AtomicU64,
+}
+
+impl Impersonations {
+    pub(crate) fn count(&self) {
+        self.total.fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub(crate) fn total(&self) -> u64 {
+        self.total.load(Ordering::Relaxed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn partition_names_the_vehicle_only_when_alone() {
+        assert_eq!(
+            partition_vehicle(&["shoal.vehicle.auv-1".into()]).as_deref(),
+            Some("auv-1")
+        );
+        assert_eq!(partition_vehicle(&[]), None);
+        assert_eq!(partition_vehicle(&["x".into()]), None);
+        assert_eq!(
+            partition_vehicle(&["shoal.vehicle.a".into(), "shoal.vehicle.b".into()]),
+            None
+        );
+    }
+
+    #[test]
+    fn properties_name_every_file_as_a_uri() {
+        let c = Credentials::vehicle(
+            Enclave::new(
+                "/ks/enclaves/shoal/vehicle/auv-1",
+                Some("/ks/crl.pem".into()),
+            ),
+            "auv-1",
+        );
+        let p = c.properties();
+        let get = |k: &str| p.iter().find(|(n, _)| n == k).map(|(_, v)| v.as_str());
+        assert_eq!(
+            get("dds.sec.auth.identity_certificate"),
+            Some("file:/ks/enclaves/shoal/vehicle/auv-1/cert.pem")
+        );
+        assert_eq!(
+            get("org.eclipse.cyclonedds.sec.auth.crl"),
+            Some("file:/ks/crl.pem")
+        );
+        assert_eq!(c.writer_partition().as_deref(), Some("shoal.vehicle.auv-1"));
+    }
+}
