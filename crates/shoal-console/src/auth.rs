@@ -4,15 +4,23 @@
 //!   (also dispatches and aborts missions and tasks, acknowledges events, subscribes to
 //!   environment data), `admin` (also manages rules, vehicles, users and tokens).
 //! - People log in with a name and password (`POST /api/auth/login`) and get a session in
-//!   an `HttpOnly`, `SameSite=Strict` cookie; tools send `Authorization: Bearer <token>`.
+//!   an `HttpOnly`, `SameSite=Strict` cookie (`Secure` over TLS) and a CSRF token that
+//!   every state-changing request on that session must echo in `X-CSRF-Token`; tools send
+//!   `Authorization: Bearer <token>`.
 //! - Users and tokens live in a JSON file (`users_path`): passwords as Argon2id PHC
 //!   strings, tokens and session ids only as SHA-256 digests. The first start with auth
-//!   enabled and no admin creates user `admin` and an admin token and logs both once.
+//!   enabled and no admin creates user `admin` and an admin token; the caller shows them
+//!   once on the terminal (never in the log) unless they came from the configuration.
 //! - Missing or invalid credentials give 401, the wrong role 403, both as `{"error": ...}`.
+//! - Failed logins are limited per client address and per user name ([`LoginThrottle`]),
+//!   and Argon2 hashing is bounded by a semaphore, so a login flood neither guesses
+//!   passwords quickly nor takes every blocking thread.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
+use std::net::IpAddr;
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard};
+use std::time::{Duration, Instant};
 
 use argon2::Argon2;
 use argon2::password_hash::{PasswordHash, PasswordHasher, PasswordVerifier, SaltString};
@@ -22,6 +30,9 @@ use sha2::{Digest, Sha256};
 
 /// Name of the session cookie.
 pub const COOKIE: &str = "shoal_session";
+
+/// The header a state-changing request on a session cookie carries its CSRF token in.
+pub const CSRF_HEADER: &str = "x-csrf-token";
 
 /// What a user or token may do; each role includes the ones before it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -49,22 +60,55 @@ impl std::fmt::Display for Role {
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AuthConfig {
-    /// Require a login or token for the API and the live feed. Off by default: the console
-    /// listens on loopback only unless `console.listen` says otherwise.
+    /// Require a login or token for the API and the live feed. On by default; turning it
+    /// off leaves the console open to anyone who can reach `console.listen`.
     pub enabled: bool,
     /// Users and API tokens (hashes only), managed through `/api/auth/users` and
     /// `/api/auth/tokens`; created on the first start with `enabled = true`.
     pub users_path: PathBuf,
     /// How long a login lasts, seconds.
     pub session_ttl_s: u64,
+    /// The first admin's password on the first start (at least 10 characters), instead of
+    /// a random one printed on the terminal; empty: random. For test harnesses and
+    /// provisioning (`SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_PASSWORD`); unused once an admin
+    /// exists.
+    pub initial_admin_password: String,
+    /// The first admin API token on the first start (at least 32 characters), instead of a
+    /// random one printed on the terminal; empty: random.
+    pub initial_admin_token: String,
+    /// Failed logins allowed per client address and per user name within
+    /// `failed_login_window_s`; past that, logins are answered 429 with `Retry-After`.
+    pub max_failed_logins: u32,
+    /// The window failed logins are counted over, seconds.
+    pub failed_login_window_s: u64,
+    /// Password hashes (Argon2, tens of ms and 19 MiB each) computed at once at most.
+    pub max_concurrent_hashes: usize,
+    /// How long a login waits for a hashing turn before 503, ms.
+    pub hash_queue_ms: u64,
 }
 
 impl Default for AuthConfig {
     fn default() -> Self {
         Self {
-            enabled: false,
+            enabled: true,
             users_path: PathBuf::from("shoal-data/console-users.json"),
             session_ttl_s: 12 * 3600,
+            initial_admin_password: String::new(),
+            initial_admin_token: String::new(),
+            max_failed_logins: 5,
+            failed_login_window_s: 60,
+            max_concurrent_hashes: 2,
+            hash_queue_ms: 1000,
+        }
+    }
+}
+
+impl AuthConfig {
+    /// Logins off: for tests and tools that start a console of their own.
+    pub fn off() -> Self {
+        Self {
+            enabled: false,
+            ..Self::default()
         }
     }
 }
@@ -169,7 +213,7 @@ pub struct TokenInfo {
     pub created_ms: i64,
 }
 
-/// Credentials made on the first start, shown once in the log.
+/// Credentials made on the first start, shown once on the terminal.
 #[derive(Debug, Clone)]
 pub struct Bootstrap {
     /// The admin's login name.
@@ -178,6 +222,36 @@ pub struct Bootstrap {
     pub password: String,
     /// An admin API token.
     pub token: String,
+    /// The password came from `initial_admin_password`: whoever set it knows it.
+    pub password_configured: bool,
+    /// The token came from `initial_admin_token`.
+    pub token_configured: bool,
+}
+
+impl Bootstrap {
+    /// What to print on the terminal once: the credentials nobody knows yet.
+    pub fn notice(&self, users_file: &Path) -> String {
+        let mut text = format!(
+            "\n=== Shoal console: first start, user \"{}\" (admin) created in {} ===\n",
+            self.user,
+            users_file.display()
+        );
+        if self.password_configured {
+            text.push_str("  password:  the one set in [console.auth] initial_admin_password\n");
+        } else {
+            text.push_str(&format!("  password:  {}\n", self.password));
+        }
+        if self.token_configured {
+            text.push_str("  API token: the one set in [console.auth] initial_admin_token\n");
+        } else {
+            text.push_str(&format!("  API token: {}\n", self.token));
+        }
+        text.push_str(
+            "  Shown only now and never logged; only their hashes are stored. Change the password\n  \
+             with POST /api/auth/users (see docs/console.md, \"Authentication\").\n\n",
+        );
+        text
+    }
 }
 
 #[derive(Debug)]
@@ -255,6 +329,9 @@ fn check_name(what: &str, name: &str) -> Result<(), AuthError> {
 /// Least password length for users made through the API.
 pub const MIN_PASSWORD_LEN: usize = 10;
 
+/// Least length of a token given in the configuration (generated ones have 70).
+pub const MIN_TOKEN_LEN: usize = 32;
+
 impl Auth {
     /// No authentication: every request is allowed, as an `open` admin.
     pub fn disabled() -> Self {
@@ -297,13 +374,37 @@ impl Auth {
         if has_admin {
             return Ok((auth, None));
         }
-        let password = random_hex(12)?;
-        auth.set_user("admin", &password, Role::Admin)?;
-        let (_, token) = auth.create_token("bootstrap", Role::Admin)?;
+        let password_configured = !config.initial_admin_password.is_empty();
+        let password = if password_configured {
+            config.initial_admin_password.clone()
+        } else {
+            random_hex(12)?
+        };
+        let token_configured = !config.initial_admin_token.is_empty();
+        if token_configured && config.initial_admin_token.chars().count() < MIN_TOKEN_LEN {
+            return Err(AuthError::Invalid(format!(
+                "[console.auth] initial_admin_token: at least {MIN_TOKEN_LEN} characters"
+            )));
+        }
+        auth.set_user("admin", &password, Role::Admin)
+            .map_err(|e| match e {
+                AuthError::Invalid(why) => {
+                    AuthError::Invalid(format!("[console.auth] initial_admin_password: {why}"))
+                }
+                e => e,
+            })?;
+        let token = if token_configured {
+            auth.add_token("bootstrap", Role::Admin, &config.initial_admin_token)?;
+            config.initial_admin_token.clone()
+        } else {
+            auth.create_token("bootstrap", Role::Admin)?.1
+        };
         let boot = Bootstrap {
             user: "admin".into(),
             password,
             token,
+            password_configured,
+            token_configured,
         };
         Ok((auth, Some(boot)))
     }
@@ -436,6 +537,24 @@ impl Auth {
         Ok((id, identity))
     }
 
+    /// The CSRF token of the session these headers carry (logged in or not): a digest of
+    /// the session id under its own label, so only someone holding the cookie's value,
+    /// which scripts cannot read (`HttpOnly`), can produce it, and nothing more is stored.
+    pub fn csrf_token(&self, headers: &HeaderMap) -> Option<String> {
+        session_cookie(headers).map(csrf_of)
+    }
+
+    /// True when the request echoes its session's CSRF token in `X-CSRF-Token`.
+    pub fn csrf_ok(&self, headers: &HeaderMap) -> bool {
+        let Some(expected) = self.csrf_token(headers) else {
+            return false;
+        };
+        headers
+            .get(CSRF_HEADER)
+            .and_then(|v| v.to_str().ok())
+            .is_some_and(|sent| constant_time_eq(sent.trim().as_bytes(), expected.as_bytes()))
+    }
+
     /// Ends the session these headers carry, if any.
     pub fn logout(&self, headers: &HeaderMap) {
         if let Some(s) = session_cookie(headers) {
@@ -531,16 +650,22 @@ impl Auth {
 
     /// Makes an API token for a tool; the token itself is returned only here.
     pub fn create_token(&self, name: &str, role: Role) -> Result<(TokenInfo, String), AuthError> {
+        let token = format!("shoal_{}", random_hex(32)?);
+        let info = self.add_token(name, role, &token)?;
+        Ok((info, token))
+    }
+
+    /// Stores `token` (its digest) for a tool.
+    fn add_token(&self, name: &str, role: Role, token: &str) -> Result<TokenInfo, AuthError> {
         if !self.enabled {
             return Err(AuthError::Disabled);
         }
         check_name("name", name)?;
-        let token = format!("shoal_{}", random_hex(32)?);
         let record = TokenRecord {
             id: format!("tok-{}", random_hex(6)?),
             name: name.to_owned(),
             role,
-            sha256: sha256_hex(&token),
+            sha256: sha256_hex(token),
             created_ms: now_ms(),
         };
         let info = TokenInfo {
@@ -554,7 +679,7 @@ impl Auth {
         file.tokens.push(record);
         self.save(&file)?;
         inner.file = file;
-        Ok((info, token))
+        Ok(info)
     }
 
     /// Revokes a token.
@@ -585,6 +710,17 @@ fn would_lose_last_admin(file: &UsersFile, name: &str) -> bool {
     admins == [name]
 }
 
+/// The CSRF token belonging to session id `session`.
+pub fn csrf_of(session: &str) -> String {
+    sha256_hex(&format!("shoal-csrf:{session}"))
+}
+
+/// Compares without stopping at the first difference, so timing says nothing about how
+/// much of a guess was right.
+fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
 /// The session id in the request's cookies.
 fn session_cookie(headers: &HeaderMap) -> Option<&str> {
     headers
@@ -598,13 +734,125 @@ fn session_cookie(headers: &HeaderMap) -> Option<&str> {
         .filter(|v| !v.is_empty())
 }
 
-/// The `Set-Cookie` value that opens (`Some(id)`) or ends (`None`) a session.
-pub fn session_set_cookie(id: Option<&str>, max_age_s: i64) -> String {
+/// The `Set-Cookie` value that opens (`Some(id)`) or ends (`None`) a session; `secure`
+/// (the console is served over TLS) keeps the browser from ever sending it in clear.
+pub fn session_set_cookie(id: Option<&str>, max_age_s: i64, secure: bool) -> String {
+    let secure = if secure { "; Secure" } else { "" };
     match id {
         Some(id) => {
-            format!("{COOKIE}={id}; HttpOnly; SameSite=Strict; Path=/; Max-Age={max_age_s}")
+            format!("{COOKIE}={id}; HttpOnly; SameSite=Strict; Path=/; Max-Age={max_age_s}{secure}")
         }
-        None => format!("{COOKIE}=; HttpOnly; SameSite=Strict; Path=/; Max-Age=0"),
+        None => format!("{COOKIE}=; HttpOnly; SameSite=Strict; Path=/; Max-Age=0{secure}"),
+    }
+}
+
+/// Most client addresses and user names whose failures are remembered; past that, the
+/// one whose last failure is oldest is forgotten first.
+const MAX_TRACKED: usize = 10_000;
+
+/// Failed logins per client address and per user name over a sliding window.
+#[derive(Debug)]
+pub struct LoginThrottle {
+    max: usize,
+    window: Duration,
+    inner: Mutex<Failures>,
+}
+
+#[derive(Debug, Default)]
+struct Failures {
+    by_addr: HashMap<IpAddr, VecDeque<Instant>>,
+    by_user: HashMap<String, VecDeque<Instant>>,
+}
+
+/// Drops failures older than the window; true when none are left.
+fn expire(times: &mut VecDeque<Instant>, now: Instant, window: Duration) -> bool {
+    while times
+        .front()
+        .is_some_and(|t| now.saturating_duration_since(*t) >= window)
+    {
+        times.pop_front();
+    }
+    times.is_empty()
+}
+
+fn record<K: std::hash::Hash + Eq + Clone>(
+    map: &mut HashMap<K, VecDeque<Instant>>,
+    key: &K,
+    now: Instant,
+    window: Duration,
+    max: usize,
+) {
+    if !map.contains_key(key) && map.len() >= MAX_TRACKED {
+        map.retain(|_, t| !expire(t, now, window));
+        if map.len() >= MAX_TRACKED
+            && let Some(stalest) = map
+                .iter()
+                .min_by_key(|(_, t)| t.back().copied())
+                .map(|(k, _)| k.clone())
+        {
+            map.remove(&stalest);
+        }
+    }
+    let times = map.entry(key.clone()).or_default();
+    times.push_back(now);
+    // Only the last `max` matter for the decision.
+    while times.len() > max.max(1) {
+        times.pop_front();
+    }
+}
+
+impl LoginThrottle {
+    /// `max` failures per `window` for each address and each user name.
+    pub fn new(max: u32, window: Duration) -> Self {
+        Self {
+            max: usize::try_from(max).unwrap_or(usize::MAX).max(1),
+            window,
+            inner: Mutex::new(Failures::default()),
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Failures> {
+        self.inner
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// `Err(wait)` when `addr` or `user` has had its failures within the window: try again
+    /// after `wait`.
+    pub fn check(&self, addr: Option<IpAddr>, user: &str, now: Instant) -> Result<(), Duration> {
+        let mut f = self.lock();
+        let (max, window) = (self.max, self.window);
+        let wait = |times: Option<&mut VecDeque<Instant>>| -> Option<Duration> {
+            let times = times?;
+            expire(times, now, window);
+            (times.len() >= max).then(|| {
+                let oldest = times[times.len() - max];
+                window.saturating_sub(now.saturating_duration_since(oldest))
+            })
+        };
+        let by_addr = addr.and_then(|a| wait(f.by_addr.get_mut(&a)));
+        let by_user = wait(f.by_user.get_mut(user));
+        match by_addr.into_iter().chain(by_user).max() {
+            Some(w) => Err(w.max(Duration::from_secs(1))),
+            None => Ok(()),
+        }
+    }
+
+    /// Counts a failed login.
+    pub fn failed(&self, addr: Option<IpAddr>, user: &str, now: Instant) {
+        let mut f = self.lock();
+        let (max, window) = (self.max, self.window);
+        if let Some(a) = addr {
+            record(&mut f.by_addr, &a, now, window, max);
+        }
+        // Names are bounded (the login body is at most max_body_bytes) but need not exist.
+        record(&mut f.by_user, &user.to_owned(), now, window, max);
+    }
+
+    /// A successful login clears its user's failures (not its address's: one known
+    /// account must not reset the count for guessing others).
+    pub fn succeeded(&self, user: &str) {
+        self.lock().by_user.remove(user);
     }
 }
 
@@ -651,9 +899,9 @@ mod tests {
     fn store() -> (tempfile::TempDir, Auth, Bootstrap) {
         let dir = tempfile::tempdir().unwrap();
         let config = AuthConfig {
-            enabled: true,
             users_path: dir.path().join("users.json"),
             session_ttl_s: 60,
+            ..AuthConfig::default()
         };
         let (auth, boot) = Auth::load(&config).unwrap();
         (dir, auth, boot.expect("first start makes an admin"))
@@ -715,9 +963,9 @@ mod tests {
         assert!(text.contains("$argon2id$"));
         // A second start finds the admin and makes nothing.
         let again = Auth::load(&AuthConfig {
-            enabled: true,
             users_path: dir.path().join("users.json"),
             session_ttl_s: 60,
+            ..AuthConfig::default()
         })
         .unwrap();
         assert!(again.1.is_none());
@@ -794,10 +1042,121 @@ mod tests {
     }
 
     #[test]
-    fn the_session_cookie_is_http_only_and_same_site() {
-        let c = session_set_cookie(Some("abc"), 60);
+    fn the_session_cookie_is_http_only_and_same_site_and_secure_over_tls() {
+        let c = session_set_cookie(Some("abc"), 60, false);
         assert!(c.starts_with("shoal_session=abc;"));
         assert!(c.contains("HttpOnly") && c.contains("SameSite=Strict"));
-        assert!(session_set_cookie(None, 60).contains("Max-Age=0"));
+        assert!(!c.contains("Secure"));
+        assert!(session_set_cookie(Some("abc"), 60, true).ends_with("; Secure"));
+        assert!(session_set_cookie(None, 60, false).contains("Max-Age=0"));
+        assert!(session_set_cookie(None, 60, true).contains("Secure"));
+    }
+
+    #[test]
+    fn logins_are_on_by_default() {
+        assert!(AuthConfig::default().enabled);
+        assert!(!AuthConfig::off().enabled);
+    }
+
+    #[test]
+    fn the_first_admin_can_come_from_the_configuration_and_is_then_not_shown() {
+        let dir = tempfile::tempdir().unwrap();
+        let config = AuthConfig {
+            users_path: dir.path().join("users.json"),
+            initial_admin_password: "configured password".into(),
+            initial_admin_token: "t".repeat(MIN_TOKEN_LEN),
+            ..AuthConfig::default()
+        };
+        let (auth, boot) = Auth::load(&config).unwrap();
+        let boot = boot.unwrap();
+        assert!(boot.password_configured && boot.token_configured);
+        assert!(auth.login("admin", "configured password").is_ok());
+        let bearer = with(header::AUTHORIZATION, &format!("Bearer {}", "t".repeat(32)));
+        assert_eq!(auth.authenticate(&bearer).unwrap().role, Role::Admin);
+        let notice = boot.notice(auth.path());
+        assert!(!notice.contains("configured password") && !notice.contains(&"t".repeat(32)));
+        // A random one is shown, once.
+        let (_d, auth, boot) = store();
+        let notice = boot.notice(auth.path());
+        assert!(notice.contains(&boot.password) && notice.contains(&boot.token));
+        // Weak configured credentials are refused, naming the key.
+        for (password, token) in [("short", ""), ("long enough pw", "short token")] {
+            let dir = tempfile::tempdir().unwrap();
+            let err = Auth::load(&AuthConfig {
+                users_path: dir.path().join("users.json"),
+                initial_admin_password: password.into(),
+                initial_admin_token: token.into(),
+                ..AuthConfig::default()
+            })
+            .unwrap_err();
+            assert!(err.to_string().contains("initial_admin"), "{err}");
+        }
+    }
+
+    #[test]
+    fn the_csrf_token_belongs_to_the_session_cookie() {
+        let (_dir, auth, boot) = store();
+        let (session, _) = auth.login("admin", &boot.password).unwrap();
+        let mut h = with(header::COOKIE, &format!("{COOKIE}={session}"));
+        let token = auth.csrf_token(&h).unwrap();
+        assert_eq!(token, csrf_of(&session));
+        assert_ne!(
+            token,
+            sha256_hex(&session),
+            "the stored digest is not the token"
+        );
+        assert!(!auth.csrf_ok(&h), "no header");
+        h.insert(
+            CSRF_HEADER,
+            HeaderValue::from_str(&csrf_of("other")).unwrap(),
+        );
+        assert!(!auth.csrf_ok(&h), "another session's token");
+        h.insert(CSRF_HEADER, HeaderValue::from_str(&token).unwrap());
+        assert!(auth.csrf_ok(&h));
+        assert!(!auth.csrf_ok(&with(header::HeaderName::from_static(CSRF_HEADER), &token)));
+    }
+
+    #[test]
+    fn failed_logins_are_limited_per_address_and_per_user_over_a_window() {
+        let t = LoginThrottle::new(5, Duration::from_secs(60));
+        let t0 = Instant::now();
+        let a: IpAddr = "127.0.0.7".parse().unwrap();
+        let b: IpAddr = "127.0.0.8".parse().unwrap();
+        for i in 0..5 {
+            assert!(t.check(Some(a), "admin", t0).is_ok(), "attempt {i}");
+            t.failed(Some(a), "admin", t0 + Duration::from_secs(i));
+        }
+        let now = t0 + Duration::from_secs(10);
+        // The address is blocked, whatever the name; the oldest failure leaves in 50 s.
+        assert_eq!(t.check(Some(a), "vera", now), Err(Duration::from_secs(50)));
+        // The name is blocked from another address too.
+        assert!(t.check(Some(b), "admin", now).is_err());
+        assert!(t.check(Some(b), "vera", now).is_ok());
+        // Success clears the name but not the address.
+        t.succeeded("admin");
+        assert!(t.check(Some(b), "admin", now).is_ok());
+        assert!(t.check(Some(a), "vera", now).is_err());
+        // A minute after the first failure, one more attempt is allowed.
+        assert!(
+            t.check(Some(a), "vera", t0 + Duration::from_secs(60))
+                .is_ok()
+        );
+        // Without a known address, the name alone counts.
+        for _ in 0..5 {
+            t.failed(None, "otto", now);
+        }
+        assert!(t.check(None, "otto", now).is_err());
+    }
+
+    #[test]
+    fn the_throttle_forgets_the_stalest_entries_past_its_bound() {
+        let t = LoginThrottle::new(1, Duration::from_secs(60));
+        let t0 = Instant::now();
+        for i in 0..(MAX_TRACKED + 10) {
+            t.failed(None, &format!("u{i}"), t0 + Duration::from_millis(i as u64));
+        }
+        let f = t.lock();
+        assert_eq!(f.by_user.len(), MAX_TRACKED);
+        assert!(!f.by_user.contains_key("u0") && f.by_user.contains_key("u10009"));
     }
 }

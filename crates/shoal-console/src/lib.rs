@@ -4,6 +4,10 @@
 //!   [`console_router`] takes an [`Auth`] store. Tests drive both without sockets.
 //! - [`serve_with`] runs it on a listener until shutdown, with the `[console]` configuration
 //!   ([`ConsoleConfig`], authentication included); [`serve`] uses the defaults.
+//! - Every request must name this console in `Host` (`[console] allowed_hosts`, against
+//!   DNS rebinding); WebSocket handshakes and state-changing requests from a browser must
+//!   come from its own origin (or `allowed_origins`), and on a session cookie carry its
+//!   CSRF token; logins are rate-limited ([`gate`], [`auth`]). Optional TLS: [`tls`].
 //! - [`LimitsConfig`] (`[console.limits]`) bounds connections, slow clients, requests,
 //!   bodies, live feed clients and SPARQL queries ([`limits`]); each limit hit is counted
 //!   in `/api/stats`, `/api/health` and `/metrics`.
@@ -25,9 +29,10 @@
 
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
-use axum::extract::{FromRef, Path, Query, Request, State};
-use axum::http::{HeaderMap, StatusCode, header};
+use axum::extract::{ConnectInfo, FromRef, Path, Query, Request, State};
+use axum::http::{HeaderMap, Method, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
@@ -37,6 +42,7 @@ use shoal_model::TaskAssignment;
 use shoal_station::{
     DispatchError, EnvSubscriptionSpec, MissionSpec, RuleChangeError, RuleDoc, StationHandle,
 };
+use tokio::sync::Semaphore;
 use tokio_util::sync::CancellationToken;
 use tracing::{error, info, warn};
 
@@ -46,18 +52,23 @@ pub mod auth;
 mod capable;
 pub mod export;
 mod extract;
+mod gate;
 mod health;
 pub mod limits;
 mod live;
 mod metrics;
 mod negotiate;
 mod sparql;
+pub mod tls;
 pub mod web;
 
 pub use auth::{Auth, AuthConfig, AuthError, Identity, Role};
+pub use gate::Refusals;
+use gate::{Gate, Refused};
 pub use health::HealthConfig;
 use limits::Limits;
 pub use limits::{LimitHits, LimitsConfig};
+pub use tls::{TlsConfig, TlsError};
 
 /// The `[console]` section of Shoal's configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -65,8 +76,17 @@ pub use limits::{LimitHits, LimitsConfig};
 pub struct ConsoleConfig {
     /// Address the console and its API listen on; loopback by default.
     pub listen: SocketAddr,
-    /// Logins, roles and API tokens (`[console.auth]`); off by default.
+    /// Host names (`name` for any port, or `name:port`) the console answers to besides
+    /// the listen address, `localhost`, `127.0.0.1` and `[::1]` on its port; others get
+    /// 421 (DNS rebinding). `"*"` turns the check off.
+    pub allowed_hosts: Vec<String>,
+    /// Origins (`https://ops.example.org`) besides the console's own from which browsers
+    /// may open the live feed or change anything; others get 403.
+    pub allowed_origins: Vec<String>,
+    /// Logins, roles and API tokens (`[console.auth]`); on by default.
     pub auth: AuthConfig,
+    /// HTTPS (`[console.tls]`); off by default.
+    pub tls: TlsConfig,
     /// Bounds on connections, requests, bodies, live feed clients and SPARQL queries
     /// (`[console.limits]`).
     pub limits: LimitsConfig,
@@ -78,7 +98,10 @@ impl Default for ConsoleConfig {
     fn default() -> Self {
         Self {
             listen: SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, 8640)),
+            allowed_hosts: Vec::new(),
+            allowed_origins: Vec::new(),
             auth: AuthConfig::default(),
+            tls: TlsConfig::default(),
             limits: LimitsConfig::default(),
             health: HealthConfig::default(),
         }
@@ -95,6 +118,9 @@ pub enum ConsoleError {
     /// The server failed.
     #[error("console server: {0}")]
     Io(#[from] std::io::Error),
+    /// `[console.tls]` cannot be used.
+    #[error(transparent)]
+    Tls(#[from] TlsError),
 }
 
 /// The API's error: a status and a message for the client.
@@ -113,9 +139,21 @@ pub enum ApiError {
     /// No valid credentials: log in or send a token.
     #[error("{0}")]
     Unauthorized(String),
-    /// The credentials are valid but their role may not do this.
+    /// The credentials are valid but their role may not do this, or the request came from
+    /// another site's page.
     #[error("{0}")]
     Forbidden(String),
+    /// The `Host` is not one this console answers to (421).
+    #[error("{0}")]
+    Misdirected(String),
+    /// Too many failed logins lately; try again after `retry_after_s` (429).
+    #[error("{message}")]
+    TooManyRequests {
+        /// What to tell the client.
+        message: String,
+        /// Seconds until an attempt may succeed.
+        retry_after_s: u64,
+    },
     /// The request was right but could not be answered in time.
     #[error("{0}")]
     Unavailable(String),
@@ -153,6 +191,8 @@ impl IntoResponse for ApiError {
             Self::Conflict(_) => StatusCode::CONFLICT,
             Self::Unauthorized(_) => StatusCode::UNAUTHORIZED,
             Self::Forbidden(_) => StatusCode::FORBIDDEN,
+            Self::Misdirected(_) => StatusCode::MISDIRECTED_REQUEST,
+            Self::TooManyRequests { .. } => StatusCode::TOO_MANY_REQUESTS,
             Self::Unavailable(_) | Self::Busy(_) => StatusCode::SERVICE_UNAVAILABLE,
             Self::NotAcceptable(_) => StatusCode::NOT_ACCEPTABLE,
             Self::PayloadTooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
@@ -170,6 +210,12 @@ impl IntoResponse for ApiError {
             res.headers_mut()
                 .insert(header::RETRY_AFTER, header::HeaderValue::from_static("1"));
         }
+        if let Self::TooManyRequests { retry_after_s, .. } = self {
+            res.headers_mut().insert(
+                header::RETRY_AFTER,
+                header::HeaderValue::from(retry_after_s),
+            );
+        }
         res
     }
 }
@@ -183,6 +229,43 @@ pub(crate) struct AppState {
     limits: Arc<Limits>,
     health: Arc<HealthConfig>,
     commits: Arc<health::CommitClock>,
+    gate: Arc<Gate>,
+    logins: Arc<Logins>,
+}
+
+/// What bounds logins: failures per address and name, and concurrent password hashes.
+#[derive(Debug)]
+struct Logins {
+    throttle: auth::LoginThrottle,
+    hashes: Arc<Semaphore>,
+    hash_queue: Duration,
+}
+
+impl Logins {
+    fn new(config: &AuthConfig) -> Self {
+        Self {
+            throttle: auth::LoginThrottle::new(
+                config.max_failed_logins,
+                Duration::from_secs(config.failed_login_window_s),
+            ),
+            hashes: Arc::new(Semaphore::new(config.max_concurrent_hashes.clamp(1, 64))),
+            hash_queue: Duration::from_millis(config.hash_queue_ms),
+        }
+    }
+
+    /// A turn to compute one password hash, waiting at most `hash_queue_ms`, or 503: a
+    /// flood of logins waits here instead of filling the blocking thread pool.
+    async fn hash_turn(&self, gate: &Gate) -> Result<tokio::sync::OwnedSemaphorePermit, ApiError> {
+        match tokio::time::timeout(self.hash_queue, self.hashes.clone().acquire_owned()).await {
+            Ok(Ok(p)) => Ok(p),
+            _ => {
+                gate.count(Refused::LoginBusy);
+                Err(ApiError::Busy(
+                    "too many logins at once; try again shortly".into(),
+                ))
+            }
+        }
+    }
 }
 
 impl FromRef<AppState> for Arc<Limits> {
@@ -214,26 +297,42 @@ pub fn console_router(station: StationHandle, auth: Arc<Auth>) -> Router {
     console_router_with(station, auth, &ConsoleConfig::default())
 }
 
-/// Builds the console and API router with `config`'s limits and health thresholds
-/// (`config.listen` and `config.auth` are the caller's: `auth` is loaded already).
+/// Builds the console and API router with `config`'s limits, health thresholds, allowed
+/// hosts and origins and login limits, as if served on `config.listen` (over TLS when
+/// `config.tls` names files; `config.auth` is the caller's: `auth` is loaded already).
 /// Without [`serve_with`]'s server loop, the connection limits do not apply.
 pub fn console_router_with(
     station: StationHandle,
     auth: Arc<Auth>,
     config: &ConsoleConfig,
 ) -> Router {
-    build(station, auth, config).0
+    build(station, auth, config, config.listen, config.tls.enabled()).0
 }
 
-/// The router and the limits it shares with the server loop.
-fn build(station: StationHandle, auth: Arc<Auth>, config: &ConsoleConfig) -> (Router, Arc<Limits>) {
+/// The router and the limits it shares with the server loop; `listen` is the address
+/// actually bound (the configured port may be 0).
+fn build(
+    station: StationHandle,
+    auth: Arc<Auth>,
+    config: &ConsoleConfig,
+    listen: SocketAddr,
+    tls: bool,
+) -> (Router, Arc<Limits>) {
     let limits = Arc::new(Limits::new(config.limits.clone()));
+    let gate = Arc::new(Gate::new(
+        listen,
+        tls,
+        &config.allowed_hosts,
+        &config.allowed_origins,
+    ));
     let state = AppState {
         commits: health::CommitClock::follow(&station),
         station,
         auth,
         limits: limits.clone(),
         health: Arc::new(config.health.clone()),
+        gate: gate.clone(),
+        logins: Arc::new(Logins::new(&config.auth)),
     };
     let router = Router::new()
         .route("/status.html", get(status_page))
@@ -287,6 +386,9 @@ fn build(station: StationHandle, auth: Arc<Auth>, config: &ConsoleConfig) -> (Ro
         .layer(axum::extract::DefaultBodyLimit::max(
             config.limits.max_body_bytes,
         ))
+        // Before any handler, the console's files included: a page under another name
+        // (DNS rebinding) gets nothing.
+        .layer(axum::middleware::from_fn_with_state(gate, check_host))
         // Outermost: requests beyond the limit are refused before anything else is done.
         .layer(axum::middleware::from_fn_with_state(
             limits.clone(),
@@ -297,101 +399,171 @@ fn build(station: StationHandle, auth: Arc<Auth>, config: &ConsoleConfig) -> (Ro
 }
 
 /// Serves the console on `listener` until `shutdown` is cancelled, without
-/// authentication (the `[console]` defaults).
+/// authentication (logins off, the other `[console]` defaults): for tests and tools
+/// that start a console of their own on loopback.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     station: StationHandle,
     shutdown: CancellationToken,
 ) -> std::io::Result<()> {
-    match serve_with(listener, station, ConsoleConfig::default(), shutdown).await {
+    let config = ConsoleConfig {
+        auth: AuthConfig::off(),
+        ..ConsoleConfig::default()
+    };
+    match serve_with(listener, station, config, shutdown).await {
         Ok(()) => Ok(()),
         Err(ConsoleError::Io(e)) => Err(e),
         Err(e) => Err(std::io::Error::other(e)),
     }
 }
 
-/// Serves the console on `listener` with `config` (authentication included) until
-/// `shutdown` is cancelled. On the first start with authentication enabled it logs the
-/// admin password and token it created, once.
+/// Serves the console on `listener` with `config` (authentication and TLS included) until
+/// `shutdown` is cancelled. On the first start with authentication enabled it prints the
+/// admin password and token it created on standard error, once, and never logs them.
 pub async fn serve_with(
     listener: tokio::net::TcpListener,
     station: StationHandle,
     config: ConsoleConfig,
     shutdown: CancellationToken,
 ) -> Result<(), ConsoleError> {
+    let tls = tls::acceptor(&config.tls)?;
     let auth_config = config.auth.clone();
     let (auth, boot) = tokio::task::spawn_blocking(move || Auth::load(&auth_config))
         .await
         .map_err(std::io::Error::other)??;
     let addr = listener.local_addr()?;
     if let Some(b) = boot {
+        show_once(&b.notice(auth.path()));
         warn!(
             users_file = %auth.path().display(),
-            "console authentication: created user \"{}\" with password {} and an admin API \
-             token {} (shown only now; only their hashes are stored)",
-            b.user,
-            b.password,
-            b.token
+            "console authentication: created user \"{}\" (admin) and an admin API token; \
+             credentials not set in [console.auth] were printed on the terminal, not here",
+            b.user
         );
     }
+    let scheme = if tls.is_some() { "https" } else { "http" };
     if auth.enabled() {
-        info!(%addr, users = auth.users().len(), "console: http://{addr}/ (login required)");
+        info!(%addr, users = auth.users().len(), "console: {scheme}://{addr}/ (login required)");
     } else {
         if !addr.ip().is_loopback() {
             warn!(%addr, "the console listens beyond this host without authentication: set [console.auth] enabled = true");
         }
-        info!(%addr, "console: http://{addr}/  API: http://{addr}/api/fleet");
+        info!(%addr, "console: {scheme}://{addr}/  API: {scheme}://{addr}/api/fleet (no login: [console.auth] enabled = false)");
     }
-    let (router, limits) = build(station, Arc::new(auth), &config);
-    limits::serve_connections(listener, router, limits, shutdown).await?;
+    if addr.ip().is_unspecified() && config.allowed_hosts.is_empty() {
+        warn!(%addr, "the console listens on every interface but [console] allowed_hosts names no host: browsers must use an IP address");
+    }
+    let (router, limits) = build(station, Arc::new(auth), &config, addr, tls.is_some());
+    limits::serve_connections(listener, router, limits, tls, shutdown).await?;
     Ok(())
 }
 
-/// Checks credentials and role before any handler runs (see [`auth::required_role`]).
+/// Writes first-start credentials straight to standard error: the terminal of whoever
+/// started the station, and never the tracing log, which may be shipped or kept.
+fn show_once(text: &str) {
+    use std::io::Write as _;
+    let mut err = std::io::stderr().lock();
+    let _ = err.write_all(text.as_bytes());
+    let _ = err.flush();
+}
+
+/// Refuses a request whose `Host` this console does not answer to (421): a DNS-rebinding
+/// page reaches it under the attacker's own name.
+async fn check_host(State(gate): State<Arc<Gate>>, req: Request, next: Next) -> Response {
+    let host = req
+        .headers()
+        .get(header::HOST)
+        .map(|h| h.to_str().unwrap_or("\u{fffd}"));
+    // HTTP/1.0 tools may send no Host; browsers always do.
+    if let Some(host) = host
+        && !gate.host_ok(host)
+    {
+        gate.count(Refused::Host);
+        return ApiError::Misdirected(format!(
+            "this console does not answer to Host {host:?}: open it by an address it listens \
+             on, or add the name to [console] allowed_hosts"
+        ))
+        .into_response();
+    }
+    next.run(req).await
+}
+
+/// True for methods that change something (every method but reads).
+fn changes(method: &Method) -> bool {
+    !matches!(*method, Method::GET | Method::HEAD | Method::OPTIONS)
+}
+
+/// Checks origin, credentials, role and CSRF token before any handler runs (see
+/// [`auth::required_role`]):
+///
+/// 1. a WebSocket handshake or a change (POST, PUT, PATCH, DELETE) naming another site's
+///    `Origin` is refused (403), logins on or off: a page elsewhere cannot make the
+///    browser act on this console, even one with no login on loopback;
+/// 2. without valid credentials, 401; with a role too low, 403;
+/// 3. on a session cookie, which the browser attaches by itself, a handshake or a change
+///    must also carry `Origin` (every browser sends it on those; its absence means a
+///    tool, which should send a bearer token) and a change its session's `X-CSRF-Token`.
 async fn guard(State(app): State<AppState>, mut req: Request, next: Next) -> Response {
     let path = req.uri().path().to_owned();
+    let watched = changes(req.method()) || path == "/api/ws";
+    let origin = req.headers().get(header::ORIGIN).cloned();
+    if watched && let Some(origin) = &origin {
+        let host = req
+            .headers()
+            .get(header::HOST)
+            .and_then(|h| h.to_str().ok());
+        let ok = origin.to_str().is_ok_and(|o| app.gate.origin_ok(o, host));
+        if !ok {
+            app.gate.count(Refused::Origin);
+            return ApiError::Forbidden(format!(
+                "{} {path} from a page of another site (Origin {origin:?}) is refused: only \
+                 pages served by this console may do it ([console] allowed_origins)",
+                req.method()
+            ))
+            .into_response();
+        }
+    }
     let Some(need) = auth::required_role(req.method(), &path) else {
         return next.run(req).await;
     };
     if !app.auth.enabled() {
         return next.run(req).await;
     }
-    // A browser sends the session cookie with any WebSocket handshake to this host; only
-    // pages served from here may open the live feed with it.
-    if path == "/api/ws" && !same_origin(req.headers()) {
-        return ApiError::Forbidden(
-            "the live feed is only for pages served by this station".into(),
-        )
-        .into_response();
-    }
-    match app.auth.authenticate(req.headers()) {
-        Err(why) => ApiError::Unauthorized(why.into()).into_response(),
-        Ok(who) if who.role < need => ApiError::Forbidden(format!(
+    let who = match app.auth.authenticate(req.headers()) {
+        Err(why) => return ApiError::Unauthorized(why.into()).into_response(),
+        Ok(who) => who,
+    };
+    if who.role < need {
+        return ApiError::Forbidden(format!(
             "{} {path} needs the {need} role; {} is {}",
             req.method(),
             who.name,
             who.role
         ))
-        .into_response(),
-        Ok(who) => {
-            req.extensions_mut().insert(who);
-            next.run(req).await
+        .into_response();
+    }
+    if who.via == "session" && watched {
+        if origin.is_none() {
+            app.gate.count(Refused::Origin);
+            return ApiError::Forbidden(format!(
+                "{} {path} with a session cookie needs the Origin header a browser sends; \
+                 tools send Authorization: Bearer <token> instead",
+                req.method()
+            ))
+            .into_response();
+        }
+        if changes(req.method()) && !app.auth.csrf_ok(req.headers()) {
+            app.gate.count(Refused::Csrf);
+            return ApiError::Forbidden(format!(
+                "{} {path}: missing or wrong {} header (the csrf_token of /api/auth/session)",
+                req.method(),
+                auth::CSRF_HEADER
+            ))
+            .into_response();
         }
     }
-}
-
-/// True when the request has no `Origin` (not a browser) or one naming this host.
-fn same_origin(headers: &HeaderMap) -> bool {
-    let Some(origin) = headers.get(header::ORIGIN).and_then(|v| v.to_str().ok()) else {
-        return true;
-    };
-    let host = headers
-        .get(header::HOST)
-        .and_then(|v| v.to_str().ok())
-        .unwrap_or("");
-    origin
-        .split_once("://")
-        .is_some_and(|(_, rest)| !host.is_empty() && rest == host)
+    req.extensions_mut().insert(who);
+    next.run(req).await
 }
 
 async fn status_page() -> Html<&'static str> {
@@ -458,6 +630,8 @@ struct HttpStats {
     #[serde(flatten)]
     hits: LimitHits,
     in_use: limits::InUse,
+    /// Requests the gate refused, by reason (Host, Origin, CSRF, login limits).
+    refused: Refusals,
 }
 
 async fn stats(State(app): State<AppState>) -> Json<Stats> {
@@ -467,6 +641,7 @@ async fn stats(State(app): State<AppState>) -> Json<Stats> {
         http: HttpStats {
             hits: app.limits.hits(),
             in_use: app.limits.in_use(),
+            refused: app.gate.refusals(),
         },
     })
 }
@@ -902,10 +1077,14 @@ struct SessionView {
     role: Option<Role>,
     /// `session`, `token` or `open`.
     via: Option<&'static str>,
+    /// For a session: the value every change must carry in `X-CSRF-Token`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    csrf_token: Option<String>,
 }
 
 impl SessionView {
-    fn of(auth: &Auth, who: Option<Identity>) -> Self {
+    fn of(auth: &Auth, who: Option<Identity>, csrf_token: Option<String>) -> Self {
+        let session = who.as_ref().is_some_and(|w| w.via == "session");
         Self {
             enabled: auth.enabled(),
             user: who
@@ -914,44 +1093,83 @@ impl SessionView {
                 .map(|w| w.name.clone()),
             role: who.as_ref().map(|w| w.role),
             via: who.map(|w| w.via),
+            csrf_token: csrf_token.filter(|_| session),
         }
     }
 }
 
+/// 429 when `addr` or `user` failed too often lately.
+fn throttled(app: &AppState, addr: Option<std::net::IpAddr>, user: &str) -> Result<(), ApiError> {
+    app.logins
+        .throttle
+        .check(addr, user, Instant::now())
+        .map_err(|wait| {
+            app.gate.count(Refused::LoginThrottled);
+            ApiError::TooManyRequests {
+                message: format!(
+                    "too many failed logins from this address or for this user; try again in {} s",
+                    wait.as_secs_f64().ceil()
+                ),
+                retry_after_s: wait.as_secs_f64().ceil() as u64,
+            }
+        })
+}
+
 async fn login(
-    State(auth): State<Arc<Auth>>,
+    State(app): State<AppState>,
+    peer: Option<Extension<ConnectInfo<SocketAddr>>>,
     ApiJson(b): ApiJson<LoginBody>,
 ) -> Result<Response, ApiError> {
-    let a = auth.clone();
-    // Argon2 takes tens of milliseconds on purpose: not on the async threads.
-    let (session, who) = tokio::task::spawn_blocking(move || a.login(&b.user, &b.password))
-        .await
-        .map_err(|e| ApiError::Internal(e.to_string()))?
-        .inspect_err(|e| {
+    let addr = peer.map(|Extension(ConnectInfo(a))| a.ip());
+    throttled(&app, addr, &b.user)?;
+    let turn = app.logins.hash_turn(&app.gate).await?;
+    // Failures recorded while this one waited for its turn count too.
+    throttled(&app, addr, &b.user)?;
+    let a = app.auth.clone();
+    let user = b.user.clone();
+    // Argon2 takes tens of milliseconds on purpose: not on the async threads, and no
+    // more at once than there are hashing turns.
+    let result = tokio::task::spawn_blocking(move || {
+        let _turn = turn;
+        a.login(&b.user, &b.password)
+    })
+    .await
+    .map_err(|e| ApiError::Internal(e.to_string()))?;
+    let (session, who) = match result {
+        Ok(ok) => ok,
+        Err(e) => {
             if matches!(e, AuthError::BadCredentials) {
-                warn!("console login refused: wrong user name or password");
+                app.logins.throttle.failed(addr, &user, Instant::now());
+                app.gate.count(Refused::LoginFailed);
+                warn!(client = ?addr, "console login refused: wrong user name or password");
             }
-        })?;
+            return Err(e.into());
+        }
+    };
+    app.logins.throttle.succeeded(&user);
     info!(user = %who.name, role = %who.role, "console login");
-    let cookie = auth::session_set_cookie(Some(&session), auth.ttl_s());
+    let cookie =
+        auth::session_set_cookie(Some(&session), app.auth.ttl_s(), app.gate.scheme == "https");
+    let csrf = auth::csrf_of(&session);
     Ok((
         [(header::SET_COOKIE, cookie)],
-        Json(SessionView::of(&auth, Some(who))),
+        Json(SessionView::of(&app.auth, Some(who), Some(csrf))),
     )
         .into_response())
 }
 
-async fn logout(State(auth): State<Arc<Auth>>, headers: HeaderMap) -> Response {
-    auth.logout(&headers);
-    (
-        StatusCode::NO_CONTENT,
-        [(header::SET_COOKIE, auth::session_set_cookie(None, 0))],
-    )
-        .into_response()
+async fn logout(State(app): State<AppState>, headers: HeaderMap) -> Response {
+    app.auth.logout(&headers);
+    let cookie = auth::session_set_cookie(None, 0, app.gate.scheme == "https");
+    (StatusCode::NO_CONTENT, [(header::SET_COOKIE, cookie)]).into_response()
 }
 
 async fn session(State(auth): State<Arc<Auth>>, headers: HeaderMap) -> Json<SessionView> {
-    Json(SessionView::of(&auth, auth.authenticate(&headers).ok()))
+    Json(SessionView::of(
+        &auth,
+        auth.authenticate(&headers).ok(),
+        auth.csrf_token(&headers),
+    ))
 }
 
 async fn users(State(auth): State<Arc<Auth>>) -> Json<Vec<auth::UserInfo>> {
@@ -967,14 +1185,18 @@ struct UserBody {
 }
 
 async fn set_user(
-    State(auth): State<Arc<Auth>>,
+    State(app): State<AppState>,
     ApiJson(b): ApiJson<UserBody>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let a = auth.clone();
+    let a = app.auth.clone();
     let (name, role) = (b.name.clone(), b.role);
-    tokio::task::spawn_blocking(move || a.set_user(&b.name, &b.password, b.role))
-        .await
-        .map_err(|e| ApiError::Internal(e.to_string()))??;
+    let turn = app.logins.hash_turn(&app.gate).await?;
+    tokio::task::spawn_blocking(move || {
+        let _turn = turn;
+        a.set_user(&b.name, &b.password, b.role)
+    })
+    .await
+    .map_err(|e| ApiError::Internal(e.to_string()))??;
     info!(user = %name, %role, "console user saved");
     Ok((StatusCode::CREATED, Json(auth::UserInfo { name, role })))
 }

@@ -22,15 +22,17 @@ use std::task::{Context, Poll};
 use std::time::Duration;
 
 use axum::Router;
-use axum::extract::{Request, State};
+use axum::extract::{ConnectInfo, Request, State};
 use axum::http::StatusCode;
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpListener;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+use tokio_rustls::TlsAcceptor;
 use tokio_util::sync::CancellationToken;
+use tower::ServiceExt as _;
 use tracing::{debug, warn};
 
 use crate::ApiError;
@@ -292,14 +294,14 @@ pub(crate) async fn limit_requests(
     res
 }
 
-/// A connection's socket holding its place among the `max_connections`; the place is
-/// given back when the socket is dropped, after a WebSocket upgrade too.
-struct Counted {
-    io: TcpStream,
+/// A connection's socket (plain or TLS) holding its place among the `max_connections`;
+/// the place is given back when the socket is dropped, after a WebSocket upgrade too.
+struct Counted<I> {
+    io: I,
     _place: OwnedSemaphorePermit,
 }
 
-impl AsyncRead for Counted {
+impl<I: AsyncRead + Unpin> AsyncRead for Counted<I> {
     fn poll_read(
         mut self: Pin<&mut Self>,
         cx: &mut Context<'_>,
@@ -309,7 +311,7 @@ impl AsyncRead for Counted {
     }
 }
 
-impl AsyncWrite for Counted {
+impl<I: AsyncWrite + Unpin> AsyncWrite for Counted<I> {
     fn poll_write(
         mut self: Pin<&mut Self>,
         cx: &mut Context<'_>,
@@ -342,13 +344,15 @@ impl AsyncWrite for Counted {
 /// How long open connections get to finish their requests once shutdown is asked.
 const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
 
-/// Serves `router` on `listener` until `shutdown`, within `limits`: HTTP/1.1 with
-/// WebSocket upgrades, a place among `max_connections` per connection and hyper's
-/// header read timeout for slow clients.
+/// Serves `router` on `listener` until `shutdown`, within `limits`: HTTP/1.1 (over TLS
+/// when `tls` is given) with WebSocket upgrades, a place among `max_connections` per
+/// connection and hyper's header read timeout for slow clients. Each request carries the
+/// client's address as [`ConnectInfo`] (the login rate limits count by it).
 pub(crate) async fn serve_connections(
     listener: TcpListener,
     router: Router,
     limits: Arc<Limits>,
+    tls: Option<TlsAcceptor>,
     shutdown: CancellationToken,
 ) -> std::io::Result<()> {
     let mut http = hyper::server::conn::http1::Builder::new();
@@ -371,9 +375,9 @@ pub(crate) async fn serve_connections(
                 }
             }
         };
-        let tcp = tokio::select! {
+        let (tcp, peer) = tokio::select! {
             accepted = listener.accept() => match accepted {
-                Ok((tcp, _)) => tcp,
+                Ok(a) => a,
                 Err(e) => {
                     // Out of file descriptors, say: pause instead of spinning.
                     warn!(error = %e, "console cannot accept a connection");
@@ -389,28 +393,47 @@ pub(crate) async fn serve_connections(
         if let Err(e) = tcp.set_nodelay(true) {
             warn!(error = %e, "cannot set TCP_NODELAY on a console connection");
         }
-        let io = hyper_util::rt::TokioIo::new(Counted {
-            io: tcp,
-            _place: place,
-        });
-        let service = hyper_util::service::TowerToHyperService::new(router.clone());
-        let conn = http.serve_connection(io, service).with_upgrades();
-        let (limits, shutdown, open) = (limits.clone(), shutdown.clone(), open_tx.clone());
+        let service = router
+            .clone()
+            .map_request(move |mut req: Request<hyper::body::Incoming>| {
+                req.extensions_mut().insert(ConnectInfo(peer));
+                req
+            });
+        let service = hyper_util::service::TowerToHyperService::new(service);
+        let (http, tls, limits, shutdown, open) = (
+            http.clone(),
+            tls.clone(),
+            limits.clone(),
+            shutdown.clone(),
+            open_tx.clone(),
+        );
         tokio::spawn(async move {
-            let mut conn = pin!(conn);
-            let done = tokio::select! {
-                done = conn.as_mut() => done,
-                () = shutdown.cancelled() => {
-                    conn.as_mut().graceful_shutdown();
-                    conn.await
+            match tls {
+                None => {
+                    let io = Counted {
+                        io: tcp,
+                        _place: place,
+                    };
+                    serve_one(&http, io, service, &limits, &shutdown).await;
                 }
-            };
-            if let Err(e) = done {
-                if e.is_timeout() {
-                    bump(&limits.hits.slow_headers_cut);
-                    debug!("console connection closed: its headers came too slowly");
-                } else {
-                    debug!(error = %e, "console connection ended with an error");
+                Some(acceptor) => {
+                    // The handshake is bounded like the headers: a client that opens a
+                    // connection and sends nothing must not hold its place.
+                    let wait = secs(limits.config.header_read_timeout_s);
+                    match tokio::time::timeout(wait, acceptor.accept(tcp)).await {
+                        Ok(Ok(stream)) => {
+                            let io = Counted {
+                                io: stream,
+                                _place: place,
+                            };
+                            serve_one(&http, io, service, &limits, &shutdown).await;
+                        }
+                        Ok(Err(e)) => debug!(error = %e, %peer, "TLS handshake failed"),
+                        Err(_) => {
+                            bump(&limits.hits.slow_headers_cut);
+                            debug!(%peer, "TLS handshake too slow; connection closed");
+                        }
+                    }
                 }
             }
             drop(open);
@@ -424,6 +447,43 @@ pub(crate) async fn serve_connections(
         warn!("console connections still open after the shutdown grace; closing");
     }
     Ok(())
+}
+
+/// Serves one connection until it ends or, after `shutdown`, until its requests are done.
+async fn serve_one<I, S>(
+    http: &hyper::server::conn::http1::Builder,
+    io: I,
+    service: S,
+    limits: &Limits,
+    shutdown: &CancellationToken,
+) where
+    I: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+    S: hyper::service::Service<
+            hyper::Request<hyper::body::Incoming>,
+            Response = hyper::Response<axum::body::Body>,
+        > + Send,
+    S::Future: Send + 'static,
+    S::Error: Into<Box<dyn std::error::Error + Send + Sync>>,
+{
+    let conn = http
+        .serve_connection(hyper_util::rt::TokioIo::new(io), service)
+        .with_upgrades();
+    let mut conn = pin!(conn);
+    let done = tokio::select! {
+        done = conn.as_mut() => done,
+        () = shutdown.cancelled() => {
+            conn.as_mut().graceful_shutdown();
+            conn.await
+        }
+    };
+    if let Err(e) = done {
+        if e.is_timeout() {
+            bump(&limits.hits.slow_headers_cut);
+            debug!("console connection closed: its headers came too slowly");
+        } else {
+            debug!(error = %e, "console connection ended with an error");
+        }
+    }
 }
 
 #[cfg(test)]

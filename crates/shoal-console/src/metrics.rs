@@ -191,6 +191,12 @@ pub(crate) async fn metrics(State(app): State<AppState>) -> Result<Response, Api
         "limit",
         app.limits.hits().labelled(),
     );
+    m.counters(
+        "shoal_http_refused",
+        "Requests refused by the console's gate: Host, Origin, CSRF token, login limits",
+        "reason",
+        app.gate.refusals().labelled(),
+    );
     let in_use = app.limits.in_use();
     m.gauge(
         "shoal_http_connections",

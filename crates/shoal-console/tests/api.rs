@@ -59,9 +59,9 @@ fn start_with(domain_id: u16, tune: impl FnOnce(StationConfig) -> StationConfig)
     let s = shutdown.clone();
     tokio::spawn(async move { station.run(s).await });
     let (auth, boot) = Auth::load(&AuthConfig {
-        enabled: true,
         users_path: dir.path().join("users.json"),
         session_ttl_s: 600,
+        ..AuthConfig::default()
     })
     .unwrap();
     let boot = boot.expect("a first start creates the admin");
@@ -75,7 +75,9 @@ fn start_with(domain_id: u16, tune: impl FnOnce(StationConfig) -> StationConfig)
     }
 }
 
-/// Sends a request; `auth` is a full header value for Authorization or Cookie.
+/// Sends a request; `auth` is a full header value for Authorization or Cookie. With a
+/// session cookie it sends what the console's page would: its Origin and, on a change,
+/// the session's CSRF token.
 async fn call(
     router: &Router,
     method: &str,
@@ -85,6 +87,13 @@ async fn call(
 ) -> (StatusCode, axum::http::HeaderMap, Vec<u8>) {
     let mut req = Request::builder().method(method).uri(uri);
     if let Some((name, value)) = auth {
+        if name == header::COOKIE {
+            let session = value.split_once('=').unwrap().1;
+            req = req.header(header::ORIGIN, "http://127.0.0.1:8640").header(
+                shoal_console::auth::CSRF_HEADER,
+                shoal_console::auth::csrf_of(session),
+            );
+        }
         req = req.header(name, value);
     }
     let body = match body {
@@ -156,6 +165,12 @@ async fn login(
         .to_owned();
     assert!(cookie.contains("HttpOnly") && cookie.contains("SameSite=Strict"));
     let pair = cookie.split(';').next().unwrap().to_owned();
+    // The page learns its CSRF token from the login's answer.
+    let session = pair.split_once('=').unwrap().1;
+    assert_eq!(
+        json_of(&body)["csrf_token"].as_str(),
+        Some(shoal_console::auth::csrf_of(session).as_str())
+    );
     Some((header::COOKIE, pair))
 }
 

@@ -226,9 +226,9 @@ async fn health_is_503_while_records_wait_too_long_for_a_commit_and_ok_once_comm
 async fn health_is_public_and_metrics_need_a_viewer_and_parse_as_prometheus_text() {
     let f = station(HistoryConfig::default());
     let (auth, boot) = Auth::load(&AuthConfig {
-        enabled: true,
         users_path: f.dir.path().join("users.json"),
         session_ttl_s: 600,
+        ..AuthConfig::default()
     })
     .unwrap();
     let (_, viewer) = auth
@@ -420,8 +420,10 @@ async fn serve(f: &Fixture, limits: LimitsConfig) -> (std::net::SocketAddr, Canc
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap();
     let shutdown = CancellationToken::new();
+    // Logins off: these tests are about the server loop, not who may use it.
     let config = ConsoleConfig {
         limits,
+        auth: AuthConfig::off(),
         ..ConsoleConfig::default()
     };
     let (station, stop) = (f.handle.clone(), shutdown.clone());

@@ -11,6 +11,16 @@ export class ApiError extends Error {
 
 const listeners = new Set();
 
+// The session's CSRF token (from POST /api/auth/login and GET /api/auth/session): every
+// change made on the session cookie must echo it in X-CSRF-Token, which a page of another
+// site cannot do because it cannot read this one's answers.
+let csrfToken = null;
+
+/** Remembers the session's CSRF token (null when logged out or logins are off). */
+export function setCsrfToken(token) {
+  csrfToken = token || null;
+}
+
 /** Calls `fn` whenever the station answers 401 (not logged in, or the session expired). */
 export function onUnauthorized(fn) {
   listeners.add(fn);
@@ -33,6 +43,7 @@ async function explain(res) {
  */
 export async function api(method, path, body, opts = {}) {
   const headers = { Accept: opts.accept || 'application/json' };
+  if (csrfToken && !['GET', 'HEAD'].includes(method)) headers['X-CSRF-Token'] = csrfToken;
   let payload;
   if (opts.raw !== undefined) {
     payload = opts.raw;

@@ -2,7 +2,7 @@
 // the global "abort all".
 
 import './style.css';
-import { api, describe, onUnauthorized } from './api.js';
+import { api, describe, onUnauthorized, setCsrfToken } from './api.js';
 import { dropLive, startLive, stopLive } from './live.js';
 import { createMap } from './map.js';
 import { initFleet } from './fleet.js';
@@ -49,6 +49,7 @@ function showLogin(message) {
 
 async function loadSession() {
   state.session = await api('GET', '/api/auth/session');
+  setCsrfToken(state.session.csrf_token);
   if (state.session.enabled && !state.session.user) {
     showLogin('');
     return false;
@@ -79,6 +80,7 @@ async function logout() {
     toast(describe(e), 'error');
   }
   state.session = { enabled: true, user: null, role: 'viewer' };
+  setCsrfToken(null);
   applyRole();
   showLogin('Logged out.');
 }

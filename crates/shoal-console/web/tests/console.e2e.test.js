@@ -10,6 +10,7 @@ import { mkdirSync, mkdtempSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { spawn } from 'node:child_process';
+import { request as httpRequest } from 'node:http';
 import { chromium } from 'playwright-core';
 
 const BASE = process.env.SHOAL_URL || 'http://127.0.0.1:8640';
@@ -105,7 +106,7 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
   }
 
   before(async () => {
-    assert.ok(TOKEN, 'SHOAL_ADMIN_TOKEN is not set (scripts/console-e2e.sh reads it from the log)');
+    assert.ok(TOKEN, 'SHOAL_ADMIN_TOKEN is not set (scripts/console-e2e.sh sets it as [console.auth] initial_admin_token)');
     mkdirSync(OUT, { recursive: true });
     const session = await admin('GET', '/api/auth/session');
     assert.equal(session.enabled, true, 'the station runs without [console.auth]');
@@ -289,6 +290,31 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     assert.deepEqual([refused.mission, refused.abort], [403, 403]);
     assert.match(refused.error, /operator role/);
     await shot(viewer, '09-viewer-read-only');
+  });
+
+  test('a change on the session without its CSRF token, or from another host name, is refused', async () => {
+    const answer = await page.evaluate(async () => {
+      const ack = (headers) => fetch('/api/events/no-such-event/ack', { method: 'POST', headers: { 'Content-Type': 'application/json', ...headers }, body: '{}' });
+      const bare = await ack({});
+      return { bare: bare.status, error: (await bare.json()).error, wrong: (await ack({ 'X-CSRF-Token': 'forged' })).status };
+    });
+    assert.deepEqual([answer.bare, answer.wrong], [403, 403]);
+    assert.match(answer.error, /x-csrf-token/);
+    // The console's own page sends it: the same request gets past the guard (404: no such event).
+    const csrf = (await page.evaluate(async () => (await fetch('/api/auth/session')).json())).csrf_token;
+    assert.ok(csrf, 'the session names no csrf_token');
+    const own = await page.evaluate(async (t) => (await fetch('/api/events/no-such-event/ack', { method: 'POST', headers: { 'Content-Type': 'application/json', 'X-CSRF-Token': t }, body: '{}' })).status, csrf);
+    assert.equal(own, 404);
+    // DNS rebinding: the same station under a name it does not answer to gets 421 (node:http,
+    // since fetch may not set Host).
+    const rebound = await new Promise((resolve, reject) => {
+      const url = new URL(BASE);
+      httpRequest({ host: url.hostname, port: url.port, path: '/api/health', headers: { Host: `rebind.example:${url.port}` } }, (res) => {
+        res.resume();
+        resolve(res.statusCode);
+      }).on('error', reject).end();
+    });
+    assert.equal(rebound, 421);
   });
 
   test('an admin creates a threshold rule, edits it in place and disables it', async () => {
