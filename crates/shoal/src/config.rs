@@ -586,7 +586,7 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 10]>([
+        rows.extend::<[(&str, &str, &str, Check); 13]>([
             ("station", "SHOAL_STATION__LOST_AFTER_S", "45", |c| {
                 c.station.lost_after_s == 45.0
             }),
@@ -628,12 +628,31 @@ mod tests {
                 "7",
                 |c| c.console.limits.max_ws_clients == 7,
             ),
-            // The variable docs/console.md gives, which once stopped the station.
+            (
+                "console",
+                "SHOAL_CONSOLE__ALLOWED_HOSTS",
+                "[\"bridge.ship.local\"]",
+                |c| c.console.allowed_hosts == ["bridge.ship.local"],
+            ),
+            // Logins are on by default: the variable that turns them off, as tests use it.
             (
                 "console.auth",
                 "SHOAL_CONSOLE__AUTH__ENABLED",
-                "true",
-                |c| c.console.auth.enabled,
+                "false",
+                |c| !c.console.auth.enabled,
+            ),
+            // How harnesses give the first admin a known password.
+            (
+                "console.auth",
+                "SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_PASSWORD",
+                "harness password",
+                |c| c.console.auth.initial_admin_password == "harness password",
+            ),
+            (
+                "console.tls",
+                "SHOAL_CONSOLE__TLS__CERT",
+                "/etc/shoal/console.pem",
+                |c| c.console.tls.cert == Path::new("/etc/shoal/console.pem"),
             ),
             (
                 "console.auth.users_path",
@@ -646,8 +665,8 @@ mod tests {
         rows.push((
             "console.auth",
             "SHOAL_CONSOLE__AUTH__ENABLED",
-            "true",
-            |c| c.console["auth"]["enabled"].as_bool() == Some(true),
+            "false",
+            |c| c.console["auth"]["enabled"].as_bool() == Some(false),
         ));
         for (_, var, value, landed) in &rows {
             let c = env(&[(var, value)]).unwrap_or_else(|e| panic!("{var}={value}: {e}"));
@@ -789,11 +808,11 @@ mod tests {
         // Untouched keys of a section the environment sets keep the file's values.
         let c = load_text(
             "[console.auth]\nsession_ttl_s = 60\n",
-            &[("SHOAL_CONSOLE__AUTH__ENABLED", "true")],
+            &[("SHOAL_CONSOLE__AUTH__ENABLED", "false")],
             &Flags::default(),
         )
         .unwrap();
-        assert!(c.console.auth.enabled);
+        assert!(!c.console.auth.enabled);
         assert_eq!(c.console.auth.session_ttl_s, 60);
     }
 

@@ -173,6 +173,15 @@ enum Command {
         /// Station API address (default: console.listen).
         #[arg(long, value_name = "ADDR")]
         station: Option<std::net::SocketAddr>,
+        /// API token (viewer or better) sent as `Authorization: Bearer`; needed when the
+        /// station requires logins (the default).
+        #[arg(
+            long,
+            value_name = "TOKEN",
+            env = "SHOAL_TOKEN",
+            hide_env_values = true
+        )]
+        token: Option<String>,
     },
     /// The station's key store: CA, station and vehicle certificates, acoustic keys,
     /// revocations (see the operator guide, "Security").
@@ -437,6 +446,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             &sparql,
             &format,
             station.unwrap_or(cfg.console.listen),
+            token.as_deref(),
         )),
         Command::ModemEmu(args) => rt.block_on(acoustic::modem_emu(args)),
         Command::Config { default } => {
