@@ -2,8 +2,8 @@
 # OpenAPI conformance of the station's HTTP API: starts `shoal up` (station, simulated
 # fleet, console with [console.auth] on) inside a private network namespace, then runs
 # schemathesis (PyPI, in the workspace's .venv; scripts/install-test-deps.sh installs it)
-# in the same namespace against /api/openapi.json with every check, as the admin (its
-# token from the station's first-start log). Every phase runs (examples, coverage,
+# in the same namespace against /api/openapi.json with every check, as the admin (a token
+# made for the run and given to the station as [console.auth] initial_admin_token). Every phase runs (examples, coverage,
 # fuzzing, stateful) with a bounded number of examples per operation, so the run stays
 # within about three minutes on two cores. Reports (JUnit, NDJSON) and the station's log
 # go to target/api-conformance/.
@@ -49,6 +49,10 @@ cleanup() {
 }
 trap cleanup EXIT
 
+# A fresh admin token for this run (logins are on by default; this is the harness's own
+# credential, handed to the station as [console.auth] initial_admin_token).
+token="shoal_test_$(od -An -tx1 -N24 /dev/urandom | tr -d ' \n')"
+
 # DDS domain 148: the console's tests use 140-149, so they never meet other tests' DDS.
 cat > "$work/shoal.toml" <<EOF
 [dds]
@@ -70,22 +74,33 @@ listen = "127.0.0.1:$port"
 [console.auth]
 enabled = true
 users_path = "$work/console-users.json"
+# The first admin token is set here rather than printed, so this script knows it; the
+# station must then show it nowhere (checked below).
+initial_admin_token = "$token"
 EOF
 
 ip netns exec "$ns" "$bin" --config "$work/shoal.toml" up >"$out/shoal-up.log" 2>&1 &
 up_pid=$!
 
-# The station logs the admin token it creates on its first start with auth enabled.
-token=""
+# Wait for the console to answer, then check the token is in no log line.
+ready=""
 for _ in $(seq 1 300); do
     kill -0 "$up_pid" 2>/dev/null || die "shoal up exited early; see $out/shoal-up.log"
-    token="$(grep -ao 'admin API token shoal_[0-9a-f]*' "$out/shoal-up.log" | head -n1 | awk '{print $4}' || true)"
-    if [[ -n "$token" ]] && ip netns exec "$ns" curl -sf "http://127.0.0.1:$port/api/health" >/dev/null 2>&1; then
+    if ip netns exec "$ns" curl -sf "http://127.0.0.1:$port/api/health" >/dev/null 2>&1; then
+        ready=1
         break
     fi
     sleep 0.2
 done
-[[ -n "$token" ]] || die "no admin token in $out/shoal-up.log within 60 s"
+[[ -n "$ready" ]] || die "the console did not answer within 60 s; see $out/shoal-up.log"
+if grep -aqF "$token" "$out/shoal-up.log"; then
+    die "the admin token appears in $out/shoal-up.log: credentials must never be logged"
+fi
+# Logins are on: the token must be required and must work.
+code="$(ip netns exec "$ns" curl -s -o /dev/null -w '%{http_code}' "http://127.0.0.1:$port/api/fleet")"
+[[ "$code" == 401 ]] || die "GET /api/fleet without credentials answered $code, not 401"
+ip netns exec "$ns" curl -sf -H "Authorization: Bearer $token" "http://127.0.0.1:$port/api/fleet" >/dev/null \
+    || die "the configured admin token does not work"
 
 seed=()
 [[ -n "${SHOAL_API_SEED:-}" ]] && seed=(--seed "$SHOAL_API_SEED")
