@@ -2,6 +2,8 @@
 //!
 //! - `Host`: every request must name this console (`[console] allowed_hosts`, plus the
 //!   listen address, `localhost`, `127.0.0.1` and `[::1]` on the listen port), else 421.
+//!   A `Host` without a port is judged by its name alone: browsers always send a
+//!   non-default port, and HTTP/1.0 tools often send none.
 //!   A DNS-rebinding page reaches the console under the attacker's own name, which is in
 //!   no list; an IP literal cannot be rebound, so when the console listens on every
 //!   interface any IP literal on its port is accepted too.
@@ -93,7 +95,7 @@ pub(crate) enum Refused {
 pub(crate) struct Gate {
     /// `http` or `https`.
     pub(crate) scheme: &'static str,
-    /// The port the console listens on: a `Host` without a port means the scheme's default.
+    /// The port the console listens on.
     port: u16,
     /// (name, port): a `None` port matches any.
     hosts: Vec<(String, Option<u16>)>,
@@ -151,14 +153,12 @@ impl Gate {
         let Some((name, port)) = split_host(host) else {
             return false;
         };
-        let default_port = if self.scheme == "https" { 443 } else { 80 };
-        let port = port.unwrap_or(default_port);
-        if self.any_ip && port == self.port && is_ip_literal(&name) {
+        // The name is what DNS rebinding controls; the port only has to agree when given.
+        let same_port = |p: Option<u16>| port.is_none() || p.is_none() || p == port;
+        if self.any_ip && same_port(Some(self.port)) && is_ip_literal(&name) {
             return true;
         }
-        self.hosts
-            .iter()
-            .any(|(n, p)| *n == name && p.is_none_or(|p| p == port))
+        self.hosts.iter().any(|(n, p)| *n == name && same_port(*p))
     }
 
     /// True when `origin` is this console's own (`scheme://host`, `host` the request's
@@ -217,13 +217,14 @@ mod tests {
             "localhost:8640",
             "LocalHost:8640",
             "[::1]:8640",
+            "localhost",
+            "127.0.0.1",
         ] {
             assert!(g.host_ok(ok), "{ok}");
         }
         for bad in [
             "evil.example:8640",
             "localhost:8641",
-            "localhost",
             "localhost.:8640",
             "127.0.0.1.evil.example:8640",
             "10.0.0.5:8640",
