@@ -8,6 +8,8 @@
 //! - `station`: station + simulated vehicles in one process, the HTTP API, bad input.
 //! - `faults`: the station killed with SIGKILL and restarted.
 //! - `cli`: the `shoal` binary itself (`up`, configuration errors).
+//! - `console`: the console's logins through the binary (on by default, the first admin
+//!   shown once, `shoal query --token`).
 //! - `proxies`: `shoal vehicle --proxy ...` against an independent vehicle implementation.
 //! - `security`: `[security]` on: signed fleet, refused intruders, revocation, start-up
 //!   errors.
@@ -20,6 +22,7 @@
 
 mod cli;
 mod common;
+mod console;
 mod converter;
 mod faults;
 mod interop;
