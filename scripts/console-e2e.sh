@@ -55,6 +55,11 @@ cleanup() {
 }
 trap cleanup EXIT
 
+# The configuration file below decides the console's logins: a caller's environment
+# (scripts/test.sh may turn logins off for other tests) must not override it.
+unset SHOAL_CONSOLE__AUTH__ENABLED SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_PASSWORD \
+    SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_TOKEN SHOAL_CONSOLE__ALLOWED_HOSTS
+
 # A fresh admin token for this run (logins are on by default; this is the harness's own
 # credential, handed to the station as [console.auth] initial_admin_token).
 token="shoal_test_$(od -An -tx1 -N24 /dev/urandom | tr -d ' \n')"
