@@ -1,7 +1,6 @@
 //! Errors of the Publish/Subscribe Manager, split by operation.
 
 use shoal_model::ValidationError;
-use shoal_security::envelope::SignError;
 
 /// Creating the participant, a topic, a reader or a writer failed.
 #[derive(Debug, thiserror::Error)]
@@ -148,15 +147,6 @@ pub enum WriteError<T> {
         /// The sample, back to the caller.
         sample: T,
     },
-    /// Security is on and the sample could not be signed (e.g. larger than an envelope
-    /// holds).
-    #[error("not sent, cannot sign: {source}")]
-    Sign {
-        /// Why.
-        source: SignError,
-        /// The sample, back to the caller.
-        sample: T,
-    },
     /// A reliable writer's history stayed full of samples readers have not acknowledged
     /// for longer than the writer may block: worth retrying later.
     #[error("DDS write failed: reliable history full, readers are not acknowledging")]
@@ -180,7 +170,6 @@ impl<T> WriteError<T> {
         match self {
             Self::Invalid { sample, .. }
             | Self::Encode { sample, .. }
-            | Self::Sign { sample, .. }
             | Self::HistoryFull { sample }
             | Self::Dds { sample, .. } => sample,
         }
@@ -204,8 +193,6 @@ pub enum EndError {
 pub(crate) enum SendError {
     /// See [`WriteError::Encode`].
     Encode(CdrError),
-    /// See [`WriteError::Sign`].
-    Sign(SignError),
     /// See [`WriteError::HistoryFull`].
     HistoryFull,
     /// See [`WriteError::Dds`].
@@ -217,7 +204,6 @@ impl SendError {
     pub(crate) fn with<T>(self, sample: T) -> WriteError<T> {
         match self {
             Self::Encode(source) => WriteError::Encode { source, sample },
-            Self::Sign(source) => WriteError::Sign { source, sample },
             Self::HistoryFull => WriteError::HistoryFull { sample },
             Self::Dds(source) => WriteError::Dds { source, sample },
         }
@@ -253,23 +239,6 @@ pub enum ReadError {
         /// The sample as JSON (non-finite numbers become `null`), for the quarantine.
         payload: String,
     },
-    /// Security is on and the sample came unsigned, on the plain topic.
-    #[error("unsigned sample on {topic} refused (security is on)")]
-    Unsigned {
-        /// Topic name.
-        topic: &'static str,
-    },
-    /// Security is on and the signed sample failed a check (signature, certificate,
-    /// revocation, freshness, replay, publish policy).
-    #[error("signed sample on {topic} refused: {reason}: {detail}")]
-    Refused {
-        /// Topic name.
-        topic: &'static str,
-        /// The stable reason code (`shoal_security::RejectionReason`), e.g. `bad_signature`.
-        reason: &'static str,
-        /// The details.
-        detail: String,
-    },
     /// The sample came from a writer in one vehicle's partition (so, on a secured bus, from
     /// that authenticated vehicle) but speaks for another vehicle.
     #[error(
@@ -282,6 +251,15 @@ pub enum ReadError {
         publisher: String,
         /// The vehicle the sample names.
         claimed: String,
+    },
+    /// The sample came from a vehicle whose certificate was revoked while this participant
+    /// runs.
+    #[error("sample on {topic} refused: vehicle {vehicle} is revoked")]
+    Revoked {
+        /// Topic name.
+        topic: &'static str,
+        /// The revoked vehicle.
+        vehicle: String,
     },
     /// Any other reader failure reported by DDS.
     #[error("DDS read failed on {topic}: {detail}")]

@@ -9,8 +9,9 @@
 //! - [`TopicType`] binds each model type of `shoal-model` to its topic name, IDL type
 //!   name, key and [`QosProfile`].
 //!
-//! - With [`Security`] ([`PubSub::new_secure`]) Shoal's topics travel signed on twin
-//!   topics and only what the station CA and the publish policy vouch for is delivered.
+//! - With [`Credentials`] ([`PubSub::with_credentials`]) the participant runs OMG DDS
+//!   Security 1.1 (Cyclone's built-in plugins): authenticated, access-controlled by signed
+//!   permissions, encrypted as the governance says.
 //!
 //! DDS threads stay inside Cyclone; what comes out is `futures` streams, usable from tokio:
 //! a reader's data-available listener wakes the stream's task, which takes the samples
@@ -22,7 +23,6 @@ mod error;
 mod manager;
 mod omg;
 mod qos;
-mod secure;
 mod shape;
 mod topics;
 
@@ -31,7 +31,6 @@ pub use error::{CdrError, CreateError, DdsError, EndError, ReadError, TypeError,
 pub use manager::{ParticipantEvent, PubSub, SampleMeta, Subscription, Writer};
 pub use omg::Credentials;
 pub use qos::{Priority, QosProfile, WriterOptions};
-pub use secure::{SIGNED_TYPE_NAME, Security, SecurityCounts, signed_topic};
 pub use topics::{ALL_TOPICS, ObservationKey, TopicType};
 
 /// The Cyclone DDS XML configuration Shoal gives its domain for `config`: usable as

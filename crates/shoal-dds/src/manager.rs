@@ -17,11 +17,8 @@ use crate::cyclone::{self, Entity, QosReports, ReaderHandle, SerType, TopicRef};
 use crate::error::{
     CdrError, CreateError, DdsError, EndError, ReadError, SendError, TypeError, WriteError,
 };
-use crate::omg::{Credentials, Impersonations, READ_PARTITIONS, partition_vehicle};
+use crate::omg::{Credentials, PublisherGuard, READ_PARTITIONS, partition_vehicle};
 use crate::qos::WriterOptions;
-use crate::secure::{
-    Refused, SIGNED_TYPE_NAME, Security, SecurityCounts, SignedWire, signed_topic,
-};
 use crate::shape::Shape;
 use crate::topics::TopicType;
 
@@ -97,12 +94,11 @@ impl Participant {
 pub struct PubSub {
     participant: Arc<Participant>,
     config: DdsConfig,
-    security: Option<Arc<Security>>,
     /// OMG DDS Security credentials, when the participant was created with them.
     credentials: Option<Credentials>,
     /// The partition every writer publishes in (a vehicle's own), if any.
     writer_partition: Option<String>,
-    impersonations: Arc<Impersonations>,
+    guard: Arc<PublisherGuard>,
 }
 
 impl std::fmt::Debug for PubSub {
@@ -189,10 +185,9 @@ impl PubSub {
                 _reports: reports,
             }),
             config: config.clone(),
-            security: None,
             writer_partition: credentials.as_ref().and_then(Credentials::writer_partition),
             credentials,
-            impersonations: Arc::new(Impersonations::default()),
+            guard: Arc::new(PublisherGuard::default()),
         })
     }
 
@@ -204,27 +199,19 @@ impl PubSub {
     /// Samples refused so far because they spoke for another vehicle than the one whose
     /// partition they were published in.
     pub fn impersonations_refused(&self) -> u64 {
-        self.impersonations.total()
+        self.guard.impersonations()
     }
 
-    /// Like [`PubSub::new`] with security on: Shoal's topics are written signed on their
-    /// twins, and only samples `security`'s gate admits are delivered; unsigned samples
-    /// are counted and dropped.
-    pub fn new_secure(config: &DdsConfig, security: Security) -> Result<Self, CreateError> {
-        let mut pubsub = Self::new(config)?;
-        info!(identity = %security.identity(), "DDS security on: samples are signed and verified");
-        pubsub.security = Some(Arc::new(security));
-        Ok(pubsub)
+    /// Refuses from now on every sample published in these vehicles' partitions (their
+    /// certificates were revoked while this participant runs; DDS Security reads the
+    /// revocation list only when a participant starts). Replaces the previous set.
+    pub fn set_revoked_vehicles(&self, vehicles: std::collections::HashSet<String>) {
+        self.guard.set_revoked(vehicles);
     }
 
-    /// The credentials, when security is on.
-    pub fn security(&self) -> Option<&Security> {
-        self.security.as_deref()
-    }
-
-    /// Refusals so far, when security is on.
-    pub fn security_counts(&self) -> Option<SecurityCounts> {
-        self.security.as_ref().map(|s| s.counts())
+    /// Samples refused so far because their vehicle was revoked.
+    pub fn revoked_refused(&self) -> u64 {
+        self.guard.revoked()
     }
 
     /// The configuration this participant was created with.
@@ -250,12 +237,6 @@ impl PubSub {
             .topic(name, T::TYPE_NAME, || Shape::of::<T>(T::TYPE_NAME, keys))
     }
 
-    fn signed_topic(&self, name: &str) -> Result<(TopicRef, SerType), CreateError> {
-        self.participant.topic(name, SIGNED_TYPE_NAME, || {
-            Shape::of::<SignedWire>(SIGNED_TYPE_NAME, SignedWire::KEY_FIELDS)
-        })
-    }
-
     /// A writer for `T` in the given priority class. Each call creates a distinct DDS
     /// writer, so traffic of one class never waits behind another class's history.
     pub fn writer<T: TopicType>(&self, options: WriterOptions) -> Result<Writer<T>, CreateError> {
@@ -279,12 +260,7 @@ impl PubSub {
             qos.partitions(&[p])
                 .map_err(|e| dds_err(format!("a writer on {topic_name}"), e))?;
         }
-        let security = self.security.as_ref().filter(|_| T::SIGNED).cloned();
-        let (topic, sertype) = if security.is_some() {
-            self.signed_topic(&signed_topic(topic_name))?
-        } else {
-            self.model_topic::<T>(topic_name)?
-        };
+        let (topic, sertype) = self.model_topic::<T>(topic_name)?;
         let entity = cyclone::writer(&self.participant.entity, topic, &qos)
             .map_err(|e| dds_err(format!("a writer on {topic_name}"), e))?;
         debug!(
@@ -296,7 +272,6 @@ impl PubSub {
         Ok(Writer {
             entity,
             sertype,
-            security,
             options,
             kept: limit.map(|limit| Mutex::new(KeptInstances::new(limit))),
             _participant: Arc::clone(&self.participant),
@@ -306,8 +281,6 @@ impl PubSub {
 
     /// Like [`PubSub::subscribe`] on another topic name with `T`'s type and QoS.
     ///
-    /// With security on, a signed topic is read from its signed twin through the gate; the
-    /// plain topic is still read, to count and drop what arrives there unsigned.
     pub fn subscribe_on<T: TopicType>(
         &self,
         topic_name: &str,
@@ -323,31 +296,13 @@ impl PubSub {
                 .map_err(|e| dds_err(format!("a reader on {topic_name}"), e))
         };
         let mut readers = Vec::new();
-        let security = self.security.as_ref().filter(|_| T::SIGNED);
-        if let Some(security) = security {
-            let name = signed_topic(topic_name);
-            let (topic, _) = self.signed_topic(&name)?;
-            readers.push(Source {
-                reader: reader(topic)?,
-                topic: name,
-                samples: Samples {
-                    decode: Decode::Signed(Arc::clone(security)),
-                    writers: HashMap::new(),
-                    impersonations: Arc::clone(&self.impersonations),
-                },
-            });
-        }
         let (topic, _) = self.model_topic::<T>(topic_name)?;
         readers.push(Source {
             reader: reader(topic)?,
             topic: topic_name.to_string(),
             samples: Samples {
-                decode: match security {
-                    Some(s) => Decode::Unsigned(Arc::clone(s)),
-                    None => Decode::Plain,
-                },
                 writers: HashMap::new(),
-                impersonations: Arc::clone(&self.impersonations),
+                guard: Arc::clone(&self.guard),
             },
         });
         let watch: Arc<dyn cyclone::Wake> = signal.clone();
@@ -487,8 +442,6 @@ impl KeptInstances {
 pub struct Writer<T: TopicType> {
     entity: Entity,
     sertype: SerType,
-    /// Set when samples go signed on the topic's twin.
-    security: Option<Arc<Security>>,
     options: WriterOptions,
     /// The instances kept for late joiners, when the writer bounds them.
     kept: Option<Mutex<KeptInstances>>,
@@ -514,10 +467,7 @@ impl<T: TopicType> Writer<T> {
     }
 
     fn send(&self, sample: &T) -> Result<(), SendError> {
-        let mut cdr = match &self.security {
-            Some(security) => crate::to_cdr_le(&security.seal(sample)?)?,
-            None => crate::to_cdr_le(sample)?,
-        };
+        let mut cdr = crate::to_cdr_le(sample)?;
         cyclone::write_cdr(&self.entity, self.sertype, &mut cdr).map_err(|code| {
             if code == cyclone::TIMEOUT {
                 SendError::HistoryFull
@@ -557,12 +507,9 @@ impl<T: TopicType> Writer<T> {
         }
     }
 
-    /// The sample's key as this writer's topic holds it (the signed twin is keyed by text).
+    /// The sample's key, serialised as the topic holds it.
     fn key_cdr(&self, sample: &T) -> Result<Vec<u8>, CdrError> {
-        match &self.security {
-            Some(_) => crate::to_cdr_le(&sample.key_text()),
-            None => crate::to_cdr_le(&sample.key()),
-        }
+        crate::to_cdr_le(&sample.key())
     }
 
     /// Validates and publishes one sample; on failure the sample comes back in the error.
@@ -648,16 +595,6 @@ impl cyclone::Wake for Signal {
     }
 }
 
-/// How a reader's samples become stream items.
-enum Decode {
-    /// Plain samples of `T`, validated.
-    Plain,
-    /// Plain samples while security is on: counted and refused.
-    Unsigned(Arc<Security>),
-    /// Signed samples, opened by the gate.
-    Signed(Arc<Security>),
-}
-
 /// One DDS reader of a subscription.
 struct Source {
     reader: ReaderHandle<Signal>,
@@ -667,12 +604,11 @@ struct Source {
 
 /// How one reader's samples are turned into stream items.
 struct Samples {
-    decode: Decode,
     /// Writer and participant GUIDs as text and the vehicle whose partition the writer
     /// publishes in, by the writer's instance handle in this reader: looked up once per
     /// writer rather than once per sample.
     writers: HashMap<u64, (String, String, Option<String>)>,
-    impersonations: Arc<Impersonations>,
+    guard: Arc<PublisherGuard>,
 }
 
 impl Samples {
@@ -710,38 +646,36 @@ impl Samples {
                 detail,
             }
         };
-        match &self.decode {
-            Decode::Plain => {
-                let value: T = crate::from_cdr(taken.cdr).map_err(malformed)?;
-                let meta = self.meta(reader, taken);
-                if let (Some(publisher), Some(claimed)) =
-                    (meta.publisher_vehicle.as_deref(), value.owner_vehicle())
-                    && publisher != claimed
-                {
-                    self.impersonations.count();
-                    warn!(
-                        topic = T::TOPIC,
-                        publisher, claimed, "sample about another vehicle refused"
-                    );
-                    return Err(ReadError::Impersonation {
-                        topic: T::TOPIC,
-                        publisher: publisher.to_string(),
-                        claimed: claimed.to_string(),
-                    });
-                }
-                validated(value, meta)
+        let value: T = crate::from_cdr(taken.cdr).map_err(malformed)?;
+        let meta = self.meta(reader, taken);
+        if let Some(publisher) = meta.publisher_vehicle.as_deref() {
+            if self.guard.is_revoked(publisher) {
+                self.guard.count_revoked();
+                debug!(
+                    topic = T::TOPIC,
+                    publisher, "sample from a revoked vehicle refused"
+                );
+                return Err(ReadError::Revoked {
+                    topic: T::TOPIC,
+                    vehicle: publisher.to_string(),
+                });
             }
-            Decode::Unsigned(security) => {
-                security.count_unsigned(T::TOPIC);
-                Err(ReadError::Unsigned { topic: T::TOPIC })
-            }
-            Decode::Signed(security) => {
-                let security = Arc::clone(security);
-                let wire: SignedWire = crate::from_cdr(taken.cdr).map_err(malformed)?;
-                let meta = self.meta(reader, taken);
-                open_signed::<T>(&security, &wire, meta)
+            if let Some(claimed) = value.owner_vehicle()
+                && publisher != claimed
+            {
+                self.guard.count_impersonation();
+                warn!(
+                    topic = T::TOPIC,
+                    publisher, claimed, "sample about another vehicle refused"
+                );
+                return Err(ReadError::Impersonation {
+                    topic: T::TOPIC,
+                    publisher: publisher.to_string(),
+                    claimed: claimed.to_string(),
+                });
             }
         }
+        validated(value, meta)
     }
 }
 
@@ -837,30 +771,6 @@ impl<T: TopicType> Stream for Subscription<T> {
                 return Poll::Pending;
             }
         }
-    }
-}
-
-/// A signed sample through the gate: the model sample, or why it was refused.
-fn open_signed<T: TopicType>(
-    security: &Security,
-    wire: &SignedWire,
-    meta: SampleMeta,
-) -> Result<(Validated<T>, SampleMeta), ReadError> {
-    match security.open::<T>(wire) {
-        Ok(sample) => Ok((sample, meta)),
-        Err(Refused::Gate(reason, detail)) => {
-            debug!(topic = T::TOPIC, reason, %detail, "signed sample refused");
-            Err(ReadError::Refused {
-                topic: T::TOPIC,
-                reason,
-                detail,
-            })
-        }
-        Err(Refused::Invalid(error, payload)) => Err(ReadError::Invalid {
-            topic: T::TOPIC,
-            error,
-            payload,
-        }),
     }
 }
 

@@ -10,7 +10,9 @@
 //! subscriber then knows which authenticated vehicle a sample came from and refuses one
 //! that speaks about another vehicle ([`crate::ReadError::Impersonation`]).
 
+use std::collections::HashSet;
 use std::path::Path;
+use std::sync::RwLock;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use shoal_security::dds::{Enclave, VEHICLE_PARTITION_PREFIX, names, vehicle_partition};
@@ -104,19 +106,44 @@ pub(crate) fn partition_vehicle(partitions: &[String]) -> Option<String> {
     }
 }
 
-/// Samples refused because their publisher spoke about another vehicle, by topic.
+/// What a subscriber refuses by publisher: samples about another vehicle than the one
+/// whose partition they came in, and samples from revoked vehicles.
 #[derive(Debug, Default)]
-pub(crate) struct Impersonations {
-    total: AtomicU64,
+pub(crate) struct PublisherGuard {
+    revoked: RwLock<HashSet<String>>,
+    impersonations: AtomicU64,
+    revoked_refused: AtomicU64,
 }
 
-impl Impersonations {
-    pub(crate) fn count(&self) {
-        self.total.fetch_add(1, Ordering::Relaxed);
+impl PublisherGuard {
+    pub(crate) fn set_revoked(&self, vehicles: HashSet<String>) {
+        *self
+            .revoked
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = vehicles;
     }
 
-    pub(crate) fn total(&self) -> u64 {
-        self.total.load(Ordering::Relaxed)
+    pub(crate) fn is_revoked(&self, vehicle: &str) -> bool {
+        self.revoked
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .contains(vehicle)
+    }
+
+    pub(crate) fn count_impersonation(&self) {
+        self.impersonations.fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub(crate) fn count_revoked(&self) {
+        self.revoked_refused.fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub(crate) fn impersonations(&self) -> u64 {
+        self.impersonations.load(Ordering::Relaxed)
+    }
+
+    pub(crate) fn revoked(&self) -> u64 {
+        self.revoked_refused.load(Ordering::Relaxed)
     }
 }
 

@@ -31,22 +31,16 @@ pub trait TopicType:
     /// such as ROS 2 messages, set `false`: DDS implementations match only endpoints of the
     /// same keyedness (Cyclone DDS drops the others silently).
     const KEYED: bool = true;
-    /// Whether a participant with security on signs and verifies this topic. Shoal's own
-    /// topics do; foreign types (ROS 2 messages) travel as their peers expect them.
-    const SIGNED: bool = false;
-    /// The vehicle this sample speaks for, which the publish policy checks against the
-    /// signer ("a vehicle publishes only its own data"); `None` for foreign types.
+    /// The vehicle this sample speaks for, which a subscriber checks against the vehicle
+    /// whose partition it came in ("a vehicle publishes only its own data"); `None` for
+    /// foreign types.
     fn owner_vehicle(&self) -> Option<&str> {
         None
-    }
-    /// The instance key as text, the key of the topic's signed twin.
-    fn key_text(&self) -> String {
-        format!("{:?}", self.key())
     }
 }
 
 /// A Shoal topic keyed by one of its string fields and owned by the vehicle it names in
-/// `vehicle_id` (the publish policy checks that owner when security is on).
+/// `vehicle_id` (subscribers check that owner against the publisher's partition).
 macro_rules! string_keyed_topic {
     ($ty:ty, $topic:literal, $type_name:literal, $profile:ident, $priority:ident, $key:ident) => {
         impl TopicType for $ty {
@@ -59,12 +53,8 @@ macro_rules! string_keyed_topic {
                 self.$key.clone()
             }
             const KEY_FIELDS: &'static [&'static str] = &[stringify!($key)];
-            const SIGNED: bool = true;
             fn owner_vehicle(&self) -> Option<&str> {
                 Some(&self.vehicle_id)
-            }
-            fn key_text(&self) -> String {
-                self.$key.clone()
             }
         }
     };
@@ -133,12 +123,8 @@ impl TopicType for EnvironmentObservation {
             property: self.property.clone(),
         }
     }
-    const SIGNED: bool = true;
     fn owner_vehicle(&self) -> Option<&str> {
         Some(&self.vehicle_id)
-    }
-    fn key_text(&self) -> String {
-        format!("{}/{}", self.vehicle_id, self.property)
     }
 }
 

@@ -93,32 +93,34 @@ impl VehicleConfig {
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SecurityConfig {
-    /// Sign every sample on Shoal's topics and drop what does not verify.
+    /// OMG DDS Security on IP links (authenticated, access-controlled, encrypted) and
+    /// HMAC tags on acoustic frames. On by default; `--insecure` turns it off.
     pub enabled: bool,
-    /// The station's key store (`shoal keys init`).
+    /// The station's key store (`shoal keys init`; `shoal up` and `shoal station` create
+    /// it on first run).
     pub store: PathBuf,
-    /// A vehicle's bundle (`shoal keys export`).
+    /// A vehicle's bundle (`shoal keys export`); empty: a vehicle on the station's host
+    /// takes its credentials from `store`.
     pub bundle: PathBuf,
-    /// Publish access policy file; empty for the built-in policy.
-    pub policy: PathBuf,
-    /// Oldest signed sample accepted, seconds.
-    pub max_age_s: u32,
-    /// How far ahead of this host's clock a signed sample may be, seconds.
-    pub max_future_s: u32,
     /// Seconds between re-reads of the revocation list at the station.
     pub crl_check_s: u32,
+    /// Let `shoal station` run with security off on interfaces other than loopback (lab
+    /// work with unmodified third-party vehicles). Off: it refuses to.
+    pub allow_insecure_network: bool,
+    /// Which topics the governance document encrypts, signs or leaves open (applied when
+    /// the key store is created, or by `shoal keys governance`).
+    pub governance: shoal_security::dds::GovernanceOptions,
 }
 
 impl Default for SecurityConfig {
     fn default() -> Self {
         Self {
-            enabled: false,
+            enabled: true,
             store: PathBuf::from("shoal-data/keys"),
             bundle: PathBuf::new(),
-            policy: PathBuf::new(),
-            max_age_s: 30,
-            max_future_s: 5,
             crl_check_s: 5,
+            allow_insecure_network: false,
+            governance: shoal_security::dds::GovernanceOptions::default(),
         }
     }
 }
@@ -126,18 +128,6 @@ impl Default for SecurityConfig {
 impl SecurityConfig {
     /// Checks the values; the error names the key.
     pub fn check(&self) -> Result<(), String> {
-        if !(1..=3600).contains(&self.max_age_s) {
-            return Err(format!(
-                "security.max_age_s = {} is outside [1, 3600]",
-                self.max_age_s
-            ));
-        }
-        if self.max_future_s > 600 {
-            return Err(format!(
-                "security.max_future_s = {} is above 600",
-                self.max_future_s
-            ));
-        }
         if !(1..=3600).contains(&self.crl_check_s) {
             return Err(format!(
                 "security.crl_check_s = {} is outside [1, 3600]",
@@ -779,11 +769,11 @@ mod tests {
     #[test]
     fn precedence_is_file_then_environment_then_flags() {
         let text = "[dds]\ndomain_id = 3\n[console]\nlisten = \"127.0.0.1:1001\"\n\
-                    [history]\npath = \"from-file.db\"\n[security]\nmax_age_s = 40\n";
+                    [history]\npath = \"from-file.db\"\n[security]\ncrl_check_s = 40\n";
         let vars = [
             ("SHOAL_CONSOLE__LISTEN", "127.0.0.1:1002"),
             ("SHOAL_HISTORY__PATH", "from-env.db"),
-            ("SHOAL_SECURITY__MAX_AGE_S", "50"),
+            ("SHOAL_SECURITY__CRL_CHECK_S", "50"),
         ];
         let flags = Flags {
             listen: Some("127.0.0.1:1003".parse().unwrap()),
@@ -791,7 +781,7 @@ mod tests {
         };
         let c = load_text(text, &vars, &flags).unwrap();
         assert_eq!(c.dds.domain_id, 3, "the file over the defaults");
-        assert_eq!(c.security.max_age_s, 50, "the environment over the file");
+        assert_eq!(c.security.crl_check_s, 50, "the environment over the file");
         assert_eq!(
             c.history.path,
             Path::new("from-env.db"),
@@ -912,10 +902,10 @@ mod tests {
             .to_string();
             assert!(e.contains("station.semantic: operating_area"), "{e}");
         }
-        let e = env(&[("SHOAL_SECURITY__MAX_AGE_S", "0")])
+        let e = env(&[("SHOAL_SECURITY__CRL_CHECK_S", "0")])
             .unwrap_err()
             .to_string();
-        assert!(e.contains("security.max_age_s"), "{e}");
+        assert!(e.contains("security.crl_check_s"), "{e}");
     }
 
     #[cfg(feature = "console")]

@@ -62,26 +62,44 @@ fn warn_if_not_loopback(cfg: &ShoalConfig) {
     }
 }
 
-/// The station's participant (also the CDT's on the station side): with `[security]` on,
-/// signing as the station and admitting through its key store, revocations re-read live.
+/// Says loudly, on the terminal and in the log, that security is off.
+fn warn_insecure(who: &str) {
+    let msg = format!(
+        "SECURITY IS OFF for {who}: any process on this DDS domain can command vehicles, \
+         impersonate them and read every position. Use this only in a lab."
+    );
+    eprintln!("shoal: WARNING: {msg}");
+    warn!("{msg}");
+}
+
+/// The station's participant (also the CDT's on the station side): with `[security]` on
+/// (the default), OMG DDS Security with the station's identity, the key store created on
+/// first run, and revocations applied live.
 fn station_dds(cfg: &ShoalConfig, shutdown: &CancellationToken) -> Result<Arc<PubSub>> {
     warn_if_not_loopback(cfg);
     if !cfg.security.enabled {
+        if !cfg.dds.is_loopback_only() && !cfg.security.allow_insecure_network {
+            bail!(
+                "refusing to run the station insecure on non-loopback interfaces ({:?}): turn security on, or set security.allow_insecure_network = true for lab work with unmodified third-party vehicles",
+                cfg.dds.interfaces
+            );
+        }
+        warn_insecure("the station");
         return Ok(Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?));
     }
-    let keys = crate::keys::station(&cfg.security)?;
-    let dds = Arc::new(PubSub::new_secure(&cfg.dds, keys.security).context("cannot join DDS")?);
+    let credentials = crate::keys::station(&cfg.security)?;
+    let dds = Arc::new(
+        PubSub::with_credentials(&cfg.dds, credentials).context("cannot join DDS securely")?,
+    );
     crate::keys::watch_revocations(
         Arc::clone(&dds),
-        keys.anchor,
-        keys.crl_path,
+        &cfg.security,
         Duration::from_secs(u64::from(cfg.security.crl_check_s)),
         shutdown.clone(),
     );
     Ok(dds)
 }
 
-/// A vehicle's participant: with `[security]` on, signing with its bundle's certificate.
 /// A vehicle's proxy options: its reporting rate, and its task ledger where `[vehicle]`
 /// says, so a task runs at most once across restarts.
 fn vehicle_options(cfg: &ShoalConfig, rate_hz: f64) -> shoal_proxy::ProxyOptions {
@@ -93,15 +111,18 @@ fn vehicle_options(cfg: &ShoalConfig, rate_hz: f64) -> shoal_proxy::ProxyOptions
     }
 }
 
+/// A vehicle's participant: with `[security]` on (the default), OMG DDS Security with its
+/// own identity, publishing in its own partition.
 fn vehicle_dds(cfg: &ShoalConfig, vehicle_id: &str) -> Result<Arc<PubSub>> {
     warn_if_not_loopback(cfg);
     let dds = if cfg.security.enabled {
-        let security = crate::keys::vehicle(&cfg.security, vehicle_id)?;
-        PubSub::new_secure(&cfg.dds, security)
+        let credentials = crate::keys::vehicle(&cfg.security, vehicle_id)?;
+        PubSub::with_credentials(&cfg.dds, credentials).context("cannot join DDS securely")?
     } else {
-        PubSub::new(&cfg.dds)
+        warn_insecure(&format!("vehicle {vehicle_id}"));
+        PubSub::new(&cfg.dds).context("cannot join DDS")?
     };
-    Ok(Arc::new(dds.context("cannot join DDS")?))
+    Ok(Arc::new(dds))
 }
 
 /// `shoal station`.
@@ -240,8 +261,6 @@ async fn stop_child(mut c: Child) {
 pub struct UpOptions {
     /// No simulated vehicles at all.
     pub no_fleet: bool,
-    /// Security on.
-    pub secure: bool,
     /// Lightweight vehicles in a `shoal swarm` process.
     pub sim_vehicles: usize,
 }
@@ -252,10 +271,12 @@ pub async fn swarm(
     spec: shoal_proxy::swarm::SwarmSpec,
     exit_on_stdin_close: bool,
 ) -> Result<()> {
-    if cfg.security.enabled {
-        bail!("shoal swarm does not sign: run it with security off (it is for scale tests)");
-    }
     spec.check().map_err(anyhow::Error::msg)?;
+    if cfg.security.enabled {
+        bail!(
+            "shoal swarm runs many vehicles on one participant, which no vehicle's permissions allow: run it with --insecure (it is for scale tests)"
+        );
+    }
     warn_if_not_loopback(cfg);
     let dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?);
     let shutdown = shutdown_signal(exit_on_stdin_close);
@@ -270,16 +291,21 @@ pub async fn swarm(
 pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Result<()> {
     let UpOptions {
         no_fleet,
-        secure,
         sim_vehicles,
     } = opts;
-    if (secure || cfg.security.enabled) && sim_vehicles > 0 {
-        bail!("--sim-vehicles cannot be combined with security (swarm vehicles do not sign)");
+    let secure = cfg.security.enabled;
+    if secure && sim_vehicles > 0 {
+        bail!(
+            "--sim-vehicles needs --insecure (swarm vehicles share one participant, which no vehicle's permissions allow)"
+        );
     }
     let exe = std::env::current_exe().context("cannot find the shoal executable")?;
     let shutdown = shutdown_signal(false);
-    let secure = secure || cfg.security.enabled;
     let mut station_env = Vec::new();
+    if !secure {
+        warn_insecure("the station and every vehicle `shoal up` starts");
+        station_env.push(("SHOAL_SECURITY__ENABLED".to_string(), "false".to_string()));
+    }
     let mut bundles = std::collections::HashMap::new();
     if secure {
         let demo = crate::relay::AcousticDemoConfig::default();

@@ -5,13 +5,13 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime};
 
+use std::collections::HashSet;
+
 use anyhow::{Context, Result, bail};
-use shoal_dds::{PubSub, Security};
-use shoal_security::store::{CRL_FILE, CertStatus};
-use shoal_security::{
-    Gate, KeyStore, Policy, RevocationList, RevokeReason, TrustAnchor, VehicleBundle,
-    VerifierConfig,
-};
+use shoal_dds::{Credentials, PubSub};
+use shoal_security::dds::{DdsKeystore, Enclave, Grant, KeystoreOptions, names as dds_names};
+use shoal_security::store::CertStatus;
+use shoal_security::{KeyStore, RevokeReason};
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
@@ -106,20 +106,46 @@ use utc_date as date;
 pub fn run(args: KeysArgs, cfg: &SecurityConfig) -> Result<()> {
     let dir = args.dir.unwrap_or_else(|| cfg.store.clone());
     let open = || KeyStore::open(&dir).context("cannot open the key store");
+    let open_dds = || {
+        DdsKeystore::open(&dds_dir(&dir), keystore_options(cfg))
+            .context("cannot open the DDS Security keystore (shoal keys init makes it)")
+    };
     match args.command {
         KeysCommand::Init { station } => {
             let store = KeyStore::init(&dir, &station).context("cannot create the key store")?;
+            let dds = DdsKeystore::create(&dds_dir(&dir), keystore_options(cfg), now_s())
+                .context("cannot create the DDS Security keystore")?;
+            dds.issue(&Grant::Station, now_s())
+                .context("cannot issue the station's identity")?;
             println!(
                 "key store created in {} for station {:?}; CA valid until {}",
                 dir.display(),
                 station,
                 date(store.trust_anchor().certificate().not_after_ms())
             );
-            println!("next: shoal keys issue <vehicle-id>...; set [security] enabled = true");
+            println!(
+                "DDS Security keystore (identity CA, permissions CA, governance, the station's enclave) in {}",
+                dds_dir(&dir).display()
+            );
+            println!("next: shoal keys issue <vehicle-id>...");
         }
         KeysCommand::Issue { vehicles } => {
             let mut store = open()?;
+            let dds = open_dds()?;
             for v in vehicles {
+                let enclave = dds
+                    .issue(&Grant::Vehicle(v.clone()), now_s())
+                    .with_context(|| format!("cannot issue {v:?}'s DDS Security identity"))?;
+                let info = enclave
+                    .check(now_s())
+                    .with_context(|| format!("{v:?}'s new enclave"))?;
+                println!(
+                    "{v}: DDS Security identity {} (serial {}) until {}, enclave {}",
+                    info.common_name,
+                    info.serial,
+                    info.not_after,
+                    enclave.dir().display()
+                );
                 let issued = store
                     .issue_vehicle(&v)
                     .with_context(|| format!("cannot issue a certificate to {v:?}"))?;
@@ -158,6 +184,14 @@ pub fn run(args: KeysArgs, cfg: &SecurityConfig) -> Result<()> {
         }
         KeysCommand::Revoke { vehicle, reason } => {
             let mut store = open()?;
+            let dds = open_dds()?;
+            let revoked = dds
+                .revoke(&Grant::Vehicle(vehicle.clone()), now_s())
+                .with_context(|| format!("cannot revoke {vehicle:?}'s DDS Security identity"))?;
+            println!(
+                "revoked {vehicle}'s DDS Security certificate {} (a running station refuses it within security.crl_check_s; participants that start later refuse its handshake)",
+                revoked.serial
+            );
             let serial = store
                 .revoke(&vehicle, reason.into())
                 .with_context(|| format!("cannot revoke {vehicle:?}"))?;
@@ -165,6 +199,14 @@ pub fn run(args: KeysArgs, cfg: &SecurityConfig) -> Result<()> {
         }
         KeysCommand::Rotate { vehicle } => {
             let mut store = open()?;
+            let dds = open_dds()?;
+            let enclave = dds
+                .rotate(&Grant::Vehicle(vehicle.clone()), now_s())
+                .with_context(|| format!("cannot rotate {vehicle:?}'s DDS Security identity"))?;
+            println!(
+                "{vehicle}: new DDS Security identity in {}",
+                enclave.dir().display()
+            );
             let issued = store
                 .rotate(&vehicle)
                 .with_context(|| format!("cannot rotate {vehicle:?}"))?;
@@ -177,9 +219,7 @@ pub fn run(args: KeysArgs, cfg: &SecurityConfig) -> Result<()> {
         }
         KeysCommand::Export { vehicle, dest } => {
             let store = open()?;
-            store
-                .export_vehicle(&vehicle, &dest)
-                .with_context(|| format!("cannot export {vehicle:?}"))?;
+            export(&store, &open_dds()?, &vehicle, &dest)?;
             println!(
                 "{vehicle}'s bundle written to {} (keep it on the vehicle only)",
                 dest.display()
@@ -200,93 +240,109 @@ pub fn run(args: KeysArgs, cfg: &SecurityConfig) -> Result<()> {
     Ok(())
 }
 
-fn verifier_config(cfg: &SecurityConfig) -> VerifierConfig {
-    VerifierConfig {
-        max_age_ms: i64::from(cfg.max_age_s) * 1000,
-        max_future_ms: i64::from(cfg.max_future_s) * 1000,
-        ..VerifierConfig::default()
+fn now_s() -> i64 {
+    shoal_model::now_ms().div_euclid(1000)
+}
+
+/// The directory of the DDS Security keystore inside a key store.
+pub fn dds_dir(store: &Path) -> PathBuf {
+    store.join("dds")
+}
+
+fn keystore_options(cfg: &SecurityConfig) -> KeystoreOptions {
+    KeystoreOptions {
+        governance: cfg.governance.clone(),
+        ..KeystoreOptions::default()
     }
 }
 
-fn policy(cfg: &SecurityConfig) -> Result<Policy> {
-    if cfg.policy.as_os_str().is_empty() {
-        return Ok(Policy::builtin());
+/// The key store at `cfg.store`, created on first run (the acoustic keys' store and the
+/// DDS Security keystore with the station's enclave); an older store without the DDS
+/// keystore gets one.
+pub fn open_or_create_store(cfg: &SecurityConfig) -> Result<(KeyStore, DdsKeystore)> {
+    let store = if cfg.store.join(shoal_security::store::STORE_FILE).exists() {
+        KeyStore::open(&cfg.store).with_context(|| {
+            format!(
+                "security: the key store {} cannot be used",
+                cfg.store.display()
+            )
+        })?
+    } else {
+        info!(dir = %cfg.store.display(), "creating the key store (first run; shoal keys init)");
+        KeyStore::init(&cfg.store, "ccs").with_context(|| {
+            format!(
+                "security: cannot create the key store in {}",
+                cfg.store.display()
+            )
+        })?
+    };
+    let dir = dds_dir(&cfg.store);
+    let dds = DdsKeystore::open_or_create(&dir, keystore_options(cfg), now_s())
+        .with_context(|| format!("security: the DDS Security keystore {}", dir.display()))?;
+    dds.issue_if_missing(&Grant::Station, now_s())
+        .context("security: cannot issue the station's identity")?;
+    Ok((store, dds))
+}
+
+/// The station's DDS Security credentials (the key store is created on first run).
+pub fn station(cfg: &SecurityConfig) -> Result<Credentials> {
+    let (_, dds) = open_or_create_store(cfg)?;
+    let enclave = dds
+        .enclave(&Grant::Station)
+        .context("security: the station's enclave")?;
+    Ok(Credentials::station(enclave))
+}
+
+/// A vehicle's DDS Security credentials: from its bundle (`security.bundle`, written by
+/// `shoal keys export`), or, on the station's host, from the key store (issued on first
+/// use).
+pub fn vehicle(cfg: &SecurityConfig, vehicle_id: &str) -> Result<Credentials> {
+    if !cfg.bundle.as_os_str().is_empty() {
+        let dir = dds_dir(&cfg.bundle);
+        if !dir.join(dds_names::CERT).exists() {
+            bail!(
+                "security.bundle {} holds no DDS Security credentials ({} is missing): on the station run `shoal keys export {vehicle_id} DIR` again",
+                cfg.bundle.display(),
+                dir.join(dds_names::CERT).display()
+            );
+        }
+        let enclave = Enclave::new(&dir, Some(dir.join(dds_names::CRL)));
+        let info = enclave
+            .check(now_s())
+            .with_context(|| format!("security.bundle {} cannot be used", cfg.bundle.display()))?;
+        let expected = Grant::Vehicle(vehicle_id.to_string()).enclave_name();
+        if info.common_name != expected {
+            bail!(
+                "security.bundle {} holds the identity {:?}, not vehicle {vehicle_id:?}'s ({expected:?})",
+                cfg.bundle.display(),
+                info.common_name
+            );
+        }
+        return Ok(Credentials::vehicle(enclave, vehicle_id));
     }
-    Policy::load(&cfg.policy).context("security.policy")
-}
-
-/// The station's credentials from its key store, and what the revocation watcher needs.
-pub struct StationKeys {
-    /// Signs as the station; admits through the CA, CRL and policy.
-    pub security: Security,
-    /// The CA, to check a re-read revocation list.
-    pub anchor: TrustAnchor,
-    /// The revocation list file.
-    pub crl_path: PathBuf,
-}
-
-/// Loads the station's credentials; every failure names the file and the problem.
-pub fn station(cfg: &SecurityConfig) -> Result<StationKeys> {
-    let store = KeyStore::open(&cfg.store).with_context(|| {
-        format!(
-            "security is on but the key store {} cannot be used (create it with `shoal keys init`)",
-            cfg.store.display()
-        )
-    })?;
-    let identity = store
-        .station_identity()
-        .context("security: the station's certificate")?;
-    let gate = Gate::new(
-        store
-            .verifier(verifier_config(cfg))
-            .context("security: the key store's certificates")?,
-        policy(cfg)?,
-    );
-    Ok(StationKeys {
-        security: Security::new(identity, gate),
-        anchor: store.trust_anchor().clone(),
-        crl_path: store.dir().join(CRL_FILE),
-    })
-}
-
-/// Loads a vehicle's credentials from its bundle and checks they are `vehicle_id`'s.
-pub fn vehicle(cfg: &SecurityConfig, vehicle_id: &str) -> Result<Security> {
-    if cfg.bundle.as_os_str().is_empty() {
+    let dir = dds_dir(&cfg.store);
+    if !dir.join("private").exists() {
         bail!(
-            "security is on but security.bundle is not set: on the station run `shoal keys export {vehicle_id} DIR` and point security.bundle (or SHOAL_SECURITY__BUNDLE) at DIR"
+            "security is on but vehicle {vehicle_id:?} has no credentials: on the station run `shoal keys export {vehicle_id} DIR` and point security.bundle (or SHOAL_SECURITY__BUNDLE) at DIR, or start it with --insecure for lab work"
         );
     }
-    let bundle = VehicleBundle::load(&cfg.bundle, shoal_model::now_ms()).with_context(|| {
-        format!(
-            "security is on but the vehicle bundle {} cannot be used",
-            cfg.bundle.display()
-        )
-    })?;
-    let name = bundle.identity.identity().name().to_owned();
-    if name != vehicle_id {
-        bail!(
-            "security.bundle {} holds the certificate of {name:?}, not of vehicle {vehicle_id:?}",
-            cfg.bundle.display()
-        );
-    }
-    let gate = Gate::new(bundle.verifier(verifier_config(cfg)), policy(cfg)?);
-    Ok(Security::new(bundle.identity, gate))
+    let dds = DdsKeystore::open(&dir, keystore_options(cfg))
+        .with_context(|| format!("security: the DDS Security keystore {}", dir.display()))?;
+    let enclave = dds
+        .issue_if_missing(&Grant::Vehicle(vehicle_id.to_string()), now_s())
+        .with_context(|| format!("security: cannot issue {vehicle_id:?}'s identity"))?;
+    Ok(Credentials::vehicle(enclave, vehicle_id))
 }
 
-/// For `shoal up --secure`: the key store (created if missing), a certificate for each
-/// vehicle that has none, and a fresh bundle per vehicle next to the store. Returns each
-/// vehicle's bundle directory.
+/// For `shoal up`: the key store (created if missing), credentials and an acoustic key for
+/// each vehicle that has none, and a fresh bundle per vehicle next to the store. Returns
+/// each vehicle's bundle directory.
 #[cfg(feature = "console")]
 pub fn prepare_fleet(
     cfg: &SecurityConfig,
     vehicle_ids: &[&str],
 ) -> Result<std::collections::HashMap<String, PathBuf>> {
-    let mut store = if cfg.store.join(shoal_security::store::STORE_FILE).exists() {
-        KeyStore::open(&cfg.store).context("cannot open the key store")?
-    } else {
-        info!(dir = %cfg.store.display(), "creating the key store (shoal keys init)");
-        KeyStore::init(&cfg.store, "ccs").context("cannot create the key store")?
-    };
+    let (mut store, dds) = open_or_create_store(cfg)?;
     let known = store.vehicles().context("cannot list the key store")?;
     let bundles_dir = cfg
         .store
@@ -296,22 +352,53 @@ pub fn prepare_fleet(
     let mut out = std::collections::HashMap::new();
     for id in vehicle_ids {
         if !known.iter().any(|k| k == id) {
-            let issued = store
+            store
                 .issue_vehicle(id)
-                .with_context(|| format!("cannot issue a certificate to {id:?}"))?;
-            info!(
-                vehicle = id,
-                serial = issued.certificate.serial(),
-                "certificate issued"
-            );
+                .with_context(|| format!("cannot issue an acoustic key to {id:?}"))?;
         }
+        dds.issue_if_missing(&Grant::Vehicle((*id).to_string()), now_s())
+            .with_context(|| format!("cannot issue {id:?}'s identity"))?;
         let dest = bundles_dir.join(id);
-        store
-            .export_vehicle(id, &dest)
-            .with_context(|| format!("cannot export {id:?}'s bundle"))?;
+        export(&store, &dds, id, &dest)?;
         out.insert((*id).to_string(), dest);
     }
     Ok(out)
+}
+
+/// Writes what vehicle `id` loads into `dest`: its acoustic key and CA files, and its DDS
+/// Security enclave with the revocation list under `dest/dds`.
+fn export(store: &KeyStore, dds: &DdsKeystore, id: &str, dest: &Path) -> Result<()> {
+    store
+        .export_vehicle(id, dest)
+        .with_context(|| format!("cannot export {id:?}'s bundle"))?;
+    let enclave = dds
+        .enclave(&Grant::Vehicle(id.to_string()))
+        .with_context(|| format!("cannot export {id:?}'s DDS Security enclave"))?;
+    let to = dds_dir(dest);
+    std::fs::create_dir_all(&to).with_context(|| format!("cannot create {}", to.display()))?;
+    for name in [
+        dds_names::CERT,
+        dds_names::KEY,
+        dds_names::IDENTITY_CA,
+        dds_names::PERMISSIONS_CA,
+        dds_names::GOVERNANCE,
+        dds_names::PERMISSIONS,
+        dds_names::PERMISSIONS_XML,
+    ] {
+        copy_file(&enclave.file(name), &to.join(name), name == dds_names::KEY)?;
+    }
+    copy_file(&dds.crl_path(), &to.join(dds_names::CRL), false)?;
+    Ok(())
+}
+
+fn copy_file(from: &Path, to: &Path, secret: bool) -> Result<()> {
+    let bytes = std::fs::read(from).with_context(|| format!("cannot read {}", from.display()))?;
+    let written = if secret {
+        shoal_security::files::write_secret(to, &bytes)
+    } else {
+        shoal_security::files::write_public(to, &bytes)
+    };
+    written.with_context(|| format!("cannot write {}", to.display()))
 }
 
 /// The acoustic keys of `vehicle_ids` from the station's key store (the CDT runs at the
@@ -338,36 +425,67 @@ fn modified(path: &Path) -> Option<SystemTime> {
     std::fs::metadata(path).and_then(|m| m.modified()).ok()
 }
 
-/// Re-reads the revocation list when its file changes, so `shoal keys revoke` takes effect
-/// in a running station. A list that does not verify is logged and ignored (the old one
-/// stays in force).
+/// The vehicles whose DDS Security certificates the keystore lists as revoked.
+fn revoked_vehicles(dds: &DdsKeystore) -> Result<HashSet<String>> {
+    Ok(dds
+        .revoked()?
+        .into_iter()
+        .filter_map(|r| {
+            r.enclave
+                .strip_prefix("/shoal/vehicle/")
+                .map(str::to_string)
+        })
+        .collect())
+}
+
+/// Applies the keystore's revocations to a running station, and again whenever
+/// `shoal keys revoke` changes them. DDS Security reads the revocation list only when a
+/// participant starts, so the station itself refuses a revoked vehicle's samples (counted
+/// as `security:revoked`) until both restart. A rotated vehicle's new certificate is not
+/// refused: only vehicles whose enclave is gone are. An unreadable list is logged and
+/// ignored (the previous one stays in force).
 pub fn watch_revocations(
-    dds: Arc<PubSub>,
-    anchor: TrustAnchor,
-    crl_path: PathBuf,
+    pubsub: Arc<PubSub>,
+    cfg: &SecurityConfig,
     every: Duration,
     shutdown: CancellationToken,
 ) {
+    let dir = dds_dir(&cfg.store);
+    let options = keystore_options(cfg);
+    let apply = move |dds: &Arc<PubSub>| -> Result<usize> {
+        let ks = DdsKeystore::open(&dir, options.clone())?;
+        let active: HashSet<String> = ks
+            .enclaves()?
+            .into_iter()
+            .filter_map(|g| g.vehicle_id().map(str::to_string))
+            .collect();
+        let revoked: HashSet<String> = revoked_vehicles(&ks)?
+            .into_iter()
+            .filter(|v| !active.contains(v))
+            .collect();
+        let n = revoked.len();
+        dds.set_revoked_vehicles(revoked);
+        Ok(n)
+    };
+    if let Err(e) = apply(&pubsub) {
+        warn!(error = %format!("{e:#}"), "revocation list not applied");
+    }
+    let watched = dds_dir(&cfg.store).join(dds_names::REVOKED);
     tokio::spawn(async move {
-        let mut seen = modified(&crl_path);
+        let mut seen = modified(&watched);
         loop {
             tokio::select! {
                 () = shutdown.cancelled() => return,
                 () = tokio::time::sleep(every) => {}
             }
-            let now = modified(&crl_path);
+            let now = modified(&watched);
             if now == seen {
                 continue;
             }
             seen = now;
-            match RevocationList::load(&crl_path, &anchor) {
-                Ok(crl) => {
-                    if let Some(s) = dds.security() {
-                        s.set_revocations(crl);
-                        info!(file = %crl_path.display(), "revocation list reloaded");
-                    }
-                }
-                Err(e) => warn!(error = %e, "new revocation list ignored"),
+            match apply(&pubsub) {
+                Ok(n) => info!(file = %watched.display(), revoked = n, "revocation list reloaded"),
+                Err(e) => warn!(error = %format!("{e:#}"), "new revocation list ignored"),
             }
         }
     });

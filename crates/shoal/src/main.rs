@@ -34,6 +34,12 @@ struct Cli {
     /// Configuration file (TOML); see config/shoal.toml for every key. Also SHOAL_CONFIG.
     #[arg(long, global = true, value_name = "FILE")]
     config: Option<PathBuf>,
+    /// Run with security off (as `[security] enabled = false`): no DDS Security, no acoustic
+    /// tags. For lab work with unmodified third-party vehicles only; anyone on the domain
+    /// can then command vehicles. A station refuses it on non-loopback interfaces unless
+    /// security.allow_insecure_network is set.
+    #[arg(long, global = true)]
+    insecure: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -57,9 +63,9 @@ enum Command {
         /// Start only the station, no simulated vehicles.
         #[arg(long)]
         no_fleet: bool,
-        /// Turn security on (as `[security] enabled = true`): create the key store if
-        /// missing, issue and export each vehicle's certificate, and sign everything.
-        #[arg(long)]
+        /// Security is on by default (the key store is created on first run, each vehicle
+        /// gets its identity); kept so older scripts still run. See --insecure.
+        #[arg(long, hide = true)]
         secure: bool,
         /// Also start N lightweight simulated vehicles in one process (`shoal swarm`), for
         /// scale tests; they report state at 1 Hz and take no tasks.
@@ -346,7 +352,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         },
         _ => config::Flags::default(),
     };
-    let cfg = config::load(cli.config.as_deref(), &flags)?;
+    let mut cfg = config::load(cli.config.as_deref(), &flags)?;
+    if cli.insecure {
+        cfg.security.enabled = false;
+    }
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
@@ -354,14 +363,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         #[cfg(feature = "console")]
         Command::Up {
             no_fleet,
-            secure,
+            secure: _,
             sim_vehicles,
         } => rt.block_on(daemons::up(
             cli.config.as_deref(),
             &cfg,
             daemons::UpOptions {
                 no_fleet,
-                secure,
                 sim_vehicles,
             },
         )),
@@ -442,6 +450,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             sparql,
             format,
             station,
+            token,
         } => rt.block_on(query::run(
             &sparql,
             &format,

@@ -84,7 +84,7 @@ pub enum DdsKeyError {
     #[error("{}: already holds a DDS Security keystore", .0.display())]
     Exists(PathBuf),
     /// The enclave already exists (rotate or revoke it instead).
-    #[error("{0} already has credentials: rotate or revoke them instead")]
+    #[error("{0} already has an active certificate: rotate or revoke it instead")]
     EnclaveExists(String),
     /// No such enclave.
     #[error("{0} has no credentials in this keystore")]

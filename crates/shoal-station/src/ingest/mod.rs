@@ -281,8 +281,8 @@ impl StationHandle {
             .or_default() += 1;
     }
 
-    /// A sample refused by the P/S Manager's security (unsigned, forged, replayed, revoked,
-    /// not allowed): counted as `security:<reason>` and reported, never stored, because
+    /// A sample refused by the P/S Manager's security (about another vehicle than its
+    /// authenticated publisher, or from a revoked vehicle): counted as `security:<reason>` and reported, never stored, because
     /// nothing in it can be trusted, not even the vehicle it names.
     fn refuse(&self, topic: &str, reason: &str, detail: &str) {
         let reason = format!("security:{reason}");
@@ -315,14 +315,10 @@ impl StationHandle {
                     "null",
                 ));
             }
-            ReadError::Unsigned { .. } => {
-                self.refuse(
-                    T::TOPIC,
-                    "unsigned",
-                    "no signature: the sender has security off",
-                );
+            ReadError::Impersonation { .. } => {
+                self.refuse(T::TOPIC, "impersonation", &e.to_string());
             }
-            ReadError::Refused { reason, detail, .. } => self.refuse(T::TOPIC, reason, detail),
+            ReadError::Revoked { .. } => self.refuse(T::TOPIC, "revoked", &e.to_string()),
             other => warn!(topic = T::TOPIC, error = %other, "read failed"),
         }
     }

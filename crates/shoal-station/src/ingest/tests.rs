@@ -216,17 +216,18 @@ fn an_invalid_sample_from_the_bus_names_its_vehicle_only_when_the_id_is_well_for
 #[test]
 fn samples_refused_by_security_are_counted_and_reported_but_never_stored() {
     let f = Fixture::new();
-    f.h.on_read_error::<StateVector>(&ReadError::Unsigned {
+    f.h.on_read_error::<StateVector>(&ReadError::Impersonation {
         topic: StateVector::TOPIC,
+        publisher: "auv-2".into(),
+        claimed: "auv-1".into(),
     });
-    f.h.on_read_error::<StateVector>(&ReadError::Refused {
+    f.h.on_read_error::<StateVector>(&ReadError::Revoked {
         topic: StateVector::TOPIC,
-        reason: "bad_signature",
-        detail: "forged".into(),
+        vehicle: "auv-3".into(),
     });
     let stats = f.h.stats();
-    assert_eq!(stats.rejected["security:unsigned"], 1);
-    assert_eq!(stats.rejected["security:bad_signature"], 1);
+    assert_eq!(stats.rejected["security:impersonation"], 1);
+    assert_eq!(stats.rejected["security:revoked"], 1);
     assert!(rejected_reasons(&f).is_empty());
     assert_eq!(data_rejected_events(&f), 2);
 }

@@ -134,6 +134,8 @@ pub(super) fn child(args: &[&str], domain: u16) -> Result<tokio::process::Child>
         .args(args)
         .arg("--exit-on-stdin-close")
         .env("SHOAL_DDS__DOMAIN_ID", domain.to_string())
+        // The benchmarks' own participants are insecure; `shoal swarm` must be too.
+        .env("SHOAL_SECURITY__ENABLED", "false")
         .env("RUST_LOG", "warn,cyclonedds=error")
         .stdin(Stdio::piped())
         .stdout(Stdio::null())

@@ -25,6 +25,17 @@ fn station(dir: &std::path::Path, port: u16) -> Proc {
 }
 
 fn station_on(dir: &std::path::Path, port: u16, domain: u16) -> Proc {
+    // The key store first, so vehicles started in `dir` right after the station find it
+    // (security is on by default; a vehicle on the station's host takes its identity from
+    // the store).
+    if !dir.join("shoal-data/keys").exists() {
+        let init = Command::new(env!("CARGO_BIN_EXE_shoal"))
+            .args(["keys", "init"])
+            .current_dir(dir)
+            .output()
+            .unwrap();
+        assert!(init.status.success(), "{init:?}");
+    }
     Proc(
         Command::new(env!("CARGO_BIN_EXE_shoal"))
             .args(["station", "--listen", &format!("127.0.0.1:{port}")])

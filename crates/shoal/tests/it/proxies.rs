@@ -49,6 +49,9 @@ fn start_proxy(kind: &str, id: &str, domain: u16, args: &[&str]) -> Child {
         .arg("--exit-on-stdin-close")
         .env("SHOAL_DDS__DOMAIN_ID", domain.to_string())
         .env("SHOAL_VEHICLE__STATE_DIR", &ledgers)
+        // The station here is in-process and insecure (its Python peers have no DDS
+        // Security), so the proxy is too.
+        .env("SHOAL_SECURITY__ENABLED", "false")
         .stdin(Stdio::piped())
         .stdout(Stdio::null())
         .stderr(Stdio::inherit())
