@@ -801,6 +801,16 @@ fn record<K: std::hash::Hash + Eq + Clone>(
     }
 }
 
+/// The name failures are counted under: no user name is longer than 32 bytes, so every
+/// longer one shares one entry (a megabyte-long name must not be kept ten thousand times).
+fn user_key(user: &str) -> &str {
+    if user.len() <= 32 {
+        user
+    } else {
+        "(name too long)"
+    }
+}
+
 impl LoginThrottle {
     /// `max` failures per `window` for each address and each user name.
     pub fn new(max: u32, window: Duration) -> Self {
@@ -831,7 +841,7 @@ impl LoginThrottle {
             })
         };
         let by_addr = addr.and_then(|a| wait(f.by_addr.get_mut(&a)));
-        let by_user = wait(f.by_user.get_mut(user));
+        let by_user = wait(f.by_user.get_mut(user_key(user)));
         match by_addr.into_iter().chain(by_user).max() {
             Some(w) => Err(w.max(Duration::from_secs(1))),
             None => Ok(()),
@@ -845,14 +855,13 @@ impl LoginThrottle {
         if let Some(a) = addr {
             record(&mut f.by_addr, &a, now, window, max);
         }
-        // Names are bounded (the login body is at most max_body_bytes) but need not exist.
-        record(&mut f.by_user, &user.to_owned(), now, window, max);
+        record(&mut f.by_user, &user_key(user).to_owned(), now, window, max);
     }
 
     /// A successful login clears its user's failures (not its address's: one known
     /// account must not reset the count for guessing others).
     pub fn succeeded(&self, user: &str) {
-        self.lock().by_user.remove(user);
+        self.lock().by_user.remove(user_key(user));
     }
 }
 
@@ -1146,6 +1155,12 @@ mod tests {
             t.failed(None, "otto", now);
         }
         assert!(t.check(None, "otto", now).is_err());
+        // Names no user can have share one entry, however many and long.
+        for i in 0..5 {
+            t.failed(None, &format!("{i}{}", "x".repeat(1 << 16)), now);
+        }
+        assert!(t.check(None, &"y".repeat(100), now).is_err());
+        assert!(t.lock().by_user.keys().all(|k| k.len() <= 32));
     }
 
     #[test]
