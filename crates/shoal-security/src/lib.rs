@@ -6,6 +6,12 @@
 //!
 //! # Main types
 //!
+//! - [`dds`]: the OMG DDS Security 1.1 keystore IP links use (identity and permissions CAs,
+//!   signed governance and per-participant permissions, a CRL, SROS2 layout), and
+//!   [`dds::Enclave::check`], which reads a participant's files as the plugins will.
+//! - The signed envelopes below ([`Envelope`], [`Gate`], [`Policy`]) are no longer used on
+//!   IP links, which run DDS Security instead; they remain only until their attack corpus
+//!   is moved to the standard path, and will be removed.
 //! - [`KeyStore`] (station side, on disk): a station CA, the station's certificate, a
 //!   certificate and a 256-bit acoustic key per vehicle, and a CRL. `init`, `issue_vehicle`,
 //!   `list`, `revoke`, `rotate`, `renew_station`, `export_vehicle`. [`VehicleBundle`] is
@@ -57,8 +63,9 @@
 //!
 //! ## What is not protected
 //!
-//! - **Confidentiality**: nothing is encrypted; anyone in range can read positions and
-//!   tasks.
+//! - **Confidentiality on the acoustic link**: frames are authenticated, not encrypted;
+//!   anyone in range can read positions and tasks sent acoustically (IP links are
+//!   encrypted by DDS Security).
 //! - **Availability**: jamming the acoustic channel, flooding the radio, or a captured
 //!   vehicle sending junk. Cheap checks run before signatures to limit the CPU cost, and
 //!   refusals are counted so the operator can see an attack, but nothing stops it.
@@ -70,8 +77,8 @@
 //! - **Delay on the acoustic link**: frames carry a counter, not a timestamp, so a frame
 //!   that an attacker blocked and replays later (once, in order) is accepted; application
 //!   TTLs must bound how late a command may act.
-//! - **Traffic analysis and DDS metadata**: RTPS discovery, topic names and sizes are in
-//!   the clear; envelopes protect samples, not the DDS protocol itself.
+//! - **Traffic analysis**: with DDS Security, discovery and samples are encrypted, but the
+//!   participants' addresses, the RTPS headers and message sizes and timing are not.
 //! - **The station host**: the CA key lives in the store directory (0600). Whoever owns
 //!   the station owns the fleet; keep the store on the station only and back it up offline.
 //! - **Clocks**: freshness needs station and vehicle clocks within the skew window.

@@ -556,6 +556,12 @@ mod tests {
                 "/etc/shoal/bundle",
                 |c| c.security.bundle == Path::new("/etc/shoal/bundle"),
             ),
+            (
+                "security.governance",
+                "SHOAL_SECURITY__GOVERNANCE__DEFAULT",
+                "sign",
+                |c| c.security.governance.default == shoal_security::dds::Protection::Sign,
+            ),
             ("fleet", "SHOAL_FLEET__ACOUSTIC_DEMO", "false", |c| {
                 !c.fleet.acoustic_demo
             }),
