@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use time::OffsetDateTime;
 use time::macros::format_description;
 
-use super::pki::subject_text;
+use super::pki::{lowest_organisation, subject_text};
 
 /// Topics a vehicle publishes about itself.
 pub const VEHICLE_TOPICS: [&str; 5] = [
@@ -151,6 +151,29 @@ impl Grant {
         }
     }
 
+    /// The organisation (`O=`) of this participant's certificate subject. Vehicles: `Shoal`.
+    /// The station: `Shoal <nonce>`, the nonce chosen so that SHA-256 of the DER subject
+    /// starts with 16 zero bits. The standard's PKI-DH plugins make the participant with
+    /// the lower adjusted GUID (its first 47 bits are that hash) send the handshake
+    /// request, so the station always initiates. This matters with Fast DDS 2.9 vehicles:
+    /// as initiator, Fast DDS 2.9 offers only DH+MODP-2048, whose public key Cyclone DDS
+    /// 0.10 cannot decode; as responder it accepts the ECDH that Cyclone offers.
+    pub fn organisation(&self) -> String {
+        static STATION: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+        match self {
+            Self::Station => STATION
+                .get_or_init(|| lowest_organisation(&self.enclave_name(), super::ORGANISATION))
+                .clone(),
+            Self::Vehicle(_) => super::ORGANISATION.to_string(),
+        }
+    }
+
+    /// The certificate subject as the permissions document writes it
+    /// (`CN=<enclave name>,O=<organisation>`).
+    pub fn subject_name(&self) -> String {
+        subject_text(&self.enclave_name(), &self.organisation())
+    }
+
     /// The vehicle this grant is for, if any.
     pub fn vehicle_id(&self) -> Option<&str> {
         match self {
@@ -177,7 +200,7 @@ fn list(tag: &str, inner: &str, items: &[&str]) -> String {
 /// The permissions document of one participant, valid from `not_before_s` to
 /// `not_after_s` (Unix seconds).
 pub fn permissions(grant: &Grant, not_before_s: i64, not_after_s: i64) -> String {
-    let subject = xml_escape(&subject_text(&grant.enclave_name()));
+    let subject = xml_escape(&grant.subject_name());
     let from = date(
         OffsetDateTime::from_unix_timestamp(not_before_s).unwrap_or(OffsetDateTime::UNIX_EPOCH),
     );

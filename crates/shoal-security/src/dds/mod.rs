@@ -304,16 +304,13 @@ impl Enclave {
                 FileProblem::BadCertificate("no common name".into()),
             )
         })?;
-        let subject = format!(
-            "<subject_name>{}</subject_name>",
-            pki::subject_text(&common_name)
-        );
+        let subject_text = pki::name_text(cert.subject_name()).unwrap_or_default();
+        let subject = format!("<subject_name>{subject_text}</subject_name>");
         if !String::from_utf8_lossy(&perms).contains(&subject) {
             return Err(FileError::new(
                 &perm_path,
                 FileProblem::Invalid(format!(
-                    "grants nothing to {} (the subject of {})",
-                    pki::subject_text(&common_name),
+                    "grants nothing to {subject_text} (the subject of {})",
                     cert_path.display()
                 )),
             ));
@@ -525,7 +522,8 @@ impl DdsKeystore {
         let key = pki::new_key().map_err(crypto("generating a participant key"))?;
         let name = grant.enclave_name();
         let days = self.options.cert_days;
-        let cert = pki::leaf_certificate(&ica, &ica_key, &key, &name, now_s, days)
+        let organisation = grant.organisation();
+        let cert = pki::leaf_certificate(&ica, &ica_key, &key, (&name, &organisation), now_s, days)
             .map_err(crypto("issuing an identity certificate"))?;
         let doc = permissions(grant, now_s - 600, now_s + i64::from(days) * 86_400);
         let signed = pki::smime_sign(&pca, &pca_key, doc.as_bytes())

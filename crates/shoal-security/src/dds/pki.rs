@@ -33,20 +33,86 @@ pub(crate) fn new_key() -> Result<PKey<Private>, ErrorStack> {
     PKey::from_ec_key(EcKey::generate(&group)?)
 }
 
-/// `CN=<common_name>,O=Shoal` as an X.509 name. The permissions documents write the same
-/// name as text (see [`subject_text`]); the plugins compare the two.
-pub(crate) fn subject(common_name: &str) -> Result<X509Name, ErrorStack> {
+/// `CN=<common_name>,O=<organisation>` as an X.509 name. The permissions documents write
+/// the same name as text (see [`subject_text`]); the plugins compare the two.
+pub(crate) fn subject(common_name: &str, organisation: &str) -> Result<X509Name, ErrorStack> {
     let mut name = X509Name::builder()?;
     name.append_entry_by_nid(Nid::COMMONNAME, common_name)?;
-    name.append_entry_by_nid(Nid::ORGANIZATIONNAME, super::ORGANISATION)?;
+    name.append_entry_by_nid(Nid::ORGANIZATIONNAME, organisation)?;
     Ok(name.build())
 }
 
 /// The text form of [`subject`] for a permissions document's `<subject_name>`.
-pub(crate) fn subject_text(common_name: &str) -> String {
-    format!("CN={common_name},O={}", super::ORGANISATION)
+pub(crate) fn subject_text(common_name: &str, organisation: &str) -> String {
+    format!("CN={common_name},O={organisation}")
 }
 
+/// The text form of a certificate's subject, as [`subject_text`] writes it (`CN=...`, then
+/// `O=...` if present).
+pub(crate) fn name_text(name: &X509NameRef) -> Option<String> {
+    let cn = common_name_of(name)?;
+    let org = name
+        .entries_by_nid(Nid::ORGANIZATIONNAME)
+        .next()
+        .and_then(|e| e.data().to_string().ok());
+    Some(match org {
+        Some(o) => subject_text(&cn, &o),
+        None => format!("CN={cn}"),
+    })
+}
+
+/// SHA-256 of the DER encoding of `name`: the plugins take the first 47 bits of a
+/// participant's adjusted GUID from it (DDS Security 1.1 §9.3.3), which decides who
+/// starts the authentication handshake.
+pub(crate) fn subject_hash(name: &X509NameRef) -> Result<[u8; 32], ErrorStack> {
+    Ok(openssl::sha::sha256(&name.to_der()?))
+}
+
+/// A DER tag, length and value (values up to 64 KiB, far more than a subject needs).
+fn der_tlv(tag: u8, body: &[u8]) -> Vec<u8> {
+    let mut out = vec![tag];
+    let n = body.len();
+    if n < 0x80 {
+        out.push(n as u8);
+    } else if n <= 0xFF {
+        out.extend([0x81, n as u8]);
+    } else {
+        out.extend([0x82, (n >> 8) as u8, n as u8]);
+    }
+    out.extend_from_slice(body);
+    out
+}
+
+/// The DER [`subject`] produces (OpenSSL encodes both attributes as UTF8String), without
+/// OpenSSL: [`lowest_organisation`] builds tens of thousands of them.
+fn subject_der(common_name: &str, organisation: &str) -> Vec<u8> {
+    let attribute = |oid_last: u8, value: &str| {
+        let mut atv = der_tlv(0x06, &[0x55, 0x04, oid_last]);
+        atv.extend(der_tlv(0x0C, value.as_bytes()));
+        der_tlv(0x31, &der_tlv(0x30, &atv))
+    };
+    let mut rdns = attribute(0x03, common_name);
+    rdns.extend(attribute(0x0A, organisation));
+    der_tlv(0x30, &rdns)
+}
+
+/// The organisation `"<base> <nonce>"` (nonce: lower-case hex, the first that fits) that
+/// makes SHA-256 of the DER subject `CN=<common_name>,O=<organisation>` start with two
+/// zero bytes. A participant with such a subject has an adjusted GUID below almost any
+/// other's, and the builtin PKI-DH plugins let the participant with the lower adjusted
+/// GUID send the handshake request (Cyclone DDS `validate_remote_identity`, Fast DDS
+/// `PKIDH::validate_remote_identity`). Deterministic: the same name always gives the
+/// same nonce (about 65 000 hashes on average).
+pub(crate) fn lowest_organisation(common_name: &str, base: &str) -> String {
+    use sha2::Digest as _;
+    (0u64..)
+        .map(|n| format!("{base} {n:04x}"))
+        .find(|org| {
+            let h = sha2::Sha256::digest(subject_der(common_name, org));
+            h[0] == 0 && h[1] == 0
+        })
+        .unwrap_or_else(|| base.to_string())
+}
 fn random_serial() -> Result<Asn1Integer, ErrorStack> {
     let mut bn = BigNum::new()?;
     // 159 bits, positive: RFC 5280 allows up to 20 octets and asks for unpredictability.
@@ -68,7 +134,7 @@ pub(crate) fn ca_certificate(
     now_s: i64,
     days: u32,
 ) -> Result<X509, ErrorStack> {
-    let name = subject(common_name)?;
+    let name = subject(common_name, super::ORGANISATION)?;
     let mut b = X509Builder::new()?;
     b.set_version(2)?;
     let serial = random_serial()?;
@@ -94,12 +160,13 @@ pub(crate) fn ca_certificate(
     Ok(b.build())
 }
 
-/// An identity certificate for `subject_key`, issued by `ca`.
+/// An identity certificate for `subject_key`, issued by `ca`, with the subject
+/// `CN=<common_name>,O=<organisation>`.
 pub(crate) fn leaf_certificate(
     ca: &X509Ref,
     ca_key: &PKeyRef<Private>,
     subject_key: &PKeyRef<Private>,
-    common_name: &str,
+    (common_name, organisation): (&str, &str),
     now_s: i64,
     days: u32,
 ) -> Result<X509, ErrorStack> {
@@ -107,7 +174,7 @@ pub(crate) fn leaf_certificate(
     b.set_version(2)?;
     let serial = random_serial()?;
     b.set_serial_number(&serial)?;
-    let name = subject(common_name)?;
+    let name = subject(common_name, organisation)?;
     b.set_subject_name(&name)?;
     b.set_issuer_name(ca.subject_name())?;
     b.set_pubkey(subject_key)?;
@@ -237,7 +304,8 @@ mod tests {
         let ca = ca_certificate(&ca_key, "ca", NOW, 10).unwrap();
         let other_key = new_key().unwrap();
         let leaf_key = new_key().unwrap();
-        let leaf = leaf_certificate(&ca, &ca_key, &leaf_key, "/shoal/station", NOW, 5).unwrap();
+        let leaf =
+            leaf_certificate(&ca, &ca_key, &leaf_key, ("/shoal/station", "Shoal"), NOW, 5).unwrap();
         assert!(leaf.verify(&ca.public_key().unwrap()).unwrap());
         assert!(!leaf.verify(&other_key).unwrap());
         assert_eq!(
@@ -273,11 +341,28 @@ mod tests {
     }
 
     #[test]
+    fn subject_der_is_what_openssl_encodes() {
+        for (cn, o) in [
+            ("/shoal/station", "Shoal 1a2b"),
+            (&"x".repeat(60)[..], &"y".repeat(60)[..]),
+        ] {
+            assert_eq!(
+                subject_der(cn, o),
+                subject(cn, o).unwrap().to_der().unwrap(),
+                "{cn}"
+            );
+        }
+        let org = lowest_organisation("/shoal/station", "Shoal");
+        let name = subject("/shoal/station", &org).unwrap();
+        assert_eq!(subject_hash(&name).unwrap()[..2], [0, 0], "{org}");
+    }
+
+    #[test]
     fn crl_lists_serials() {
         let ca_key = new_key().unwrap();
         let ca = ca_certificate(&ca_key, "ca", NOW, 10).unwrap();
         let leaf_key = new_key().unwrap();
-        let leaf = leaf_certificate(&ca, &ca_key, &leaf_key, "x", NOW, 5).unwrap();
+        let leaf = leaf_certificate(&ca, &ca_key, &leaf_key, ("x", "Shoal"), NOW, 5).unwrap();
         let serial = serial_hex(&leaf).unwrap();
         let crl = crl(&ca, &ca_key, &[(serial, NOW)], NOW, 7).unwrap();
         assert!(crl.verify(&ca.public_key().unwrap()).unwrap());

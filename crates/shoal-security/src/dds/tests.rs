@@ -150,3 +150,31 @@ fn bad_vehicle_ids_are_refused() {
         Err(DdsKeyError::BadName(_))
     ));
 }
+
+#[test]
+fn the_station_subject_hash_sorts_lowest_so_the_station_initiates_handshakes() {
+    let (_tmp, ks) = store();
+    let station = ks.issue(&Grant::Station, NOW).unwrap();
+    let auv = ks.issue(&Grant::Vehicle("auv-1".into()), NOW).unwrap();
+    let cert = read_cert(&station.file(names::CERT)).unwrap();
+    let hash = pki::subject_hash(cert.subject_name()).unwrap();
+    assert_eq!(hash[..2], [0, 0], "{hash:02x?}");
+    let org = Grant::Station.organisation();
+    assert!(org.starts_with("Shoal "), "{org}");
+    // The permissions name exactly the certificate's subject, and the enclave checks.
+    let perms = fs::read_to_string(station.file(names::PERMISSIONS_XML)).unwrap();
+    assert!(
+        perms.contains(&format!(
+            "<subject_name>CN=/shoal/station,O={org}</subject_name>"
+        )),
+        "{perms}"
+    );
+    assert_eq!(station.check(NOW).unwrap().common_name, "/shoal/station");
+    // Vehicles keep their plain subject.
+    let cert = read_cert(&auv.file(names::CERT)).unwrap();
+    assert_eq!(
+        pki::name_text(cert.subject_name()).unwrap(),
+        "CN=/shoal/vehicle/auv-1,O=Shoal"
+    );
+    assert!(auv.check(NOW).is_ok());
+}
