@@ -22,13 +22,31 @@ pub(super) struct RoundTrip {
     pub(super) p50_us: f64,
     pub(super) p99_us: f64,
     pub(super) count: usize,
+    /// Pings whose pong did not come back within 2 s.
+    pub(super) lost: usize,
 }
 
 async fn shoal_round_trip(cfg: &ShoalConfig, domain: u16, seconds: u64) -> Result<RoundTrip> {
-    let dds = dds(cfg, domain)?;
+    round_trip(cfg, domain, seconds, None).await
+}
+
+/// Round trips between this process and a `pong` helper, both secured with station
+/// identities from the DDS Security keystore in `keystore` when given.
+pub(super) async fn round_trip(
+    cfg: &ShoalConfig,
+    domain: u16,
+    seconds: u64,
+    keystore: Option<&std::path::Path>,
+) -> Result<RoundTrip> {
+    let dds =
+        super::security::participant(cfg, domain, keystore, &shoal_security::dds::Grant::Station)?;
     let ping = dds.writer_on::<StateVector>(PING, WriterOptions::new(Priority::Telemetry))?;
     let mut pongs = dds.subscribe_on::<StateVector>(PONG)?;
-    let _child = helper(&["pong".into(), "--domain".into(), domain.to_string()])?;
+    let mut args = vec!["pong".to_string(), "--domain".into(), domain.to_string()];
+    if let Some(k) = keystore {
+        args.extend(["--keystore".to_string(), k.display().to_string()]);
+    }
+    let _child = helper(&args)?;
     // Discovery first: ping until one comes back.
     let start = Instant::now();
     let mut seq = 0u64;
@@ -48,9 +66,11 @@ async fn shoal_round_trip(cfg: &ShoalConfig, domain: u16, seconds: u64) -> Resul
     }
     while let Ok(Some(_)) = tokio::time::timeout(Duration::from_millis(300), pongs.next()).await {}
     let mut rtts = Vec::new();
+    let mut sent = 0usize;
     let end = Instant::now() + Duration::from_secs(seconds);
     while Instant::now() < end {
         seq += 1;
+        sent += 1;
         let t0 = Instant::now();
         ping.write(sample("ping", seq, 0))
             .await
@@ -72,11 +92,17 @@ async fn shoal_round_trip(cfg: &ShoalConfig, domain: u16, seconds: u64) -> Resul
         p50_us: percentile(&rtts, 50.0),
         p99_us: percentile(&rtts, 99.0),
         count: rtts.len(),
+        lost: sent - rtts.len(),
     })
 }
 
-pub(super) async fn pong(cfg: &ShoalConfig, domain: u16) -> Result<()> {
-    let dds = dds(cfg, domain)?;
+pub(super) async fn pong(
+    cfg: &ShoalConfig,
+    domain: u16,
+    keystore: Option<&std::path::Path>,
+) -> Result<()> {
+    let dds =
+        super::security::participant(cfg, domain, keystore, &shoal_security::dds::Grant::Station)?;
     let w = dds.writer_on::<StateVector>(PONG, WriterOptions::new(Priority::Telemetry))?;
     let mut pings = dds.subscribe_on::<StateVector>(PING)?;
     let stop = crate::daemons::shutdown_signal(true);

@@ -136,6 +136,7 @@ pub(super) fn child(args: &[&str], domain: u16) -> Result<tokio::process::Child>
         .env("SHOAL_DDS__DOMAIN_ID", domain.to_string())
         // The benchmarks' own participants are insecure; `shoal swarm` must be too.
         .env("SHOAL_SECURITY__ENABLED", "false")
+        .env("SHOAL_CONSOLE__AUTH__ENABLED", "false")
         .env("RUST_LOG", "warn,cyclonedds=error")
         .stdin(Stdio::piped())
         .stdout(Stdio::null())

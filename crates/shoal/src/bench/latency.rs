@@ -57,7 +57,10 @@ pub(super) async fn latency_figures(
     let console = tokio::spawn(shoal_console::serve_with(
         listener,
         station.handle(),
-        shoal_console::ConsoleConfig::default(),
+        shoal_console::ConsoleConfig {
+            auth: shoal_console::AuthConfig::off(),
+            ..shoal_console::ConsoleConfig::default()
+        },
         stop.clone(),
     ));
     let task = tokio::spawn(station.run(stop.clone()));

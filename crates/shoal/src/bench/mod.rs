@@ -30,6 +30,7 @@ mod late_joiner;
 mod latency;
 mod pipeline;
 mod scale;
+mod security;
 mod semantic;
 mod soak;
 mod suite;
@@ -196,11 +197,38 @@ pub enum BenchCommand {
         #[arg(long)]
         out: Option<std::path::PathBuf>,
     },
+    /// What OMG DDS Security costs, secure beside insecure in one run: the bus round trip
+    /// (two processes) and the time until one participant hears N others.
+    Security {
+        /// Seconds of round trips for each.
+        #[arg(long, default_value_t = 10)]
+        seconds: u64,
+        /// Participants to discover.
+        #[arg(long, default_value_t = 100)]
+        participants: usize,
+        /// First of the four DDS domains the measurement uses.
+        #[arg(long, default_value_t = 74)]
+        domain: u16,
+    },
     /// (helper) Echo pings back as pongs.
     #[command(hide = true)]
     Pong {
         #[arg(long)]
         domain: u16,
+        /// Secure the participant with a station identity from this DDS keystore.
+        #[arg(long)]
+        keystore: Option<std::path::PathBuf>,
+    },
+    /// (helper) Participants that each publish their own state.
+    #[command(hide = true)]
+    Crowd {
+        #[arg(long)]
+        domain: u16,
+        #[arg(long)]
+        count: usize,
+        /// Secure each with its own vehicle identity from this DDS keystore.
+        #[arg(long)]
+        keystore: Option<std::path::PathBuf>,
     },
     /// (helper) Count throughput samples per step and print the counts.
     #[command(hide = true)]
@@ -287,7 +315,19 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             };
             endurance::endurance(cfg, plan).await
         }
-        BenchCommand::Pong { domain } => bus::pong(cfg, domain).await,
+        BenchCommand::Security {
+            seconds,
+            participants,
+            domain,
+        } => security::security(cfg, domain, seconds, participants).await,
+        BenchCommand::Pong { domain, keystore } => {
+            bus::pong(cfg, domain, keystore.as_deref()).await
+        }
+        BenchCommand::Crowd {
+            domain,
+            count,
+            keystore,
+        } => security::crowd(cfg, domain, count, keystore.as_deref()).await,
         BenchCommand::Sink { domain } => bus::sink(cfg, domain).await,
         BenchCommand::Load {
             domain,

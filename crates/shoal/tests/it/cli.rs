@@ -114,6 +114,8 @@ fn up_starts_the_station_and_fleet_and_stops_cleanly() {
         .current_dir(dir.path())
         .env("SHOAL_DDS__DOMAIN_ID", "63")
         .env("SHOAL_CONSOLE__LISTEN", format!("127.0.0.1:{port}"))
+        // Logins are on by default; this test reads the API without credentials.
+        .env("SHOAL_CONSOLE__AUTH__ENABLED", "false")
         .env("SHOAL_STATION__SUMMARY_INTERVAL_S", "1")
         .stdout(Stdio::null())
         .stderr(Stdio::piped())

@@ -43,6 +43,8 @@ fn station_on(dir: &std::path::Path, port: u16, domain: u16) -> Proc {
             .arg(dir.join("history.db"))
             .current_dir(dir)
             .env("SHOAL_DDS__DOMAIN_ID", domain.to_string())
+            // Logins are on by default; these tests use the API without credentials.
+            .env("SHOAL_CONSOLE__AUTH__ENABLED", "false")
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()
