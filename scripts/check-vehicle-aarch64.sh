@@ -38,7 +38,7 @@ fi
 
 # cmake and libclang as for a native build (scripts/install-build-deps.sh, which also
 # insists on npm: not needed here), and the cross compiler with the target's C library.
-APT_PKGS=(cmake libclang-dev gcc-aarch64-linux-gnu g++-aarch64-linux-gnu libc6-dev-arm64-cross)
+APT_PKGS=(cmake libclang-dev gcc-aarch64-linux-gnu g++-aarch64-linux-gnu libc6-dev-arm64-cross libssl-dev:arm64)
 missing=()
 for p in "${APT_PKGS[@]}"; do
     if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
@@ -52,6 +52,10 @@ if ((${#missing[@]})); then
     fi
     say "apt-get install ${missing[*]}"
     export DEBIAN_FRONTEND=noninteractive
+    # OpenSSL for the target (DDS Security): Debian's arm64 package beside the host's.
+    if ! dpkg --print-foreign-architectures | grep -qx arm64; then
+        dpkg --add-architecture arm64
+    fi
     apt-get update -q
     apt-get install -y -q --no-install-recommends "${missing[@]}" </dev/null
 fi
@@ -64,6 +68,10 @@ export CC_aarch64_unknown_linux_gnu="$CROSS_GCC"
 export CXX_aarch64_unknown_linux_gnu=aarch64-linux-gnu-g++
 export AR_aarch64_unknown_linux_gnu=aarch64-linux-gnu-ar
 export BINDGEN_EXTRA_CLANG_ARGS_aarch64_unknown_linux_gnu="--sysroot=/usr/aarch64-linux-gnu"
+# The target's OpenSSL (libssl-dev:arm64): openssl-sys and Cyclone DDS's security plugins.
+export AARCH64_UNKNOWN_LINUX_GNU_OPENSSL_LIB_DIR=/usr/lib/aarch64-linux-gnu
+export AARCH64_UNKNOWN_LINUX_GNU_OPENSSL_INCLUDE_DIR=/usr/include
+export CFLAGS_aarch64_unknown_linux_gnu="-I/usr/include/aarch64-linux-gnu"
 # A build cache outside the checkout (like cargo's registry), so that a fresh clone on the
 # same machine does not build Cyclone DDS for aarch64 from C again: ~6 min cold, seconds warm.
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-${XDG_CACHE_HOME:-$HOME/.cache}/shoal/vehicle-aarch64}"
