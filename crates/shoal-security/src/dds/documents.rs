@@ -168,8 +168,8 @@ impl Grant {
         }
     }
 
-    /// The certificate subject as the permissions document writes it
-    /// (`CN=<enclave name>,O=<organisation>`).
+    /// The certificate subject as the permissions document writes it (RFC 2253:
+    /// `O=<organisation>,CN=<enclave name>`).
     pub fn subject_name(&self) -> String {
         subject_text(&self.enclave_name(), &self.organisation())
     }
@@ -252,7 +252,7 @@ mod tests {
     #[test]
     fn vehicle_permissions_allow_only_its_partition_and_no_tasks() {
         let doc = permissions(&Grant::Vehicle("auv-1".into()), 0, 86_400);
-        assert!(doc.contains("<subject_name>CN=/shoal/vehicle/auv-1,O=Shoal</subject_name>"));
+        assert!(doc.contains("<subject_name>O=Shoal,CN=/shoal/vehicle/auv-1</subject_name>"));
         assert!(doc.contains("<partition>shoal.vehicle.auv-1</partition>"));
         assert!(!doc.contains("shoal/task_assignment"));
         assert!(doc.contains("<not_before>1970-01-01T00:00:00</not_before>"));

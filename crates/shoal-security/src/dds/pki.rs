@@ -33,7 +33,7 @@ pub(crate) fn new_key() -> Result<PKey<Private>, ErrorStack> {
     PKey::from_ec_key(EcKey::generate(&group)?)
 }
 
-/// `CN=<common_name>,O=<organisation>` as an X.509 name. The permissions documents write
+/// `CN=<common_name>,O=<organisation>` as an X.509 name (in this DER order). The permissions documents write
 /// the same name as text (see [`subject_text`]); the plugins compare the two.
 pub(crate) fn subject(common_name: &str, organisation: &str) -> Result<X509Name, ErrorStack> {
     let mut name = X509Name::builder()?;
@@ -42,13 +42,17 @@ pub(crate) fn subject(common_name: &str, organisation: &str) -> Result<X509Name,
     Ok(name.build())
 }
 
-/// The text form of [`subject`] for a permissions document's `<subject_name>`.
+/// The text form of [`subject`] for a permissions document's `<subject_name>`: RFC 2253,
+/// which writes a name's attributes in the reverse of their DER order
+/// (`O=<organisation>,CN=<common_name>`), as OpenSSL prints it with `XN_FLAG_RFC2253`.
+/// Fast DDS 2.9 compares the two strings attribute by attribute in order, so the other
+/// order makes it refuse its own permissions; Cyclone DDS compares them in any order.
 pub(crate) fn subject_text(common_name: &str, organisation: &str) -> String {
-    format!("CN={common_name},O={organisation}")
+    format!("O={organisation},CN={common_name}")
 }
 
-/// The text form of a certificate's subject, as [`subject_text`] writes it (`CN=...`, then
-/// `O=...` if present).
+/// The text form of a certificate's subject, as [`subject_text`] writes it (`O=...` if
+/// present, then `CN=...`).
 pub(crate) fn name_text(name: &X509NameRef) -> Option<String> {
     let cn = common_name_of(name)?;
     let org = name
@@ -64,6 +68,7 @@ pub(crate) fn name_text(name: &X509NameRef) -> Option<String> {
 /// SHA-256 of the DER encoding of `name`: the plugins take the first 47 bits of a
 /// participant's adjusted GUID from it (DDS Security 1.1 §9.3.3), which decides who
 /// starts the authentication handshake.
+#[cfg(test)]
 pub(crate) fn subject_hash(name: &X509NameRef) -> Result<[u8; 32], ErrorStack> {
     Ok(openssl::sha::sha256(&name.to_der()?))
 }

@@ -102,7 +102,7 @@ fn a_bad_file_is_named_with_its_problem() {
     let err = e.check(NOW).unwrap_err();
     assert!(
         err.to_string()
-            .contains("grants nothing to CN=/shoal/vehicle/auv-2"),
+            .contains("grants nothing to O=Shoal,CN=/shoal/vehicle/auv-2"),
         "{err}"
     );
 }
@@ -165,7 +165,7 @@ fn the_station_subject_hash_sorts_lowest_so_the_station_initiates_handshakes() {
     let perms = fs::read_to_string(station.file(names::PERMISSIONS_XML)).unwrap();
     assert!(
         perms.contains(&format!(
-            "<subject_name>CN=/shoal/station,O={org}</subject_name>"
+            "<subject_name>O={org},CN=/shoal/station</subject_name>"
         )),
         "{perms}"
     );
@@ -174,7 +174,7 @@ fn the_station_subject_hash_sorts_lowest_so_the_station_initiates_handshakes() {
     let cert = read_cert(&auv.file(names::CERT)).unwrap();
     assert_eq!(
         pki::name_text(cert.subject_name()).unwrap(),
-        "CN=/shoal/vehicle/auv-1,O=Shoal"
+        "O=Shoal,CN=/shoal/vehicle/auv-1"
     );
     assert!(auv.check(NOW).is_ok());
 }
