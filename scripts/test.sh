@@ -5,9 +5,10 @@
 #      the namespace (the history tests run against SQLite and PostgreSQL),
 #   2. checks formatting and clippy (also of the vehicle-side build without the console,
 #      and `cargo check` of it for aarch64), builds every test binary OUTSIDE the namespace,
-#   3. runs the foreign-peer matrix and every Rust test INSIDE a private network
-#      namespace (loopback only, multicast routed to lo), so no DDS discovery traffic
-#      can leave the machine,
+#   3. runs the foreign-peer matrix, a secure Shoal station with foreign secured vehicles
+#      (Fast DDS and Cyclone DDS with their standard DDS Security plugins), and every Rust
+#      test INSIDE private network namespaces (loopback only, multicast routed to lo), so
+#      no DDS discovery traffic can leave the machine,
 #   4. builds the release binary and drives the web console in Debian's Chromium
 #      (Playwright) against `shoal up`, then checks the HTTP API against its OpenAPI
 #      document with schemathesis, inside the namespace,
@@ -42,6 +43,10 @@ step "RTI XML types agree with idl/shoal.idl"
 
 step "foreign DDS peers against each other (Cyclone, RTI, Fast DDS)"
 tests/interop/peer_matrix.sh
+
+step "a secure Shoal station with foreign secured vehicles (Fast DDS, Cyclone DDS C; DDS Security 1.1)"
+cargo build --release --locked -p shoal
+SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" tests/interop/secure/shoal_secure_interop.sh
 
 step "Rust tests inside network namespace $NS (interop peers required)"
 results="$(mktemp)"
