@@ -46,7 +46,7 @@ pub(super) async fn round_trip(
     if let Some(k) = keystore {
         args.extend(["--keystore".to_string(), k.display().to_string()]);
     }
-    let _child = helper(&args)?;
+    let _child = helper(cfg, &args)?;
     // Discovery first: ping until one comes back.
     let start = Instant::now();
     let mut seq = 0u64;
@@ -122,7 +122,7 @@ pub(super) async fn pong(
 async fn shoal_throughput(cfg: &ShoalConfig, domain: u16) -> Result<(f64, Vec<(f64, u64, u64)>)> {
     let dds = dds(cfg, domain)?;
     let w = dds.writer_on::<StateVector>(THROUGHPUT, WriterOptions::new(Priority::Telemetry))?;
-    let mut child = helper(&["sink".into(), "--domain".into(), domain.to_string()])?;
+    let mut child = helper(cfg, &["sink".into(), "--domain".into(), domain.to_string()])?;
     let stdout = child.stdout.take().context("no helper stdout")?;
     let mut lines = tokio::io::BufReader::new(stdout).lines();
     let keys: Vec<String> = (0..100).map(|i| format!("v{i}")).collect();

@@ -5,7 +5,7 @@ use std::process::Stdio;
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
-use shoal_dds::{DdsConfig, PubSub};
+use shoal_dds::PubSub;
 use shoal_history::{History, HistoryConfig};
 use shoal_model::{StateVector, now_ms};
 use shoal_station::{Station, StationConfig};
@@ -15,12 +15,20 @@ use crate::config::ShoalConfig;
 /// Topic of the throughput and soak samples.
 pub(super) const THROUGHPUT: &str = "shoal/bench/throughput";
 
+/// A participant for a measurement: insecure, or with a station identity from the DDS
+/// keystore under `security.store` when `security.enabled` (only `shoal bench security`
+/// and the helper processes it starts turn it on).
 pub(super) fn dds(cfg: &ShoalConfig, domain: u16) -> Result<Arc<PubSub>> {
-    let c = DdsConfig {
-        domain_id: domain,
-        ..cfg.dds.clone()
-    };
-    Ok(Arc::new(PubSub::new(&c).context("cannot join DDS")?))
+    let keystore = cfg
+        .security
+        .enabled
+        .then(|| crate::keys::dds_dir(&cfg.security.store));
+    super::security::participant(
+        cfg,
+        domain,
+        keystore.as_deref(),
+        &shoal_security::dds::Grant::Station,
+    )
 }
 
 /// A state vector whose timestamp carries a sequence number (and stays valid).
@@ -44,12 +52,15 @@ pub(super) fn seq_of(s: &StateVector) -> u64 {
     u64::try_from(s.timestamp_ms - 1_700_000_000_000).unwrap_or(0)
 }
 
-/// Starts `shoal bench <args>` as a helper process that stops when our stdin pipe closes.
-pub(super) fn helper(args: &[String]) -> Result<tokio::process::Child> {
+/// Starts `shoal bench <args>` as a helper process that stops when our stdin pipe closes,
+/// with security on or off as `cfg` has it.
+pub(super) fn helper(cfg: &ShoalConfig, args: &[String]) -> Result<tokio::process::Child> {
     let exe = std::env::current_exe()?;
     tokio::process::Command::new(exe)
         .arg("bench")
         .args(args)
+        .env("SHOAL_SECURITY__ENABLED", cfg.security.enabled.to_string())
+        .env("SHOAL_SECURITY__STORE", &cfg.security.store)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())

@@ -82,6 +82,16 @@ pub(super) async fn load(
     Ok(())
 }
 
+/// What one ingest run measured.
+pub(super) struct IngestFigures {
+    pub(super) sent: u64,
+    pub(super) accepted: u64,
+    pub(super) rejected: u64,
+    /// Validated, registered and queued for history, per second.
+    pub(super) rate: f64,
+    pub(super) committed: u64,
+}
+
 pub(super) async fn ingest(
     cfg: &ShoalConfig,
     domain: u16,
@@ -89,23 +99,63 @@ pub(super) async fn ingest(
     rate: f64,
     seconds: f64,
 ) -> Result<()> {
+    let f = ingest_figures(cfg, domain, vehicles, rate, seconds).await?;
+    println!("# shoal bench ingest — {} — {}", machine(), date());
+    println!(
+        "vehicles {vehicles}, offered {:.0} state vectors/s for {seconds} s",
+        rate * {
+            #[allow(clippy::cast_precision_loss)]
+            let v = vehicles as f64;
+            v
+        }
+    );
+    println!(
+        "sent {}, accepted {}, rejected {}, lost {}",
+        f.sent,
+        f.accepted,
+        f.rejected,
+        f.sent.saturating_sub(f.accepted)
+    );
+    println!(
+        "ingest rate (validated, registered, queued for history) {:.0} state vectors/s",
+        f.rate
+    );
+    println!(
+        "history committed {} records (state vectors + announcements)",
+        f.committed
+    );
+    Ok(())
+}
+
+/// Runs the load and measures it (with DDS Security when `cfg.security` says so, the
+/// load process included).
+pub(super) async fn ingest_figures(
+    cfg: &ShoalConfig,
+    domain: u16,
+    vehicles: usize,
+    rate: f64,
+    seconds: f64,
+) -> Result<IngestFigures> {
     let dir = tempfile_dir()?;
     let station = bench_station(cfg, domain, &dir.join("ingest.db"))?;
     let h = station.handle();
     let stop = CancellationToken::new();
     let task = tokio::spawn(station.run(stop.clone()));
     eprintln!("ingest: {vehicles} vehicles × {rate} Hz for {seconds} s from another process...");
-    let mut child = helper(&[
-        "load".into(),
-        "--domain".into(),
-        domain.to_string(),
-        "--vehicles".into(),
-        vehicles.to_string(),
-        "--rate".into(),
-        rate.to_string(),
-        "--seconds".into(),
-        seconds.to_string(),
-    ])?;
+    let mut child = helper(
+        cfg,
+        &[
+            "load".into(),
+            "--domain".into(),
+            domain.to_string(),
+            "--vehicles".into(),
+            vehicles.to_string(),
+            "--rate".into(),
+            rate.to_string(),
+            "--seconds".into(),
+            seconds.to_string(),
+        ],
+    )?;
     let stdout = child.stdout.take().context("no helper stdout")?;
     let mut lines = tokio::io::BufReader::new(stdout).lines();
     // Time the window from the first accepted state vector to the last.
@@ -157,28 +207,12 @@ pub(super) async fn ingest(
     drop(h);
     stop.cancel();
     let report = task.await??;
-    println!("# shoal bench ingest — {} — {}", machine(), date());
-    println!(
-        "vehicles {vehicles}, offered {:.0} state vectors/s for {seconds} s",
-        rate * {
-            #[allow(clippy::cast_precision_loss)]
-            let v = vehicles as f64;
-            v
-        }
-    );
-    println!(
-        "sent {n}, accepted {}, rejected {}, lost {}",
-        stats.states_accepted,
-        stats.total_rejected(),
-        n.saturating_sub(stats.states_accepted)
-    );
-    println!(
-        "ingest rate (validated, registered, queued for history) {ingest_rate:.0} state vectors/s"
-    );
-    println!(
-        "history committed {} records (state vectors + announcements)",
-        report.history_committed
-    );
     let _ = std::fs::remove_dir_all(&dir);
-    Ok(())
+    Ok(IngestFigures {
+        sent: n,
+        accepted: stats.states_accepted,
+        rejected: stats.total_rejected(),
+        rate: ingest_rate,
+        committed: report.history_committed,
+    })
 }

@@ -251,6 +251,21 @@ pub enum BenchCommand {
 }
 /// Runs one benchmark.
 pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
+    // Measurements run insecure (their peers, ddsperf and the foreign DDS stacks, are)
+    // unless `bench security` says otherwise; helper processes get their setting from the
+    // process that starts them.
+    let helper_process = matches!(
+        which,
+        BenchCommand::Pong { .. }
+            | BenchCommand::Sink { .. }
+            | BenchCommand::Load { .. }
+            | BenchCommand::Crowd { .. }
+    );
+    let mut owned = cfg.clone();
+    if !helper_process {
+        owned.security.enabled = false;
+    }
+    let cfg = &owned;
     match which {
         BenchCommand::Bus {
             seconds,
