@@ -68,7 +68,8 @@ enum KeysCommand {
         /// Destination directory (created).
         dest: PathBuf,
     },
-    /// Renew the station's certificate (the old one is revoked as superseded).
+    /// Renew the station's certificates, its DDS Security identity included (the old ones
+    /// are revoked as superseded); restart the station afterwards.
     RenewStation,
 }
 
@@ -227,6 +228,14 @@ pub fn run(args: KeysArgs, cfg: &SecurityConfig) -> Result<()> {
         }
         KeysCommand::RenewStation => {
             let mut store = open()?;
+            let dds = open_dds()?;
+            let enclave = dds
+                .rotate(&Grant::Station, now_s())
+                .context("cannot renew the station's DDS Security identity")?;
+            println!(
+                "station DDS Security identity renewed in {} (the old certificate is revoked as superseded)",
+                enclave.dir().display()
+            );
             let cert = store
                 .renew_station()
                 .context("cannot renew the station certificate")?;
