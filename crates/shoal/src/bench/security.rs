@@ -169,6 +169,28 @@ async fn compare(
     let plain: RoundTrip = round_trip(cfg, domain, seconds, None).await?;
     eprintln!("security: {seconds} s of round trips, secured (AES-GCM, every topic)...");
     let secure: RoundTrip = round_trip(cfg, domain + 1, seconds, Some(dir)).await?;
+    // Participants with identities from another CA keep trying to authenticate on the
+    // same domain: the secured round trip must go on, unstarved.
+    let rogue_store = store.join("rogue");
+    let rogue = crate::keys::dds_dir(&rogue_store);
+    DdsKeystore::create(&rogue, KeystoreOptions::default(), now_s())?;
+    let rogues = 50;
+    eprintln!("security: {seconds} s of secured round trips while {rogues} participants from another CA try to join...");
+    let crowd = helper(
+        cfg,
+        &[
+            "crowd".to_string(),
+            "--domain".into(),
+            (domain + 1).to_string(),
+            "--count".into(),
+            rogues.to_string(),
+            "--keystore".into(),
+            rogue.display().to_string(),
+        ],
+    )?;
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let besieged: RoundTrip = round_trip(cfg, domain + 1, seconds, Some(dir)).await?;
+    drop(crowd);
     let limit = Duration::from_secs(60);
     eprintln!("security: {participants} participants discovered, insecure...");
     let (plain_disc, plain_heard) = discovery(cfg, domain + 2, None, participants, limit).await?;
@@ -200,6 +222,19 @@ async fn compare(
         format!("{:.0} µs", plain.p99_us),
         format!("{:.0} µs", secure.p99_us),
         ratio(secure.p99_us, plain.p99_us)
+    );
+    println!(
+        "{:<44} {:>14} {:>14} {:>8}  no loss",
+        format!("  p50 with {rogues} other-CA participants joining"),
+        "-",
+        format!("{:.0} µs", besieged.p50_us),
+        ratio(besieged.p50_us, secure.p50_us)
+    );
+    println!(
+        "{:<44} {:>14} {:>14}",
+        format!("  round trips (lost) with {rogues} joining"),
+        "-",
+        format!("{} ({})", besieged.count, besieged.lost)
     );
     println!(
         "{:<44} {:>14} {:>14}",
