@@ -4,7 +4,8 @@
 #     build: Cyclone DDS from source), iproute2 (network namespaces), cyclonedds-tools (ddsperf,
 #     idlc), cyclonedds-dev (Debian's Cyclone DDS 0.10 C headers; libddsc0debian with the DDS
 #     Security plugins), libfastrtps-dev + libfastcdr-dev (Fast DDS 2.9 / Fast CDR 1.0), gcc,
-#     g++, make, openssl (test keystores), python3-venv, curl (the console API in the
+#     g++, make, openssl (test keystores), python3-venv, faketime (tests/security: an attacker
+#     whose clock is set back loads expired credentials), curl (the console API in the
 #     secure interop test)
 #   - $REPO/.venv with PyPI cyclonedds and rticonnextdds-connector (DDS peers),
 #     rdflib (independent SPARQL engine for the semantic cross-check and SPARQL protocol
@@ -40,7 +41,7 @@ fi
 # ---------------------------------------------------------------- apt
 # The build's own packages (cmake, libclang-dev) and the tests', in one apt run.
 "$REPO/scripts/install-build-deps.sh" iproute2 cyclonedds-tools cyclonedds-dev libfastrtps-dev \
-    libfastcdr-dev gcc g++ make openssl python3 python3-venv curl
+    libfastcdr-dev gcc g++ make openssl python3 python3-venv faketime curl
 
 # ---------------------------------------------------------------- venv
 venv_ok() {

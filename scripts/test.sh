@@ -48,6 +48,9 @@ step "a secure Shoal station with foreign secured vehicles (Fast DDS, Cyclone DD
 cargo build --release --locked -p shoal
 SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" tests/interop/secure/shoal_secure_interop.sh
 
+step "the attack corpus against a secure Shoal station (> 10,000 packet and credential attacks, all refused)"
+SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" tests/security/attack_corpus.sh
+
 step "Rust tests inside network namespace $NS (interop peers required)"
 results="$(mktemp)"
 trap 'rm -f "$results"; scripts/postgres.sh stop >/dev/null 2>&1 || true' EXIT

@@ -27,7 +27,7 @@ Kinds (each case is one datagram sent to a station locator):
   truncated          cut anywhere after the RTPS header (in particular inside SEC_* parts)
   extended           random bytes or a bogus submessage appended, or a length field grown
   readdressed        the GUID prefix replaced (random, the station's own, a neighbour's)
-  forged             built from scratch as the vehicle: clear DATA with a StateVector for
+  forged-packet      built from scratch as the vehicle: clear DATA with a StateVector for
                      it (its writer ids guessed), clear HEARTBEAT/GAP that would skip its
                      samples, SEC_* with random ciphertext, SPDP dispose of its participant
 """
@@ -481,16 +481,17 @@ def packets(a):
         ("replay-live", 1500), ("replay-old", 1000), ("flip-header", 700),
         ("flip-submsg-header", 900), ("flip-sec-prefix", 900), ("flip-ciphertext", 1300),
         ("flip-mac", 1100), ("flip-clear", 700), ("truncated", 900), ("extended", 900),
-        ("readdressed", 800), ("forged", 800),
+        ("readdressed", 800), ("forged-packet", 800),
     ]
     state_cdr = bytes.fromhex(a.state_cdr) if a.state_cdr else rng.randbytes(112)
     prev = api.snapshot()
+    dests = {}
     neighbours = [p for p in cap.others] + [cap.station_prefix, old]
     for kind, n in plan:
         n = max(1, int(n * scale))
         t0 = time.time()
         sent = errors = 0
-        if kind == "forged":
+        if kind == "forged-packet":
             dst_pool = sorted(station_locs) or [default_dst]
             cases = [(rng.choice(dst_pool), d) for d in forged_cases(live, cap.station_prefix, state_cdr, rng, n)]
         else:
@@ -518,6 +519,7 @@ def packets(a):
             try:
                 send.sendto(d, dst)
                 sent += 1
+                dests[dst[0] + ":" + str(dst[1])] = dests.get(dst[0] + ":" + str(dst[1]), 0) + 1
             except OSError:
                 errors += 1
             if (sent + errors) % 40 == 0:
@@ -532,6 +534,7 @@ def packets(a):
     result["sessions"] = [p.hex() for p in cap.sessions]
     result["station_prefix"] = cap.station_prefix.hex()
     result["station_locators"] = sorted(station_locs)
+    result["destinations"] = dests
     result["captured"] = {"old": len(old_pkts), "live": len(cap.packets(live))}
     cap.stop = True
     json.dump(result, open(os.path.join(w, "packets.json"), "w"), indent=1)

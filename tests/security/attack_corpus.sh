@@ -13,7 +13,7 @@
 #                and packets forged from scratch as auv-21 (clear DATA/HEARTBEAT/GAP, random
 #                ciphertext, SPDP dispose)
 #   credentials  participants that try to join and publish: self-signed identity with
-#                auv-21's subject (forged), an identity from another CA (wrong-ca), an
+#                auv-21's subject (forged-identity), an identity from another CA (wrong-ca), an
 #                expired certificate and expired permissions (both signed by the real CAs;
 #                the attacker's clock set back with faketime so its own stack loads them),
 #                no security at all (unauthenticated), permissions signed by another
@@ -321,10 +321,10 @@ state_attack() {  # state_attack <kind> <n> <enclave> <faketime> <claimed id> <p
     attack "$1" "$2" "$3" "$4" publish-state --attack --vehicle-id "$5" --partition "$6" \
         --count 5 --rate 10 --linger 1 --settle 0.3 --match-timeout 6
 }
-JOIN_KINDS=(forged wrong-ca expired-cert expired-perms unauthenticated wrong-perm-ca other-subject)
+JOIN_KINDS=(forged-identity wrong-ca expired-cert expired-perms unauthenticated wrong-perm-ca other-subject)
 join_round() {  # one participant of each kind that must not authenticate or match
     local n=$1
-    state_attack forged "$n" "$ATT/forged" - auv-21 shoal.vehicle.auv-21 &
+    state_attack forged-identity "$n" "$ATT/forged" - auv-21 shoal.vehicle.auv-21 &
     state_attack wrong-ca "$n" "$ATT/wrong-ca" - auv-21 shoal.vehicle.auv-21 &
     state_attack expired-cert "$n" "$ATT/expired-cert" -300 auv-21 shoal.vehicle.auv-21 &
     state_attack expired-perms "$n" "$ATT/expired-perms" -300 auv-21 shoal.vehicle.auv-21 &
@@ -493,6 +493,8 @@ out(f"{'total':<22}{total:>8}{tot_ref:>9}")
 out(f"security counters: security:impersonation {imp0} -> {imp1}, security:revoked {rev0} -> {rev1}")
 out(f"legitimate auv-21 samples: sent {sent} ({n1} + {n2}), accepted by the station {acc21}, "
     f"rejected {rej21}, in its history {len(points)}")
+out(f"packet corpus: captured {pk.get('captured')} datagrams of auv-21's (old, live) sessions; "
+    f"sent to {pk.get('destinations')} (the station's locators {pk.get('station_locators')} and the SPDP group)")
 out(f"station /api/health: {health}")
 json.dump({"cases": cases, "refused": refused, "sent": sent, "accepted": acc21, "history": len(points),
            "fails": fails}, open(os.path.join(work, "verdict.json"), "w"))
