@@ -18,12 +18,9 @@ set -uo pipefail
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 REPO="$(cd "$HERE/../.." && pwd)"
 
-if [[ "${SHOAL_MATRIX_INSIDE:-}" != 1 ]]; then
-    NS="shoal-matrix-$$"
-    trap '"$REPO/scripts/netns-run.sh" --delete "$NS" 2>/dev/null' EXIT
-    SHOAL_MATRIX_INSIDE=1 "$REPO/scripts/netns-run.sh" "$NS" -- bash "$0" "$@"
-    exit $?
-fi
+# shellcheck source=../lib/own-netns.sh
+source "$REPO/tests/lib/own-netns.sh"
+own_netns matrix "$@"
 
 VERBOSE=0
 [[ "${1:-}" == "-v" ]] && VERBOSE=1

@@ -38,16 +38,10 @@ set -uo pipefail
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 REPO="$(cd "$HERE/../.." && pwd)"
 
-if [[ "${SHOAL_ATTACK_INSIDE:-}" != 1 ]]; then
-    if [[ -z "${SHOAL_BIN:-}" && ! -x "$REPO/target/release/shoal" ]]; then
-        echo "# building target/release/shoal (cargo build --release -p shoal)"
-        (cd "$REPO" && cargo build --release -p shoal) || exit 2
-    fi
-    NS="shoal-attack-$$"
-    trap '"$REPO/scripts/netns-run.sh" --delete "$NS" 2>/dev/null' EXIT
-    SHOAL_ATTACK_INSIDE=1 "$REPO/scripts/netns-run.sh" "$NS" -- bash "$0" "$@"
-    exit $?
-fi
+# shellcheck source=../lib/own-netns.sh
+source "$REPO/tests/lib/own-netns.sh"
+[[ -n "${SHOAL_OWN_NETNS:-}" ]] || need_shoal_release
+own_netns attack "$@"
 
 VERBOSE=0
 [[ "${1:-}" == "-v" ]] && VERBOSE=1

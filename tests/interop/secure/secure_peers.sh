@@ -21,12 +21,9 @@ set -uo pipefail
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 REPO="$(cd "$HERE/../../.." && pwd)"
 
-if [[ "${SHOAL_SECURE_INSIDE:-}" != 1 ]]; then
-    NS="shoal-secure-$$"
-    trap '"$REPO/scripts/netns-run.sh" --delete "$NS" 2>/dev/null' EXIT
-    SHOAL_SECURE_INSIDE=1 "$REPO/scripts/netns-run.sh" "$NS" -- bash "$0" "$@"
-    exit $?
-fi
+# shellcheck source=../../lib/own-netns.sh
+source "$REPO/tests/lib/own-netns.sh"
+own_netns secure "$@"
 
 VERBOSE=0
 [[ "${1:-}" == "-v" ]] && VERBOSE=1
