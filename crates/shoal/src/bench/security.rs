@@ -224,6 +224,12 @@ async fn compare(
         ratio(secure.p99_us, plain.p99_us)
     );
     println!(
+        "{:<44} {:>14} {:>14}",
+        "round trips (lost)",
+        format!("{} ({})", plain.count, plain.lost),
+        format!("{} ({})", secure.count, secure.lost)
+    );
+    println!(
         "{:<44} {:>14} {:>14} {:>8}  no loss",
         format!("  p50 with {rogues} other-CA participants joining"),
         "-",
@@ -235,12 +241,6 @@ async fn compare(
         format!("  round trips (lost) with {rogues} joining"),
         "-",
         format!("{} ({})", besieged.count, besieged.lost)
-    );
-    println!(
-        "{:<44} {:>14} {:>14}",
-        "round trips (lost)",
-        format!("{} ({})", plain.count, plain.lost),
-        format!("{} ({})", secure.count, secure.lost)
     );
     println!(
         "{:<44} {:>14} {:>14} {:>8}  secure ≤ 10 s",
