@@ -175,7 +175,9 @@ async fn compare(
     let rogue = crate::keys::dds_dir(&rogue_store);
     DdsKeystore::create(&rogue, KeystoreOptions::default(), now_s())?;
     let rogues = 50;
-    eprintln!("security: {seconds} s of secured round trips while {rogues} participants from another CA try to join...");
+    eprintln!(
+        "security: {seconds} s of secured round trips while {rogues} participants from another CA try to join..."
+    );
     let crowd = helper(
         cfg,
         &[
