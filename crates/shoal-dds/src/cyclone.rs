@@ -926,6 +926,7 @@ unsafe extern "C" fn log_sink(_arg: *mut c_void, data: *const c::dds_log_data_t)
     if full.contains(": deserialization ") || full.contains("dropping oversize (") {
         note_malformed(&full);
     }
+    crate::omg::note_handshake(&full);
     match priority {
         c::DDS_LC_FATAL | c::DDS_LC_ERROR => tracing::error!(target: "cyclonedds", "{message}"),
         c::DDS_LC_WARNING => tracing::warn!(target: "cyclonedds", "{message}"),

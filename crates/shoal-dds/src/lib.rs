@@ -29,7 +29,7 @@ mod topics;
 pub use config::DdsConfig;
 pub use error::{CdrError, CreateError, DdsError, EndError, ReadError, TypeError, WriteError};
 pub use manager::{ParticipantEvent, PubSub, SampleMeta, Subscription, Writer};
-pub use omg::Credentials;
+pub use omg::{Credentials, handshake_refusals};
 pub use qos::{Priority, QosProfile, WriterOptions};
 pub use topics::{ALL_TOPICS, ObservationKey, TopicType};
 

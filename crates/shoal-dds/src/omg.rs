@@ -10,10 +10,10 @@
 //! subscriber then knows which authenticated vehicle a sample came from and refuses one
 //! that speaks about another vehicle ([`crate::ReadError::Impersonation`]).
 
-use std::collections::HashSet;
+use std::collections::{BTreeMap, HashSet};
 use std::path::Path;
-use std::sync::RwLock;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Mutex, RwLock};
 
 use shoal_security::dds::{Enclave, VEHICLE_PARTITION_PREFIX, names, vehicle_partition};
 
@@ -147,9 +147,73 @@ impl PublisherGuard {
     }
 }
 
+/// Authentication handshakes Cyclone refused in this process, by reason.
+static HANDSHAKE_REFUSALS: Mutex<BTreeMap<&'static str, u64>> = Mutex::new(BTreeMap::new());
+
+/// The reason a refused handshake is counted under: the certificate's dates, its
+/// revocation, a chain to another CA, the permissions, or anything else.
+fn handshake_reason(message: &str) -> &'static str {
+    let m = message.to_ascii_lowercase();
+    if m.contains("expired") || m.contains("not yet valid") || m.contains("validity") {
+        "expired"
+    } else if m.contains("revoked") {
+        "revoked"
+    } else if m.contains("permission") || m.contains("governance") {
+        "permissions"
+    } else if m.contains("verif") || m.contains("issuer") || m.contains("trust") {
+        "untrusted"
+    } else {
+        "other"
+    }
+}
+
+/// Counts a Cyclone log record if it reports a refused authentication handshake (the
+/// plugins log them as warnings: "Validate remote identity failed: ...", "Process
+/// handshake failed: ...").
+pub(crate) fn note_handshake(message: &str) {
+    let refused = message.contains("Validate remote identity failed")
+        || (message.contains("handshake") && message.contains("failed"));
+    if !refused {
+        return;
+    }
+    let reason = handshake_reason(message);
+    let mut m = HANDSHAKE_REFUSALS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    *m.entry(reason).or_default() += 1;
+}
+
+/// Authentication handshakes DDS Security refused in this process so far, by reason
+/// (`expired`, `revoked`, `untrusted`, `permissions`, `other`): participants that never
+/// got in, so no sample of theirs reaches a subscriber to be refused there.
+pub fn handshake_refusals() -> BTreeMap<&'static str, u64> {
+    HANDSHAKE_REFUSALS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .clone()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn refused_handshakes_are_counted_by_reason_and_nothing_else_is() {
+        let before = handshake_refusals();
+        let count = |m: &BTreeMap<&str, u64>, k| m.get(k).copied().unwrap_or(0);
+        note_handshake("Validate remote identity failed: Certificate expired");
+        note_handshake(
+            "Process handshake failed: certificate verify failed: unable to get local issuer certificate",
+        );
+        note_handshake("Remote secure participant 1:2:3:1c1 not allowed");
+        let after = handshake_refusals();
+        assert_eq!(count(&after, "expired"), count(&before, "expired") + 1);
+        assert_eq!(count(&after, "untrusted"), count(&before, "untrusted") + 1);
+        assert_eq!(
+            after.values().sum::<u64>(),
+            before.values().sum::<u64>() + 2
+        );
+    }
 
     #[test]
     fn partition_names_the_vehicle_only_when_alone() {

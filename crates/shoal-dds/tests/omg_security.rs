@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use futures::StreamExt;
 use shoal_dds::{CreateError, Credentials, Priority, PubSub, ReadError, WriterOptions};
 use shoal_model::{StateVector, Task, TaskAssignment};
-use shoal_security::dds::{DdsKeystore, Grant, KeystoreOptions, names};
+use shoal_security::dds::{DdsKeystore, Enclave, Grant, KeystoreOptions, names};
 
 mod common;
 use common::{Foreign, config};
@@ -89,7 +89,14 @@ async fn omg_child() {
     let ks_dir = std::path::PathBuf::from(std::env::var("OMG_CHILD_KEYSTORE").unwrap());
     let action = std::env::var("OMG_CHILD_ACTION").unwrap();
     let vehicle = std::env::var("OMG_CHILD_VEHICLE").ok();
+    let enclave_dir = std::env::var_os("OMG_CHILD_ENCLAVE");
     let dds = match &vehicle {
+        // Files used as they are, no revocation list: what a revoked vehicle that kept its
+        // files would present.
+        Some(id) if enclave_dir.is_some() => {
+            let enclave = Enclave::new(enclave_dir.unwrap(), None);
+            PubSub::with_credentials(&config(domain), Credentials::vehicle(enclave, id)).unwrap()
+        }
         Some(id) => {
             let ks = DdsKeystore::open(&ks_dir, KeystoreOptions::default()).unwrap();
             let enclave = ks.enclave(&Grant::Vehicle(id.clone())).unwrap();
@@ -133,6 +140,22 @@ async fn a_secured_vehicle_and_station_exchange_state_and_tasks_and_others_are_s
     let station_enclave = ks.issue(&Grant::Station, now_s()).unwrap();
     ks.issue(&Grant::Vehicle("auv-1".into()), now_s()).unwrap();
     ks.issue(&Grant::Vehicle("auv-2".into()), now_s()).unwrap();
+    // Revoked before the station starts (participants read the list when they start); its
+    // files are kept to be presented anyway.
+    let revoked_enclave = ks.issue(&Grant::Vehicle("auv-r".into()), now_s()).unwrap();
+    let revoked_dir = dir.path().join("kept-auv-r");
+    std::fs::create_dir(&revoked_dir).unwrap();
+    for n in [
+        names::CERT,
+        names::KEY,
+        names::IDENTITY_CA,
+        names::PERMISSIONS_CA,
+        names::GOVERNANCE,
+        names::PERMISSIONS,
+    ] {
+        std::fs::copy(revoked_enclave.file(n), revoked_dir.join(n)).unwrap();
+    }
+    ks.revoke(&Grant::Vehicle("auv-r".into()), now_s()).unwrap();
 
     let station =
         PubSub::with_credentials(&config(51), Credentials::station(station_enclave)).unwrap();
@@ -190,7 +213,39 @@ async fn a_secured_vehicle_and_station_exchange_state_and_tasks_and_others_are_s
     );
     outsider.kill().unwrap();
     outsider.wait().unwrap();
-    // Nor did anything it or RustDDS wrote arrive (only auv-1's retries are drained).
+    // A vehicle revoked before the station started, presenting its old files: the
+    // station's handshake with it fails on the revocation list, counted by reason in this
+    // (the station's) process, and nothing it says arrives.
+    let refused = |reason| {
+        shoal_dds::handshake_refusals()
+            .get(reason)
+            .copied()
+            .unwrap_or(0)
+    };
+    let before = refused("revoked");
+    let mut c = Command::new(std::env::current_exe().unwrap());
+    c.args(["--ignored", "--exact", "omg_child", "--nocapture"])
+        .env("OMG_CHILD_DOMAIN", "51")
+        .env("OMG_CHILD_KEYSTORE", ks.dir())
+        .env("OMG_CHILD_ACTION", "state:auv-r")
+        .env("OMG_CHILD_VEHICLE", "auv-r")
+        .env("OMG_CHILD_ENCLAVE", &revoked_dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null());
+    let mut revoked = c.spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while refused("revoked") == before && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    assert!(
+        refused("revoked") > before,
+        "no refused handshake counted as revoked: {:?}",
+        shoal_dds::handshake_refusals()
+    );
+    revoked.kill().unwrap();
+    revoked.wait().unwrap();
+    // Nor did anything it, the outsider or RustDDS wrote arrive (only auv-1's retries are
+    // drained).
     while let Ok(Some(item)) = tokio::time::timeout(Duration::from_millis(300), states.next()).await
     {
         let (s, _) = item.unwrap();

@@ -325,7 +325,15 @@ impl StationHandle {
 
     /// Current counters.
     pub fn stats(&self) -> IngestStats {
-        lock(&self.core.stats).clone()
+        let mut stats = lock(&self.core.stats).clone();
+        // Participants DDS Security refused before any sample of theirs reached a reader
+        // (counted by the P/S Manager for the whole process).
+        for (reason, n) in shoal_dds::handshake_refusals() {
+            stats
+                .rejected
+                .insert(format!("security:handshake_refused:{reason}"), n);
+        }
+        stats
     }
 
     /// Records committed to the history store so far (acknowledged data).
