@@ -361,6 +361,8 @@ for j in $(jobs -p); do [[ $j == "$RUN2" || $j == "$TSUB" || $j == "$STATION_PID
 sleep 2
 imp1=$(rejected security:impersonation)
 rev1=$(rejected security:revoked)
+# The expired-certificate attackers ran earlier; the station counts their refused handshakes.
+hs_expired=$(rejected security:handshake_refused:expired)
 acc23_after=$(vehicle_field auv-23 states_accepted)
 wait $TSUB
 
@@ -378,9 +380,9 @@ health=$(curl -s -o /dev/null -w '%{http_code}' -m 10 -H "Authorization: Bearer 
 echo "$shoal_revoke_out" >"$WORK/revoke.out"
 
 python3 - "$WORK" "${n1:-0}" "${n2:-0}" "$rc2" "$health" "$rev_ok" "$imp0" "$imp1" "$rev0" "$rev1" \
-    "$acc23_before" "$acc23_after" "$rcp" <<'EOF'
+    "$acc23_before" "$acc23_after" "$rcp" "${hs_expired:-0}" <<'EOF'
 import glob, json, os, re, sys
-(work, n1, n2, rc2, health, rev_ok, imp0, imp1, rev0, rev1, a23b, a23a, rcp) = sys.argv[1:]
+(work, n1, n2, rc2, health, rev_ok, imp0, imp1, rev0, rev1, a23b, a23a, rcp, hs_expired) = sys.argv[1:]
 n1, n2 = int(n1), int(n2)
 fails = []
 def out(line): print(line, flush=True)
@@ -449,6 +451,8 @@ for f in sorted(glob.glob(os.path.join(work, "cred", "*.out"))):
         fails.append(f"{kind} #{n}: {why}")
 
 # revoked: counted, and auv-23 got nothing more
+if not (hs_expired.isdigit() and int(hs_expired) > 0):
+    fails.append(f"expired-cert: no security:handshake_refused:expired counted ({hs_expired})")
 if not (imp0.isdigit() and imp1.isdigit() and int(imp1) > int(imp0)):
     fails.append(f"impersonation: security:impersonation {imp0} -> {imp1}")
     refused["impersonation"] = 0
@@ -484,7 +488,7 @@ for k in sorted(cases, key=lambda k: (k not in (pk.get('cases') or {}), k)):
     extra_note = f"  ({refused[k + ' (by its own stack)']} by the attacker's own stack)" if refused.get(k + " (by its own stack)") else ""
     out(f"{k:<22}{cases[k]:>8}{refused.get(k, 0):>9}{extra_note}")
 out(f"{'total':<22}{total:>8}{tot_ref:>9}")
-out(f"security counters: security:impersonation {imp0} -> {imp1}, security:revoked {rev0} -> {rev1}")
+out(f"security counters: security:impersonation {imp0} -> {imp1}, security:revoked {rev0} -> {rev1}, security:handshake_refused:expired {hs_expired}")
 out(f"legitimate auv-21 samples: sent {sent} ({n1} + {n2}), accepted by the station {acc21}, "
     f"rejected {rej21}, in its history {len(points)}")
 out(f"packet corpus: captured {pk.get('captured')} datagrams of auv-21's (old, live) sessions; "
