@@ -52,34 +52,13 @@ DOMAIN=186
 PORT=18686
 WORK="$(mktemp -d /tmp/shoal-secint.XXXXXX)"
 STATION_PID=""
-cleanup() {
-    local p
-    for p in $(jobs -p); do kill -TERM "$p" 2>/dev/null; done
-    if [[ -n "$STATION_PID" ]]; then
-        for _ in $(seq 50); do kill -0 "$STATION_PID" 2>/dev/null || break; sleep 0.2; done
-        kill -KILL "$STATION_PID" 2>/dev/null
-    fi
-    wait 2>/dev/null
-    rm -rf "$WORK"
-}
-trap cleanup EXIT
+# shellcheck source=../../lib/report.sh
+source "$REPO/tests/lib/report.sh"
+trap stop_everything EXIT
 # The config file decides the console's logins, not the caller's environment.
 unset SHOAL_CONSOLE__AUTH__ENABLED SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_PASSWORD \
     SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_TOKEN SHOAL_CONSOLE__ALLOWED_HOSTS SHOAL_SECURITY__ENABLED
 
-PASSED=0 FAILED=0 FAILURES=()
-result() {  # result <name> <ok 0/1> <detail>
-    if [[ "$2" == 0 ]]; then PASSED=$((PASSED + 1)); echo "PASS  $1  ($3)"
-    else FAILED=$((FAILED + 1)); FAILURES+=("$1"); echo "FAIL  $1  ($3)"; fi
-}
-show_logs() {
-    local f
-    for f in "$@"; do
-        [[ -s "$f" ]] || continue
-        echo "    --- $(basename "$f")"; sed 's/^/    | /' "$f" | tail -n 15
-    done
-}
-verbose_logs() { [[ $VERBOSE == 1 ]] && show_logs "$@"; }
 
 TOKEN="shoal_test_$(od -An -tx1 -N24 /dev/urandom | tr -d ' \n')"
 api() {  # api <path> [curl args...]: the body on stdout; fails on HTTP errors
