@@ -717,6 +717,20 @@ mod tests {
         }
     }
 
+    /// A protection the governance does not know, or a topic given a non-protection, is
+    /// refused naming the key, before any key store is made from it.
+    #[test]
+    fn bad_governance_protections_are_refused_naming_the_key() {
+        let err = env(&[("SHOAL_SECURITY__GOVERNANCE__DEFAULT", "plaintext")])
+            .expect_err("unknown protection")
+            .to_string();
+        assert!(err.contains("security.governance"), "{err}");
+        let err = file("[security.governance]\ntopics = { \"shoal/event\" = 3 }\n")
+            .expect_err("a number for a protection")
+            .to_string();
+        assert!(err.contains("security.governance"), "{err}");
+    }
+
     /// Every table and array of tables in `table`, as dotted paths.
     fn collect_sections(table: &toml::Table, prefix: &str, out: &mut Vec<String>) {
         for (key, value) in table {
