@@ -34,24 +34,15 @@ for b in "$FASTDDS" "$CYCLONE"; do
     [[ -x "$b" ]] || { echo "missing $b: run scripts/install-test-deps.sh" >&2; exit 2; }
 done
 WORK="$(mktemp -d /tmp/shoal-secure.XXXXXX)"
-trap 'jobs -p | xargs -r kill 2>/dev/null; rm -rf "$WORK"' EXIT
+STATION_PID=""
+# shellcheck source=../../lib/report.sh
+source "$REPO/tests/lib/report.sh"
+trap stop_everything EXIT
 "$HERE/make_test_keystore.sh" "$WORK/ks" station auv-1 auv-2 >/dev/null 2>"$WORK/ks.err" ||
     { cat "$WORK/ks.err" >&2; exit 2; }
 KS="$WORK/ks/enclaves"
 
-PASSED=0 FAILED=0 FAILURES=()
 DOMAIN=40
-result() {  # result <name> <ok 0/1> <detail>
-    if [[ "$2" == 0 ]]; then PASSED=$((PASSED + 1)); echo "PASS  $1  ($3)"
-    else FAILED=$((FAILED + 1)); FAILURES+=("$1"); echo "FAIL  $1  ($3)"; fi
-}
-show_logs() {
-    local f
-    for f in "$@"; do
-        [[ -s "$f" ]] || continue
-        echo "    --- $(basename "$f")"; sed 's/^/    | /' "$f" | tail -n 12
-    done
-}
 bin() { case "$1" in fastdds) echo "$FASTDDS" ;; cyclone) echo "$CYCLONE" ;; esac; }
 vendor() { case "$1" in fastdds) echo fastdds ;; cyclone) echo cyclonedds-c ;; esac; }
 sec() { [[ "$1" == none ]] || echo "--security $KS/$1"; }
