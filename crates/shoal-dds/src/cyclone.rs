@@ -635,14 +635,15 @@ pub(crate) struct Taken<'a> {
     pub(crate) publication: u64,
 }
 
-/// Takes up to `max` samples and hands each one with data to `each` (state-only samples
-/// are dropped). The bytes are lent, not copied: each sample is released when `each`
-/// returns.
+/// Takes up to `max` samples (at most 64) and hands each one with data to `each`
+/// (state-only samples, such as an instance's end, are dropped); returns how many were
+/// taken, state-only ones included, so that the caller knows the reader may hold more.
+/// The bytes are lent, not copied: each sample is released when `each` returns.
 pub(crate) fn take_cdr(
     reader: &Entity,
     max: usize,
     mut each: impl FnMut(Taken<'_>),
-) -> Result<(), DdsError> {
+) -> Result<usize, DdsError> {
     const BATCH: usize = 64;
     let max = max.min(BATCH);
     let mut bufs = [null_mut::<c::ddsi_serdata>(); BATCH];
@@ -707,7 +708,7 @@ pub(crate) fn take_cdr(
             });
         }
     }
-    Ok(())
+    Ok(n)
 }
 
 /// The GUID and partitions of a writer matched with `reader`, from its instance handle

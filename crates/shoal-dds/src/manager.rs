@@ -712,8 +712,10 @@ impl<T: TopicType> Unpin for Subscription<T> {}
 const BATCH: usize = 64;
 
 impl<T: TopicType> Subscription<T> {
-    /// Moves what the readers hold (and new malformed reports) into the buffer.
-    fn fill(&mut self) {
+    /// Moves what the readers hold (and new malformed reports) into the buffer; true when
+    /// a reader gave a full batch, so it may hold more.
+    fn fill(&mut self) -> bool {
+        let mut more = false;
         let total = cyclone::malformed_total();
         let check_malformed = total != self.malformed_total;
         self.malformed_total = total;
@@ -738,15 +740,17 @@ impl<T: TopicType> Subscription<T> {
             } = source;
             let reader = reader.entity();
             let buffer = &mut self.buffer;
-            if let Err(e) = cyclone::take_cdr(reader, BATCH, |t| {
+            match cyclone::take_cdr(reader, BATCH, |t| {
                 buffer.push_back(samples.item::<T>(reader, &t));
             }) {
-                self.buffer.push_back(Err(ReadError::Dds {
+                Ok(taken) => more |= taken >= BATCH,
+                Err(e) => self.buffer.push_back(Err(ReadError::Dds {
                     topic: T::TOPIC,
                     detail: e.to_string(),
-                }));
+                })),
             }
         }
+        more
     }
 }
 
@@ -761,9 +765,17 @@ impl<T: TopicType> Stream for Subscription<T> {
                 return Poll::Ready(Some(item));
             }
             self.signal.ready.store(false, Ordering::Release);
-            self.fill();
+            let more = self.fill();
             if !self.buffer.is_empty() {
                 continue;
+            }
+            if more {
+                // A full batch of state-only samples (a writer of many instances left):
+                // the rest wait in the reader, and no data-available will come for them,
+                // nor through them for the live writers' samples behind. Take again,
+                // after letting other tasks run.
+                cx.waker().wake_by_ref();
+                return Poll::Pending;
             }
             self.signal.waker.register(cx.waker());
             // Data that arrived between the take and the registration woke no one.

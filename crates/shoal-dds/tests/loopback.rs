@@ -317,6 +317,59 @@ async fn an_oversize_foreign_sample_is_dropped_and_counted_and_good_ones_still_a
     }
 }
 
+/// Regression: a writer of many instances leaving left the reader one state-change
+/// (invalid) sample per instance; a take of 64 of them handed nothing on and no new
+/// data-available came for the rest, so the subscription stalled and a live writer's
+/// samples were never handed on again (found by the station's attack test: 100,000 made-up
+/// vehicles, then their participant left). Domain 152.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn many_instances_ending_at_once_do_not_stall_the_subscription() {
+    const INSTANCES: u32 = 2_000;
+    let station = PubSub::new(&config(152)).unwrap();
+    let mut sub = station.subscribe::<StateVector>().unwrap();
+    let good = PubSub::new(&config(152)).unwrap();
+    let good_writer = good
+        .writer::<StateVector>(WriterOptions::new(Priority::Telemetry))
+        .unwrap();
+    let many = PubSub::new(&config(152)).unwrap();
+    let many_writer = many
+        .writer::<StateVector>(WriterOptions::new(Priority::Telemetry))
+        .unwrap();
+    wait_matched(&good_writer).await;
+    wait_matched(&many_writer).await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    for i in 0..INSTANCES {
+        many_writer
+            .write(common::state_at(&format!("many-{i}"), 1_700_000_000_000))
+            .await
+            .unwrap();
+    }
+    let mut seen = 0;
+    while seen < INSTANCES {
+        let (s, _) = tokio::time::timeout(Duration::from_secs(10), sub.next())
+            .await
+            .unwrap_or_else(|_| panic!("{seen} of {INSTANCES} instances arrived"))
+            .unwrap()
+            .unwrap();
+        assert!(s.vehicle_id.starts_with("many-"));
+        seen += 1;
+    }
+    // Every instance ends (no writer left) at once.
+    drop(many_writer);
+    drop(many);
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    // The live writer is still heard, every sample.
+    for i in 0..10 {
+        good_writer.write(state(i)).await.unwrap();
+        let (s, _) = tokio::time::timeout(Duration::from_secs(5), sub.next())
+            .await
+            .unwrap_or_else(|_| panic!("sample {i} of the live writer never arrived"))
+            .unwrap()
+            .unwrap();
+        assert_eq!(s.vehicle_id, "auv-7");
+    }
+}
+
 #[test]
 fn the_wire_bytes_are_plain_little_endian_cdr() {
     let bytes = shoal_dds::to_cdr_le(&state(0)).unwrap();
