@@ -25,6 +25,49 @@ const LIVE_BUFFER: usize = 4096;
 const REJECTION_ALERT_EVERY_MS: i64 = 60_000;
 /// Most (vehicle, reason) pairs remembered for rate-limiting rejection alerts.
 const MAX_REJECTION_ALERTS: usize = 4096;
+/// Least time between two sweeps of the full rejection-alert memory.
+const REJECTION_SWEEP_EVERY_MS: i64 = 1_000;
+
+/// When a data-rejected event was last raised per (vehicle, reason), for at most
+/// [`MAX_REJECTION_ALERTS`] pairs.
+#[derive(Debug, Default)]
+struct RejectionAlerts {
+    last_ms: HashMap<(String, String), i64>,
+    /// When the memory, full, was last swept of the pairs whose minute had passed. A
+    /// sweep reads every pair: once per rejection, a flood of made-up ids made each
+    /// rejection cost thousands of steps and slowed the fleet's ingest behind it.
+    swept_ms: Option<i64>,
+}
+
+impl RejectionAlerts {
+    /// Whether an alert for `key` is due at `now`; if it is, it is noted as raised. The
+    /// ids are the senders' to choose: past the cap, pairs whose minute has passed go (a
+    /// sweep at most every [`REJECTION_SWEEP_EVERY_MS`]), and if a flood of fresh ids
+    /// still fills it, no alert is raised for new ones (each rejection is still counted
+    /// and quarantined).
+    fn due(&mut self, key: (String, String), now: i64) -> bool {
+        let known = self.last_ms.contains_key(&key);
+        if self.last_ms.len() >= MAX_REJECTION_ALERTS
+            && !known
+            && self
+                .swept_ms
+                .is_none_or(|t| now - t >= REJECTION_SWEEP_EVERY_MS)
+        {
+            self.last_ms
+                .retain(|_, t| now - *t < REJECTION_ALERT_EVERY_MS);
+            self.swept_ms = Some(now);
+        }
+        let due = self
+            .last_ms
+            .get(&key)
+            .is_none_or(|t| now - t >= REJECTION_ALERT_EVERY_MS)
+            && (known || self.last_ms.len() < MAX_REJECTION_ALERTS);
+        if due {
+            self.last_ms.insert(key, now);
+        }
+        due
+    }
+}
 
 /// What the reporters keep.
 #[derive(Debug)]
@@ -40,7 +83,7 @@ pub(crate) struct Reporters {
     /// Last time each vehicle's state went to the live feed.
     live_state_ms: Mutex<HashMap<String, i64>>,
     /// Last time a data-rejected event was raised per (vehicle, reason), to rate-limit them.
-    rejection_alerts: Mutex<HashMap<(String, String), i64>>,
+    rejection_alerts: Mutex<RejectionAlerts>,
 }
 
 impl Default for Reporters {
@@ -172,23 +215,7 @@ impl StationHandle {
     ) {
         let now = self.now();
         let key = (vehicle_id.to_string(), reason.to_string());
-        let raise = {
-            let mut alerts = lock(&self.reporters().rejection_alerts);
-            // The ids are the senders' to choose: past the cap, entries whose minute has
-            // passed go, and if a flood of fresh ids still fills it, no alert is raised
-            // for new ones (each rejection is still counted and quarantined).
-            if alerts.len() >= MAX_REJECTION_ALERTS && !alerts.contains_key(&key) {
-                alerts.retain(|_, t| now - *t < REJECTION_ALERT_EVERY_MS);
-            }
-            let due = alerts
-                .get(&key)
-                .is_none_or(|t| now - t >= REJECTION_ALERT_EVERY_MS)
-                && (alerts.len() < MAX_REJECTION_ALERTS || alerts.contains_key(&key));
-            if due {
-                alerts.insert(key, now);
-            }
-            due
-        };
+        let raise = lock(&self.reporters().rejection_alerts).due(key, now);
         if raise {
             self.raise(
                 Severity::Warning,

@@ -205,3 +205,29 @@ fn a_vehicles_state_reaches_the_live_feed_at_most_once_a_second() {
     }
     assert_eq!(vehicles, 1);
 }
+
+/// Regression: with the rejection-alert memory full, every rejection of a fresh id swept
+/// the whole memory; 100,000 made-up vehicles slowed the fleet's ingest by a fifth.
+#[test]
+fn a_full_rejection_alert_memory_is_swept_at_most_once_a_second() {
+    use super::{MAX_REJECTION_ALERTS, REJECTION_ALERT_EVERY_MS, RejectionAlerts};
+    let key = |n: usize| (format!("x-{n}"), "unknown_vehicle".to_string());
+    let mut alerts = RejectionAlerts::default();
+    for n in 0..MAX_REJECTION_ALERTS {
+        assert!(alerts.due(key(n), 0));
+    }
+    // Full: fresh ids get no alert; one sweep, then none within the second.
+    assert!(!alerts.due(key(MAX_REJECTION_ALERTS), 10));
+    assert_eq!(alerts.swept_ms, Some(10));
+    for n in 1..1000 {
+        assert!(!alerts.due(key(MAX_REJECTION_ALERTS + n), 500));
+    }
+    assert_eq!(alerts.swept_ms, Some(10));
+    // A known pair is still rate-limited by its own minute.
+    assert!(!alerts.due(key(0), 500));
+    // Once their minute has passed, the old pairs go at the next sweep.
+    let later = REJECTION_ALERT_EVERY_MS + 1;
+    assert!(alerts.due(key(9_999_999), later));
+    assert_eq!(alerts.swept_ms, Some(later));
+    assert_eq!(alerts.last_ms.len(), 1);
+}
