@@ -6,6 +6,8 @@
 //!
 //! Where new tests go:
 //! - `station`: station + simulated vehicles in one process, the HTTP API, bad input.
+//! - `attacks`: a station process attacked six ways (slow rule, floods, 10 MB samples, slow
+//!   HTTP clients) while a real fleet's ingest rate is measured.
 //! - `faults`: the station killed with SIGKILL and restarted.
 //! - `cli`: the `shoal` binary itself (`up`, configuration errors).
 //! - `console`: the console's logins through the binary (on by default, the first admin
@@ -20,6 +22,7 @@
 //!   the station, both directions; skipped with a reason when a peer is not installed.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+mod attacks;
 mod cli;
 mod common;
 mod console;

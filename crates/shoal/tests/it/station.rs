@@ -468,7 +468,7 @@ async fn rules_fire_on_insert_and_sparql_sees_the_swarm() {
     station.task.await.unwrap();
 }
 
-fn urlencode(s: &str) -> String {
+pub(crate) fn urlencode(s: &str) -> String {
     s.bytes()
         .map(|b| match b {
             b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'_' | b'.' | b'~' => {
