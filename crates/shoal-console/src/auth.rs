@@ -145,6 +145,9 @@ pub enum AuthError {
     /// No such user or token.
     #[error("{0}")]
     NotFound(String),
+    /// The change would leave the station without an admin.
+    #[error("{0} is the last admin: make another admin first")]
+    LastAdmin(String),
     /// Authentication is switched off, so there is nothing to manage.
     #[error("authentication is disabled ([console.auth] enabled = false)")]
     Disabled,
@@ -590,9 +593,7 @@ impl Auth {
         let mut inner = self.lock();
         let mut file = inner.file.clone();
         if role != Role::Admin && would_lose_last_admin(&file, name) {
-            return Err(AuthError::Invalid(format!(
-                "{name} is the last admin: make another admin first"
-            )));
+            return Err(AuthError::LastAdmin(name.to_owned()));
         }
         file.users.retain(|u| u.name != name);
         file.users.push(UserRecord {
@@ -619,9 +620,7 @@ impl Auth {
             return Err(AuthError::NotFound(format!("no user {name:?}")));
         }
         if would_lose_last_admin(&inner.file, name) {
-            return Err(AuthError::Invalid(format!(
-                "{name} is the last admin: make another admin first"
-            )));
+            return Err(AuthError::LastAdmin(name.to_owned()));
         }
         let mut file = inner.file.clone();
         file.users.retain(|u| u.name != name);
@@ -1020,11 +1019,11 @@ mod tests {
         assert_eq!(who.role, Role::Viewer);
         assert!(matches!(
             auth.delete_user("admin"),
-            Err(AuthError::Invalid(_))
+            Err(AuthError::LastAdmin(_))
         ));
         assert!(matches!(
             auth.set_user("admin", &boot.password, Role::Operator),
-            Err(AuthError::Invalid(_))
+            Err(AuthError::LastAdmin(_))
         ));
         let (info, token) = auth.create_token("ci-tool", Role::Operator).unwrap();
         let bearer = with(header::AUTHORIZATION, &format!("Bearer {token}"));

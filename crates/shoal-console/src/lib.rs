@@ -1055,6 +1055,7 @@ impl From<AuthError> for ApiError {
             AuthError::BadCredentials => Self::Unauthorized(e.to_string()),
             AuthError::Invalid(_) | AuthError::Disabled => Self::BadRequest(e.to_string()),
             AuthError::NotFound(_) => Self::NotFound(e.to_string()),
+            AuthError::LastAdmin(_) => Self::Conflict(e.to_string()),
             e => Self::Internal(e.to_string()),
         }
     }

@@ -263,6 +263,26 @@ async fn roles_decide_who_may_read_dispatch_and_manage() {
     let viewer = login(r, "vera", "long enough pw").await;
     let operator = login(r, "otto", "long enough pw").await;
 
+    // The last admin can be neither demoted nor deleted: a conflict with the station's
+    // state (409), not a malformed request.
+    for (method, uri, body) in [
+        (
+            "POST",
+            "/api/auth/users",
+            Some(json!({"name": "admin", "password": "long enough pw", "role": "operator"})),
+        ),
+        ("DELETE", "/api/auth/users/admin", None),
+    ] {
+        let body = expect(r, method, uri, token.clone(), body, StatusCode::CONFLICT).await;
+        assert!(
+            json_of(&body)["error"]
+                .as_str()
+                .unwrap()
+                .contains("last admin"),
+            "{method} {uri}"
+        );
+    }
+
     // A viewer reads and queries, but changes nothing.
     assert_eq!(
         call(r, "GET", "/api/fleet", viewer.clone(), None).await.0,
