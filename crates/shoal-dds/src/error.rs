@@ -37,8 +37,16 @@ pub enum CreateError {
     Config(String),
     /// A DDS Security file (certificate, key, governance, permissions, revocation list) is
     /// missing or unusable: nothing is created half-secured.
+    // Not a `#[source]`: the message already carries the file and its problem, and a
+    // source would make every error chain print them twice.
     #[error("DDS Security: {0}")]
-    Credentials(#[from] shoal_security::FileError),
+    Credentials(shoal_security::FileError),
+}
+
+impl From<shoal_security::FileError> for CreateError {
+    fn from(e: shoal_security::FileError) -> Self {
+        Self::Credentials(e)
+    }
 }
 
 /// A call into the DDS library (Cyclone DDS) failed.

@@ -16,7 +16,6 @@ use shoal_model::Validate;
 use shoal_proxy::sim::{SimSpec, SimVehicle};
 #[cfg(feature = "console")]
 use shoal_station::Station;
-use tokio::io::AsyncReadExt;
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
@@ -39,9 +38,27 @@ pub fn shutdown_signal(exit_on_stdin_close: bool) -> CancellationToken {
             };
         let stdin_closed = async {
             if exit_on_stdin_close {
-                let mut stdin = tokio::io::stdin();
-                let mut buf = [0u8; 64];
-                while matches!(stdin.read(&mut buf).await, Ok(n) if n > 0) {}
+                // A plain thread, not `tokio::io::stdin`: that read runs on the runtime's
+                // blocking pool, and dropping the runtime waits for it, so a process that
+                // failed at start would hang until its parent closed the pipe.
+                let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+                let spawned = std::thread::Builder::new()
+                    .name("stdin-watch".into())
+                    .spawn(move || {
+                        let mut buf = [0u8; 64];
+                        let mut stdin = std::io::stdin().lock();
+                        while matches!(std::io::Read::read(&mut stdin, &mut buf), Ok(n) if n > 0) {}
+                        let _ = tx.send(());
+                    });
+                match spawned {
+                    Ok(_) => {
+                        let _ = rx.await;
+                    }
+                    Err(e) => {
+                        warn!(error = %e, "cannot watch stdin; only signals stop this process");
+                        std::future::pending::<()>().await;
+                    }
+                }
             } else {
                 std::future::pending::<()>().await;
             }
@@ -328,21 +345,30 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Re
     )?];
     // Vehicles start once the API answers, so the station hears their announcements live.
     let addr = cfg.console.listen;
+    // A station that stops (bad credentials, a port in use) has said why on stderr: say
+    // so at once rather than waiting out the timeout. `try_wait`, not `wait`: waiting
+    // closes the child's stdin, which tells it to stop.
+    let station = &mut children[0].child;
     let ready = async {
         loop {
             if tokio::net::TcpStream::connect(addr).await.is_ok() {
-                break;
+                return Ok(());
+            }
+            if let Some(status) = station
+                .try_wait()
+                .context("cannot watch the station process")?
+            {
+                bail!("the station stopped ({status}) before opening its API; its error is above");
             }
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
     };
     tokio::select! {
         () = shutdown.cancelled() => {}
-        r = tokio::time::timeout(Duration::from_secs(30), ready) => {
-            if r.is_err() {
-                bail!("the station did not open its API on {addr} within 30 s");
-            }
-        }
+        r = tokio::time::timeout(Duration::from_secs(30), ready) => match r {
+            Ok(started) => started?,
+            Err(_) => bail!("the station did not open its API on {addr} within 30 s"),
+        },
     }
     if !no_fleet {
         for v in &cfg.fleet.vehicles {

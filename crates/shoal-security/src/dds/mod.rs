@@ -310,7 +310,9 @@ impl Enclave {
             return Err(FileError::new(
                 &perm_path,
                 FileProblem::Invalid(format!(
-                    "grants nothing to {subject_text} (the subject of {})",
+                    "grants nothing to {subject_text} (the subject of {}); the certificate \
+                     and the permissions were not issued together: issue them again \
+                     (`shoal keys renew-station`, or `shoal keys rotate <vehicle>`)",
                     cert_path.display()
                 )),
             ));

@@ -228,6 +228,30 @@ fn keys_swarm_and_up_refuse_bad_input_with_one_line() {
         &["up", "--secure", "--sim-vehicles", "10"],
         "--sim-vehicles",
     );
+
+    // A station whose credentials do not fit stops at once; `up` says so without waiting
+    // out its 30 s for the API, and the station's own line names the file and the fix.
+    let enclaves = dir.path().join("shoal-data/keys/dds/enclaves/shoal");
+    std::fs::copy(
+        enclaves.join("vehicle/auv-1/permissions.p7s"),
+        enclaves.join("station/permissions.p7s"),
+    )
+    .unwrap();
+    let started = Instant::now();
+    let (ok, err) = run(&["up", "--no-fleet"]);
+    assert!(!ok, "{err}");
+    assert!(
+        started.elapsed() < Duration::from_secs(20),
+        "shoal up took {:?} to notice",
+        started.elapsed()
+    );
+    assert!(
+        err.contains("station/permissions.p7s: grants nothing")
+            && err.contains("shoal keys renew-station"),
+        "{err}"
+    );
+    let last = err.lines().last().unwrap_or_default();
+    assert!(last.contains("the station stopped"), "{last}");
 }
 
 /// The short version of `shoal bench endurance` (the long one is run by hand and saved
