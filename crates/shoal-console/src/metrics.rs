@@ -184,6 +184,16 @@ pub(crate) async fn metrics(State(app): State<AppState>) -> Result<Response, Api
         "Events raised by rules as data arrived",
         stats.rule_firings,
     );
+    m.counter(
+        "shoal_rules_over_budget",
+        "User rules disabled because an evaluation ran over its time budget",
+        stats.rules_over_budget,
+    );
+    m.counter(
+        "shoal_rejections_not_logged",
+        "Rejected data counted but not logged (beyond the log budget)",
+        stats.rejections_not_logged,
+    );
 
     m.counters(
         "shoal_http_limit_hits",

@@ -369,6 +369,11 @@ impl SemanticStore {
         &self.config
     }
 
+    /// SPARQL rules disabled so far because an evaluation ran over its time budget.
+    pub fn rules_over_budget(&self) -> u64 {
+        self.stats.rules_over_budget
+    }
+
     /// Counters for metrics and tests.
     pub fn stats(&self) -> Result<StoreStats, StoreError> {
         Ok(StoreStats {

@@ -45,6 +45,10 @@ pub(crate) struct Core {
     pub(crate) clock: Clock,
     /// The system clock's distance from station time when last reported.
     pub(crate) reported_skew_ms: std::sync::atomic::AtomicI64,
+    /// Log lines for rejected data: a flood's are cut to a budget (all still counted).
+    pub(crate) rejection_log: Mutex<crate::ingest::LogBudget>,
+    /// Rules disabled over their time budget, as last read from the model.
+    pub(crate) rules_over_budget_seen: AtomicU64,
 }
 
 /// Locks a mutex, recovering the data if a panicking thread poisoned it: the station's
@@ -161,6 +165,10 @@ impl StationHandle {
             started_ms: now_ms(),
             clock,
             reported_skew_ms: std::sync::atomic::AtomicI64::new(0),
+            rules_over_budget_seen: AtomicU64::new(0),
+            rejection_log: Mutex::new(crate::ingest::LogBudget::new(
+                crate::ingest::REJECTION_LOG_LINES_PER_S,
+            )),
             config,
         };
         let handle = Self {

@@ -7,12 +7,19 @@
 //! Data from the bus arrive [`Validated`] (the Publish/Subscribe Manager checks types and
 //! ranges on receipt); data from elsewhere (an operator, a tool) are validated here.
 
+mod log_budget;
 pub(crate) mod preprocess;
 mod semantic;
+
+pub(crate) use log_budget::LogBudget;
+
+/// Log lines a second for rejected data; beyond, rejections are only counted.
+pub(crate) const REJECTION_LOG_LINES_PER_S: u32 = 20;
 
 pub(crate) use semantic::FLUSH_STEP;
 
 use std::collections::BTreeMap;
+use std::sync::atomic::Ordering;
 
 use serde::Serialize;
 use shoal_dds::{ReadError, TopicType};
@@ -53,6 +60,10 @@ pub struct IngestStats {
     pub tasks_forgotten: u64,
     /// Events raised by rules as data arrived.
     pub rule_firings: u64,
+    /// User rules disabled because an evaluation ran over `station.semantic.rule_budget_ms`.
+    pub rules_over_budget: u64,
+    /// Rejections counted but not logged (beyond 20 log lines a second).
+    pub rejections_not_logged: u64,
 }
 
 impl IngestStats {
@@ -268,7 +279,19 @@ impl StationHandle {
             e.states_rejected += 1;
         }
         let detail = why.to_string();
-        warn!(topic, vehicle = vehicle_id, reason, detail, "data rejected");
+        let logged = lock(&self.core.rejection_log).take(std::time::Instant::now());
+        match logged {
+            Some(0) => warn!(topic, vehicle = vehicle_id, reason, detail, "data rejected"),
+            Some(left_out) => warn!(
+                topic,
+                vehicle = vehicle_id,
+                reason,
+                detail,
+                left_out,
+                "data rejected (and {left_out} more not logged; every one is counted in /api/stats)"
+            ),
+            None => debug!(topic, vehicle = vehicle_id, reason, detail, "data rejected"),
+        }
         self.store(Record::rejected(topic, &reason, payload_json));
         self.alert_rejection(topic, vehicle_id, &reason, &detail);
     }
@@ -326,6 +349,14 @@ impl StationHandle {
     /// Current counters.
     pub fn stats(&self) -> IngestStats {
         let mut stats = lock(&self.core.stats).clone();
+        stats.rejections_not_logged = lock(&self.core.rejection_log).left_out_total();
+        // Never wait for the model here: /api/stats must answer while a rule holds it, so
+        // a busy model reports the figure last read.
+        let over = &self.core.rules_over_budget_seen;
+        if let Ok(model) = self.core.semantic.try_lock() {
+            over.store(model.rules_over_budget(), Ordering::Relaxed);
+        }
+        stats.rules_over_budget = over.load(Ordering::Relaxed);
         // Participants DDS Security refused before any sample of theirs reached a reader
         // (counted by the P/S Manager for the whole process).
         for (reason, n) in shoal_dds::handshake_refusals() {

@@ -413,6 +413,11 @@ async fn the_fleet_is_ingested_through_every_attack_and_each_is_bounded_and_coun
         }),
         "no event says the slow rule was disabled: {events}"
     );
+    let over = counter(
+        &station.get_json("/api/stats"),
+        &["ingest", "rules_over_budget"],
+    );
+    assert!(over >= 1, "/api/stats does not count the rule disabled");
     station.assert_healthy("the slow rule");
 
     // 2. Announcements of 5,000 made-up vehicles.
@@ -550,6 +555,18 @@ async fn the_fleet_is_ingested_through_every_attack_and_each_is_bounded_and_coun
          known, station RSS {rss_before} -> {rss_after} MiB"
     );
     assert!(known <= FLEET + MAX_UNHEARD, "{known} vehicles known");
+    // Every refusal is counted, but the log is not flooded: a line per refused sample
+    // would be 100,000 lines.
+    let not_logged = counter(
+        &station.get_json("/api/stats"),
+        &["ingest", "rejections_not_logged"],
+    );
+    let log = std::fs::read_to_string(station.dir.path().join("station.log")).unwrap();
+    let logged = log.lines().filter(|l| l.contains("data rejected")).count();
+    assert!(
+        logged < 5_000 && not_logged >= (KEYS - 5_000) as u64,
+        "{logged} rejection lines logged, {not_logged} counted as not logged"
+    );
     // Cyclone keeps an instance per key while its writer lives (~65 MiB measured for
     // these): bounded by the attacker's keys, not growing without end.
     assert!(
