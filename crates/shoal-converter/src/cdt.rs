@@ -8,10 +8,12 @@
 //! carries the link metadata ([`crate::link_status`]).
 //!
 //! DDS → modem: task assignments for the vehicles in the address book are given an 8-bit
-//! task number, sent as control (acknowledged, retransmitted with backoff until their TTL;
-//! aborts as emergency), and reported as `sent` on `shoal/task_status`, or `expired` if the
-//! link gives up. Status reports coming back name the task number; the CDT maps it to the
-//! station's task id.
+//! task number and sent with the station's task id, issue sequence and expiry
+//! ([`IdentifiedTask`], docs/acoustic.md#task-identity), so the vehicle's task ledger knows a
+//! re-delivery as over IP; as control (acknowledged, retransmitted with backoff until their
+//! TTL; aborts as emergency), and reported as `sent` on `shoal/task_status`, or `expired` if
+//! the link gives up. A task whose PDU would not fit one frame is reported `failed`. Status
+//! reports coming back name the task number; the CDT maps it to the station's task id.
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
@@ -19,7 +21,7 @@ use std::sync::Arc;
 use shoal_acoustic::driver::ModemDriver;
 use shoal_acoustic::link::{Class, LinkEvent, LinkSender, MessageId, Outgoing};
 use shoal_acoustic::pdu::{
-    self, Ack, AddressBook, CompactTask, DecodeError, DeltaDecoder, Pdu, StateKeyframe,
+    self, Ack, AddressBook, DecodeError, DeltaDecoder, IdentifiedTask, Pdu, StateKeyframe,
 };
 use shoal_dds::{Priority, PubSub, Writer, WriterOptions};
 use shoal_model::{
@@ -190,7 +192,7 @@ impl Cdt {
             self.forwarded.pop_front();
         }
         let task_no = self.task_numbers.entry(addr).or_default().next();
-        let compact = match CompactTask::from_model(&t, &self.book, task_no) {
+        let compact = match IdentifiedTask::from_model(&t, &self.book, task_no) {
             Ok(c) => c,
             Err(e) => {
                 warn!(task = %t.task_id, error = %e, "task cannot be sent acoustically");
@@ -200,9 +202,21 @@ impl Cdt {
                 return Ok(());
             }
         };
-        let Some(bytes) = encode(&Pdu::Task(compact)) else {
+        let Some(bytes) = encode(&Pdu::IdentifiedTask(compact)) else {
             return Ok(());
         };
+        if bytes.len() > self.cfg.link.max_frame {
+            // The link would drop it unsent; say why now instead of expiring it later.
+            let msg = format!(
+                "cannot be sent over the acoustic link: its {}-byte PDU exceeds the {}-byte frame",
+                bytes.len(),
+                self.cfg.link.max_frame
+            );
+            warn!(task = %t.task_id, bytes = bytes.len(), "task PDU larger than a frame");
+            self.publish_status(&t.task_id, &t.vehicle_id, TaskState::Failed, &msg)
+                .await;
+            return Ok(());
+        }
         let class = if t.kind == TaskKind::Abort {
             Class::Emergency
         } else {

@@ -12,8 +12,12 @@
 //! - environment observations as bulk, rate-limited per property.
 //!
 //! Modem → vehicle DDS: task PDUs from the CDT become [`TaskAssignment`]s on the vehicle's
-//! own `shoal/task_assignment` topic, so the vehicle's DDS Proxy executes them exactly as
-//! if they had come over IP. Keyframe acks from the CDT feed the delta encoder.
+//! own `shoal/task_assignment` topic under the station's task id, issue sequence and expiry
+//! ([`IdentifiedTask`]), so the vehicle's DDS Proxy treats them exactly as if they had come
+//! over IP: its task ledger never runs a re-delivered task again, after a restart of the
+//! VDT, the vehicle or the station, and reports how it ended instead. A task PDU of layout
+//! 1 (no identity) is refused and reported failed: a re-delivery of it could not be told
+//! from a new task. Keyframe acks from the CDT feed the delta encoder.
 //!
 //! Keyframe acks name the keyframe by its 4-bit sequence number only, so delta coding is
 //! used when the VDT serves a single vehicle (the normal case: one VDT per vehicle); a VDT
@@ -26,8 +30,8 @@ use shoal_acoustic::driver::ModemDriver;
 use shoal_acoustic::link::{Class, LinkEvent, LinkSender, Outgoing};
 use shoal_acoustic::pdu::convert::seconds_of_day;
 use shoal_acoustic::pdu::{
-    self, AddressBook, CompactAnnouncement, CompactEnvironment, CompactEvent, CompactTask,
-    CompactTaskStatus, ConvertError, DeltaEncoder, Pdu, StateKeyframe,
+    self, AddressBook, CompactAnnouncement, CompactEnvironment, CompactEvent, CompactTaskStatus,
+    ConvertError, DeltaEncoder, IdentifiedTask, Pdu, StateKeyframe,
 };
 use shoal_dds::{Priority, PubSub, ReadError, SampleMeta, Writer, WriterOptions};
 use shoal_model::{
@@ -435,22 +439,48 @@ impl Vdt {
                     }
                 }
             }
-            Pdu::Task(t) => {
-                let Some(bytes) = encode(&Pdu::Task(t.clone())) else {
+            Pdu::IdentifiedTask(t) => {
+                let Some(bytes) = encode(&Pdu::IdentifiedTask(t.clone())) else {
                     return Ok(());
                 };
+                // Only spares the vehicle's bus: the vehicle's ledger is what keeps a task
+                // from running twice, also after this VDT restarts.
                 if !self.dedup.first(src, &bytes, Instant::now()) {
-                    debug!(task_no = t.task_no, "duplicate task PDU suppressed");
+                    debug!(task = %t.task_id, task_no = t.task_no, "duplicate task PDU suppressed");
                     return Ok(());
                 }
                 self.on_task(t).await?;
+            }
+            Pdu::Task(t) => {
+                // Layout 1 names the task by an 8-bit number only: running it could run a
+                // re-delivered task twice. Refuse it, and say so to the station.
+                warn!(
+                    vehicle = t.vehicle,
+                    task_no = t.task_no,
+                    "task PDU without the station's task identity (layout 1) refused: update the CDT"
+                );
+                if self.served.iter().any(|v| v.addr == t.vehicle) {
+                    self.send_failed(t.vehicle, t.task_no).await?;
+                }
             }
             other => debug!(pdu = other.name(), "PDU not meant for a VDT ignored"),
         }
         Ok(())
     }
 
-    async fn on_task(&mut self, t: CompactTask) -> Result<(), ConverterError> {
+    /// Tells the CDT that task number `task_no` of `addr` failed on arrival.
+    async fn send_failed(&self, addr: u8, task_no: u8) -> Result<(), ConverterError> {
+        let failed = Pdu::TaskStatus(CompactTaskStatus {
+            vehicle: addr,
+            task_no,
+            state: task_state_code(TaskState::Failed),
+            progress_pct: 0.0,
+            seconds_of_day: seconds_of_day(now_ms()),
+        });
+        self.send(Class::Control, &failed, None).await
+    }
+
+    async fn on_task(&mut self, t: IdentifiedTask) -> Result<(), ConverterError> {
         let Some(v) = self.served.iter().find(|v| v.addr == t.vehicle) else {
             debug!(
                 vehicle = t.vehicle,
@@ -459,22 +489,16 @@ impl Vdt {
             return Ok(());
         };
         let now = now_ms();
-        // The station's task id does not cross the water (8-bit task number only); the
-        // CDT maps this number back to it when status returns.
-        let task_id = format!("{}-ac{}-{now}", v.id, t.task_no);
+        // The station's own task id, issue sequence and expiry, as over IP: the vehicle's
+        // ledger knows a re-delivery whoever delivers it. The 8-bit task number only
+        // routes status back; the CDT maps it to the same task id.
+        let task_id = t.task_id.clone();
         let (vehicle_id, addr) = (v.id.clone(), v.addr);
-        let assignment = match t.to_model(&self.book, &task_id, now) {
+        let assignment = match t.to_model(&self.book, now) {
             Ok(a) => a,
             Err(e) => {
-                warn!(vehicle = %vehicle_id, task_no = t.task_no, error = %e, "task PDU unusable");
-                let failed = Pdu::TaskStatus(CompactTaskStatus {
-                    vehicle: addr,
-                    task_no: t.task_no,
-                    state: task_state_code(TaskState::Failed),
-                    progress_pct: 0.0,
-                    seconds_of_day: seconds_of_day(now),
-                });
-                return self.send(Class::Control, &failed, None).await;
+                warn!(vehicle = %vehicle_id, task = %task_id, task_no = t.task_no, error = %e, "task PDU unusable");
+                return self.send_failed(addr, t.task_no).await;
             }
         };
         self.tasks.push_back((task_id.clone(), addr, t.task_no));
@@ -486,7 +510,7 @@ impl Vdt {
         } else {
             &self.task_writer
         };
-        info!(vehicle = %vehicle_id, task = %task_id, kind = ?assignment.kind, "acoustic task handed to the vehicle");
+        info!(vehicle = %vehicle_id, task = %task_id, seq = assignment.issue_seq, kind = ?assignment.kind, "acoustic task handed to the vehicle");
         if let Err(e) = writer.write(assignment).await {
             warn!(task = %task_id, error = %e, "task not published on the vehicle's DDS");
         }

@@ -2,7 +2,9 @@
 //!
 //! What the compact forms lose, on purpose (docs/acoustic.md#compact-messages):
 //! - vehicle ids become 4-bit acoustic addresses through an [`AddressBook`] the caller
-//!   supplies; task and event ids become 8-bit numbers the caller maps;
+//!   supplies; event ids become 8-bit numbers the caller maps; a task keeps its station
+//!   task id, issue sequence and expiry ([`IdentifiedTask`]) but not its mission id or
+//!   issue time;
 //! - timestamps keep only the second of the UTC day; the receiver restores the date as the
 //!   one nearest its own clock ([`time_from_seconds_of_day`]), and sub-second parts are lost;
 //! - each number is quantised to its field's resolution (1e-5° ≈ 1.1 m, depth 0.1 m, speed
@@ -21,7 +23,8 @@ use shoal_model::{
 
 use super::{
     CompactAnnouncement, CompactEnvironment, CompactEvent, CompactTask, CompactTaskStatus,
-    ENVIRONMENT_PROPERTIES, EncodeError, Motion, Point, StateKeyframe, TaskAction,
+    ENVIRONMENT_PROPERTIES, EncodeError, IdentifiedTask, MAX_ISSUE_SEQ, Motion, Point,
+    StateKeyframe, TaskAction,
 };
 
 /// Capabilities an announcement can carry, by bit position.
@@ -317,6 +320,76 @@ impl CompactTask {
             issued_ms,
             &task,
         );
+        a.validate()?;
+        Ok(a)
+    }
+}
+
+impl IdentifiedTask {
+    /// Compact form of a task assignment, with its station identity, as task number
+    /// `task_no`. Refused: an issue sequence above [`MAX_ISSUE_SEQ`], and an expiry 12 h or
+    /// more after the issue time (a second of the day could not name it unambiguously).
+    pub fn from_model(
+        a: &TaskAssignment,
+        book: &AddressBook,
+        task_no: u8,
+    ) -> Result<Self, ConvertError> {
+        let c = CompactTask::from_model(a, book, task_no)?;
+        if a.issue_seq > MAX_ISSUE_SEQ {
+            return Err(ConvertError::Unsupported {
+                field: "issue_seq",
+                value: a.issue_seq.to_string(),
+            });
+        }
+        let expires_s_of_day = if a.expires_ms == 0 {
+            None
+        } else if a.expires_ms.saturating_sub(a.issued_ms) >= DAY_MS / 2 {
+            return Err(ConvertError::Unsupported {
+                field: "expires_ms",
+                value: format!(
+                    "{} ms after issue (at most 12 h)",
+                    a.expires_ms - a.issued_ms
+                ),
+            });
+        } else {
+            Some(seconds_of_day(a.expires_ms))
+        };
+        Ok(Self {
+            vehicle: c.vehicle,
+            task_no,
+            task_id: a.task_id.clone(),
+            issue_seq: a.issue_seq,
+            expires_s_of_day,
+            action: c.action,
+        })
+    }
+
+    /// The task assignment as the station issued it (same task id, issue sequence and
+    /// expiry, the expiry to the second), received at `received_ms`: that is its issue
+    /// time on the vehicle side, or the expiry if that is earlier (a late re-delivery must
+    /// still reach the vehicle's ledger, to be answered, not fail validation). The mission
+    /// id is not carried.
+    pub fn to_model(
+        &self,
+        book: &AddressBook,
+        received_ms: i64,
+    ) -> Result<TaskAssignment, ConvertError> {
+        let plain = CompactTask {
+            vehicle: self.vehicle,
+            task_no: self.task_no,
+            action: self.action.clone(),
+        };
+        let expires_ms = self
+            .expires_s_of_day
+            .map_or(0, |sod| time_from_seconds_of_day(sod, received_ms));
+        let issued_ms = if expires_ms == 0 {
+            received_ms
+        } else {
+            received_ms.min(expires_ms)
+        };
+        let mut a = plain.to_model(book, &self.task_id, issued_ms)?;
+        a.issue_seq = self.issue_seq;
+        a.expires_ms = expires_ms;
         a.validate()?;
         Ok(a)
     }
@@ -694,6 +767,45 @@ mod tests {
             let out = c.to_model(&book(), "t-7", T).unwrap();
             assert_eq!(out.task().unwrap(), t);
         }
+    }
+
+    #[test]
+    fn an_identified_task_reaches_the_vehicle_under_the_station_identity() {
+        let mut a = TaskAssignment::new("m-7-2", "m-7", "auv-1", T, &Task::Surface);
+        a.issue_seq = 1_780_000_000_000_123;
+        a.expires_ms = T + 675_250;
+        let c = IdentifiedTask::from_model(&a, &book(), 9).unwrap();
+        let bytes = super::super::encode(&super::super::Pdu::IdentifiedTask(c)).unwrap();
+        let super::super::Pdu::IdentifiedTask(c) = super::super::decode(&bytes).unwrap() else {
+            panic!("wrong message")
+        };
+        let out = c.to_model(&book(), T + 40_000).unwrap();
+        assert_eq!(
+            (out.task_id.as_str(), out.issue_seq, out.expires_ms),
+            ("m-7-2", a.issue_seq, T + 675_000),
+            "same id and sequence; the expiry to the second, rounded down"
+        );
+        assert_eq!(out.issued_ms, T + 40_000);
+        // Re-delivered after its expiry: still a valid assignment (issued at its expiry),
+        // so the vehicle's ledger answers it instead of the VDT failing it.
+        let late = c.to_model(&book(), T + 900_000).unwrap();
+        assert_eq!(
+            (late.issued_ms, late.expires_ms),
+            (T + 675_000, T + 675_000)
+        );
+        // No expiry travels as none.
+        a.expires_ms = 0;
+        let c = IdentifiedTask::from_model(&a, &book(), 9).unwrap();
+        assert_eq!(c.to_model(&book(), T).unwrap().expires_ms, 0);
+        // An expiry a second of the day cannot name is refused at the sender.
+        a.expires_ms = T + 12 * 3_600_000;
+        assert!(matches!(
+            IdentifiedTask::from_model(&a, &book(), 9),
+            Err(ConvertError::Unsupported {
+                field: "expires_ms",
+                ..
+            })
+        ));
     }
 
     #[test]

@@ -16,7 +16,9 @@ pub mod id {
     pub const STATE_KEYFRAME: u8 = 1;
     /// [`super::StateDelta`].
     pub const STATE_DELTA: u8 = 2;
-    /// [`super::CompactTask`].
+    /// [`super::CompactTask`]: task layout 1, without the station's task identity. Still
+    /// read and written (tools, the link benchmark, old captures), but a VDT refuses to run
+    /// it: a re-delivery could not be told from a new task (docs/acoustic.md#task-identity).
     pub const TASK: u8 = 3;
     /// [`super::CompactTaskStatus`].
     pub const TASK_STATUS: u8 = 4;
@@ -28,6 +30,10 @@ pub mod id {
     pub const ENVIRONMENT: u8 = 7;
     /// [`super::Ack`].
     pub const ACK: u8 = 8;
+    /// [`super::IdentifiedTask`]: task layout 2, carrying the station's task id, issue
+    /// sequence and expiry (docs/acoustic.md#task-identity). A build that predates it
+    /// refuses it as an unknown message id.
+    pub const IDENTIFIED_TASK: u8 = 9;
 }
 
 const VEHICLE: Field = Field::new("vehicle", 0.0, 15.0, 1.0);
@@ -647,15 +653,45 @@ fn read_point(r: &mut BitReader<'_>) -> Result<Point, DecodeError> {
 
 impl CompactTask {
     fn write(&self, w: &mut BitWriter) -> Result<(), EncodeError> {
-        TASK_HEADER_SCHEMA.encode(
-            w,
-            &[
-                Some(f64::from(self.vehicle)),
-                Some(f64::from(self.task_no)),
-                Some(f64::from(self.action.code())),
-            ],
-        )?;
-        match &self.action {
+        write_task_header(w, self.vehicle, self.task_no, &self.action)?;
+        self.action.write(w)
+    }
+
+    fn read(r: &mut BitReader<'_>) -> Result<Self, DecodeError> {
+        let (vehicle, task_no, kind) = read_task_header(r)?;
+        Ok(Self {
+            vehicle,
+            task_no,
+            action: TaskAction::read(kind, r)?,
+        })
+    }
+}
+
+fn write_task_header(
+    w: &mut BitWriter,
+    vehicle: u8,
+    task_no: u8,
+    action: &TaskAction,
+) -> Result<(), EncodeError> {
+    TASK_HEADER_SCHEMA.encode(
+        w,
+        &[
+            Some(f64::from(vehicle)),
+            Some(f64::from(task_no)),
+            Some(f64::from(action.code())),
+        ],
+    )
+}
+
+fn read_task_header(r: &mut BitReader<'_>) -> Result<(u8, u8, u8), DecodeError> {
+    let [vehicle, task_no, kind] = values::<3>(r, &TASK_HEADER_SCHEMA)?;
+    Ok((small(vehicle), small(task_no), small(kind)))
+}
+
+impl TaskAction {
+    /// The kind-specific fields (the header carries the kind).
+    fn write(&self, w: &mut BitWriter) -> Result<(), EncodeError> {
+        match self {
             TaskAction::Goto { target, motion } => {
                 write_point(w, target)?;
                 motion.write(w)
@@ -684,9 +720,8 @@ impl CompactTask {
         }
     }
 
-    fn read(r: &mut BitReader<'_>) -> Result<Self, DecodeError> {
-        let [vehicle, task_no, kind] = values::<3>(r, &TASK_HEADER_SCHEMA)?;
-        let action = match small(kind) {
+    fn read(kind: u8, r: &mut BitReader<'_>) -> Result<Self, DecodeError> {
+        Ok(match kind {
             0 => {
                 let target = read_point(r)?;
                 TaskAction::Goto {
@@ -717,11 +752,151 @@ impl CompactTask {
                 let [rate] = values::<1>(r, &TASK_RATE_SCHEMA)?;
                 TaskAction::SetRate { rate_hz: num(rate) }
             }
-        };
+        })
+    }
+}
+
+/// Bits of the issue sequence in [`IdentifiedTask`]: a station seeds its sequence with its
+/// start time in microseconds (2^52 µs after 1970 is the year 2112).
+pub const ISSUE_SEQ_BITS: u32 = 52;
+/// Largest issue sequence an [`IdentifiedTask`] can carry.
+pub const MAX_ISSUE_SEQ: u64 = (1 << ISSUE_SEQ_BITS) - 1;
+/// Longest task id an [`IdentifiedTask`] carries (`shoal_model::MAX_ID_LEN`).
+pub const MAX_TASK_ID_LEN: usize = 64;
+/// The 65 characters a task id may hold, in ASCII order; a character travels as its index.
+const ID_ALPHABET: &[u8; 65] = b"-.0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZ_abcdefghijklmnopqrstuvwxyz";
+/// The task's expiry, as the second of the UTC day (the receiver restores the date nearest
+/// its own clock, as for every time of day); absent when the station set none.
+const EXPIRES_FIELD: Field = Field::new("expires_s_of_day", 0.0, 86_399.0, 1.0).optional();
+
+/// Bits a task id of `len` characters takes in an [`IdentifiedTask`]: a 6-bit length, then
+/// the characters in base 65, three to 19 bits (65³ ≤ 2¹⁹), a last pair in 13, a last
+/// single in 7 — about 6.3 bits a character.
+pub fn task_id_bits(len: usize) -> usize {
+    6 + len / 3 * 19
+        + match len % 3 {
+            0 => 0,
+            1 => 7,
+            _ => 13,
+        }
+}
+
+fn write_task_id(w: &mut BitWriter, id: &str) -> Result<(), EncodeError> {
+    let bad = EncodeError::Inconsistent {
+        field: "task_id",
+        rule: "1..=64 characters of [A-Za-z0-9_.-]",
+    };
+    if id.is_empty() || id.len() > MAX_TASK_ID_LEN {
+        return Err(bad);
+    }
+    let mut codes = Vec::with_capacity(id.len());
+    for b in id.bytes() {
+        let i = ID_ALPHABET
+            .iter()
+            .position(|&c| c == b)
+            .ok_or(bad.clone())?;
+        codes.push(u64::try_from(i).unwrap_or(0));
+    }
+    w.write(u64::try_from(id.len() - 1).unwrap_or(0), 6);
+    for chunk in codes.chunks(3) {
+        let v = chunk.iter().fold(0, |acc, c| acc * 65 + c);
+        w.write(v, chunk_bits(chunk.len()));
+    }
+    Ok(())
+}
+
+fn chunk_bits(n: usize) -> u32 {
+    match n {
+        1 => 7,
+        2 => 13,
+        _ => 19,
+    }
+}
+
+fn read_task_id(r: &mut BitReader<'_>) -> Result<String, DecodeError> {
+    let len = usize::try_from(r.read(6)?).unwrap_or(0) + 1;
+    let mut id = String::with_capacity(len);
+    let mut left = len;
+    while left > 0 {
+        let n = left.min(3);
+        let mut v = r.read(chunk_bits(n))?;
+        // 65^n codes are valid; anything above is garbage, never guessed at.
+        let limit = 65u64.pow(u32::try_from(n).unwrap_or(3));
+        if v >= limit {
+            return Err(DecodeError::InvalidCode {
+                field: "task_id",
+                code: v,
+            });
+        }
+        let mut chars = [0u8; 3];
+        for slot in chars[..n].iter_mut().rev() {
+            let i = usize::try_from(v % 65).unwrap_or(0);
+            *slot = ID_ALPHABET.get(i).copied().unwrap_or(b'-');
+            v /= 65;
+        }
+        id.extend(chars[..n].iter().map(|&c| char::from(c)));
+        left -= n;
+    }
+    Ok(id)
+}
+
+/// A task for one vehicle with the station's identity: task layout 2 (message id
+/// [`id::IDENTIFIED_TASK`], docs/acoustic.md#task-identity). The vehicle receives it under
+/// the station's own task id, issue sequence and expiry, so its task ledger recognises a
+/// re-delivery over any link, after any restart, exactly as over IP.
+///
+/// Layout: the task header (vehicle 4, task number 8, kind 3 bits), the issue sequence in
+/// [`ISSUE_SEQ_BITS`], the expiry as an optional second of the day (17 bits), the task id
+/// ([`task_id_bits`]), then the kind's fields as in [`CompactTask`]. The identity costs
+/// 75 bits plus about 6.3 a character of the id: 107 bits for `m-1-1`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IdentifiedTask {
+    /// Acoustic address of the vehicle that must execute it.
+    pub vehicle: u8,
+    /// Small task number, 0..=255, that status reports name on the way back.
+    pub task_no: u8,
+    /// The station's task id, 1..=64 of `[A-Za-z0-9_.-]`, carried exactly.
+    pub task_id: String,
+    /// The station's issue sequence, 0..=[`MAX_ISSUE_SEQ`] (0: a tool issued the task).
+    pub issue_seq: u64,
+    /// The last second (of the UTC day) the vehicle may start the task, rounded down; `None`
+    /// when the station set no expiry.
+    pub expires_s_of_day: Option<u32>,
+    /// What to do.
+    pub action: TaskAction,
+}
+
+impl IdentifiedTask {
+    fn write(&self, w: &mut BitWriter) -> Result<(), EncodeError> {
+        write_task_header(w, self.vehicle, self.task_no, &self.action)?;
+        if self.issue_seq > MAX_ISSUE_SEQ {
+            #[allow(clippy::cast_precision_loss)]
+            return Err(EncodeError::OutOfRange {
+                field: "issue_seq",
+                value: self.issue_seq as f64,
+                min: 0.0,
+                max: MAX_ISSUE_SEQ as f64,
+            });
+        }
+        w.write(self.issue_seq, ISSUE_SEQ_BITS);
+        EXPIRES_FIELD.encode(w, self.expires_s_of_day.map(f64::from))?;
+        write_task_id(w, &self.task_id)?;
+        self.action.write(w)
+    }
+
+    fn read(r: &mut BitReader<'_>) -> Result<Self, DecodeError> {
+        let (vehicle, task_no, kind) = read_task_header(r)?;
+        let issue_seq = r.read(ISSUE_SEQ_BITS)?;
+        let expires = EXPIRES_FIELD.decode(r)?;
+        let task_id = read_task_id(r)?;
         Ok(Self {
-            vehicle: small(vehicle),
-            task_no: small(task_no),
-            action,
+            vehicle,
+            task_no,
+            task_id,
+            issue_seq,
+            expires_s_of_day: expires.map(|v| int(Some(v))),
+            action: TaskAction::read(kind, r)?,
         })
     }
 }
@@ -981,8 +1156,10 @@ pub enum Pdu {
     StateKeyframe(StateKeyframe),
     /// State Vector relative to a keyframe.
     StateDelta(StateDelta),
-    /// Task assignment.
+    /// Task assignment without the station's identity (task layout 1).
     Task(CompactTask),
+    /// Task assignment with the station's identity (task layout 2).
+    IdentifiedTask(IdentifiedTask),
     /// Task status.
     TaskStatus(CompactTaskStatus),
     /// Event or alarm.
@@ -1002,6 +1179,7 @@ impl Pdu {
             Self::StateKeyframe(_) => id::STATE_KEYFRAME,
             Self::StateDelta(_) => id::STATE_DELTA,
             Self::Task(_) => id::TASK,
+            Self::IdentifiedTask(_) => id::IDENTIFIED_TASK,
             Self::TaskStatus(_) => id::TASK_STATUS,
             Self::Event(_) => id::EVENT,
             Self::Announcement(_) => id::ANNOUNCEMENT,
@@ -1016,6 +1194,7 @@ impl Pdu {
             Self::StateKeyframe(_) => "state_keyframe",
             Self::StateDelta(_) => "state_delta",
             Self::Task(_) => "task",
+            Self::IdentifiedTask(_) => "identified_task",
             Self::TaskStatus(_) => "task_status",
             Self::Event(_) => "event",
             Self::Announcement(_) => "announcement",
@@ -1031,6 +1210,7 @@ impl Pdu {
             Self::StateKeyframe(m) => m.write(w),
             Self::StateDelta(m) => m.write(w),
             Self::Task(m) => m.write(w),
+            Self::IdentifiedTask(m) => m.write(w),
             Self::TaskStatus(m) => m.write(w),
             Self::Event(m) => m.write(w),
             Self::Announcement(m) => m.write(w),
@@ -1047,6 +1227,7 @@ impl Pdu {
             id::STATE_KEYFRAME => Self::StateKeyframe(StateKeyframe::read(r)?),
             id::STATE_DELTA => Self::StateDelta(StateDelta::read(r)?),
             id::TASK => Self::Task(CompactTask::read(r)?),
+            id::IDENTIFIED_TASK => Self::IdentifiedTask(IdentifiedTask::read(r)?),
             id::TASK_STATUS => Self::TaskStatus(CompactTaskStatus::read(r)?),
             id::EVENT => Self::Event(CompactEvent::read(r)?),
             id::ANNOUNCEMENT => Self::Announcement(CompactAnnouncement::read(r)?),

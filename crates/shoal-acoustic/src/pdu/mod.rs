@@ -2,8 +2,9 @@
 //!
 //! - [`schema`]: [`Field`] / [`Schema`] and the bit writer/reader
 //!   (docs/acoustic.md#compact-messages).
-//! - [`Pdu`]: the compact messages (keyframe and delta State Vector, task, task status,
-//!   event, announcement, environment observation, ack); `serde` gives their JSON form.
+//! - [`Pdu`]: the compact messages (keyframe and delta State Vector, task with the
+//!   station's identity, task status, event, announcement, environment observation, ack);
+//!   `serde` gives their JSON form.
 //! - [`encode`] / [`decode`]: one PDU ↔ bytes; [`pack_frame`] / [`unpack_frame`]: several
 //!   PDUs in one modem frame of at most [`MAX_FRAME`] bytes (an instant message).
 //! - [`DeltaEncoder`] / [`DeltaDecoder`]: keyframe + delta State Vector coding.
@@ -83,7 +84,7 @@ pub enum DecodeError {
         available_bits: usize,
     },
     /// The message id byte is not one of [`id`].
-    #[error("unknown message id {id}")]
+    #[error("unknown message id {id}: a message or layout this build does not know")]
     UnknownMessage {
         /// The id byte.
         id: u8,
@@ -345,24 +346,33 @@ pub fn samples() -> Vec<(&'static str, Pdu)> {
             action,
         })
     };
-    let survey = |n: usize| {
-        task(TaskAction::Survey {
-            polygon: [
-                (43.1, 5.9),
-                (43.1, 5.91),
-                (43.11, 5.91),
-                (43.11, 5.9),
-                (43.12, 5.9),
-                (43.12, 5.91),
-                (43.13, 5.91),
-                (43.13, 5.9),
-            ]
-            .into_iter()
-            .take(n)
-            .map(|(a, b)| p(a, b))
-            .collect(),
-            line_spacing_m: 20.0,
-            motion,
+    let survey_action = |n: usize| TaskAction::Survey {
+        polygon: [
+            (43.1, 5.9),
+            (43.1, 5.91),
+            (43.11, 5.91),
+            (43.11, 5.9),
+            (43.12, 5.9),
+            (43.12, 5.91),
+            (43.13, 5.91),
+            (43.13, 5.9),
+        ]
+        .into_iter()
+        .take(n)
+        .map(|(a, b)| p(a, b))
+        .collect(),
+        line_spacing_m: 20.0,
+        motion,
+    };
+    let survey = |n: usize| task(survey_action(n));
+    let identified = |action| {
+        Pdu::IdentifiedTask(IdentifiedTask {
+            vehicle: 3,
+            task_no: 7,
+            task_id: "m-1-1".into(),
+            issue_seq: 1_780_000_000_000_000,
+            expires_s_of_day: Some(43_875),
+            action,
         })
     };
     vec![
@@ -399,6 +409,22 @@ pub fn samples() -> Vec<(&'static str, Pdu)> {
         ("task_abort", task(TaskAction::Abort)),
         ("task_request_state", task(TaskAction::RequestState)),
         ("task_set_rate", task(TaskAction::SetRate { rate_hz: 0.05 })),
+        (
+            "identified_task_goto",
+            identified(TaskAction::Goto {
+                target: p(43.1, 5.9),
+                motion,
+            }),
+        ),
+        (
+            "identified_task_survey_4_points",
+            identified(survey_action(4)),
+        ),
+        (
+            "identified_task_hold",
+            identified(TaskAction::Hold { duration_s: 600 }),
+        ),
+        ("identified_task_abort", identified(TaskAction::Abort)),
         (
             "task_status",
             Pdu::TaskStatus(CompactTaskStatus {

@@ -94,6 +94,75 @@ fn unknown_message_id_and_garbage_padding_are_errors() {
 }
 
 #[test]
+fn an_identified_task_carries_the_station_id_for_75_bits_plus_6_3_a_character() {
+    let Pdu::IdentifiedTask(t) = sample("identified_task_goto") else {
+        panic!()
+    };
+    let e = encode_sized(&Pdu::IdentifiedTask(t)).unwrap();
+    let plain = encode_sized(&sample("task_goto")).unwrap();
+    // m-1-1: 52 (sequence) + 17 (expiry) + 6 (length) + 19 + 13 (five characters).
+    assert_eq!(e.bits - plain.bits, 107);
+    assert_eq!((e.bits, e.bytes.len()), (206, 26));
+    assert_eq!(e.bytes[0], id::IDENTIFIED_TASK);
+    assert_eq!(task_id_bits(64), 6 + 21 * 19 + 7);
+}
+
+#[test]
+fn an_identified_task_refuses_what_it_cannot_carry_exactly() {
+    let Pdu::IdentifiedTask(t) = sample("identified_task_abort") else {
+        panic!()
+    };
+    for bad in ["", "a b", "é", &"x".repeat(65)] {
+        let mut u = t.clone();
+        u.task_id = bad.into();
+        assert!(
+            matches!(
+                encode(&Pdu::IdentifiedTask(u)),
+                Err(EncodeError::Inconsistent {
+                    field: "task_id",
+                    ..
+                })
+            ),
+            "{bad:?}"
+        );
+    }
+    let mut u = t;
+    u.issue_seq = MAX_ISSUE_SEQ + 1;
+    assert!(matches!(
+        encode(&Pdu::IdentifiedTask(u)),
+        Err(EncodeError::OutOfRange {
+            field: "issue_seq",
+            ..
+        })
+    ));
+}
+
+/// A task id chunk above 65³ is garbage: refused, never read as some other id.
+#[test]
+fn an_identified_task_with_an_impossible_id_code_is_refused() {
+    // Abort to auv 3, task 7, seq 0, no expiry, a one-character id of code 127.
+    let mut w = BitWriter::new();
+    w.write(u64::from(id::IDENTIFIED_TASK), 8);
+    w.write(3, 4);
+    w.write(7, 8);
+    w.write(5, 3);
+    w.write(0, 52);
+    w.write(0, 17);
+    w.write(0, 6);
+    w.write(127, 7);
+    assert_eq!(
+        decode(&w.finish()),
+        Err(DecodeError::InvalidCode {
+            field: "task_id",
+            code: 127
+        })
+    );
+    // A build that predates a layout names the id it does not know.
+    let e = DecodeError::UnknownMessage { id: 10 }.to_string();
+    assert!(e.contains("does not know"), "{e}");
+}
+
+#[test]
 fn out_of_range_values_are_refused_by_the_encoder() {
     let Pdu::StateKeyframe(mut k) = sample("state_keyframe") else {
         panic!()
@@ -366,6 +435,27 @@ proptest! {
     }
 
     #[test]
+    fn identified_task_round_trips_its_identity_exactly(
+        vehicle in 0u8..16, task_no in any::<u8>(), action in arb_action(),
+        task_id in "[A-Za-z0-9_.-]{1,64}", issue_seq in 0..=MAX_ISSUE_SEQ,
+        expires in prop::option::of(0u32..86_400),
+    ) {
+        let t = IdentifiedTask { vehicle, task_no, task_id, issue_seq, expires_s_of_day: expires, action };
+        let e = encode_sized(&Pdu::IdentifiedTask(t.clone())).unwrap();
+        let Pdu::IdentifiedTask(b) = decode(&e.bytes).unwrap() else { panic!() };
+        prop_assert_eq!(
+            (&b.task_id, b.issue_seq, b.expires_s_of_day, b.vehicle, b.task_no),
+            (&t.task_id, t.issue_seq, t.expires_s_of_day, t.vehicle, t.task_no)
+        );
+        // The action travels exactly as in layout 1; the identity costs what
+        // docs/acoustic.md#task-identity says.
+        let plain = encode_sized(&Pdu::Task(CompactTask { vehicle, task_no, action: t.action.clone() })).unwrap();
+        let Pdu::Task(p) = decode(&plain.bytes).unwrap() else { panic!() };
+        prop_assert_eq!(&b.action, &p.action);
+        prop_assert_eq!(e.bits - plain.bits, 52 + 17 + task_id_bits(t.task_id.len()));
+    }
+
+    #[test]
     fn small_messages_round_trip_within_resolution(
         vehicle in 0u8..16, no in any::<u8>(), state in 0u8..8, progress in 0.0..=100.0f64, sod in 0u32..86_400,
         opt_vehicle in prop::option::of(0u8..16), opt_task in prop::option::of(any::<u8>()), sev in 0u8..4, kind in 0u8..9,
@@ -404,7 +494,7 @@ proptest! {
     }
 
     #[test]
-    fn arbitrary_bytes_after_a_valid_id_never_panic(id in 1u8..=8, rest in prop::collection::vec(any::<u8>(), 0..70)) {
+    fn arbitrary_bytes_after_a_valid_id_never_panic(id in 1u8..=9, rest in prop::collection::vec(any::<u8>(), 0..70)) {
         let mut bytes = vec![id];
         bytes.extend(rest);
         if let Ok(pdus) = unpack_frame(&bytes) {

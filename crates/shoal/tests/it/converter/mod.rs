@@ -15,6 +15,8 @@
 //!   afterwards (domains 107, 108).
 //! - `relay`: the `run_emulated_relay` topology of `shoal up`'s acoustic demo (domains
 //!   105, 106).
+//! - `redelivery`: at most once over the acoustic link: a finished task delivered again
+//!   after the VDT and the vehicle restart is not run again (domains 109, 110).
 //!
 //! New converter tests go in the module of their area; a new area gets a module listed
 //! here. The `shoal bench acoustic` figures are checked by the benchmark's own unit tests.
@@ -23,4 +25,5 @@ pub mod common;
 mod end_to_end;
 mod outage;
 mod reconnect;
+mod redelivery;
 mod relay;
