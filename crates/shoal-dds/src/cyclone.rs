@@ -912,7 +912,12 @@ unsafe extern "C" fn log_sink(_arg: *mut c_void, data: *const c::dds_log_data_t)
         let d = &*data;
         let bytes = std::slice::from_raw_parts(d.message.cast::<u8>(), d.size);
         // The header (time, thread) Cyclone prepends is of no use in tracing's output.
-        let body = bytes.get(d.hdrsize..).unwrap_or(bytes);
+        // Some records come without the header `hdrsize` announces (the security
+        // plugins'), so cut only what ends as a header does.
+        let body = match bytes.split_at_checked(d.hdrsize) {
+            Some((header, body)) if header.ends_with(b": ") => body,
+            _ => bytes,
+        };
         (
             d.priority,
             String::from_utf8_lossy(body).trim_end().to_string(),
@@ -928,12 +933,33 @@ unsafe extern "C" fn log_sink(_arg: *mut c_void, data: *const c::dds_log_data_t)
         note_malformed(&full);
     }
     crate::omg::note_handshake(&full);
-    match priority {
-        c::DDS_LC_FATAL | c::DDS_LC_ERROR => tracing::error!(target: "cyclonedds", "{message}"),
-        c::DDS_LC_WARNING => tracing::warn!(target: "cyclonedds", "{message}"),
-        _ => tracing::debug!(target: "cyclonedds", "{message}"),
+    // A remote participant can make Cyclone warn at will (a handshake refused per
+    // attempt): past the budget its lines go to debug, after being counted above.
+    let budget = match priority {
+        c::DDS_LC_FATAL | c::DDS_LC_ERROR | c::DDS_LC_WARNING => CYCLONE_LOG
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take(std::time::Instant::now()),
+        _ => None,
+    };
+    match (priority, budget) {
+        (_, None) => tracing::debug!(target: "cyclonedds", "{message}"),
+        (c::DDS_LC_FATAL | c::DDS_LC_ERROR, Some(0)) => {
+            tracing::error!(target: "cyclonedds", "{message}");
+        }
+        (c::DDS_LC_FATAL | c::DDS_LC_ERROR, Some(left_out)) => {
+            tracing::error!(target: "cyclonedds", left_out, "{message} (and {left_out} earlier lines not logged)");
+        }
+        (_, Some(0)) => tracing::warn!(target: "cyclonedds", "{message}"),
+        (_, Some(left_out)) => {
+            tracing::warn!(target: "cyclonedds", left_out, "{message} (and {left_out} earlier lines not logged)");
+        }
     }
 }
+
+/// Warnings and errors Cyclone may log a second; the rest are counted where they matter
+/// (refused handshakes, malformed samples) and logged at debug level.
+static CYCLONE_LOG: Mutex<crate::LogBudget> = Mutex::new(crate::LogBudget::new(20));
 
 fn install_log_sink() {
     static ONCE: std::sync::Once = std::sync::Once::new();

@@ -20,6 +20,7 @@
 mod config;
 mod cyclone;
 mod error;
+mod log_budget;
 mod manager;
 mod omg;
 mod qos;
@@ -28,6 +29,7 @@ mod topics;
 
 pub use config::DdsConfig;
 pub use error::{CdrError, CreateError, DdsError, EndError, ReadError, TypeError, WriteError};
+pub use log_budget::LogBudget;
 pub use manager::{ParticipantEvent, PubSub, SampleMeta, Subscription, Writer};
 pub use omg::{Credentials, handshake_refusals};
 pub use qos::{Priority, QosProfile, WriterOptions};

@@ -7,11 +7,10 @@
 //! Data from the bus arrive [`Validated`] (the Publish/Subscribe Manager checks types and
 //! ranges on receipt); data from elsewhere (an operator, a tool) are validated here.
 
-mod log_budget;
 pub(crate) mod preprocess;
 mod semantic;
 
-pub(crate) use log_budget::LogBudget;
+pub(crate) use shoal_dds::LogBudget;
 
 /// Log lines a second for rejected data; beyond, rejections are only counted.
 pub(crate) const REJECTION_LOG_LINES_PER_S: u32 = 20;

@@ -1,13 +1,13 @@
-//! A budget of log lines per second for messages a sender can cause at will (a rejected
-//! sample per datum of a flood): the log stays readable and its disk bounded, the
-//! counters keep the whole story.
+//! A budget of log lines per second for messages a remote sender can cause at will (a
+//! refused handshake per attempt, a rejected sample per datum of a flood): the log stays
+//! readable and its disk bounded, the counters keep the whole story.
 
 use std::time::{Duration, Instant};
 
 /// At most `per_second` lines a second; the line written after a gap says how many were
 /// left out.
 #[derive(Debug)]
-pub(crate) struct LogBudget {
+pub struct LogBudget {
     per_second: u32,
     window_start: Option<Instant>,
     used: u32,
@@ -17,7 +17,7 @@ pub(crate) struct LogBudget {
 
 impl LogBudget {
     /// A budget of `per_second` lines a second.
-    pub(crate) fn new(per_second: u32) -> Self {
+    pub const fn new(per_second: u32) -> Self {
         Self {
             per_second,
             window_start: None,
@@ -29,7 +29,7 @@ impl LogBudget {
 
     /// `Some(n)`: write this line, noting the `n` left out since the last one written;
     /// `None`: leave it out (counted).
-    pub(crate) fn take(&mut self, now: Instant) -> Option<u64> {
+    pub fn take(&mut self, now: Instant) -> Option<u64> {
         let fresh = self
             .window_start
             .is_none_or(|s| now.saturating_duration_since(s) >= Duration::from_secs(1));
@@ -48,7 +48,7 @@ impl LogBudget {
     }
 
     /// Lines left out since the start.
-    pub(crate) fn left_out_total(&self) -> u64 {
+    pub fn left_out_total(&self) -> u64 {
         self.left_out_total
     }
 }
