@@ -128,6 +128,23 @@ impl Default for SecurityConfig {
 impl SecurityConfig {
     /// Checks the values; the error names the key.
     pub fn check(&self) -> Result<(), String> {
+        // A topic expression that names no Shoal topic (a typo) would leave the topic it
+        // meant under the default protection without a word.
+        for expression in self.governance.topics.keys() {
+            let pattern = glob::Pattern::new(expression).map_err(|e| {
+                format!("security.governance.topics: {expression:?} is not a topic expression: {e}")
+            })?;
+            if !shoal_dds::ALL_TOPICS
+                .iter()
+                .any(|(topic, _)| pattern.matches(topic))
+            {
+                let known: Vec<&str> = shoal_dds::ALL_TOPICS.iter().map(|(t, _)| *t).collect();
+                return Err(format!(
+                    "security.governance.topics: {expression:?} matches no topic (topics: {})",
+                    known.join(", ")
+                ));
+            }
+        }
         if !(1..=3600).contains(&self.crl_check_s) {
             return Err(format!(
                 "security.crl_check_s = {} is outside [1, 3600]",
@@ -729,6 +746,18 @@ mod tests {
             .expect_err("a number for a protection")
             .to_string();
         assert!(err.contains("security.governance"), "{err}");
+        // A topic expression must match a Shoal topic; a pattern may match several.
+        let err = file("[security.governance]\ntopics = { \"shoal/state\" = \"sign\" }\n")
+            .expect_err("no such topic")
+            .to_string();
+        assert!(
+            err.contains("\"shoal/state\" matches no topic") && err.contains("shoal/state_vector"),
+            "{err}"
+        );
+        let ok = file(
+            "[security.governance]\ntopics = { \"shoal/task_*\" = \"sign\", \"shoal/event\" = \"none\" }\n",
+        );
+        assert!(ok.is_ok(), "{ok:?}");
     }
 
     /// Every table and array of tables in `table`, as dotted paths.

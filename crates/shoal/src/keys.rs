@@ -71,6 +71,10 @@ enum KeysCommand {
     /// Renew the station's certificates, its DDS Security identity included (the old ones
     /// are revoked as superseded); restart the station afterwards.
     RenewStation,
+    /// Sign the governance again from [security.governance] (which topics are encrypted,
+    /// signed or open) and copy it into every enclave; export each vehicle's bundle again
+    /// and restart every participant: all must hold the same governance.
+    Governance,
 }
 
 /// RFC 5280 revocation reasons.
@@ -226,6 +230,18 @@ pub fn run(args: KeysArgs, cfg: &SecurityConfig) -> Result<()> {
                 dest.display()
             );
         }
+        KeysCommand::Governance => {
+            let dds = open_dds()?;
+            dds.sign_governance()
+                .context("cannot sign the governance document")?;
+            let n = dds
+                .refresh_enclaves()
+                .context("cannot copy the governance into the enclaves")?;
+            println!(
+                "governance signed ({}) and copied into {n} enclaves; export every vehicle's bundle again (shoal keys export) and restart the station and every vehicle",
+                cfg.governance
+            );
+        }
         KeysCommand::RenewStation => {
             let mut store = open()?;
             let dds = open_dds()?;
@@ -258,7 +274,8 @@ pub fn dds_dir(store: &Path) -> PathBuf {
     store.join("dds")
 }
 
-fn keystore_options(cfg: &SecurityConfig) -> KeystoreOptions {
+/// The DDS keystore's options from `[security]`: the governance it signs.
+pub(crate) fn keystore_options(cfg: &SecurityConfig) -> KeystoreOptions {
     KeystoreOptions {
         governance: cfg.governance.clone(),
         ..KeystoreOptions::default()

@@ -61,6 +61,26 @@ impl Protection {
             Self::None => "NONE",
         }
     }
+
+    /// The name used in `[security.governance]`: `encrypt`, `sign` or `none`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Encrypt => "encrypt",
+            Self::Sign => "sign",
+            Self::None => "none",
+        }
+    }
+}
+
+impl std::fmt::Display for GovernanceOptions {
+    /// One line: the default protection, then each topic's own.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} by default", self.default.as_str())?;
+        for (topic, p) in &self.topics {
+            write!(f, ", {topic} {}", p.as_str())?;
+        }
+        Ok(())
+    }
 }
 
 /// Per-topic protection in the governance document.

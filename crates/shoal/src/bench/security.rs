@@ -13,7 +13,7 @@ use anyhow::{Context, Result};
 use futures::StreamExt;
 use shoal_dds::{Credentials, DdsConfig, Priority, PubSub, WriterOptions};
 use shoal_model::StateVector;
-use shoal_security::dds::{DdsKeystore, Grant, KeystoreOptions};
+use shoal_security::dds::{DdsKeystore, Grant};
 
 use super::bus::{RoundTrip, round_trip};
 use super::helpers::{date, helper, machine, sample};
@@ -39,7 +39,7 @@ pub(super) fn participant(
     let Some(dir) = keystore else {
         return Ok(Arc::new(PubSub::new(&c).context("cannot join DDS")?));
     };
-    let ks = DdsKeystore::open(dir, KeystoreOptions::default())?;
+    let ks = DdsKeystore::open(dir, crate::keys::keystore_options(&cfg.security))?;
     let enclave = ks.issue_if_missing(grant, now_s())?;
     let credentials = match grant.vehicle_id() {
         Some(id) => Credentials::vehicle(enclave, id),
@@ -143,7 +143,9 @@ pub(super) async fn security(
 ) -> Result<()> {
     let tmp = std::env::temp_dir().join(format!("shoal-bench-security-{}", std::process::id()));
     let dir = tmp.join("dds");
-    DdsKeystore::create(&dir, KeystoreOptions::default(), now_s())?;
+    // The governance configured in [security.governance], so what is measured is what
+    // would be deployed (e.g. telemetry only signed).
+    DdsKeystore::create(&dir, crate::keys::keystore_options(&cfg.security), now_s())?;
     let result = compare(cfg, domain, seconds, participants, &tmp).await;
     let _ = std::fs::remove_dir_all(&tmp);
     result
@@ -167,13 +169,20 @@ async fn compare(
     };
     eprintln!("security: {seconds} s of round trips, insecure...");
     let plain: RoundTrip = round_trip(cfg, domain, seconds, None).await?;
-    eprintln!("security: {seconds} s of round trips, secured (AES-GCM, every topic)...");
+    eprintln!(
+        "security: {seconds} s of round trips, secured ({})...",
+        cfg.security.governance
+    );
     let secure: RoundTrip = round_trip(cfg, domain + 1, seconds, Some(dir)).await?;
     // Participants with identities from another CA keep trying to authenticate on the
     // same domain: the secured round trip must go on, unstarved.
     let rogue_store = store.join("rogue");
     let rogue = crate::keys::dds_dir(&rogue_store);
-    DdsKeystore::create(&rogue, KeystoreOptions::default(), now_s())?;
+    DdsKeystore::create(
+        &rogue,
+        crate::keys::keystore_options(&cfg.security),
+        now_s(),
+    )?;
     let rogues = 50;
     eprintln!(
         "security: {seconds} s of secured round trips while {rogues} participants from another CA try to join..."
@@ -206,6 +215,7 @@ async fn compare(
     let secure_ingest = ingest_figures(&secure_cfg, domain + 5, vehicles, rate, load_s).await?;
 
     println!("# shoal bench security — {} — {}", machine(), date());
+    println!("# governance: {}", cfg.security.governance);
     println!(
         "{:<44} {:>14} {:>14} {:>8}  target",
         "figure", "insecure", "secure", "ratio"

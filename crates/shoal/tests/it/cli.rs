@@ -229,6 +229,45 @@ fn keys_swarm_and_up_refuse_bad_input_with_one_line() {
         "--sim-vehicles",
     );
 
+    // `shoal keys governance` signs the configured governance again and copies it into
+    // every enclave (here: every topic only signed, state vectors left in the clear).
+    let out = shoal()
+        .args(["keys", "governance"])
+        .current_dir(dir.path())
+        .env("SHOAL_SECURITY__GOVERNANCE__DEFAULT", "sign")
+        .env(
+            "SHOAL_SECURITY__GOVERNANCE__TOPICS",
+            "{ \"shoal/state_vector\" = \"none\" }",
+        )
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{said}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        said.contains("sign by default, shoal/state_vector none"),
+        "{said}"
+    );
+    let keys = dir.path().join("shoal-data/keys/dds");
+    let signed = std::fs::read(keys.join("enclaves/governance.p7s")).unwrap();
+    for enclave in ["enclaves/shoal/station", "enclaves/shoal/vehicle/auv-1"] {
+        assert_eq!(
+            std::fs::read(keys.join(enclave).join("governance.p7s")).unwrap(),
+            signed,
+            "{enclave} holds another governance"
+        );
+    }
+    let text = std::fs::read_to_string(keys.join("enclaves/governance.xml")).unwrap();
+    assert!(
+        text.contains("<data_protection_kind>SIGN</data_protection_kind>")
+            && text.contains("<data_protection_kind>NONE</data_protection_kind>")
+            && !text.contains("ENCRYPT"),
+        "{text}"
+    );
+
     // A station whose credentials do not fit stops at once; `up` says so without waiting
     // out its 30 s for the API, and the station's own line names the file and the fix.
     let enclaves = dir.path().join("shoal-data/keys/dds/enclaves/shoal");
