@@ -72,6 +72,17 @@ impl Protection {
     }
 }
 
+impl GovernanceOptions {
+    /// The protection the governance gives `topic`: the first listed expression that
+    /// matches it (the order the document lists them in), else the default.
+    pub fn protection_of(&self, topic: &str) -> Protection {
+        self.topics
+            .iter()
+            .find(|(expression, _)| glob::Pattern::new(expression).is_ok_and(|p| p.matches(topic)))
+            .map_or(self.default, |(_, p)| *p)
+    }
+}
+
 impl std::fmt::Display for GovernanceOptions {
     /// One line: the default protection, then each topic's own.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -290,6 +301,8 @@ mod tests {
         let all = doc.find("<topic_expression>*</topic_expression>").unwrap();
         assert!(env < all);
         assert!(doc.contains("<data_protection_kind>SIGN</data_protection_kind>"));
+        assert_eq!(o.protection_of("shoal/environment"), Protection::Sign);
+        assert_eq!(o.protection_of("shoal/event"), Protection::Encrypt);
         assert!(doc.contains("<allow_unauthenticated_participants>false"));
     }
 

@@ -15,8 +15,8 @@ use tokio::io::AsyncBufReadExt;
 use super::helpers::{THROUGHPUT, date, dds, helper, machine, percentile, sample, seq_of};
 use crate::config::ShoalConfig;
 
-const PING: &str = "shoal/bench/ping";
-const PONG: &str = "shoal/bench/pong";
+pub(super) const PING: &str = "shoal/bench/ping";
+pub(super) const PONG: &str = "shoal/bench/pong";
 
 pub(super) struct RoundTrip {
     pub(super) p50_us: f64,

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use futures::StreamExt;
-use shoal_dds::{Credentials, DdsConfig, Priority, PubSub, WriterOptions};
+use shoal_dds::{Credentials, DdsConfig, Priority, PubSub, TopicType, WriterOptions};
 use shoal_model::StateVector;
 use shoal_security::dds::{DdsKeystore, Grant};
 
@@ -144,8 +144,14 @@ pub(super) async fn security(
     let tmp = std::env::temp_dir().join(format!("shoal-bench-security-{}", std::process::id()));
     let dir = tmp.join("dds");
     // The governance configured in [security.governance], so what is measured is what
-    // would be deployed (e.g. telemetry only signed).
-    DdsKeystore::create(&dir, crate::keys::keystore_options(&cfg.security), now_s())?;
+    // would be deployed (e.g. telemetry only signed); the round trip's own topics get
+    // the protection state vectors have.
+    let mut options = crate::keys::keystore_options(&cfg.security);
+    let state = options.governance.protection_of(StateVector::TOPIC);
+    for topic in [super::bus::PING, super::bus::PONG] {
+        options.governance.topics.insert(topic.to_string(), state);
+    }
+    DdsKeystore::create(&dir, options, now_s())?;
     let result = compare(cfg, domain, seconds, participants, &tmp).await;
     let _ = std::fs::remove_dir_all(&tmp);
     result
