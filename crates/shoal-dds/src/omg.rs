@@ -160,7 +160,11 @@ fn handshake_reason(message: &str) -> &'static str {
         "revoked"
     } else if m.contains("permission") || m.contains("governance") {
         "permissions"
-    } else if m.contains("verif") || m.contains("issuer") || m.contains("trust") {
+    } else if m.contains("verif")
+        || m.contains("issuer")
+        || m.contains("trust")
+        || m.contains("signature failure")
+    {
         "untrusted"
     } else {
         "other"
@@ -205,13 +209,17 @@ mod tests {
         note_handshake(
             "Process handshake failed: certificate verify failed: unable to get local issuer certificate",
         );
+        // What Cyclone says when a participant from another CA answers the station.
+        note_handshake(
+            "Begin handshake reply failed: Certificate not valid: error: certificate signature failure; subject: /CN=x",
+        );
         note_handshake("Remote secure participant 1:2:3:1c1 not allowed");
         let after = handshake_refusals();
         assert_eq!(count(&after, "expired"), count(&before, "expired") + 1);
-        assert_eq!(count(&after, "untrusted"), count(&before, "untrusted") + 1);
+        assert_eq!(count(&after, "untrusted"), count(&before, "untrusted") + 2);
         assert_eq!(
             after.values().sum::<u64>(),
-            before.values().sum::<u64>() + 2
+            before.values().sum::<u64>() + 3
         );
     }
 
