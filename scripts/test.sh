@@ -13,11 +13,29 @@
 #      (Playwright) against `shoal up`, then checks the HTTP API against its OpenAPI
 #      document with schemathesis, inside the namespace,
 #   5. runs each cargo-fuzz target for a short smoke run.
-# Environment: SHOAL_SKIP_FUZZ=1 skips step 5; SHOAL_NETNS names the namespace.
+# Environment: SHOAL_SKIP_FUZZ=1 skips step 5; SHOAL_NETNS names the namespace;
+# SHOAL_TEST_DISK_GB is the free disk the build needs (checked first, default 12).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 NS="${SHOAL_NETNS:-shoal-test}"
 step() { printf '\n==> %s\n' "$*"; }
+
+# A one-off run gains nothing from incremental compilation, which doubles the workspace
+# crates' share of target/; set CARGO_INCREMENTAL=1 to keep it between runs.
+export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
+
+# Stop at once, not at the first linker error twenty minutes in, when the disk is too
+# small for the build (debug and release binaries, clippy, the fuzz targets).
+need_gb="${SHOAL_TEST_DISK_GB:-12}"
+target_dir="${CARGO_TARGET_DIR:-$PWD/target}"
+mkdir -p "$target_dir"
+free_gb=$(( $(df --output=avail -k "$target_dir" | tail -1) / 1024 / 1024 ))
+have_gb=$(( free_gb + $(du -sk "$target_dir" | cut -f1) / 1024 / 1024 ))
+if (( have_gb < need_gb )); then
+    echo "error: the test command needs about ${need_gb} GB for $target_dir;" \
+         "${free_gb} GB are free (set SHOAL_TEST_DISK_GB to change the check)" >&2
+    exit 1
+fi
 
 step "installing test dependencies"
 scripts/install-test-deps.sh
