@@ -9,7 +9,8 @@
 #     secure interop test)
 #   - $REPO/.venv with PyPI cyclonedds and rticonnextdds-connector (DDS peers),
 #     rdflib (independent SPARQL engine for the semantic cross-check and SPARQL protocol
-#     client) and schemathesis (OpenAPI conformance, scripts/api-conformance.sh)
+#     client), schemathesis (OpenAPI conformance, scripts/api-conformance.sh), mcap (the
+#     reference MCAP reader for recordings) and pyais (an independent AIS encoder)
 #   - the Fast DDS C++ peer and the Cyclone DDS C peer, built into tests/interop/build/
 #     (gitignored; the C peer's type support is generated there by idlc)
 #   - pymavlink and imcpy in the venv, the vehicle proxies' test peers
@@ -18,8 +19,8 @@
 # Run as root, non-interactively (CI=true, no stdin is fine).
 #
 # Environment overrides: PYTHON (interpreter for the venv, default python3),
-# SHOAL_PIP_CYCLONEDDS / SHOAL_PIP_RTI / SHOAL_PIP_RDFLIB / SHOAL_PIP_SCHEMATHESIS (pip
-# requirement specs).
+# SHOAL_PIP_CYCLONEDDS / SHOAL_PIP_RTI / SHOAL_PIP_RDFLIB / SHOAL_PIP_SCHEMATHESIS /
+# SHOAL_PIP_MCAP / SHOAL_PIP_PYAIS (pip requirement specs).
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -29,6 +30,8 @@ PIP_CYCLONEDDS="${SHOAL_PIP_CYCLONEDDS:-cyclonedds==11.0.1}"
 PIP_RTI="${SHOAL_PIP_RTI:-rticonnextdds-connector==1.2.4}"
 PIP_RDFLIB="${SHOAL_PIP_RDFLIB:-rdflib==7.6.0}"
 PIP_SCHEMATHESIS="${SHOAL_PIP_SCHEMATHESIS:-schemathesis==4.32.5}"
+PIP_MCAP="${SHOAL_PIP_MCAP:-mcap==1.6.0}"
+PIP_PYAIS="${SHOAL_PIP_PYAIS:-pyais==3.3.1}"
 export DEBIAN_FRONTEND=noninteractive
 
 say() { echo "install-test-deps: $*"; }
@@ -46,19 +49,19 @@ fi
 # ---------------------------------------------------------------- venv
 venv_ok() {
     [[ -x "$VENV/bin/python" ]] &&
-        "$VENV/bin/python" -c 'import cyclonedds.domain, rticonnextdds_connector, rdflib, schemathesis' 2>/dev/null
+        "$VENV/bin/python" -c 'import cyclonedds.domain, rticonnextdds_connector, rdflib, schemathesis, mcap, pyais' 2>/dev/null
 }
 if venv_ok; then
-    say "venv $VENV ready (cyclonedds, rticonnextdds-connector, rdflib, schemathesis importable)"
+    say "venv $VENV ready (cyclonedds, rticonnextdds-connector, rdflib, schemathesis, mcap, pyais importable)"
 else
     if [[ ! -x "$VENV/bin/python" ]]; then
         say "creating venv $VENV with $(command -v "$PYTHON")"
         "$PYTHON" -m venv "$VENV"
     fi
-    say "pip install $PIP_CYCLONEDDS $PIP_RTI $PIP_RDFLIB $PIP_SCHEMATHESIS"
+    say "pip install $PIP_CYCLONEDDS $PIP_RTI $PIP_RDFLIB $PIP_SCHEMATHESIS $PIP_MCAP $PIP_PYAIS"
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check "$PIP_CYCLONEDDS" "$PIP_RTI" \
-        "$PIP_RDFLIB" "$PIP_SCHEMATHESIS"
-    venv_ok || { say "venv still cannot import cyclonedds / rticonnextdds_connector / rdflib / schemathesis" >&2; exit 1; }
+        "$PIP_RDFLIB" "$PIP_SCHEMATHESIS" "$PIP_MCAP" "$PIP_PYAIS"
+    venv_ok || { say "venv still cannot import cyclonedds / rticonnextdds_connector / rdflib / schemathesis / mcap / pyais" >&2; exit 1; }
 fi
 
 # ---------------------------------------------------------------- Fast DDS peer
