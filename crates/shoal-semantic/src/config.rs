@@ -50,6 +50,11 @@ pub struct StoreConfig {
     /// while the model is locked, so a rule over budget is cancelled, disabled, and an
     /// event says so; ingest goes on.
     pub rule_budget_ms: u64,
+    /// Built-in collision-risk rule: a surface vehicle's closest point of approach to an
+    /// AIS target under this many metres raises an alarm (default 500).
+    pub collision_cpa_m: f64,
+    /// ... when that closest approach is at most this many seconds ahead (default 600).
+    pub collision_tcpa_s: f64,
 }
 
 impl Default for StoreConfig {
@@ -63,6 +68,8 @@ impl Default for StoreConfig {
             task_deadline_ms: 3_600_000,
             operating_area: Vec::new(),
             rule_budget_ms: 50,
+            collision_cpa_m: 500.0,
+            collision_tcpa_s: 600.0,
         }
     }
 }
@@ -168,6 +175,20 @@ impl StoreConfig {
                 "low_battery_pct",
                 "within [0, 100]",
                 &self.low_battery_pct,
+            ));
+        }
+        if !(self.collision_cpa_m.is_finite() && self.collision_cpa_m > 0.0) {
+            return Err(out_of_range(
+                "collision_cpa_m",
+                "finite and > 0",
+                &self.collision_cpa_m,
+            ));
+        }
+        if !(self.collision_tcpa_s.is_finite() && self.collision_tcpa_s > 0.0) {
+            return Err(out_of_range(
+                "collision_tcpa_s",
+                "finite and > 0",
+                &self.collision_tcpa_s,
             ));
         }
         let n = self.operating_area.len();

@@ -60,7 +60,7 @@ pub use rules::{
 pub use shoal_model::Availability;
 /// A row of [`QueryResult::Solutions`].
 pub use sparesults::QuerySolution;
-pub use store::{ExportFormat, ExportOptions, SemanticStore, StoreStats};
+pub use store::{Encounter, ExportFormat, ExportOptions, SemanticStore, StoreStats, TrafficTarget};
 
 /// The five standard queries (name, SPARQL), from `ontology/queries/`; the cross-check
 /// runs the same files with rdflib.

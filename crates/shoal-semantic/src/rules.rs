@@ -592,6 +592,8 @@ pub mod builtin {
     pub const OUT_OF_AREA: &str = "builtin.out_of_area";
     /// Task still active after its deadline.
     pub const TASK_OVERDUE: &str = "builtin.task_overdue";
+    /// A surface vehicle's closest approach to an AIS target under the configured distance.
+    pub const COLLISION_RISK: &str = "builtin.collision_risk";
 }
 
 #[cfg(test)]

@@ -211,6 +211,9 @@ fn text(s: &str) -> Literal {
     Literal::new_simple_literal(s)
 }
 
+mod traffic;
+pub use traffic::{Encounter, TrafficTarget};
+
 /// Export options: which graphs, which format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ExportOptions {
@@ -251,6 +254,8 @@ pub struct SemanticStore {
     tasks: HashMap<String, TaskEntry>,
     events: VecDeque<String>,
     observations: HashSet<(String, String)>,
+    /// AIS targets and vehicles' encounters with them (bounded by the traffic picture).
+    traffic: traffic::TrafficEntries,
     pub(crate) rules: Rules,
     /// How many entities assert (per layer) each stored triple.
     counts: HashMap<Triple, [u32; 3]>,
@@ -295,6 +300,7 @@ impl SemanticStore {
             tasks: HashMap::new(),
             events: VecDeque::new(),
             observations: HashSet::new(),
+            traffic: traffic::TrafficEntries::default(),
             rules: Rules::default(),
             counts: HashMap::new(),
             contributions: HashMap::new(),
@@ -337,6 +343,7 @@ impl SemanticStore {
                 condition: Condition::TaskOverdue { grace_ms: 0 },
             },
         ];
+        specs.push(traffic::collision_rule(&self.config));
         if !self.config.operating_area.is_empty() {
             specs.push(RuleSpec {
                 id: builtin::OUT_OF_AREA.into(),
@@ -2003,16 +2010,19 @@ mod tests {
             &s,
             "SELECT ?r WHERE { ?r a shoal:SparqlRule ; shoal:enabled true }",
         );
-        assert_eq!(ids, ["gliders-low"]);
-        // Two built-in rules (low battery, task overdue; out of area needs an area) and
-        // the two created here.
-        assert_eq!(s.rules().len(), 4);
+        assert_eq!(ids, ["builtin.collision_risk", "gliders-low"]);
+        // Three built-in rules (low battery, task overdue, collision risk; out of area
+        // needs an area) and the two created here.
+        assert_eq!(s.rules().len(), 5);
         s.delete_rule("gliders-low").unwrap();
         assert_eq!(
             s.delete_rule("gliders-low"),
             Err(RuleError::NotFound("gliders-low".into()))
         );
-        assert!(select_ids(&s, "SELECT ?r WHERE { ?r a shoal:SparqlRule }").is_empty());
+        assert_eq!(
+            select_ids(&s, "SELECT ?r WHERE { ?r a shoal:SparqlRule }"),
+            ["builtin.collision_risk"]
+        );
     }
 
     /// Contact is the Vehicle Register's: the store has no lost-contact rule of its own,

@@ -107,6 +107,10 @@ pub(crate) enum EntityKind {
     Observation,
     /// A rule.
     Rule,
+    /// A vessel known from AIS.
+    TrafficTarget,
+    /// A surface vehicle's encounter with an AIS target (closest point of approach).
+    Encounter,
 }
 
 /// IRI of a vehicle.
@@ -132,6 +136,16 @@ pub fn event_iri(event_id: &str) -> NamedNode {
 /// IRI of the latest observation of `property` by `vehicle_id`.
 pub fn observation_iri(vehicle_id: &str, property: &str) -> NamedNode {
     iri(format!("{ID}observation/{vehicle_id}/{property}"))
+}
+
+/// IRI of a vessel known from AIS, by its MMSI.
+pub fn traffic_iri(mmsi: u32) -> NamedNode {
+    iri(format!("{ID}traffic/{mmsi}"))
+}
+
+/// IRI of a vehicle's encounter with an AIS target.
+pub fn encounter_iri(vehicle_id: &str, mmsi: u32) -> NamedNode {
+    iri(format!("{ID}encounter/{vehicle_id}/{mmsi}"))
 }
 
 /// IRI of a rule.
