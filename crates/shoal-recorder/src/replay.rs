@@ -1,0 +1,428 @@
+//! Replay: recorded samples published again on DDS at the recorded pace.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Duration;
+
+use shoal_dds::{CdrError, PubSub, TopicType, Writer, WriterOptions};
+use shoal_model::ValidationError;
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+use tracing::{debug, info, warn};
+
+use crate::error::{ReadError, ReplayError};
+use crate::reader::{McapMessages, RecordedMessage, mcap_files};
+use crate::topic::{Sample, Topic};
+
+/// How fast a recording is replayed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Speed {
+    /// This many times the recorded pace, 1 to 100.
+    Factor(f64),
+    /// No waiting between messages (tests, bulk loading).
+    AsFastAsPossible,
+}
+
+impl Speed {
+    /// The speed `factor` times the recorded pace, if it lies in 1..=100.
+    pub fn factor(factor: f64) -> Option<Self> {
+        (1.0..=100.0)
+            .contains(&factor)
+            .then_some(Self::Factor(factor))
+    }
+}
+
+/// How a replay runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReplayOptions {
+    /// Pace.
+    pub speed: Speed,
+    /// Publish recorded task assignments too. Off by default: a replayed assignment
+    /// commands whichever live vehicle has that id.
+    pub include_tasks: bool,
+    /// How long a new writer waits for a first matched reader before the replay goes on
+    /// (samples written before any reader matched are lost); the replay clock pauses.
+    pub match_timeout: Duration,
+}
+
+impl Default for ReplayOptions {
+    fn default() -> Self {
+        Self {
+            speed: Speed::Factor(1.0),
+            include_tasks: false,
+            match_timeout: Duration::from_secs(5),
+        }
+    }
+}
+
+/// What a replay has done so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReplayStats {
+    /// Files opened.
+    pub files: u64,
+    /// Files that could not be read to their end (what came before the damage was
+    /// replayed).
+    pub damaged_files: u64,
+    /// Messages of Shoal channels read.
+    pub read: u64,
+    /// Samples published.
+    pub published: u64,
+    /// Messages of channels that are not Shoal channels, skipped.
+    pub unknown: u64,
+    /// Messages whose payload does not decode as their topic's type, skipped.
+    pub undecodable: u64,
+    /// Samples that fail validation, skipped.
+    pub invalid: u64,
+    /// Task assignments not published (see [`ReplayOptions::include_tasks`]).
+    pub tasks_skipped: u64,
+    /// Samples DDS refused to send.
+    pub write_failed: u64,
+}
+
+/// Why a recorded message cannot be replayed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SampleError {
+    /// The payload is not CDR of the topic's type.
+    #[error("cannot decode: {0}")]
+    Cdr(#[from] CdrError),
+    /// The sample decodes but is not valid.
+    #[error("invalid: {0}")]
+    Invalid(#[from] ValidationError),
+}
+
+/// Decodes a recorded message into its typed sample and validates it: what replay does
+/// with each message before publishing it.
+pub fn decode_message(message: &RecordedMessage) -> Result<Sample, SampleError> {
+    let sample = Sample::decode(message.topic, &message.data)?;
+    sample.validate()?;
+    Ok(sample)
+}
+
+/// Opens the participant of one vehicle (with its credentials) for a replay.
+type OpenVehicle =
+    Box<dyn FnMut(&str) -> Result<PubSub, Box<dyn std::error::Error + Send + Sync>> + Send>;
+
+/// The DDS participants a replay publishes through.
+///
+/// On a secure domain each vehicle may publish only in its own partition and the station's
+/// identity cannot speak for vehicles, so a replay publishes each vehicle's samples
+/// through a participant holding that vehicle's credentials, and the station's own
+/// samples (task assignments, events that name no vehicle) through the station's.
+pub struct Publishers {
+    station: Arc<PubSub>,
+    open_vehicle: Option<OpenVehicle>,
+    vehicles: HashMap<String, Arc<PubSub>>,
+}
+
+impl std::fmt::Debug for Publishers {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Publishers")
+            .field("per_vehicle", &self.open_vehicle.is_some())
+            .field("vehicles", &self.vehicles.keys().collect::<Vec<_>>())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Publishers {
+    /// Everything through one participant: only on a domain without DDS Security; a
+    /// participant with credentials is refused ([`ReplayError::SecureShared`]).
+    pub fn insecure(pubsub: Arc<PubSub>) -> Result<Self, ReplayError> {
+        if pubsub.credentials().is_some() {
+            return Err(ReplayError::SecureShared);
+        }
+        Ok(Self {
+            station: pubsub,
+            open_vehicle: None,
+            vehicles: HashMap::new(),
+        })
+    }
+
+    /// The station's samples through `station`, each vehicle's through the participant
+    /// `open_vehicle` makes for it (opened on the vehicle's first sample, then kept).
+    pub fn per_vehicle<F, E>(station: Arc<PubSub>, mut open_vehicle: F) -> Self
+    where
+        F: FnMut(&str) -> Result<PubSub, E> + Send + 'static,
+        E: Into<Box<dyn std::error::Error + Send + Sync>>,
+    {
+        Self {
+            station,
+            open_vehicle: Some(Box::new(move |id| open_vehicle(id).map_err(Into::into))),
+            vehicles: HashMap::new(),
+        }
+    }
+
+    /// The participant for a sample of `vehicle` (`None`: the station's), and its name
+    /// for the writer table.
+    fn for_vehicle(&mut self, vehicle: Option<&str>) -> Result<(&str, Arc<PubSub>), ReplayError> {
+        let (Some(id), Some(open)) = (vehicle, self.open_vehicle.as_mut()) else {
+            return Ok(("", Arc::clone(&self.station)));
+        };
+        if !self.vehicles.contains_key(id) {
+            let pubsub = open(id).map_err(|source| ReplayError::Vehicle {
+                vehicle: id.to_string(),
+                source,
+            })?;
+            info!(vehicle = id, "replaying as this vehicle");
+            self.vehicles.insert(id.to_string(), Arc::new(pubsub));
+        }
+        match self.vehicles.get_key_value(id) {
+            Some((k, p)) => Ok((k.as_str(), Arc::clone(p))),
+            None => Ok(("", Arc::clone(&self.station))),
+        }
+    }
+}
+
+/// A writer of any Shoal topic.
+enum AnyWriter {
+    StateVector(Writer<shoal_model::StateVector>),
+    VehicleAnnouncement(Writer<shoal_model::VehicleAnnouncement>),
+    TaskAssignment(Writer<shoal_model::TaskAssignment>),
+    TaskStatus(Writer<shoal_model::TaskStatus>),
+    Event(Writer<shoal_model::Event>),
+    Environment(Writer<shoal_model::EnvironmentObservation>),
+}
+
+fn writer<T: TopicType>(pubsub: &PubSub) -> Result<Writer<T>, ReplayError> {
+    pubsub
+        .writer::<T>(WriterOptions::new(T::DEFAULT_PRIORITY))
+        .map_err(|source| ReplayError::Dds {
+            what: T::TOPIC.to_string(),
+            source,
+        })
+}
+
+impl AnyWriter {
+    fn new(topic: Topic, pubsub: &PubSub) -> Result<Self, ReplayError> {
+        Ok(match topic {
+            Topic::StateVector => Self::StateVector(writer(pubsub)?),
+            Topic::VehicleAnnouncement => Self::VehicleAnnouncement(writer(pubsub)?),
+            Topic::TaskAssignment => Self::TaskAssignment(writer(pubsub)?),
+            Topic::TaskStatus => Self::TaskStatus(writer(pubsub)?),
+            Topic::Event => Self::Event(writer(pubsub)?),
+            Topic::Environment => Self::Environment(writer(pubsub)?),
+        })
+    }
+
+    fn matched_readers(&self) -> i32 {
+        match self {
+            Self::StateVector(w) => w.matched_readers(),
+            Self::VehicleAnnouncement(w) => w.matched_readers(),
+            Self::TaskAssignment(w) => w.matched_readers(),
+            Self::TaskStatus(w) => w.matched_readers(),
+            Self::Event(w) => w.matched_readers(),
+            Self::Environment(w) => w.matched_readers(),
+        }
+    }
+
+    /// Publishes `sample` (of this writer's topic); the error says why not.
+    async fn write(&self, sample: Sample) -> Result<(), String> {
+        let e = |e: &dyn std::fmt::Display| e.to_string();
+        match (self, sample) {
+            (Self::StateVector(w), Sample::StateVector(s)) => w.write(s).await.map_err(|x| e(&x)),
+            (Self::VehicleAnnouncement(w), Sample::VehicleAnnouncement(s)) => {
+                w.write(s).await.map_err(|x| e(&x))
+            }
+            (Self::TaskAssignment(w), Sample::TaskAssignment(s)) => {
+                w.write(s).await.map_err(|x| e(&x))
+            }
+            (Self::TaskStatus(w), Sample::TaskStatus(s)) => w.write(s).await.map_err(|x| e(&x)),
+            (Self::Event(w), Sample::Event(s)) => w.write(s).await.map_err(|x| e(&x)),
+            (Self::Environment(w), Sample::Environment(s)) => w.write(s).await.map_err(|x| e(&x)),
+            _ => Err("sample of another topic than its writer's".into()),
+        }
+    }
+}
+
+/// Publishes recordings on DDS.
+pub struct Replayer {
+    publishers: Publishers,
+    options: ReplayOptions,
+    writers: HashMap<(String, Topic), AnyWriter>,
+    stats: ReplayStats,
+    /// Recorded time and the instant it is replayed at, of the replay's first message.
+    clock: Option<(u64, Instant)>,
+    progress: Option<Progress>,
+}
+
+/// A caller's progress report and how often it wants it.
+struct Progress {
+    every: Duration,
+    last: Instant,
+    report: Box<dyn FnMut(&ReplayStats) + Send>,
+}
+
+impl std::fmt::Debug for Replayer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Replayer")
+            .field("options", &self.options)
+            .field("stats", &self.stats)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Replayer {
+    /// A replayer publishing through `publishers`.
+    pub fn new(publishers: Publishers, options: ReplayOptions) -> Self {
+        Self {
+            publishers,
+            options,
+            writers: HashMap::new(),
+            stats: ReplayStats::default(),
+            clock: None,
+            progress: None,
+        }
+    }
+
+    /// Calls `report` with the counters at most every `every` while replaying.
+    pub fn on_progress(
+        &mut self,
+        every: Duration,
+        report: impl FnMut(&ReplayStats) + Send + 'static,
+    ) {
+        self.progress = Some(Progress {
+            every,
+            last: Instant::now(),
+            report: Box::new(report),
+        });
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> ReplayStats {
+        self.stats
+    }
+
+    /// Replays a file, or a directory's files in recording order, with the recorded pace
+    /// kept across files. A damaged file is replayed up to the damage and its error
+    /// returned in the list; the next file follows. Errors that stop the replay (no files,
+    /// no participant for a vehicle) are `Err`.
+    pub async fn replay_path(
+        &mut self,
+        path: &Path,
+        cancel: &CancellationToken,
+    ) -> Result<Vec<ReplayError>, ReplayError> {
+        let mut damaged = Vec::new();
+        self.clock = None;
+        for file in mcap_files(path)? {
+            if cancel.is_cancelled() {
+                break;
+            }
+            let f = std::fs::File::open(&file).map_err(|source| ReplayError::Open {
+                path: file.clone(),
+                source,
+            })?;
+            self.stats.files += 1;
+            info!(file = %file.display(), "replaying");
+            let mut messages = McapMessages::new(std::io::BufReader::new(f));
+            let stopped = self.replay_messages(&mut messages, cancel).await?;
+            self.stats.unknown += messages.stats().unknown_messages;
+            if let Some(source) = stopped {
+                self.stats.damaged_files += 1;
+                warn!(file = %file.display(), error = %source, "file not read to its end");
+                damaged.push(ReplayError::Read { path: file, source });
+            }
+        }
+        Ok(damaged)
+    }
+
+    /// Replays messages until they end, the replay is cancelled, or reading stops with an
+    /// error, which is returned (after everything before it was published).
+    pub async fn replay_messages<I>(
+        &mut self,
+        messages: I,
+        cancel: &CancellationToken,
+    ) -> Result<Option<ReadError>, ReplayError>
+    where
+        I: IntoIterator<Item = Result<RecordedMessage, ReadError>>,
+    {
+        for message in messages {
+            if cancel.is_cancelled() {
+                break;
+            }
+            let message = match message {
+                Ok(m) => m,
+                Err(e) => return Ok(Some(e)),
+            };
+            self.stats.read += 1;
+            if let Some(p) = self.progress.as_mut()
+                && p.last.elapsed() >= p.every
+            {
+                p.last = Instant::now();
+                (p.report)(&self.stats);
+            }
+            self.pace(message.log_time_ns, cancel).await;
+            let sample = match decode_message(&message) {
+                Ok(s) => s,
+                Err(SampleError::Cdr(e)) => {
+                    self.stats.undecodable += 1;
+                    debug!(topic = message.topic.name(), error = %e, "recorded sample skipped");
+                    continue;
+                }
+                Err(SampleError::Invalid(e)) => {
+                    self.stats.invalid += 1;
+                    debug!(topic = message.topic.name(), error = %e, "recorded sample skipped");
+                    continue;
+                }
+            };
+            if sample.topic() == Topic::TaskAssignment && !self.options.include_tasks {
+                self.stats.tasks_skipped += 1;
+                continue;
+            }
+            self.publish(sample).await?;
+        }
+        Ok(None)
+    }
+
+    /// Waits until the instant `log_time_ns` is due at, at the replay's speed.
+    async fn pace(&mut self, log_time_ns: u64, cancel: &CancellationToken) {
+        let Speed::Factor(factor) = self.options.speed else {
+            return;
+        };
+        let (start_ns, start) = *self.clock.get_or_insert((log_time_ns, Instant::now()));
+        // A message logged before the first (clocks stepped, files of two recorders) is
+        // due at once.
+        let offset_ns = log_time_ns.saturating_sub(start_ns) as f64 / factor;
+        let due = start + Duration::from_nanos(offset_ns as u64);
+        tokio::select! {
+            () = tokio::time::sleep_until(due) => {}
+            () = cancel.cancelled() => {}
+        }
+    }
+
+    async fn publish(&mut self, sample: Sample) -> Result<(), ReplayError> {
+        let topic = sample.topic();
+        let (who, pubsub) = self.publishers.for_vehicle(sample.publishing_vehicle())?;
+        let key = (who.to_string(), topic);
+        if !self.writers.contains_key(&key) {
+            let writer = AnyWriter::new(topic, &pubsub)?;
+            let waited = wait_for_reader(&writer, self.options.match_timeout).await;
+            // The clock pauses while a writer waits for its readers, so the pace of what
+            // follows is kept.
+            if let Some((_, start)) = self.clock.as_mut() {
+                *start += waited;
+            }
+            self.writers.insert(key.clone(), writer);
+        }
+        let Some(writer) = self.writers.get(&key) else {
+            return Ok(());
+        };
+        match writer.write(sample).await {
+            Ok(()) => self.stats.published += 1,
+            Err(e) => {
+                self.stats.write_failed += 1;
+                warn!(topic = topic.name(), error = %e, "replayed sample not sent");
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Waits until `writer` has a matched reader, for `timeout` at most; returns how long.
+async fn wait_for_reader(writer: &AnyWriter, timeout: Duration) -> Duration {
+    let start = Instant::now();
+    while writer.matched_readers() < 1 && start.elapsed() < timeout {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    start.elapsed()
+}
