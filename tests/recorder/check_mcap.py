@@ -12,7 +12,8 @@ Usage: check_mcap.py FILE [summary|stream]
 Output: {"profile", "library", "schemas": {id: {name, encoding, idl_has_module}},
 "channels": {topic: {schema, message_encoding}}, "counts": {topic: n},
 "statistics_count" (summary mode), "cdr_headers": [hex of the distinct first 4 bytes],
-"state_vectors": [[vehicle_id, timestamp_ms, latitude_deg], ...], "error": null | text}
+"state_vectors": [[vehicle_id, timestamp_ms, latitude_bits], ...] (the IEEE 754 bits of
+latitude_deg as an integer, so that no decimal rendering blurs them), "error": null | text}
 """
 
 import json
@@ -25,15 +26,15 @@ from mcap.stream_reader import StreamReader
 
 
 def state_vector(data: bytes):
-    """vehicle_id, timestamp_ms, latitude_deg of a CDR_LE StateVector (XCDR1, plain):
+    """vehicle_id, timestamp_ms, the bits of latitude_deg of a CDR_LE StateVector (XCDR1, plain):
     decoded here by hand from the IDL's layout, independently of Shoal's serde code."""
     body = data[4:]
     (n,) = struct.unpack_from("<I", body, 0)
     vehicle_id = body[4 : 4 + n - 1].decode()
     off = 4 + n
     off = (off + 7) & ~7  # int64 aligned to 8 from the start of the body
-    timestamp_ms, latitude = struct.unpack_from("<qd", body, off)
-    return [vehicle_id, timestamp_ms, latitude]
+    timestamp_ms, latitude_bits = struct.unpack_from("<qQ", body, off)
+    return [vehicle_id, timestamp_ms, latitude_bits]
 
 
 def main() -> int:

@@ -312,7 +312,7 @@ async fn every_topic_is_recorded_read_by_the_reference_reader_and_replayed() {
         let states: Vec<Value> = (0..50)
             .map(|i| {
                 let s = state(i);
-                serde_json::json!([s.vehicle_id, s.timestamp_ms, s.latitude_deg])
+                serde_json::json!([s.vehicle_id, s.timestamp_ms, s.latitude_deg.to_bits()])
             })
             .collect();
         assert_eq!(v["state_vectors"], Value::Array(states));
