@@ -7,7 +7,7 @@
 //! distance; it grows with range and near the poles, and courses are assumed straight and
 //! speeds constant (no rate of turn).
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashSet;
 
 use serde::Serialize;
 
@@ -159,6 +159,7 @@ impl CollisionMonitor {
     }
 
     /// Pairs currently raised.
+    #[cfg(test)]
     pub fn active(&self) -> usize {
         self.active.len()
     }
@@ -170,7 +171,7 @@ impl CollisionMonitor {
         targets: &[TargetMotion],
     ) -> CollisionUpdate {
         let mut update = CollisionUpdate::default();
-        let mut seen: HashMap<(String, u32), ()> = HashMap::new();
+        let mut seen: HashSet<(String, u32)> = HashSet::new();
         for v in vehicles {
             if !motion_ok(&v.motion) {
                 continue;
@@ -195,16 +196,16 @@ impl CollisionMonitor {
                         target: t.motion,
                     });
                     self.active.insert(key.clone());
-                    seen.insert(key, ());
+                    seen.insert(key);
                 } else if was && holds {
-                    seen.insert(key, ());
+                    seen.insert(key);
                 }
             }
         }
         let gone: Vec<(String, u32)> = self
             .active
             .iter()
-            .filter(|k| !seen.contains_key(*k))
+            .filter(|k| !seen.contains(*k))
             .cloned()
             .collect();
         for k in gone {

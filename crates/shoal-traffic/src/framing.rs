@@ -315,7 +315,9 @@ impl Reassembler {
         let Some(p) = self.pending.get_mut(&key) else {
             return Assembly::OutOfOrder;
         };
-        if p.count != f.count || p.next != f.number || now.duration_since(p.started) > self.timeout
+        if p.count != f.count
+            || p.next != f.number
+            || now.saturating_duration_since(p.started) > self.timeout
         {
             self.pending.remove(&key);
             return Assembly::OutOfOrder;
@@ -340,7 +342,7 @@ impl Reassembler {
         let timeout = self.timeout;
         let before = self.pending.len();
         self.pending
-            .retain(|_, p| now.duration_since(p.started) <= timeout);
+            .retain(|_, p| now.saturating_duration_since(p.started) <= timeout);
         self.dropped.missing += (before - self.pending.len()) as u64;
     }
 }

@@ -4,14 +4,14 @@
 //!   own ship and counters as state, [`CollisionUpdate`]s out. Time is passed in.
 //! - [`TrafficPicture::spawn`] runs the configured UDP and TCP inputs on tokio around one
 //!   shared `Picture` and returns a [`TrafficHandle`].
-//! - [`cpa`] is the pure closest-point-of-approach computation.
+//! - [`cpa()`] is the pure closest-point-of-approach computation.
 //!
 //! See docs/traffic.md for the configuration, the sentences read and the counters.
 
 #![forbid(unsafe_code)]
 
 mod config;
-pub mod cpa;
+mod cpa;
 mod decode;
 mod framing;
 mod picture;

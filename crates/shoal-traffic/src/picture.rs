@@ -128,6 +128,19 @@ pub struct OwnShipView {
     pub age_s: f64,
 }
 
+impl OwnShipView {
+    /// Its motion for collision checks (as an `OwnVehicle`), if position, course and speed
+    /// are all known.
+    pub fn motion(&self) -> Option<Motion> {
+        Some(Motion {
+            lat: self.lat?,
+            lon: self.lon?,
+            cog_deg: self.cog_deg?,
+            sog_kn: self.sog_kn?,
+        })
+    }
+}
+
 #[derive(Debug)]
 struct Target {
     view: TargetView,
@@ -744,6 +757,7 @@ mod tests {
             close(o.lat, 48.1173, 1e-4) && close(o.lon, 11.516_667, 1e-4),
             "{o:?}"
         );
+        assert_eq!(o.motion(), None, "no course and speed yet");
         let rmc = nmea(
             '$',
             "GPRMC,123520,A,4807.100,N,01131.100,E,022.4,084.4,230394,003.1,W",
@@ -755,6 +769,8 @@ mod tests {
             "{o:?}"
         );
         assert!(close(o.lat, 48.118_333, 1e-5));
+        let m = o.motion().unwrap();
+        assert!((m.sog_kn - 22.4).abs() < 1e-9 && (m.cog_deg - 84.4).abs() < 1e-9);
         let hdt = nmea('$', "HEHDT,271.5,T");
         assert!(p.ingest_line(hdt.as_bytes(), t));
         let hdt2 = nmea('$', "GPHDT,272.0,T");
