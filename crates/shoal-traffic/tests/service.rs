@@ -131,7 +131,7 @@ async fn ingest_line_and_config_errors() {
         ..TrafficConfig::default()
     };
     assert!(matches!(
-        TrafficPicture::spawn(busy, cancel.clone()),
+        TrafficPicture::spawn(busy, cancel),
         Err(TrafficError::Bind { .. })
     ));
 }
