@@ -103,12 +103,14 @@ pub struct BridgeConfig {
     pub enabled: bool,
     /// Most Foxglove clients connected at once; one more is refused (503). Default: 8.
     pub max_clients: usize,
-    /// Messages queued toward one client; a client that lets this many pile up is
-    /// dropped rather than buffered further. Default: 4096 (a fleet of 1000 at 1 Hz is
-    /// 2000 messages a second on the two position channels).
+    /// Messages queued toward one client. A burst beyond it waits (in the SDK's own
+    /// bounded queue) for at most `send_timeout_ms`; a client that leaves the queue
+    /// full that long is dropped rather than buffered further. Default: 4096 (a fleet
+    /// of 1000 at 1 Hz is 2000 messages a second on the two position channels).
     pub client_queue: usize,
-    /// Longest one message may take to reach a client's connection; a client that reads
-    /// slower is dropped. Default: 5000 ms.
+    /// Longest a client may go without taking a message it has waiting (one send to its
+    /// connection, or room in its full queue); a client that reads slower is dropped.
+    /// Default: 5000 ms.
     pub send_timeout_ms: u64,
     /// Messages the Foxglove SDK's own server keeps per client on loopback before it
     /// drops the oldest (its `message_backlog_size`). Default: 4096.

@@ -150,8 +150,8 @@ impl BridgeHandle {
     /// Serves one upgraded, authenticated client connection until it ends: connects to
     /// the SDK's server with the subprotocol the client chose (see [`negotiate`]) and
     /// pipes frames both ways. Messages toward the client wait in a queue of
-    /// `client_queue`; a client that lets it fill up, or takes longer than
-    /// `send_timeout_ms` to take one message, is dropped.
+    /// `client_queue`; a client that leaves it full, or takes one message, for longer
+    /// than `send_timeout_ms` is dropped.
     pub async fn serve<S, E>(
         &self,
         place: ClientPlace,
@@ -184,7 +184,7 @@ impl BridgeHandle {
         let send_timeout = Duration::from_millis(config.send_timeout_ms);
         let max_in = config.max_client_message_bytes;
 
-        // Upstream to the queue: never waits for the client.
+        // Upstream to the queue.
         let from_server = async {
             while let Some(msg) = up_rx.next().await {
                 let frame = match msg {
@@ -193,8 +193,13 @@ impl BridgeHandle {
                     Ok(Message::Close(_)) | Err(_) => return SessionEnd::ServerClosed,
                     Ok(_) => continue,
                 };
-                if queue_tx.try_send(frame).is_err() {
-                    return SessionEnd::TooSlow;
+                // A full queue may be a burst the client is still taking: wait for room,
+                // but no longer than one send may take. Meanwhile the SDK's own bounded
+                // queue holds what comes (dropping its oldest), so nothing grows.
+                match tokio::time::timeout(send_timeout, queue_tx.send(frame)).await {
+                    Ok(Ok(())) => {}
+                    Ok(Err(_)) => return SessionEnd::ClientLeft,
+                    Err(_) => return SessionEnd::TooSlow,
                 }
             }
             SessionEnd::ServerClosed

@@ -68,9 +68,17 @@ async fn a_client_that_stops_reading_is_dropped_while_another_keeps_receiving() 
     let received = Arc::new(AtomicU64::new(0));
     let counter = Arc::clone(&received);
     let reading = tokio::spawn(async move {
-        while let Some(Ok(msg)) = reader.next().await {
-            if common::is_message_data(&msg) {
-                counter.fetch_add(1, Ordering::Relaxed);
+        loop {
+            match reader.next().await {
+                Some(Ok(msg)) => {
+                    if common::is_message_data(&msg) {
+                        counter.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+                end => {
+                    println!("reader ended: {end:?}");
+                    break;
+                }
             }
         }
     });
@@ -91,6 +99,11 @@ async fn a_client_that_stops_reading_is_dropped_while_another_keeps_receiving() 
         tokio::time::sleep(Duration::from_millis(5)).await;
     }
     let published_at_drop = i;
+    println!(
+        "dropped after {i} events; the reader had {}; bridge logged {}",
+        received.load(Ordering::Relaxed),
+        bridge.stats().logged.load(Ordering::Relaxed)
+    );
     // Its place is free again; the reader still has its own.
     for _ in 0..100 {
         if bridge.clients() == 1 {

@@ -104,7 +104,8 @@ pub async fn front(handle: BridgeHandle) -> SocketAddr {
                 };
                 let Some(subprotocol) = chosen else { return };
                 let client = shoal_foxglove::adapt(ws, to_tungstenite, from_tungstenite);
-                let _ = handle.serve(place, client, subprotocol).await;
+                let end = handle.serve(place, client, subprotocol).await;
+                println!("front: session ended: {end:?}");
             });
         }
     });
