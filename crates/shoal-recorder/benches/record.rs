@@ -4,6 +4,8 @@
 //!
 //! `CARGO_TARGET_DIR=... cargo bench -p shoal-recorder --bench record`
 
+#![allow(clippy::panic)]
+
 use std::hint::black_box;
 use std::path::Path;
 

@@ -110,8 +110,8 @@ pub enum ReplayError {
     Dds {
         /// For whom or on which topic.
         what: String,
-        /// Why.
-        source: CreateError,
+        /// Why (boxed: DDS errors are large and replay's results are passed around).
+        source: Box<CreateError>,
     },
     /// The participant for a vehicle could not be opened (e.g. no credentials for it).
     #[error("cannot publish as vehicle {vehicle:?}: {source}")]

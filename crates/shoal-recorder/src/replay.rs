@@ -189,7 +189,7 @@ fn writer<T: TopicType>(pubsub: &PubSub) -> Result<Writer<T>, ReplayError> {
         .writer::<T>(WriterOptions::new(T::DEFAULT_PRIORITY))
         .map_err(|source| ReplayError::Dds {
             what: T::TOPIC.to_string(),
-            source,
+            source: Box::new(source),
         })
 }
 

@@ -173,7 +173,7 @@ fn files_rotate_by_size_and_every_file_is_complete() {
     cfg.compression = Compression::None;
     let mut w = RecordWriter::new(&cfg).unwrap();
     for i in 0..30_000 {
-        let s = state("auv-1", i).clone();
+        let s = state("auv-1", i);
         let data = shoal_dds::to_cdr_le(&s).unwrap();
         w.write(
             Topic::StateVector,
@@ -214,7 +214,7 @@ fn files_rotate_by_time() {
     let mut cfg = config(dir.path());
     cfg.max_file_seconds = 1;
     let mut w = RecordWriter::new(&cfg).unwrap();
-    let data = state("auv-1", 0).clone();
+    let data = state("auv-1", 0);
     let data = shoal_dds::to_cdr_le(&data).unwrap();
     w.write(Topic::StateVector, 1, 1, &data).unwrap();
     std::thread::sleep(std::time::Duration::from_millis(1100));

@@ -10,6 +10,7 @@ mod daemons;
 mod keys;
 #[cfg(feature = "console")]
 mod query;
+mod record;
 mod relay;
 
 use std::path::PathBuf;
@@ -200,6 +201,13 @@ enum Command {
     /// Emulated acoustic modems on 127.0.0.1 speaking EvoLogics AT and EviNS NL over TCP,
     /// in one simulated sea (delay, loss, half duplex, collisions).
     ModemEmu(acoustic::ModemEmuArgs),
+    /// Record every Shoal topic (or those of --topics) into MCAP files, rotated by size and
+    /// time; Ctrl-C closes the file properly (docs/recorder.md).
+    Record(record::RecordArgs),
+    /// Publish an MCAP recording (a file or a directory of them) on DDS again, at the
+    /// recorded pace times --speed; with security on, each vehicle's samples under its own
+    /// identity from the key store.
+    Replay(record::ReplayArgs),
     /// Print the effective configuration (defaults, file and environment merged) as TOML.
     Config {
         /// Print the commented default configuration file instead.
@@ -316,6 +324,8 @@ fn main() -> ExitCode {
         #[cfg(feature = "console")]
         Command::Query { .. } => "query".to_string(),
         Command::ModemEmu(_) => "modem-emu".to_string(),
+        Command::Record(_) => "record".to_string(),
+        Command::Replay(_) => "replay".to_string(),
     };
     init_logging(&label);
     match run(cli) {
@@ -458,6 +468,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             token.as_deref(),
         )),
         Command::ModemEmu(args) => rt.block_on(acoustic::modem_emu(args)),
+        Command::Record(args) => rt.block_on(record::record(&cfg, args)),
+        Command::Replay(args) => rt.block_on(record::replay(&cfg, args)),
         Command::Config { default } => {
             if default {
                 print!("{}", config::DEFAULT_CONFIG);

@@ -30,6 +30,7 @@ mod converter;
 mod faults;
 mod interop;
 mod proxies;
+mod recorder;
 mod scenario;
 mod security;
 mod station;
