@@ -82,6 +82,10 @@ state_dir = "$work/vehicles"
 [console]
 listen = "127.0.0.1:$port"
 
+# AIS traffic for the map test, sent by the browser test over UDP.
+[traffic]
+inputs = ["udp://127.0.0.1:$((port + 1))"]
+
 [console.auth]
 enabled = true
 users_path = "$work/console-users.json"
@@ -116,6 +120,7 @@ ip netns exec "$ns" curl -sf -H "Authorization: Bearer $token" "http://127.0.0.1
 set +e
 ip netns exec "$ns" env \
     SHOAL_URL="http://127.0.0.1:$port" \
+    SHOAL_AIS_PORT="$((port + 1))" \
     SHOAL_ADMIN_TOKEN="$token" \
     SHOAL_E2E_OUT="$out" \
     SHOAL_BIN="$bin" \

@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant};
 
 use libfuzzer_sys::fuzz_target;
-use shoal_traffic::{Motion, OwnVehicle, Picture, TrafficConfig};
+use shoal_traffic::{ApproachWindow, Motion, OwnVehicle, Picture, TrafficConfig};
 
 const GOOD: &str = "!AIVDM,1,1,,A,13KF5P@P1s1hntRRIjFQj1H1P000,0*2B";
 
@@ -36,7 +36,14 @@ fuzz_target!(|data: &[u8]| {
             sog_kn: 5.0,
         },
     }];
-    let _ = picture.collision_warnings(&vehicles, now);
+    let window = ApproachWindow {
+        within_m: 2000.0,
+        past_s: 60.0,
+        ahead_s: 1200.0,
+    };
+    for a in picture.approaches(&vehicles, now, window) {
+        assert!(a.cpa_m.is_finite() && a.cpa_m < window.within_m);
+    }
     let _ = picture.own_ship(now);
     for t in picture.targets(now) {
         if let (Some(lat), Some(lon)) = (t.lat, t.lon) {

@@ -60,6 +60,7 @@ mod metrics;
 mod negotiate;
 mod sparql;
 pub mod tls;
+mod traffic;
 pub mod web;
 
 pub use auth::{Auth, AuthConfig, AuthError, Identity, Role};
@@ -366,6 +367,7 @@ fn build(
         .route("/api/ws", get(live::ws))
         .route("/api/openapi.json", get(openapi))
         .route("/api/rejected", get(rejected))
+        .route("/api/traffic", get(traffic::traffic))
         .route("/api/rules", get(rules).post(create_rule))
         .route(
             "/api/rules/{id}",

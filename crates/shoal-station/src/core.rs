@@ -49,6 +49,8 @@ pub(crate) struct Core {
     pub(crate) rejection_log: Mutex<crate::ingest::LogBudget>,
     /// Rules disabled over their time budget, as last read from the model.
     pub(crate) rules_over_budget_seen: AtomicU64,
+    /// The traffic picture (AIS), when one is attached.
+    pub(crate) traffic: std::sync::OnceLock<crate::traffic::TrafficLink>,
 }
 
 /// Locks a mutex, recovering the data if a panicking thread poisoned it: the station's
@@ -166,6 +168,7 @@ impl StationHandle {
             clock,
             reported_skew_ms: std::sync::atomic::AtomicI64::new(0),
             rules_over_budget_seen: AtomicU64::new(0),
+            traffic: std::sync::OnceLock::new(),
             rejection_log: Mutex::new(crate::ingest::LogBudget::new(
                 crate::ingest::REJECTION_LOG_LINES_PER_S,
             )),

@@ -10,6 +10,8 @@
 //! - `reporters` — the Event, Tasks and Environment Reporters and the live feed
 //!   ([`LiveUpdate`]).
 //! - `rules` — Rules & Policies as the API and the rules file see them ([`RuleDoc`]).
+//! - `traffic` — AIS vessels in the semantic model and surface vehicles' encounters with
+//!   them; the collision-risk rule turns a close one into an alarm.
 //!
 //! [`StationHandle`] is the core: the bus feeds it, the API reads and commands through
 //! it, and it publishes through an [`Outbox`], so it runs in plain unit tests. [`Station`]
@@ -31,6 +33,7 @@ mod rules;
 mod station;
 #[cfg(test)]
 mod testing;
+mod traffic;
 
 pub use bus::{DdsOutbox, EventOrigin, Outbox, PublishError};
 pub use clock::{Clock, ManualTime};

@@ -195,6 +195,7 @@ impl StationHandle {
         self.expire_tasks(now);
         self.prune_tasks(now);
         self.semantic_tick(now);
+        self.traffic_tick(now);
         self.refresh_availability_all(now);
     }
 }

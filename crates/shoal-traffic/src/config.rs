@@ -97,14 +97,6 @@ impl fmt::Display for Input {
 pub struct TrafficConfig {
     /// NMEA 0183 sources (default: none).
     pub inputs: Vec<Input>,
-    /// A pair whose closest point of approach is at most this many metres raises a warning
-    /// (default 500).
-    pub cpa_alarm_m: f64,
-    /// Only approaches within this many seconds from now raise a warning (default 600).
-    pub tcpa_horizon_s: f64,
-    /// A raised pair clears once its CPA exceeds `cpa_alarm_m` times this factor, or its
-    /// TCPA leaves `[0, tcpa_horizon_s × factor]` (default 1.2; at least 1).
-    pub clear_factor: f64,
     /// A target not heard from for this many seconds is dropped (default 600).
     pub target_timeout_s: u64,
     /// At most this many targets; a new one evicts the least recently heard (default 2000).
@@ -127,9 +119,6 @@ impl Default for TrafficConfig {
     fn default() -> Self {
         Self {
             inputs: Vec::new(),
-            cpa_alarm_m: 500.0,
-            tcpa_horizon_s: 600.0,
-            clear_factor: 1.2,
             target_timeout_s: 600,
             max_targets: 2000,
             max_line_len: 512,
@@ -145,23 +134,6 @@ impl TrafficConfig {
     /// Checks the ranges that serde cannot express.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let range = |key, value: String, why| Err(ConfigError::OutOfRange { key, value, why });
-        if !(self.cpa_alarm_m.is_finite() && self.cpa_alarm_m > 0.0) {
-            return range("cpa_alarm_m", self.cpa_alarm_m.to_string(), "must be > 0");
-        }
-        if !(self.tcpa_horizon_s.is_finite() && self.tcpa_horizon_s > 0.0) {
-            return range(
-                "tcpa_horizon_s",
-                self.tcpa_horizon_s.to_string(),
-                "must be > 0",
-            );
-        }
-        if !(self.clear_factor.is_finite() && self.clear_factor >= 1.0) {
-            return range(
-                "clear_factor",
-                self.clear_factor.to_string(),
-                "must be >= 1",
-            );
-        }
         if self.target_timeout_s == 0 {
             return range("target_timeout_s", "0".into(), "must be > 0");
         }
@@ -236,7 +208,7 @@ mod tests {
     fn defaults_validate_and_bad_values_do_not() {
         TrafficConfig::default().validate().unwrap();
         let c = TrafficConfig {
-            cpa_alarm_m: f64::NAN,
+            target_timeout_s: 0,
             ..TrafficConfig::default()
         };
         assert!(c.validate().is_err());
@@ -256,13 +228,14 @@ mod tests {
     #[test]
     fn serde_rejects_unknown_keys_and_bad_inputs() {
         let c: TrafficConfig = serde_json::from_str(
-            r#"{"inputs":["udp://127.0.0.1:1","tcp://h:2"],"cpa_alarm_m":100}"#,
+            r#"{"inputs":["udp://127.0.0.1:1","tcp://h:2"],"max_targets":100}"#,
         )
         .unwrap();
         assert_eq!(c.inputs.len(), 2);
-        assert_eq!(c.cpa_alarm_m, 100.0);
-        assert_eq!(c.max_targets, 2000);
-        assert!(serde_json::from_str::<TrafficConfig>(r#"{"cpa":1}"#).is_err());
+        assert_eq!(c.max_targets, 100);
+        assert_eq!(c.target_timeout_s, 600);
+        // The collision-risk thresholds are the rules engine's, not the inputs'.
+        assert!(serde_json::from_str::<TrafficConfig>(r#"{"cpa_alarm_m":1}"#).is_err());
         assert!(serde_json::from_str::<TrafficConfig>(r#"{"inputs":["ftp://x:1"]}"#).is_err());
     }
 }

@@ -1,13 +1,11 @@
-//! Closest point of approach between two vessels on straight courses, and the evaluator
-//! that turns it into collision warnings with hysteresis.
+//! Closest point of approach between two vessels on straight courses, and the pairs of
+//! own vehicles and targets that come close.
 //!
 //! Positions are projected on a flat local tangent plane centred on the first vessel
 //! (equirectangular: east = Δlon·cos(lat₀)·R, north = Δlat·R, R = 6 371 000 m). At the
 //! ranges where CPA matters (a few nautical miles) the error is well under 1 % of the
 //! distance; it grows with range and near the poles, and courses are assumed straight and
 //! speeds constant (no rate of turn).
-
-use std::collections::HashSet;
 
 use serde::Serialize;
 
@@ -27,6 +25,27 @@ pub struct Motion {
     pub cog_deg: f64,
     /// Speed over ground, knots.
     pub sog_kn: f64,
+}
+
+impl Motion {
+    /// Where this vessel is `secs` seconds later on its course and speed (dead reckoning
+    /// on the tangent plane; longitude wrapped, latitude clamped).
+    pub fn advanced(self, secs: f64) -> Self {
+        let (ve, vn) = velocity(self.cog_deg, self.sog_kn);
+        let lat = self.lat + (vn * secs / EARTH_RADIUS_M).to_degrees();
+        let coslat = self.lat.to_radians().cos().max(1e-6);
+        let mut lon = self.lon + (ve * secs / (EARTH_RADIUS_M * coslat)).to_degrees();
+        if lon > 180.0 {
+            lon -= 360.0;
+        } else if lon < -180.0 {
+            lon += 360.0;
+        }
+        Self {
+            lat: lat.clamp(-90.0, 90.0),
+            lon,
+            ..self
+        }
+    }
 }
 
 /// The result of a CPA computation.
@@ -98,9 +117,9 @@ pub struct OwnVehicle {
     pub motion: Motion,
 }
 
-/// A target predicted to pass too close to one of the own vehicles.
+/// A target whose course brings it close to one of the own vehicles.
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct CollisionWarning {
+pub struct VesselApproach {
     /// The own vehicle's id.
     pub vehicle_id: String,
     /// The target's MMSI.
@@ -109,21 +128,12 @@ pub struct CollisionWarning {
     pub name: Option<String>,
     /// Distance at the closest point of approach, metres.
     pub cpa_m: f64,
-    /// Time to it, seconds.
+    /// Time to it, seconds (negative once it is past).
     pub tcpa_s: f64,
     /// Distance now, metres.
     pub range_m: f64,
     /// The target's (extrapolated) position and motion used.
     pub target: Motion,
-}
-
-/// Warnings raised and pairs cleared by one evaluation.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct CollisionUpdate {
-    /// Pairs that newly meet the alarm condition.
-    pub raised: Vec<CollisionWarning>,
-    /// Pairs raised earlier that no longer do, as (vehicle id, MMSI).
-    pub cleared: Vec<(String, u32)>,
 }
 
 /// A target as the evaluator sees it: identity and present motion.
@@ -137,84 +147,45 @@ pub struct TargetMotion {
     pub motion: Motion,
 }
 
-/// Raises each (vehicle, target) pair once when its CPA is under the threshold within the
-/// horizon, and again only after it has cleared.
-#[derive(Debug)]
-pub struct CollisionMonitor {
-    alarm_m: f64,
-    horizon_s: f64,
-    clear_factor: f64,
-    active: HashSet<(String, u32)>,
+/// Which approaches [`approaches`] reports: those whose CPA is under `within_m` and whose
+/// closest point lies between `past_s` seconds ago and `ahead_s` seconds from now.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ApproachWindow {
+    /// Largest CPA reported, metres.
+    pub within_m: f64,
+    /// How far in the past the closest point may be, seconds (≥ 0).
+    pub past_s: f64,
+    /// How far ahead the closest point may be, seconds.
+    pub ahead_s: f64,
 }
 
-impl CollisionMonitor {
-    /// A monitor with these thresholds (`clear_factor` ≥ 1 widens both to clear).
-    pub fn new(alarm_m: f64, horizon_s: f64, clear_factor: f64) -> Self {
-        Self {
-            alarm_m,
-            horizon_s,
-            clear_factor: clear_factor.max(1.0),
-            active: HashSet::new(),
-        }
-    }
-
-    /// Pairs currently raised.
-    #[cfg(test)]
-    pub fn active(&self) -> usize {
-        self.active.len()
-    }
-
-    /// Evaluates every pair; pairs whose vehicle or target is gone clear too.
-    pub fn evaluate(
-        &mut self,
-        vehicles: &[OwnVehicle],
-        targets: &[TargetMotion],
-    ) -> CollisionUpdate {
-        let mut update = CollisionUpdate::default();
-        let mut seen: HashSet<(String, u32)> = HashSet::new();
-        for v in vehicles {
-            if !motion_ok(&v.motion) {
-                continue;
-            }
-            for t in targets {
-                let key = (v.id.clone(), t.mmsi);
-                let a = cpa(&v.motion, &t.motion);
-                let alarm =
-                    a.tcpa_s >= 0.0 && a.tcpa_s <= self.horizon_s && a.cpa_m <= self.alarm_m;
-                let holds = a.tcpa_s >= 0.0
-                    && a.tcpa_s <= self.horizon_s * self.clear_factor
-                    && a.cpa_m <= self.alarm_m * self.clear_factor;
-                let was = self.active.contains(&key);
-                if alarm && !was {
-                    update.raised.push(CollisionWarning {
-                        vehicle_id: v.id.clone(),
-                        mmsi: t.mmsi,
-                        name: t.name.clone(),
-                        cpa_m: a.cpa_m,
-                        tcpa_s: a.tcpa_s,
-                        range_m: a.range_m,
-                        target: t.motion,
-                    });
-                    self.active.insert(key.clone());
-                    seen.insert(key);
-                } else if was && holds {
-                    seen.insert(key);
-                }
+/// Every (vehicle, target) pair inside `window`. It keeps no state and raises nothing:
+/// the caller decides what is an alarm (Shoal's station hands these to its rules engine,
+/// whose collision-risk rule owns the thresholds and raises each alarm once).
+pub fn approaches(
+    vehicles: &[OwnVehicle],
+    targets: &[TargetMotion],
+    window: ApproachWindow,
+) -> Vec<VesselApproach> {
+    let mut out = Vec::new();
+    for v in vehicles.iter().filter(|v| motion_ok(&v.motion)) {
+        for t in targets.iter().filter(|t| motion_ok(&t.motion)) {
+            let a = cpa(&v.motion, &t.motion);
+            if a.cpa_m < window.within_m && a.tcpa_s >= -window.past_s && a.tcpa_s <= window.ahead_s
+            {
+                out.push(VesselApproach {
+                    vehicle_id: v.id.clone(),
+                    mmsi: t.mmsi,
+                    name: t.name.clone(),
+                    cpa_m: a.cpa_m,
+                    tcpa_s: a.tcpa_s,
+                    range_m: a.range_m,
+                    target: t.motion,
+                });
             }
         }
-        let gone: Vec<(String, u32)> = self
-            .active
-            .iter()
-            .filter(|k| !seen.contains(*k))
-            .cloned()
-            .collect();
-        for k in gone {
-            self.active.remove(&k);
-            update.cleared.push(k);
-        }
-        update.cleared.sort();
-        update
     }
+    out
 }
 
 fn motion_ok(m: &Motion) -> bool {
@@ -289,14 +260,19 @@ mod tests {
         assert!(close(r.cpa_m, 200.0 * 2f64.sqrt(), 0.05), "{r:?}");
     }
 
+    const WINDOW: ApproachWindow = ApproachWindow {
+        within_m: 1000.0,
+        past_s: 0.0,
+        ahead_s: 600.0,
+    };
+
     #[test]
-    fn diverging_has_negative_tcpa_and_no_alarm() {
+    fn diverging_has_negative_tcpa_and_is_not_approaching() {
         // Back to back, 500 m apart, both going away.
         let a = at(0.0, 0.0, 180.0, 8.0);
         let b = at(0.0, 500.0, 0.0, 8.0);
         let r = cpa(&a, &b);
         assert!(r.tcpa_s < 0.0, "{r:?}");
-        let mut m = CollisionMonitor::new(1000.0, 600.0, 1.2);
         let targets = [TargetMotion {
             mmsi: 1,
             name: None,
@@ -306,7 +282,16 @@ mod tests {
             id: "usv1".into(),
             motion: a,
         }];
-        assert!(m.evaluate(&vehicles, &targets).raised.is_empty());
+        assert!(approaches(&vehicles, &targets, WINDOW).is_empty());
+        // Within a window reaching into the past (they were closest 61 s ago) it is
+        // reported, with its negative TCPA.
+        let past = ApproachWindow {
+            past_s: 120.0,
+            ..WINDOW
+        };
+        let found = approaches(&vehicles, &targets, past);
+        assert_eq!(found.len(), 1);
+        assert!(found[0].tcpa_s < 0.0);
     }
 
     #[test]
@@ -316,6 +301,39 @@ mod tests {
         let r = cpa(&a, &b);
         assert!(close(r.cpa_m, 300.0, 0.01), "{r:?}");
         assert_eq!(r.tcpa_s, 0.0);
+    }
+
+    #[test]
+    fn dead_reckoning_moves_along_the_course() {
+        let m = Motion {
+            lat: 63.0,
+            lon: 10.0,
+            cog_deg: 0.0,
+            sog_kn: 10.0,
+        };
+        // 10 kn for an hour is 10 nautical miles, 10 minutes of latitude (to 0.1 %).
+        let north = m.advanced(3600.0);
+        assert!(close(north.lat, 63.0 + 10.0 / 60.0, 2e-4), "{north:?}");
+        assert!(close(north.lon, 10.0, 1e-9));
+        let east = Motion { cog_deg: 90.0, ..m }.advanced(3600.0);
+        assert!(close(east.lat, 63.0, 1e-9));
+        assert!(
+            close(
+                east.lon,
+                10.0 + 10.0 / 60.0 / 63f64.to_radians().cos(),
+                1e-3
+            ),
+            "{east:?}"
+        );
+        // Across the antimeridian the longitude wraps.
+        let w = Motion {
+            lat: 0.0,
+            lon: 179.99,
+            cog_deg: 90.0,
+            sog_kn: 10.0,
+        }
+        .advanced(3600.0);
+        assert!(w.lon < -179.0, "{w:?}");
     }
 
     #[test]
@@ -332,8 +350,7 @@ mod tests {
     }
 
     #[test]
-    fn monitor_raises_once_and_clears_with_hysteresis() {
-        let mut m = CollisionMonitor::new(500.0, 600.0, 1.2);
+    fn approaches_inside_the_window_are_reported_each_time() {
         let vehicles = [OwnVehicle {
             id: "usv1".into(),
             motion: at(0.0, 0.0, 0.0, 5.0),
@@ -343,28 +360,24 @@ mod tests {
             name: Some("TEST".into()),
             motion: at(east, 2000.0, 180.0, 10.0),
         };
-        // 400 m lateral offset: CPA 400 < 500, raised once.
-        let u = m.evaluate(&vehicles, &[target(400.0)]);
-        assert_eq!(u.raised.len(), 1);
-        assert_eq!(u.raised[0].vehicle_id, "usv1");
-        assert!(close(u.raised[0].cpa_m, 400.0, 0.5));
-        assert!(m.evaluate(&vehicles, &[target(400.0)]).raised.is_empty());
-        // 550 m: above the alarm but within the clear margin (600): still held.
-        let u = m.evaluate(&vehicles, &[target(550.0)]);
-        assert!(u.raised.is_empty() && u.cleared.is_empty());
-        // 700 m: cleared.
-        let u = m.evaluate(&vehicles, &[target(700.0)]);
-        assert_eq!(u.cleared, vec![("usv1".to_string(), 230_000_001)]);
-        // Back under: raised again.
-        assert_eq!(m.evaluate(&vehicles, &[target(100.0)]).raised.len(), 1);
-        // Target gone: cleared.
-        assert_eq!(m.evaluate(&vehicles, &[]).cleared.len(), 1);
-        assert_eq!(m.active(), 0);
+        // 400 m lateral offset: CPA 400 < 1000, reported, and again (no state kept).
+        for _ in 0..2 {
+            let u = approaches(&vehicles, &[target(400.0)], WINDOW);
+            assert_eq!(u.len(), 1);
+            assert_eq!((u[0].vehicle_id.as_str(), u[0].mmsi), ("usv1", 230_000_001));
+            assert!(close(u[0].cpa_m, 400.0, 0.5));
+        }
+        assert!(approaches(&vehicles, &[target(1100.0)], WINDOW).is_empty());
+        // A vehicle with no valid motion is skipped.
+        let bad = [OwnVehicle {
+            id: "x".into(),
+            motion: at(f64::NAN, 0.0, 0.0, 5.0),
+        }];
+        assert!(approaches(&bad, &[target(0.0)], WINDOW).is_empty());
     }
 
     #[test]
-    fn beyond_horizon_is_not_raised() {
-        let mut m = CollisionMonitor::new(500.0, 60.0, 1.2);
+    fn beyond_the_horizon_is_not_reported() {
         let vehicles = [OwnVehicle {
             id: "v".into(),
             motion: at(0.0, 0.0, 0.0, 0.0),
@@ -375,6 +388,20 @@ mod tests {
             name: None,
             motion: at(0.0, 5000.0, 180.0, 10.0),
         }];
-        assert!(m.evaluate(&vehicles, &t).raised.is_empty());
+        let short = ApproachWindow {
+            ahead_s: 60.0,
+            ..WINDOW
+        };
+        assert!(approaches(&vehicles, &t, short).is_empty());
+        assert_eq!(
+            approaches(&vehicles, &t, WINDOW).len(),
+            0,
+            "CPA 0 but TCPA 972 > 600"
+        );
+        let long = ApproachWindow {
+            ahead_s: 1000.0,
+            ..WINDOW
+        };
+        assert_eq!(approaches(&vehicles, &t, long).len(), 1);
     }
 }

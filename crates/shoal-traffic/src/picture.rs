@@ -8,7 +8,7 @@ use serde::Serialize;
 use tracing::{debug, trace};
 
 use crate::config::TrafficConfig;
-use crate::cpa::{CollisionMonitor, CollisionUpdate, Motion, OwnVehicle, TargetMotion};
+use crate::cpa::{ApproachWindow, Motion, OwnVehicle, TargetMotion, VesselApproach};
 use crate::decode::{self, Class, DecodeError, Dimensions, Fact, PositionReport, StaticReport};
 use crate::framing::{self, Assembly, EnvelopeError, Reassembler, VdmError};
 
@@ -161,7 +161,6 @@ pub struct Picture {
     targets: HashMap<u32, Target>,
     own: OwnShip,
     reassembler: Reassembler,
-    monitor: CollisionMonitor,
     stats: TrafficStats,
     max_line_len: usize,
     max_targets: usize,
@@ -179,11 +178,6 @@ impl Picture {
             targets: HashMap::new(),
             own: OwnShip::default(),
             reassembler: Reassembler::new(config.max_pending_fragments, config.fragment_timeout()),
-            monitor: CollisionMonitor::new(
-                config.cpa_alarm_m,
-                config.tcpa_horizon_s,
-                config.clear_factor,
-            ),
             stats: TrafficStats::default(),
             max_line_len: config.max_line_len,
             max_targets: config.max_targets,
@@ -511,15 +505,20 @@ impl Picture {
         &mut self.stats
     }
 
-    /// Evaluates every (vehicle, target) pair: targets with a position and speed, their
-    /// position dead-reckoned to `now` along their last course and speed.
-    pub fn collision_warnings(&mut self, vehicles: &[OwnVehicle], now: Instant) -> CollisionUpdate {
+    /// Every (vehicle, target) pair inside `window`: targets with a position and speed,
+    /// their position dead-reckoned to `now` along their last course and speed.
+    pub fn approaches(
+        &self,
+        vehicles: &[OwnVehicle],
+        now: Instant,
+        window: ApproachWindow,
+    ) -> Vec<VesselApproach> {
         let targets: Vec<TargetMotion> = self
             .targets
             .values()
             .filter_map(|t| target_motion(t, now))
             .collect();
-        self.monitor.evaluate(vehicles, &targets)
+        crate::cpa::approaches(vehicles, &targets, window)
     }
 }
 
@@ -545,25 +544,17 @@ fn target_motion(t: &Target, now: Instant) -> Option<TargetMotion> {
     let sog = if t.view.cog_deg.is_none() { 0.0 } else { sog };
     let age = now.saturating_duration_since(t.position_at?).as_secs_f64();
     // Reports come every 2 s to 3 min: move the target to where it is now.
-    let (ve, vn) = crate::cpa::velocity(cog, sog);
-    let r = crate::cpa::EARTH_RADIUS_M;
-    let lat_now = lat + (vn * age / r).to_degrees();
-    let coslat = lat.to_radians().cos().max(1e-6);
-    let mut lon_now = lon + (ve * age / (r * coslat)).to_degrees();
-    if lon_now > 180.0 {
-        lon_now -= 360.0;
-    } else if lon_now < -180.0 {
-        lon_now += 360.0;
+    let motion = Motion {
+        lat,
+        lon,
+        cog_deg: cog,
+        sog_kn: sog,
     }
+    .advanced(age);
     Some(TargetMotion {
         mmsi: t.view.mmsi,
         name: t.view.name.clone(),
-        motion: Motion {
-            lat: lat_now.clamp(-90.0, 90.0),
-            lon: lon_now,
-            cog_deg: cog,
-            sog_kn: sog,
-        },
+        motion,
     })
 }
 
@@ -928,7 +919,7 @@ mod tests {
     }
 
     #[test]
-    fn collision_warnings_from_the_table() {
+    fn approaches_from_the_table_are_dead_reckoned() {
         let (mut p, t) = picture();
         // Type 1 target at 60.123456 N 24.654321 E, 12.3 kn on 045.6.
         p.ingest_line(T1.as_bytes(), t);
@@ -948,16 +939,21 @@ mod tests {
                 sog_kn: 4.0,
             },
         }];
-        let u = p.collision_warnings(&vehicles, t);
-        assert_eq!(u.raised.len(), 1, "{u:?}");
-        let w = &u.raised[0];
+        let window = ApproachWindow {
+            within_m: 500.0,
+            past_s: 0.0,
+            ahead_s: 600.0,
+        };
+        let u = p.approaches(&vehicles, t, window);
+        assert_eq!(u.len(), 1, "{u:?}");
+        let w = &u[0];
         assert_eq!((w.vehicle_id.as_str(), w.mmsi), ("usv-1", 230_000_001));
         assert!(w.cpa_m < 5.0, "{w:?}");
         assert!((w.tcpa_s - 1852.0 / (16.3 * crate::cpa::MS_PER_KNOT)).abs() < 2.0);
-        assert!(p.collision_warnings(&vehicles, t).raised.is_empty(), "once");
         // 60 s later the target has been dead-reckoned 379 m closer.
-        let u = p.collision_warnings(&vehicles, t + Duration::from_secs(60));
-        assert!(u.raised.is_empty() && u.cleared.is_empty());
+        let u = p.approaches(&vehicles, t + Duration::from_secs(60), window);
+        assert_eq!(u.len(), 1);
+        assert!(u[0].range_m < w.range_m - 300.0, "{u:?}");
         // The vehicle turns away: cleared.
         let away = [OwnVehicle {
             id: "usv-1".into(),
@@ -967,7 +963,6 @@ mod tests {
                 ..vehicles[0].motion
             },
         }];
-        let u = p.collision_warnings(&away, t);
-        assert_eq!(u.cleared, vec![("usv-1".to_string(), 230_000_001)]);
+        assert!(p.approaches(&away, t, window).is_empty());
     }
 }

@@ -12,7 +12,7 @@ use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
 
 use crate::config::{ConfigError, Input, TrafficConfig};
-use crate::cpa::{CollisionUpdate, OwnVehicle};
+use crate::cpa::{ApproachWindow, OwnVehicle, VesselApproach};
 use crate::framing::{LineSplitter, Piece};
 use crate::picture::{OwnShipView, Picture, TargetView, TrafficStats};
 
@@ -150,10 +150,13 @@ impl TrafficHandle {
         lock(&self.inner.picture).ingest_line(line.as_bytes(), Instant::now())
     }
 
-    /// Checks the station's surface vehicles against the targets: pairs newly under the
-    /// CPA threshold within the horizon, and pairs cleared.
-    pub fn collision_warnings(&self, vehicles: &[OwnVehicle]) -> CollisionUpdate {
-        lock(&self.inner.picture).collision_warnings(vehicles, Instant::now())
+    /// Every (vehicle, target) pair inside `window`, targets dead-reckoned to now.
+    pub fn approaches(
+        &self,
+        vehicles: &[OwnVehicle],
+        window: ApproachWindow,
+    ) -> Vec<VesselApproach> {
+        lock(&self.inner.picture).approaches(vehicles, Instant::now(), window)
     }
 
     /// The addresses the UDP inputs are bound to (the real port when configured with 0).

@@ -17,6 +17,8 @@ use shoal_model::VehicleKind;
 use shoal_proxy::sim::{SimSettings, SimSpec};
 #[cfg(feature = "console")]
 use shoal_station::StationConfig;
+#[cfg(feature = "console")]
+use shoal_traffic::TrafficConfig;
 
 /// A section of the station side in a build without it (no `console` feature): kept as
 /// read, unchecked, so one configuration file serves the station and its vehicles.
@@ -28,6 +30,8 @@ type StationConfig = StationSide;
 type HistoryConfig = StationSide;
 #[cfg(not(feature = "console"))]
 type ConsoleConfig = StationSide;
+#[cfg(not(feature = "console"))]
+type TrafficConfig = StationSide;
 
 /// The commented default configuration, kept in the repository; a test parses it so it
 /// cannot drift from the code.
@@ -51,6 +55,8 @@ pub struct ShoalConfig {
     pub fleet: FleetConfig,
     /// What a vehicle (`shoal vehicle`, or one of `shoal up`'s fleet) keeps across restarts.
     pub vehicle: VehicleConfig,
+    /// The station's AIS and NMEA 0183 inputs (vessel traffic on the map, collision risk).
+    pub traffic: TrafficConfig,
 }
 
 /// The `[vehicle]` section.
@@ -484,6 +490,10 @@ fn check(config: &ShoalConfig) -> Result<()> {
             .history
             .check()
             .map_err(|e| anyhow::anyhow!("invalid configuration in [history]: {e}"))?;
+        config
+            .traffic
+            .validate()
+            .map_err(|e| anyhow::anyhow!("invalid configuration in [traffic]: {e}"))?;
     }
     config
         .security
@@ -599,10 +609,16 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 13]>([
+        rows.extend::<[(&str, &str, &str, Check); 14]>([
             ("station", "SHOAL_STATION__LOST_AFTER_S", "45", |c| {
                 c.station.lost_after_s == 45.0
             }),
+            (
+                "traffic",
+                "SHOAL_TRAFFIC__INPUTS",
+                "[\"udp://127.0.0.1:10110\"]",
+                |c| c.traffic.inputs.len() == 1 && c.traffic.max_targets == 2000,
+            ),
             (
                 "station.plausibility",
                 "SHOAL_STATION__PLAUSIBILITY__ENABLED",

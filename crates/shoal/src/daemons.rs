@@ -158,6 +158,13 @@ pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> 
     let dds = station_dds(&cfg, &shutdown)?;
     let station =
         Station::new(cfg.station.clone(), dds, history).context("cannot start the station")?;
+    if !cfg.traffic.inputs.is_empty() {
+        let picture = shoal_traffic::TrafficPicture::spawn(cfg.traffic.clone(), shutdown.clone())
+            .context("cannot start the [traffic] inputs")?;
+        info!(inputs = ?cfg.traffic.inputs, "vessel traffic: reading AIS and NMEA 0183");
+        // A fresh station has no picture yet, so this cannot be refused.
+        let _ = station.handle().attach_traffic(picture);
+    }
     let api = tokio::spawn(shoal_console::serve_with(
         listener,
         station.handle(),

@@ -13,6 +13,7 @@ import { initQuery } from './query.js';
 import { initEnvironment } from './environment.js';
 import { initVehicles, showVehicles } from './vehicles.js';
 import { initReplay, showReplay } from './replay.js';
+import { startTraffic } from './traffic.js';
 import { emit, may, on, state } from './store.js';
 import { confirmDialog, toast } from './util.js';
 
@@ -58,6 +59,7 @@ async function loadSession() {
   applyRole();
   emit('session', state.session);
   startLive();
+  startTraffic();
   return true;
 }
 

@@ -34,6 +34,7 @@ export const sources = {
   vehicles: new VectorSource(),
   draft: new VectorSource(),
   replay: new VectorSource(),
+  traffic: new VectorSource(),
 };
 
 const CONTACT_COLOUR = { alive: '#0b6e4f', stale: '#d98200', lost: '#c0262d', silent: '#777' };
@@ -143,6 +144,54 @@ function replayStyle(feature) {
   });
 }
 
+/** A vessel from AIS: an outlined hull pointing along its course, grey once its reports are old. */
+function vesselGlyph(colour) {
+  const svg = `<svg xmlns="http://www.w3.org/2000/svg" width="24" height="24" viewBox="0 0 24 24"><path d="M12 1 L18 21 L12 17 L6 21 Z" fill="${colour}" fill-opacity="0.35" stroke="${colour}" stroke-width="2" stroke-linejoin="round"/></svg>`;
+  return `data:image/svg+xml;charset=utf-8,${encodeURIComponent(svg)}`;
+}
+
+/** Seconds after which a vessel is drawn as stale (AIS class A reports every 2-10 s). */
+const VESSEL_STALE_S = 180;
+
+function vesselStyle(feature, resolution) {
+  const t = feature.get('target');
+  const stale = (t.position_age_s ?? t.age_s) > VESSEL_STALE_S;
+  const colour = stale ? '#8a8a8a' : '#6b2fa3';
+  const course = ((t.cog_deg ?? t.heading_deg ?? 0) * Math.PI) / 180;
+  const speed = t.sog_kn != null ? ` ${t.sog_kn.toFixed(1)} kn` : '';
+  return new Style({
+    image: new Icon({ src: vesselGlyph(colour), rotation: course, rotateWithView: true }),
+    text: new Text({
+      text: `${t.name || t.mmsi}${speed}`,
+      offsetY: 18,
+      font: '11px system-ui, sans-serif',
+      fill: new Fill({ color: colour }),
+      stroke: new Stroke({ color: 'rgba(255,255,255,0.9)', width: 3 }),
+      overflow: resolution < 20,
+    }),
+    zIndex: 3,
+  });
+}
+
+/** Draws the AIS targets of `GET /api/traffic` (those with a position). */
+export function renderTraffic(targets) {
+  const seen = new Set();
+  for (const t of targets) {
+    if (t.lat == null || t.lon == null) continue;
+    const id = `ais-${t.mmsi}`;
+    seen.add(id);
+    let f = sources.traffic.getFeatureById(id);
+    if (!f) {
+      f = new Feature();
+      f.setId(id);
+      sources.traffic.addFeature(f);
+    }
+    f.setGeometry(new Point(fromLonLat([t.lon, t.lat])));
+    f.set('target', t);
+  }
+  for (const f of sources.traffic.getFeatures()) if (!seen.has(f.getId())) sources.traffic.removeFeature(f);
+}
+
 const layers = {
   land: new VectorLayer({
     source: sources.land,
@@ -165,6 +214,7 @@ const layers = {
   }),
   tasks: new VectorLayer({ source: sources.tasks, style: taskStyle }),
   trails: new VectorLayer({ source: sources.trails, style: trailStyle }),
+  traffic: new VectorLayer({ source: sources.traffic, style: vesselStyle }),
   vehicles: new VectorLayer({ source: sources.vehicles, style: vehicleStyle }),
   draft: new VectorLayer({ source: sources.draft, style: draftStyle }),
   replay: new VectorLayer({ source: sources.replay, style: replayStyle, zIndex: 20 }),

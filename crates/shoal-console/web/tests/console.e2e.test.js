@@ -10,6 +10,7 @@ import { mkdirSync, mkdtempSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { spawn } from 'node:child_process';
+import dgram from 'node:dgram';
 import { request as httpRequest } from 'node:http';
 import { chromium } from 'playwright-core';
 
@@ -413,6 +414,31 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     const first = await page.locator('#env-table tbody tr').first().textContent();
     assert.match(first, /(auv|usv|rov)-/);
     await shot(page, '13-environment');
+  });
+
+  test('AIS vessels sent over UDP appear on the map with their names', { skip: !process.env.SHOAL_AIS_PORT && 'SHOAL_AIS_PORT is not set' }, async () => {
+    // Encoded by pyais 3.3.1: MMSI 257000001 (class A, NORNE, 8 kn on 270, with its
+    // two-sentence static report) and 258000002 (class B, 5 kn on 045), near the fleet;
+    // and one line with a broken checksum, which must be counted and dropped.
+    const lines = [
+      '!AIVDM,1,1,,A,13m62@@P1@PgRNhTD34:S8L1P000,0*74',
+      '!AIVDM,2,1,0,A,53m62@@00000hpu8000pu8pD0000000000000016000001Pd000000000000,0*14',
+      '!AIVDM,2,2,0,A,00000000000,2*24',
+      '!AIVDM,1,1,,A,B3n34PP0<`;njP94vK0L8FP00000,0*6F',
+      '!AIVDM,1,1,,A,B3n34PP0<`;njP94vK0L8FP00000,0*00',
+    ];
+    const socket = dgram.createSocket('udp4');
+    for (const l of lines) {
+      await new Promise((ok, fail) => socket.send(`${l}\r\n`, Number(process.env.SHOAL_AIS_PORT), '127.0.0.1', (e) => (e ? fail(e) : ok())));
+    }
+    socket.close();
+    await page.locator('#traffic-summary', { hasText: 'AIS: 2 vessel(s), 1 line(s) dropped' }).waitFor({ timeout: 15000 });
+    const doc = await page.evaluate(async () => (await fetch('/api/traffic')).json());
+    const norne = doc.targets.find((t) => t.mmsi === 257000001);
+    assert.equal(norne.name, 'NORNE');
+    assert.ok(Math.abs(norne.sog_kn - 8) < 0.1 && Math.abs(norne.cog_deg - 270) < 0.1, JSON.stringify(norne));
+    assert.equal(doc.stats.bad_checksum, 1);
+    await shot(page, '14-ais-traffic');
   });
 
   test('a survey polygon is drawn and only capable vehicles are offered', async () => {

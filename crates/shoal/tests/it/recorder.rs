@@ -276,7 +276,7 @@ async fn a_secure_fleet_is_recorded_and_its_replay_rebuilds_a_fresh_stations_his
     .unwrap();
     let mut replayed = history.track("rec-auv", 0, i64::MAX, 100_000).unwrap();
     replayed.sort_by_key(|s| s.timestamp_ms);
-    let mut expected = recorded.clone();
+    let mut expected = recorded;
     expected.sort_by_key(|s| s.timestamp_ms);
     assert_eq!(replayed.len(), expected.len());
     assert_eq!(replayed, expected, "station B's history is the recording");
