@@ -11,6 +11,7 @@
 #     rdflib (independent SPARQL engine for the semantic cross-check and SPARQL protocol
 #     client), schemathesis (OpenAPI conformance, scripts/api-conformance.sh), mcap (the
 #     reference MCAP reader for recordings) and pyais (an independent AIS encoder)
+#   - tests/foxglove/node_modules: Foxglove's own client (npm), for the bridge's test
 #   - the Fast DDS C++ peer and the Cyclone DDS C peer, built into tests/interop/build/
 #     (gitignored; the C peer's type support is generated there by idlc)
 #   - pymavlink and imcpy in the venv, the vehicle proxies' test peers
@@ -62,6 +63,17 @@ else
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check "$PIP_CYCLONEDDS" "$PIP_RTI" \
         "$PIP_RDFLIB" "$PIP_SCHEMATHESIS" "$PIP_MCAP" "$PIP_PYAIS"
     venv_ok || { say "venv still cannot import cyclonedds / rticonnextdds_connector / rdflib / schemathesis / mcap / pyais" >&2; exit 1; }
+fi
+
+# ---------------------------------------------------------------- Foxglove client
+# Foxglove's own WebSocket protocol client (@foxglove/ws-protocol) and IDL/CDR decoders, for
+# the Foxglove bridge's interop test; reinstalled only when the lock file changed.
+fox="$REPO/tests/foxglove"
+if [[ -f "$fox/node_modules/.package-lock.json" && "$fox/node_modules/.package-lock.json" -nt "$fox/package-lock.json" ]]; then
+    say "Foxglove client packages up to date: tests/foxglove/node_modules"
+else
+    say "npm ci in tests/foxglove (the Foxglove bridge's client)"
+    npm ci --prefix "$fox" --ignore-scripts --no-audit --no-fund
 fi
 
 # ---------------------------------------------------------------- Fast DDS peer

@@ -52,6 +52,7 @@ pub mod auth;
 mod capable;
 pub mod export;
 mod extract;
+mod foxglove;
 mod gate;
 mod health;
 pub mod limits;
@@ -232,6 +233,8 @@ pub(crate) struct AppState {
     commits: Arc<health::CommitClock>,
     gate: Arc<Gate>,
     logins: Arc<Logins>,
+    /// The Foxglove live bridge, when `[foxglove] enabled`.
+    foxglove: Option<shoal_foxglove::BridgeHandle>,
 }
 
 /// What bounds logins: failures per address and name, and concurrent password hashes.
@@ -307,7 +310,15 @@ pub fn console_router_with(
     auth: Arc<Auth>,
     config: &ConsoleConfig,
 ) -> Router {
-    build(station, auth, config, config.listen, config.tls.enabled()).0
+    build(
+        station,
+        auth,
+        config,
+        config.listen,
+        config.tls.enabled(),
+        None,
+    )
+    .0
 }
 
 /// The router and the limits it shares with the server loop; `listen` is the address
@@ -318,6 +329,7 @@ fn build(
     config: &ConsoleConfig,
     listen: SocketAddr,
     tls: bool,
+    foxglove: Option<shoal_foxglove::BridgeHandle>,
 ) -> (Router, Arc<Limits>) {
     let limits = Arc::new(Limits::new(config.limits.clone()));
     let gate = Arc::new(Gate::new(
@@ -334,6 +346,7 @@ fn build(
         health: Arc::new(config.health.clone()),
         gate: gate.clone(),
         logins: Arc::new(Logins::new(&config.auth)),
+        foxglove,
     };
     let router = Router::new()
         .route("/status.html", get(status_page))
@@ -365,6 +378,7 @@ fn build(
             get(env_observations).delete(env_unsubscribe),
         )
         .route("/api/ws", get(live::ws))
+        .route("/api/foxglove", get(foxglove::foxglove))
         .route("/api/openapi.json", get(openapi))
         .route("/api/rejected", get(rejected))
         .route("/api/traffic", get(traffic::traffic))
@@ -383,6 +397,8 @@ fn build(
         .route("/api/auth/tokens/{id}", axum::routing::delete(delete_token))
         .fallback(web::serve)
         .layer(axum::middleware::from_fn_with_state(state.clone(), guard))
+        // Before the guard: the Foxglove app sends its token as ?token=.
+        .layer(axum::middleware::from_fn(foxglove::token_in_query))
         .layer(axum::middleware::from_fn(extract::json_errors))
         // Every request body is small JSON; anything beyond this is refused before parsing.
         .layer(axum::extract::DefaultBodyLimit::max(
@@ -428,6 +444,18 @@ pub async fn serve_with(
     config: ConsoleConfig,
     shutdown: CancellationToken,
 ) -> Result<(), ConsoleError> {
+    serve_with_bridge(listener, station, config, None, shutdown).await
+}
+
+/// [`serve_with`], also serving the Foxglove live bridge at `/api/foxglove` when one is
+/// given (behind the same logins, Host and Origin checks).
+pub async fn serve_with_bridge(
+    listener: tokio::net::TcpListener,
+    station: StationHandle,
+    config: ConsoleConfig,
+    foxglove: Option<shoal_foxglove::BridgeHandle>,
+    shutdown: CancellationToken,
+) -> Result<(), ConsoleError> {
     let tls = tls::acceptor(&config.tls)?;
     let auth_config = config.auth.clone();
     let (auth, boot) = tokio::task::spawn_blocking(move || Auth::load(&auth_config))
@@ -455,7 +483,14 @@ pub async fn serve_with(
     if addr.ip().is_unspecified() && config.allowed_hosts.is_empty() {
         warn!(%addr, "the console listens on every interface but [console] allowed_hosts names no host: browsers must use an IP address");
     }
-    let (router, limits) = build(station, Arc::new(auth), &config, addr, tls.is_some());
+    let (router, limits) = build(
+        station,
+        Arc::new(auth),
+        &config,
+        addr,
+        tls.is_some(),
+        foxglove,
+    );
     limits::serve_connections(listener, router, limits, tls, shutdown).await?;
     Ok(())
 }

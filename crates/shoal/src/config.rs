@@ -12,6 +12,8 @@ use serde::{Deserialize, Serialize};
 use shoal_console::ConsoleConfig;
 use shoal_dds::DdsConfig;
 #[cfg(feature = "console")]
+use shoal_foxglove::BridgeConfig;
+#[cfg(feature = "console")]
 use shoal_history::HistoryConfig;
 use shoal_model::VehicleKind;
 use shoal_proxy::sim::{SimSettings, SimSpec};
@@ -32,6 +34,8 @@ type HistoryConfig = StationSide;
 type ConsoleConfig = StationSide;
 #[cfg(not(feature = "console"))]
 type TrafficConfig = StationSide;
+#[cfg(not(feature = "console"))]
+type BridgeConfig = StationSide;
 
 /// The commented default configuration, kept in the repository; a test parses it so it
 /// cannot drift from the code.
@@ -57,6 +61,8 @@ pub struct ShoalConfig {
     pub vehicle: VehicleConfig,
     /// The station's AIS and NMEA 0183 inputs (vessel traffic on the map, collision risk).
     pub traffic: TrafficConfig,
+    /// The Foxglove live bridge.
+    pub foxglove: BridgeConfig,
 }
 
 /// The `[vehicle]` section.
@@ -494,6 +500,10 @@ fn check(config: &ShoalConfig) -> Result<()> {
             .traffic
             .validate()
             .map_err(|e| anyhow::anyhow!("invalid configuration in [traffic]: {e}"))?;
+        config
+            .foxglove
+            .validate()
+            .map_err(|e| anyhow::anyhow!("invalid configuration in [foxglove]: {e}"))?;
     }
     config
         .security
@@ -609,7 +619,10 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 14]>([
+        rows.extend::<[(&str, &str, &str, Check); 15]>([
+            ("foxglove", "SHOAL_FOXGLOVE__ENABLED", "true", |c| {
+                c.foxglove.enabled && c.foxglove.max_clients == 8
+            }),
             ("station", "SHOAL_STATION__LOST_AFTER_S", "45", |c| {
                 c.station.lost_after_s == 45.0
             }),

@@ -156,6 +156,16 @@ pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> 
         )
     })?;
     let dds = station_dds(&cfg, &shutdown)?;
+    let foxglove = if cfg.foxglove.enabled {
+        let bridge =
+            shoal_foxglove::Bridge::start(Arc::clone(&dds), cfg.foxglove.clone(), shutdown.clone())
+                .await
+                .context("cannot start the Foxglove bridge ([foxglove])")?;
+        info!("Foxglove bridge: ws://{}/api/foxglove", cfg.console.listen);
+        Some(bridge)
+    } else {
+        None
+    };
     let station =
         Station::new(cfg.station.clone(), dds, history).context("cannot start the station")?;
     if !cfg.traffic.inputs.is_empty() {
@@ -165,10 +175,11 @@ pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> 
         // A fresh station has no picture yet, so this cannot be refused.
         let _ = station.handle().attach_traffic(picture);
     }
-    let api = tokio::spawn(shoal_console::serve_with(
+    let api = tokio::spawn(shoal_console::serve_with_bridge(
         listener,
         station.handle(),
         cfg.console.clone(),
+        foxglove,
         shutdown.clone(),
     ));
     let report = station
