@@ -5,7 +5,7 @@ use std::collections::{HashMap, VecDeque};
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use mcap::records::Record;
+use mcap::records::{ChunkHeader, Record, op};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
 use crate::error::{ReadError, ReplayError};
@@ -135,11 +135,19 @@ impl<R: Read> McapMessages<R> {
                 }
                 Ok(LinearReadEvent::Record { opcode, data }) => {
                     let start = self.fed.saturating_sub(RECORD_PREFIX + data.len() as u64);
+                    let corrupt = |detail: String| ReadError::Corrupt {
+                        offset: start,
+                        detail,
+                    };
+                    // Records replay does not use are skipped unparsed: each parse is a
+                    // chance for a hostile length to cost memory.
+                    if !matches!(opcode, op::SCHEMA | op::CHANNEL | op::MESSAGE | op::CHUNK) {
+                        self.good = self.fed;
+                        continue;
+                    }
+                    check_lengths(opcode, data).map_err(corrupt)?;
                     let record =
-                        mcap::parse_record(opcode, data).map_err(|e| ReadError::Corrupt {
-                            offset: start,
-                            detail: e.to_string(),
-                        })?;
+                        mcap::parse_record(opcode, data).map_err(|e| corrupt(e.to_string()))?;
                     let records = match record {
                         Record::Chunk { header, data } => {
                             if header.uncompressed_size > MAX_RECORD_BYTES {
@@ -152,15 +160,8 @@ impl<R: Read> McapMessages<R> {
                                 });
                             }
                             // The whole chunk first: a damaged chunk delivers nothing.
-                            let chunk = mcap::read::ChunkReader::new(header, &data).and_then(|r| {
-                                r.map(|r| r.map(Record::into_owned))
-                                    .collect::<Result<Vec<_>, _>>()
-                            });
-                            let chunk: Vec<Record<'static>> =
-                                chunk.map_err(|e| ReadError::Corrupt {
-                                    offset: start,
-                                    detail: format!("chunk: {e}"),
-                                })?;
+                            let chunk = chunk_records(&header, &data)
+                                .map_err(|e| corrupt(format!("chunk: {e}")))?;
                             self.stats.chunks += 1;
                             chunk
                         }
@@ -251,6 +252,125 @@ impl<R: Read> Iterator for McapMessages<R> {
             }
         }
     }
+}
+
+/// Checks every length a record of `opcode` declares inside `body` against what `body`
+/// holds, before the `mcap` crate parses it: the crate reserves memory for a string's or
+/// map's declared length first, so one hostile length field would cost gigabytes.
+fn check_lengths(opcode: u8, body: &[u8]) -> Result<(), String> {
+    let mut at = Fields { body, pos: 0 };
+    match opcode {
+        // id; name, encoding; the data's own length the crate checks.
+        op::SCHEMA => {
+            at.skip(2)?;
+            at.string("schema name")?;
+            at.string("schema encoding")?;
+        }
+        // id, schema id; topic, message encoding; metadata map.
+        op::CHANNEL => {
+            at.skip(4)?;
+            at.string("channel topic")?;
+            at.string("message encoding")?;
+            let map_len = at.length("channel metadata")?;
+            let end = at.pos + map_len;
+            let mut map = Fields {
+                body: &body[..end],
+                pos: at.pos,
+            };
+            while map.pos < end {
+                map.string("metadata key")?;
+                map.string("metadata value")?;
+            }
+        }
+        // start and end times, uncompressed size and CRC; compression.
+        op::CHUNK => {
+            at.skip(28)?;
+            at.string("chunk compression")?;
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// A cursor over a record body that checks each declared length.
+struct Fields<'a> {
+    body: &'a [u8],
+    pos: usize,
+}
+
+impl Fields<'_> {
+    fn skip(&mut self, n: usize) -> Result<(), String> {
+        if self.body.len() - self.pos < n {
+            return Err(format!("record ends after {} bytes", self.body.len()));
+        }
+        self.pos += n;
+        Ok(())
+    }
+
+    /// A u32 length prefix, checked against the bytes left; the position moves past it.
+    fn length(&mut self, what: &str) -> Result<usize, String> {
+        let start = self.pos;
+        self.skip(4)?;
+        let mut le = [0u8; 4];
+        le.copy_from_slice(&self.body[start..start + 4]);
+        let len = u32::from_le_bytes(le) as usize;
+        let left = self.body.len() - self.pos;
+        if len > left {
+            return Err(format!("{what} declares {len} bytes where {left} are left"));
+        }
+        Ok(len)
+    }
+
+    fn string(&mut self, what: &str) -> Result<(), String> {
+        let len = self.length(what)?;
+        self.pos += len;
+        Ok(())
+    }
+}
+
+/// The schema, channel and message records of a chunk, decompressed within its declared
+/// size (checked beforehand) and CRC-checked; each record's lengths are checked before
+/// it is parsed, and records replay does not use are skipped unparsed.
+fn chunk_records(header: &ChunkHeader, data: &[u8]) -> Result<Vec<Record<'static>>, String> {
+    let size = usize::try_from(header.uncompressed_size).map_err(|e| e.to_string())?;
+    let plain = match header.compression.as_str() {
+        "" => data.to_vec(),
+        "zstd" => zstd::bulk::decompress(data, size).map_err(|e| format!("zstd: {e}"))?,
+        other => return Err(format!("unsupported compression {other:?}")),
+    };
+    if plain.len() != size {
+        return Err(format!(
+            "{} bytes uncompressed where the header says {size}",
+            plain.len()
+        ));
+    }
+    if header.uncompressed_crc != 0 && crc32fast::hash(&plain) != header.uncompressed_crc {
+        return Err("CRC mismatch".into());
+    }
+    let mut records = Vec::new();
+    let mut rest = plain.as_slice();
+    while !rest.is_empty() {
+        if rest.len() < 9 {
+            return Err("a record prefix is cut short".into());
+        }
+        let opcode = rest[0];
+        let mut le = [0u8; 8];
+        le.copy_from_slice(&rest[1..9]);
+        let len = u64::from_le_bytes(le);
+        let body_len = usize::try_from(len)
+            .ok()
+            .filter(|l| *l <= rest.len() - 9)
+            .ok_or_else(|| format!("a record declares {len} bytes past the chunk's end"))?;
+        let body = &rest[9..9 + body_len];
+        rest = &rest[9 + body_len..];
+        if !matches!(opcode, op::SCHEMA | op::CHANNEL | op::MESSAGE) {
+            continue;
+        }
+        check_lengths(opcode, body)?;
+        let record = mcap::parse_record(opcode, body).map_err(|e| e.to_string())?;
+        records.push(record.into_owned());
+    }
+    Ok(records)
 }
 
 /// The MCAP files to replay for `path`: the file itself, or a directory's `.mcap` files in
