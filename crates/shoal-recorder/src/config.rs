@@ -33,6 +33,10 @@ pub struct RecorderConfig {
     pub max_file_bytes: u64,
     /// A file is closed and the next one opened once it has been open this long, seconds.
     pub max_file_seconds: u64,
+    /// The recorder's files (`PREFIX-*.mcap` in `directory`) are kept under this many
+    /// bytes: after each file is closed, the oldest are deleted until they fit (the newest
+    /// is always kept). At least twice `max_file_bytes`.
+    pub max_total_bytes: u64,
     /// Chunk compression.
     pub compression: Compression,
     /// DDS topic names to record; empty records every Shoal topic.
@@ -49,6 +53,7 @@ impl Default for RecorderConfig {
             prefix: "shoal".into(),
             max_file_bytes: 512 * 1024 * 1024,
             max_file_seconds: 3600,
+            max_total_bytes: 16 * 1024 * 1024 * 1024,
             compression: Compression::Zstd,
             topics: Vec::new(),
             queue_samples: 65_536,
@@ -80,6 +85,12 @@ impl RecorderConfig {
             return bad(format!(
                 "recorder.max_file_bytes = {} is below the smallest, {MIN_FILE_BYTES}",
                 self.max_file_bytes
+            ));
+        }
+        if self.max_total_bytes < self.max_file_bytes.saturating_mul(2) {
+            return bad(format!(
+                "recorder.max_total_bytes = {} is below twice max_file_bytes ({})",
+                self.max_total_bytes, self.max_file_bytes
             ));
         }
         if self.max_file_seconds == 0 {

@@ -4,6 +4,7 @@
 
 use std::path::Path;
 
+use mcap::records::op;
 use proptest::prelude::*;
 use shoal_model::{
     EnvironmentObservation, Event, EventKind, Severity, StateVector, Task, TaskAssignment,
@@ -206,6 +207,62 @@ fn files_rotate_by_size_and_every_file_is_complete() {
     }
     assert_eq!(next, 30_001);
     assert_eq!(w.stats().files, files.len() as u64);
+}
+
+/// Over a long deployment the recordings stay under `max_total_bytes`: the oldest files of
+/// this prefix go, the newest and other prefixes' files stay, and the rest still read.
+#[test]
+fn the_oldest_files_are_deleted_to_keep_under_the_total() {
+    let dir = tempfile::tempdir().unwrap();
+    let other = dir.path().join("other-20260101T000000Z-1.mcap");
+    std::fs::write(&other, b"not ours").unwrap();
+    let mut cfg = config(dir.path());
+    cfg.max_file_bytes = 1024 * 1024;
+    cfg.max_total_bytes = 3 * 1024 * 1024;
+    cfg.compression = Compression::None;
+    let mut w = RecordWriter::new(&cfg).unwrap();
+    for i in 0..60_000 {
+        let data = shoal_dds::to_cdr_le(&state("auv-1", i)).unwrap();
+        w.write(
+            Topic::StateVector,
+            u64::from(i) + 1,
+            u64::from(i) + 1,
+            &data,
+        )
+        .unwrap();
+    }
+    w.close().unwrap();
+    let ours: Vec<_> = crate::mcap_files(dir.path())
+        .unwrap()
+        .into_iter()
+        .filter(|p| p != &other)
+        .collect();
+    let total: u64 = ours
+        .iter()
+        .map(|p| std::fs::metadata(p).unwrap().len())
+        .sum();
+    assert!(total <= cfg.max_total_bytes, "{total} bytes kept");
+    assert!(w.stats().files_deleted >= 2, "{:?}", w.stats());
+    assert_eq!(w.stats().files, w.stats().files_deleted + ours.len() as u64);
+    assert_eq!(ours, w.files(), "the writer lists only what is left");
+    assert!(
+        other.exists(),
+        "another prefix's file is not ours to delete"
+    );
+    // What is left is the newest part of the recording, every file whole.
+    let mut last = 0;
+    for f in &ours {
+        let (messages, error) = read_all(f);
+        assert!(error.is_none(), "{error:?}");
+        for m in messages {
+            assert!(m.log_time_ns > last);
+            last = m.log_time_ns;
+        }
+    }
+    assert_eq!(last, 60_000);
+    // A cap under two files is refused at the start.
+    cfg.max_total_bytes = cfg.max_file_bytes;
+    assert!(RecordWriter::new(&cfg).is_err());
 }
 
 #[test]
@@ -429,5 +486,75 @@ proptest! {
                 prop_assert!(e.offset() <= input.len() as u64);
             }
         }
+    }
+}
+
+/// An MCAP record: opcode, little-endian length, body.
+fn record(opcode: u8, body: &[u8]) -> Vec<u8> {
+    let mut r = vec![opcode];
+    r.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    r.extend_from_slice(body);
+    r
+}
+
+/// The file magic and then `records`.
+fn file_of(records: &[Vec<u8>]) -> Vec<u8> {
+    let mut f = b"\x89MCAP0\r\n".to_vec();
+    for r in records {
+        f.extend_from_slice(r);
+    }
+    f
+}
+
+/// A length field that claims 4 GiB must cost nothing: the fuzzer's finding (a Header
+/// whose string length made the mcap crate reserve 4 GiB) and its kin in the records
+/// replay parses, at the top level and inside a chunk.
+#[test]
+fn hostile_length_fields_are_refused_before_any_allocation() {
+    // The fuzz artifact: unused records are skipped, the file then ends short.
+    let found = b"\x89MCAP0\r\n\x00\x00\x00\x00\x00\x00\x00\x00\x00\x01\x05\x00\x00\x00\x00\x00\x00\x00\x7f\xff\xff\xff\xff\xff\xff\xff\x00\x00";
+    let (messages, error) = read_bytes(found);
+    assert!(messages.is_empty());
+    assert!(error.is_some());
+    // A Header (unused) claiming a 4 GiB profile string, then a good channel-less end.
+    let mut header = u32::MAX.to_le_bytes().to_vec();
+    header.extend_from_slice(b"x");
+    let (messages, error) = read_bytes(&file_of(&[record(op::HEADER, &header)]));
+    assert!(messages.is_empty());
+    assert!(
+        !matches!(error, Some(ReadError::Corrupt { .. })),
+        "{error:?}"
+    );
+    // A Channel whose topic claims 4 GiB: corrupt, at the record's offset.
+    let mut channel = vec![1, 0, 1, 0];
+    channel.extend_from_slice(&u32::MAX.to_le_bytes());
+    let (_, error) = read_bytes(&file_of(&[record(op::CHANNEL, &channel)]));
+    match error {
+        Some(ReadError::Corrupt { offset, detail }) => {
+            assert_eq!(offset, 8);
+            assert!(
+                detail.contains("channel topic declares 4294967295 bytes"),
+                "{detail}"
+            );
+        }
+        other => panic!("{other:?}"),
+    }
+    // The same channel inside an uncompressed chunk: the chunk is refused.
+    let inner = record(op::CHANNEL, &channel);
+    let mut chunk = Vec::new();
+    chunk.extend_from_slice(&0u64.to_le_bytes()); // message start time
+    chunk.extend_from_slice(&0u64.to_le_bytes()); // message end time
+    chunk.extend_from_slice(&(inner.len() as u64).to_le_bytes()); // uncompressed size
+    chunk.extend_from_slice(&0u32.to_le_bytes()); // no CRC
+    chunk.extend_from_slice(&0u32.to_le_bytes()); // compression "" (none)
+    chunk.extend_from_slice(&(inner.len() as u64).to_le_bytes());
+    chunk.extend_from_slice(&inner);
+    let (_, error) = read_bytes(&file_of(&[record(op::CHUNK, &chunk)]));
+    match error {
+        Some(ReadError::Corrupt { offset, detail }) => {
+            assert_eq!(offset, 8);
+            assert!(detail.contains("channel topic declares"), "{detail}");
+        }
+        other => panic!("{other:?}"),
     }
 }

@@ -37,6 +37,8 @@ pub struct WriterStats {
     pub bytes: u64,
     /// Files opened.
     pub files: u64,
+    /// Old files deleted to keep the recordings under `max_total_bytes`.
+    pub files_deleted: u64,
 }
 
 /// A file being written; its length is shared so it can be read while the MCAP writer
@@ -96,6 +98,7 @@ pub struct RecordWriter {
     directory: PathBuf,
     prefix: String,
     max_file_bytes: u64,
+    max_total_bytes: u64,
     max_file_age: Duration,
     compression: Compression,
     topics: Vec<Topic>,
@@ -129,6 +132,7 @@ impl RecordWriter {
             directory: config.directory.clone(),
             prefix: config.prefix.clone(),
             max_file_bytes: config.max_file_bytes,
+            max_total_bytes: config.max_total_bytes,
             max_file_age: Duration::from_secs(config.max_file_seconds),
             compression: config.compression,
             topics,
@@ -282,7 +286,44 @@ impl RecordWriter {
         inner.inner.get_ref().sync_all().map_err(io_err)?;
         self.closed_bytes += len;
         info!(file = %file.path.display(), messages = file.messages, bytes = len, "recording file closed");
+        self.prune();
         Ok(())
+    }
+
+    /// Deletes this prefix's oldest files until they fit in `max_total_bytes`, keeping
+    /// the newest. A failure is logged, not fatal: recording goes on.
+    fn prune(&mut self) {
+        let Ok(all) = crate::reader::mcap_files(&self.directory) else {
+            return;
+        };
+        let mine: Vec<(PathBuf, u64)> = all
+            .into_iter()
+            .filter(|p| {
+                p.file_name()
+                    .and_then(|n| n.to_str())
+                    .is_some_and(|n| n.starts_with(&format!("{}-", self.prefix)))
+            })
+            .filter_map(|p| std::fs::metadata(&p).ok().map(|m| (p, m.len())))
+            .collect();
+        let mut total: u64 = mine.iter().map(|(_, len)| len).sum();
+        let keep_newest = mine.len().saturating_sub(1);
+        for (path, len) in mine.into_iter().take(keep_newest) {
+            if total <= self.max_total_bytes {
+                break;
+            }
+            match std::fs::remove_file(&path) {
+                Ok(()) => {
+                    total -= len;
+                    self.stats.files_deleted += 1;
+                    self.files.retain(|f| f != &path);
+                    info!(file = %path.display(), bytes = len, "oldest recording deleted (recorder.max_total_bytes)");
+                }
+                Err(e) => {
+                    tracing::warn!(file = %path.display(), error = %e, "oldest recording not deleted");
+                    break;
+                }
+            }
+        }
     }
 
     fn open(&mut self) -> Result<&mut OpenFile, RecordError> {

@@ -27,6 +27,10 @@ pub struct RecordArgs {
     /// Start a new file once one holds this many MiB.
     #[arg(long, value_name = "N", default_value_t = 512)]
     pub max_file_mb: u64,
+    /// Keep the recorder's files (PREFIX-*.mcap in the directory) under this many MiB:
+    /// the oldest are deleted after each file is closed. At least twice --max-file-mb.
+    #[arg(long, value_name = "N", default_value_t = 16384)]
+    pub max_total_mb: u64,
     /// Start a new file once one has been open this many seconds.
     #[arg(long, value_name = "N", default_value_t = 3600)]
     pub max_file_seconds: u64,
@@ -80,6 +84,7 @@ pub async fn record(cfg: &ShoalConfig, args: RecordArgs) -> Result<()> {
         prefix: args.prefix,
         max_file_bytes: args.max_file_mb.saturating_mul(1024 * 1024),
         max_file_seconds: args.max_file_seconds,
+        max_total_bytes: args.max_total_mb.saturating_mul(1024 * 1024),
         topics: args.topics,
         ..RecorderConfig::default()
     };
