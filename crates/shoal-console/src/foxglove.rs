@@ -57,12 +57,6 @@ pub(crate) async fn foxglove(
     headers: HeaderMap,
     mut upgrade: WebSocketUpgrade,
 ) -> Response {
-    let Some(bridge) = app.foxglove.clone() else {
-        return ApiError::NotFound(
-            "the Foxglove bridge is off ([foxglove] enabled = false)".into(),
-        )
-        .into_response();
-    };
     // A page of another site may not open it with the browser's credentials, as for
     // the live feed; tools send no Origin and a bearer token.
     let origin = headers.get(header::ORIGIN);
@@ -84,6 +78,12 @@ pub(crate) async fn foxglove(
         ))
         .into_response();
     }
+    let Some(bridge) = app.foxglove else {
+        return ApiError::NotFound(
+            "the Foxglove bridge is off ([foxglove] enabled = false)".into(),
+        )
+        .into_response();
+    };
     let offered: Vec<&str> = upgrade
         .requested_protocols()
         .filter_map(|p| p.to_str().ok())

@@ -664,3 +664,64 @@ async fn tls_with_a_missing_key_or_unreadable_files_refuses_to_start() {
         assert!(err.to_string().contains("[console.tls]"), "{err}");
     }
 }
+
+/// `/api/foxglove` is an API route like the others: no token, no upgrade; a page of
+/// another site is refused even with a valid token; the Foxglove app's `?token=` is
+/// accepted; and with the bridge off an authorised client is told so (404).
+#[tokio::test]
+async fn the_foxglove_route_needs_a_token_and_refuses_other_sites() {
+    let f = station();
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let config = ConsoleConfig {
+        auth: auth_config(&f),
+        ..ConsoleConfig::default()
+    };
+    let stop = CancellationToken::new();
+    let (station, s) = (f.handle.clone(), stop.clone());
+    tokio::spawn(async move { shoal_console::serve_with(listener, station, config, s).await });
+    // The status code of a WebSocket upgrade request for `path` with `extra` headers.
+    let status = |path: String, extra: String| async move {
+        let mut tcp = None;
+        for _ in 0..50 {
+            if let Ok(t) = tokio::net::TcpStream::connect(addr).await {
+                tcp = Some(t);
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let mut tcp = tcp.unwrap();
+        let request = format!(
+            "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: Upgrade\r\nUpgrade: websocket\r\n\
+             Sec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\
+             Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n{extra}\r\n"
+        );
+        tcp.write_all(request.as_bytes()).await.unwrap();
+        let mut head = vec![0u8; 12];
+        tcp.read_exact(&mut head).await.unwrap();
+        String::from_utf8_lossy(&head[9..12])
+            .parse::<u16>()
+            .unwrap()
+    };
+    let path = "/api/foxglove".to_string();
+    assert_eq!(status(path.clone(), String::new()).await, 401);
+    assert_eq!(
+        status(format!("{path}?token=not-a-token"), String::new()).await,
+        401
+    );
+    let bearer = format!("Authorization: Bearer {TOKEN}\r\n");
+    assert_eq!(
+        status(
+            path.clone(),
+            format!("{bearer}Origin: https://evil.example\r\n")
+        )
+        .await,
+        403
+    );
+    assert_eq!(
+        status(format!("{path}?token={TOKEN}"), String::new()).await,
+        404
+    );
+    assert_eq!(status(path, bearer).await, 404);
+    stop.cancel();
+}
