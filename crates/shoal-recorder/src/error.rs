@@ -113,17 +113,17 @@ pub enum ReplayError {
         /// Why (boxed: DDS errors are large and replay's results are passed around).
         source: Box<CreateError>,
     },
-    /// The participant for a vehicle could not be opened (e.g. no credentials for it).
-    #[error("cannot publish as vehicle {vehicle:?}: {source}")]
-    Vehicle {
-        /// The vehicle.
-        vehicle: String,
-        /// Why.
-        source: Box<dyn std::error::Error + Send + Sync>,
-    },
     /// The domain is secure and the caller gave one participant for everything.
     #[error(
-        "this participant has DDS Security credentials: one identity cannot publish every vehicle's data; replay with each vehicle's credentials (Publishers::per_vehicle)"
+        "this participant has DDS Security credentials: one identity cannot publish every vehicle's data; replay each identity's samples through its own participant (Publishers::secure)"
     )]
     SecureShared,
+    /// A secure replay runs a process per vehicle; a recording naming more is refused.
+    #[error(
+        "the recording names more than {max} vehicles: a secure replay runs one process per vehicle"
+    )]
+    TooManyVehicles {
+        /// The limit.
+        max: usize,
+    },
 }

@@ -29,7 +29,10 @@ pub use config::{Compression, RecorderConfig};
 pub use error::{ReadError, RecordError, ReplayError};
 pub use reader::{McapMessages, ReaderStats, RecordedMessage, mcap_files};
 pub use recorder::{Recorder, RecorderStats};
-pub use replay::{Publishers, ReplayOptions, ReplayStats, Replayer, Speed, decode_message};
+pub use replay::{
+    Identity, Publishers, ReplayOptions, ReplayStats, Replayer, Speed, decode_message,
+    publishing_vehicles,
+};
 pub use topic::{Sample, Topic};
 pub use writer::{RecordWriter, WriterStats};
 

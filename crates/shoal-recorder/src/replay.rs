@@ -1,9 +1,9 @@
 //! Replay: recorded samples published again on DDS at the recorded pace.
 
-use std::collections::HashMap;
+use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, SystemTime};
 
 use shoal_dds::{CdrError, PubSub, TopicType, Writer, WriterOptions};
 use shoal_model::ValidationError;
@@ -44,6 +44,9 @@ pub struct ReplayOptions {
     /// How long a new writer waits for a first matched reader before the replay goes on
     /// (samples written before any reader matched are lost); the replay clock pauses.
     pub match_timeout: Duration,
+    /// When the first message is due (by the wall clock, so that the processes of one
+    /// secure replay keep one pace); `None`: at once.
+    pub start_at: Option<SystemTime>,
 }
 
 impl Default for ReplayOptions {
@@ -52,6 +55,7 @@ impl Default for ReplayOptions {
             speed: Speed::Factor(1.0),
             include_tasks: false,
             match_timeout: Duration::from_secs(5),
+            start_at: None,
         }
     }
 }
@@ -78,6 +82,8 @@ pub struct ReplayStats {
     pub tasks_skipped: u64,
     /// Samples DDS refused to send.
     pub write_failed: u64,
+    /// Samples of another identity, published by the process that holds it.
+    pub elsewhere: u64,
 }
 
 /// Why a recorded message cannot be replayed.
@@ -100,29 +106,29 @@ pub fn decode_message(message: &RecordedMessage) -> Result<Sample, SampleError> 
     Ok(sample)
 }
 
-/// Opens the participant of one vehicle (with its credentials) for a replay.
-type OpenVehicle =
-    Box<dyn FnMut(&str) -> Result<PubSub, Box<dyn std::error::Error + Send + Sync>> + Send>;
-
-/// The DDS participants a replay publishes through.
+/// Whose samples a participant with DDS Security credentials publishes.
 ///
-/// On a secure domain each vehicle may publish only in its own partition and the station's
-/// identity cannot speak for vehicles, so a replay publishes each vehicle's samples
-/// through a participant holding that vehicle's credentials, and the station's own
-/// samples (task assignments, events that name no vehicle) through the station's.
-pub struct Publishers {
-    station: Arc<PubSub>,
-    open_vehicle: Option<OpenVehicle>,
-    vehicles: HashMap<String, Arc<PubSub>>,
+/// Cyclone DDS holds one security identity per process (a second participant with other
+/// credentials presents the first one's permissions), so a secure replay runs one process
+/// per identity: the station's samples in one, each vehicle's in its own.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Identity {
+    /// Samples no vehicle publishes (task assignments, events that name no vehicle).
+    Station,
+    /// The samples this vehicle publishes.
+    Vehicle(String),
 }
 
-impl std::fmt::Debug for Publishers {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Publishers")
-            .field("per_vehicle", &self.open_vehicle.is_some())
-            .field("vehicles", &self.vehicles.keys().collect::<Vec<_>>())
-            .finish_non_exhaustive()
-    }
+/// The DDS participant a replay publishes through, and which samples it may publish.
+///
+/// On a secure domain each vehicle may publish only in its own partition and the station's
+/// identity cannot speak for vehicles, so a participant with credentials publishes only
+/// the samples of its [`Identity`]; the others are left to the process that holds theirs.
+#[derive(Debug)]
+pub struct Publishers {
+    pubsub: Arc<PubSub>,
+    /// `None`: everything (a domain without DDS Security).
+    only: Option<Identity>,
 }
 
 impl Publishers {
@@ -132,46 +138,61 @@ impl Publishers {
         if pubsub.credentials().is_some() {
             return Err(ReplayError::SecureShared);
         }
-        Ok(Self {
-            station: pubsub,
-            open_vehicle: None,
-            vehicles: HashMap::new(),
-        })
+        Ok(Self { pubsub, only: None })
     }
 
-    /// The station's samples through `station`, each vehicle's through the participant
-    /// `open_vehicle` makes for it (opened on the vehicle's first sample, then kept).
-    pub fn per_vehicle<F, E>(station: Arc<PubSub>, mut open_vehicle: F) -> Self
-    where
-        F: FnMut(&str) -> Result<PubSub, E> + Send + 'static,
-        E: Into<Box<dyn std::error::Error + Send + Sync>>,
-    {
+    /// Only the samples of `identity`, through `pubsub`, which holds its credentials.
+    pub fn secure(pubsub: Arc<PubSub>, identity: Identity) -> Self {
         Self {
-            station,
-            open_vehicle: Some(Box::new(move |id| open_vehicle(id).map_err(Into::into))),
-            vehicles: HashMap::new(),
+            pubsub,
+            only: Some(identity),
         }
     }
 
-    /// The participant for a sample of `vehicle` (`None`: the station's), and its name
-    /// for the writer table.
-    fn for_vehicle(&mut self, vehicle: Option<&str>) -> Result<(&str, Arc<PubSub>), ReplayError> {
-        let (Some(id), Some(open)) = (vehicle, self.open_vehicle.as_mut()) else {
-            return Ok(("", Arc::clone(&self.station)));
-        };
-        if !self.vehicles.contains_key(id) {
-            let pubsub = open(id).map_err(|source| ReplayError::Vehicle {
-                vehicle: id.to_string(),
-                source,
-            })?;
-            info!(vehicle = id, "replaying as this vehicle");
-            self.vehicles.insert(id.to_string(), Arc::new(pubsub));
-        }
-        match self.vehicles.get_key_value(id) {
-            Some((k, p)) => Ok((k.as_str(), Arc::clone(p))),
-            None => Ok(("", Arc::clone(&self.station))),
+    /// Whether a sample published by `vehicle` (`None`: the station) goes out here.
+    fn publishes(&self, vehicle: Option<&str>) -> bool {
+        match (&self.only, vehicle) {
+            (None, _) | (Some(Identity::Station), None) => true,
+            (Some(Identity::Vehicle(id)), Some(v)) => id == v,
+            _ => false,
         }
     }
+}
+
+/// The vehicles whose samples a replay of `path` publishes (task assignments only with
+/// `include_tasks`), read ahead so that a secure replay can start one process per
+/// identity. More than `max` vehicles is an error; unreadable parts are skipped here (the
+/// replay itself reports them).
+pub fn publishing_vehicles(
+    path: &Path,
+    include_tasks: bool,
+    max: usize,
+) -> Result<BTreeSet<String>, ReplayError> {
+    let mut ids = BTreeSet::new();
+    for file in mcap_files(path)? {
+        let f = std::fs::File::open(&file).map_err(|source| ReplayError::Open {
+            path: file.clone(),
+            source,
+        })?;
+        for message in McapMessages::new(std::io::BufReader::new(f)) {
+            let Ok(message) = message else { break };
+            let Ok(sample) = decode_message(&message) else {
+                continue;
+            };
+            if sample.topic() == Topic::TaskAssignment && !include_tasks {
+                continue;
+            }
+            if let Some(id) = sample.publishing_vehicle()
+                && !ids.contains(id)
+            {
+                if ids.len() == max {
+                    return Err(ReplayError::TooManyVehicles { max });
+                }
+                ids.insert(id.to_string());
+            }
+        }
+    }
+    Ok(ids)
 }
 
 /// A writer of any Shoal topic.
@@ -239,7 +260,7 @@ impl AnyWriter {
 pub struct Replayer {
     publishers: Publishers,
     options: ReplayOptions,
-    writers: HashMap<(String, Topic), AnyWriter>,
+    writers: HashMap<Topic, AnyWriter>,
     stats: ReplayStats,
     /// Recorded time and the instant it is replayed at, of the replay's first message.
     clock: Option<(u64, Instant)>,
@@ -379,7 +400,14 @@ impl Replayer {
         let Speed::Factor(factor) = self.options.speed else {
             return;
         };
-        let (start_ns, start) = *self.clock.get_or_insert((log_time_ns, Instant::now()));
+        let start_at = self.options.start_at.take();
+        let (start_ns, start) = *self.clock.get_or_insert_with(|| {
+            let now = Instant::now();
+            let start = start_at
+                .and_then(|at| at.duration_since(SystemTime::now()).ok())
+                .map_or(now, |wait| now + wait);
+            (log_time_ns, start)
+        });
         // A message logged before the first (clocks stepped, files of two recorders) is
         // due at once.
         let offset_ns = log_time_ns.saturating_sub(start_ns) as f64 / factor;
@@ -392,17 +420,20 @@ impl Replayer {
 
     async fn publish(&mut self, sample: Sample) -> Result<(), ReplayError> {
         let topic = sample.topic();
-        let (who, pubsub) = self.publishers.for_vehicle(sample.publishing_vehicle())?;
-        let key = (who.to_string(), topic);
+        if !self.publishers.publishes(sample.publishing_vehicle()) {
+            self.stats.elsewhere += 1;
+            return Ok(());
+        }
+        let key = topic;
         if !self.writers.contains_key(&key) {
-            let writer = AnyWriter::new(topic, &pubsub)?;
+            let writer = AnyWriter::new(topic, &self.publishers.pubsub)?;
             let waited = wait_for_reader(&writer, self.options.match_timeout).await;
             // The clock pauses while a writer waits for its readers, so the pace of what
             // follows is kept.
             if let Some((_, start)) = self.clock.as_mut() {
                 *start += waited;
             }
-            self.writers.insert(key.clone(), writer);
+            self.writers.insert(key, writer);
         }
         let Some(writer) = self.writers.get(&key) else {
             return Ok(());

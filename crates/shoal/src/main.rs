@@ -469,7 +469,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         )),
         Command::ModemEmu(args) => rt.block_on(acoustic::modem_emu(args)),
         Command::Record(args) => rt.block_on(record::record(&cfg, args)),
-        Command::Replay(args) => rt.block_on(record::replay(&cfg, args)),
+        Command::Replay(args) => rt.block_on(record::replay(&cfg, cli.config.as_deref(), args)),
         Command::Config { default } => {
             if default {
                 print!("{}", config::DEFAULT_CONFIG);

@@ -8,7 +8,7 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use shoal_dds::{Credentials, PubSub};
 use shoal_recorder::{
-    Publishers, Recorder, RecorderConfig, ReplayOptions, ReplayStats, Replayer, Speed,
+    Identity, Publishers, Recorder, RecorderConfig, ReplayOptions, ReplayStats, Replayer, Speed,
 };
 use shoal_security::dds::{DdsKeystore, Grant};
 use tracing::{info, warn};
@@ -57,6 +57,13 @@ pub struct ReplayArgs {
     /// commands whichever live vehicle carries that id.
     #[arg(long)]
     pub with_tasks: bool,
+    /// (internal) Publish only this vehicle's samples, under its identity: a secure
+    /// replay starts one such process per vehicle.
+    #[arg(long, hide = true, value_name = "ID")]
+    pub as_vehicle: Option<String>,
+    /// (internal) The wall-clock instant, in ms since 1970, the first message is due.
+    #[arg(long, hide = true, value_name = "MS")]
+    pub start_at_unix_ms: Option<u64>,
 }
 
 /// The participant the recorder reads with: the station's identity (it reads every
@@ -121,46 +128,108 @@ pub async fn record(cfg: &ShoalConfig, args: RecordArgs) -> Result<()> {
     Ok(())
 }
 
-/// The participants a replay publishes through. With security on, each vehicle's samples
-/// go out under that vehicle's own identity from the key store (or its bundle): never
-/// one issued for the occasion, so a recording cannot make this host mint identities for
-/// vehicle ids it merely names.
-fn publishers(cfg: &ShoalConfig) -> Result<Publishers> {
-    let station = Arc::new(station_participant(cfg, "the replay")?);
-    if !cfg.security.enabled {
-        return Ok(Publishers::insecure(station)?);
-    }
-    let security = cfg.security.clone();
-    let dds = cfg.dds.clone();
-    Ok(Publishers::per_vehicle(station, move |vehicle: &str| {
-        vehicle_participant(&security, &dds, vehicle)
-    }))
-}
+/// A secure replay starts at most this many vehicle processes.
+const MAX_REPLAY_VEHICLES: usize = 256;
 
-fn vehicle_participant(
-    security: &crate::config::SecurityConfig,
-    dds: &shoal_dds::DdsConfig,
-    vehicle: &str,
-) -> Result<PubSub, Box<dyn std::error::Error + Send + Sync>> {
+/// How long the vehicle processes of a secure replay get to join the domain before the
+/// first message is due.
+const JOIN_GRACE: Duration = Duration::from_secs(3);
+
+/// A vehicle's participant for a replay: its identity from the key store (or its
+/// bundle), never one issued for the occasion, so a recording cannot make this host mint
+/// identities for vehicle ids it merely names.
+fn vehicle_participant(cfg: &ShoalConfig, vehicle: &str) -> Result<PubSub> {
+    let security = &cfg.security;
     let credentials = if security.bundle.as_os_str().is_empty() {
         let dir = crate::keys::dds_dir(&security.store);
         let store = DdsKeystore::open(&dir, crate::keys::keystore_options(security))
-            .map_err(|e| format!("the DDS Security keystore {}: {e}", dir.display()))?;
-        let enclave = store.enclave(&Grant::Vehicle(vehicle.to_string())).map_err(|e| {
+            .with_context(|| format!("the DDS Security keystore {}", dir.display()))?;
+        let enclave = store
+            .enclave(&Grant::Vehicle(vehicle.to_string()))
+            .with_context(|| {
+                format!(
+                    "cannot publish as vehicle {vehicle:?}: the key store {} has no identity for it (replay publishes only as vehicles already issued one)",
+                    security.store.display()
+                )
+            })?;
+        Credentials::vehicle(enclave, vehicle)
+    } else {
+        crate::keys::vehicle(security, vehicle)
+            .with_context(|| format!("cannot publish as vehicle {vehicle:?}"))?
+    };
+    PubSub::with_credentials(&cfg.dds, credentials)
+        .with_context(|| format!("cannot join DDS securely as vehicle {vehicle:?}"))
+}
+
+/// Whether the key store (or bundle) holds `vehicle`'s identity, checked before any
+/// process starts so that a missing one is named at once.
+fn check_vehicle_identity(cfg: &ShoalConfig, vehicle: &str) -> Result<()> {
+    let security = &cfg.security;
+    if !security.bundle.as_os_str().is_empty() {
+        return Ok(());
+    }
+    let dir = crate::keys::dds_dir(&security.store);
+    let store = DdsKeystore::open(&dir, crate::keys::keystore_options(security))
+        .with_context(|| format!("the DDS Security keystore {}", dir.display()))?;
+    store
+        .enclave(&Grant::Vehicle(vehicle.to_string()))
+        .with_context(|| {
             format!(
-                "{e}: the key store {} has no identity for it (replay publishes only as vehicles already issued one)",
+                "cannot publish as vehicle {vehicle:?}: the key store {} has no identity for it (replay publishes only as vehicles already issued one)",
                 security.store.display()
             )
         })?;
-        Credentials::vehicle(enclave, vehicle)
-    } else {
-        crate::keys::vehicle(security, vehicle).map_err(|e| format!("{e:#}"))?
-    };
-    Ok(PubSub::with_credentials(dds, credentials)?)
+    Ok(())
 }
 
-/// `shoal replay`.
-pub async fn replay(cfg: &ShoalConfig, args: ReplayArgs) -> Result<()> {
+/// One vehicle process of a secure replay.
+struct VehicleProcess {
+    vehicle: String,
+    child: tokio::process::Child,
+}
+
+/// Starts a process publishing `vehicle`'s samples of the same replay.
+fn spawn_vehicle(
+    config_file: Option<&std::path::Path>,
+    args: &ReplayArgs,
+    vehicle: &str,
+    start_at_ms: u64,
+) -> Result<VehicleProcess> {
+    let exe = std::env::current_exe().context("cannot find the shoal executable")?;
+    let mut cmd = tokio::process::Command::new(exe);
+    if let Some(c) = config_file {
+        cmd.arg("--config").arg(c);
+    }
+    cmd.arg("replay")
+        .arg(&args.path)
+        .args(["--speed", &args.speed])
+        .args(["--as-vehicle", vehicle])
+        .args(["--start-at-unix-ms", &start_at_ms.to_string()])
+        .kill_on_drop(true);
+    if args.repeat {
+        cmd.arg("--loop");
+    }
+    if args.with_tasks {
+        cmd.arg("--with-tasks");
+    }
+    let child = cmd
+        .spawn()
+        .with_context(|| format!("cannot start the replay process of vehicle {vehicle:?}"))?;
+    Ok(VehicleProcess {
+        vehicle: vehicle.to_string(),
+        child,
+    })
+}
+
+/// `shoal replay`. Without DDS Security one participant publishes everything. With it,
+/// each identity publishes from its own process (Cyclone DDS holds one per process): this
+/// one the station's samples, one started per vehicle that vehicle's, all keeping one
+/// pace from a shared start instant.
+pub async fn replay(
+    cfg: &ShoalConfig,
+    config_file: Option<&std::path::Path>,
+    args: ReplayArgs,
+) -> Result<()> {
     let speed = if args.speed == "max" {
         Speed::AsFastAsPossible
     } else {
@@ -174,18 +243,58 @@ pub async fn replay(cfg: &ShoalConfig, args: ReplayArgs) -> Result<()> {
     // Nothing is published before the files are known to exist.
     shoal_recorder::mcap_files(&args.path).context("cannot replay")?;
     let shutdown = crate::daemons::shutdown_signal(false);
-    let options = ReplayOptions {
+    let mut options = ReplayOptions {
         speed,
         include_tasks: args.with_tasks,
         ..ReplayOptions::default()
     };
-    let mut replayer = Replayer::new(publishers(cfg)?, options);
-    replayer.on_progress(PROGRESS_EVERY, |s| print_stats("progress", s));
+    let mut vehicles = Vec::new();
+    let (publishers, who) = if !cfg.security.enabled {
+        (
+            Publishers::insecure(Arc::new(station_participant(cfg, "the replay")?))?,
+            "replay".to_string(),
+        )
+    } else if let Some(vehicle) = &args.as_vehicle {
+        options.start_at = args
+            .start_at_unix_ms
+            .map(|ms| std::time::UNIX_EPOCH + Duration::from_millis(ms));
+        let pubsub = vehicle_participant(cfg, vehicle)?;
+        info!(vehicle = %vehicle, "replaying as this vehicle");
+        (
+            Publishers::secure(Arc::new(pubsub), Identity::Vehicle(vehicle.clone())),
+            format!("replay as {vehicle}"),
+        )
+    } else {
+        let ids =
+            shoal_recorder::publishing_vehicles(&args.path, args.with_tasks, MAX_REPLAY_VEHICLES)
+                .context("cannot replay")?;
+        for id in &ids {
+            check_vehicle_identity(cfg, id)?;
+        }
+        let grace = JOIN_GRACE + Duration::from_millis(20 * ids.len() as u64);
+        let start_at = std::time::SystemTime::now() + grace;
+        let start_at_ms = start_at
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap_or_default()
+            .as_millis() as u64;
+        options.start_at = Some(std::time::UNIX_EPOCH + Duration::from_millis(start_at_ms));
+        for id in &ids {
+            vehicles.push(spawn_vehicle(config_file, &args, id, start_at_ms)?);
+        }
+        let pubsub = station_participant(cfg, "the replay")?;
+        (
+            Publishers::secure(Arc::new(pubsub), Identity::Station),
+            "replay".to_string(),
+        )
+    };
+    let mut replayer = Replayer::new(publishers, options);
+    let label = who.clone();
+    replayer.on_progress(PROGRESS_EVERY, move |s| print_stats(&label, "progress", s));
     let mut damaged = Vec::new();
     let run = async {
         loop {
             damaged = replayer.replay_path(&args.path, &shutdown).await?;
-            print_stats("pass done", &replayer.stats());
+            print_stats(&who, "pass done", &replayer.stats());
             if !args.repeat || shutdown.is_cancelled() {
                 break;
             }
@@ -197,9 +306,34 @@ pub async fn replay(cfg: &ShoalConfig, args: ReplayArgs) -> Result<()> {
     // participants go.
     tokio::time::sleep(Duration::from_secs(1)).await;
     let s = replayer.stats();
-    print_stats("done", &s);
+    print_stats(&who, "done", &s);
+    let mut failed = Vec::new();
+    for mut v in vehicles {
+        // Stopped here (Ctrl-C reaches the vehicle processes too; a SIGTERM does not):
+        // they stop with it.
+        if shutdown.is_cancelled() {
+            let _ = v.child.start_kill();
+        }
+        let status = tokio::select! {
+            status = v.child.wait() => status,
+            () = shutdown.cancelled() => {
+                let _ = v.child.start_kill();
+                v.child.wait().await
+            }
+        }
+        .with_context(|| format!("the replay process of vehicle {:?}", v.vehicle))?;
+        if shutdown.is_cancelled() {
+            continue;
+        }
+        if !status.success() {
+            failed.push(v.vehicle);
+        }
+    }
     for e in &damaged {
-        eprintln!("shoal replay: {e}");
+        eprintln!("shoal {who}: {e}");
+    }
+    if !failed.is_empty() {
+        bail!("the replay processes of {failed:?} failed (their errors are above)");
     }
     if !damaged.is_empty() {
         bail!(
@@ -210,9 +344,9 @@ pub async fn replay(cfg: &ShoalConfig, args: ReplayArgs) -> Result<()> {
     Ok(())
 }
 
-fn print_stats(what: &str, s: &ReplayStats) {
+fn print_stats(who: &str, what: &str, s: &ReplayStats) {
     eprintln!(
-        "shoal replay: {what}: {} files, {} read, {} published, {} invalid, {} undecodable, {} unknown, {} task assignments held back, {} failed",
+        "shoal {who}: {what}: {} files, {} read, {} published, {} invalid, {} undecodable, {} unknown, {} task assignments held back, {} failed",
         s.files,
         s.read,
         s.published,

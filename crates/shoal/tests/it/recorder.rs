@@ -139,6 +139,18 @@ fn recorded_states(dir: &Path) -> (Vec<StateVector>, Option<ReadError>) {
     (out, error)
 }
 
+/// A station's stored track of rec-auv, oldest first, read from its history file.
+fn track(db: &Path) -> Vec<StateVector> {
+    let history = History::open(&HistoryConfig {
+        path: db.to_path_buf(),
+        ..HistoryConfig::default()
+    })
+    .unwrap();
+    let mut v = history.track("rec-auv", 0, i64::MAX, 100_000).unwrap();
+    v.sort_by_key(|s| s.timestamp_ms);
+    v
+}
+
 fn fleet_states(port: u16, vehicle: &str) -> u64 {
     http_get(port, "/api/fleet")
         .ok()
@@ -181,8 +193,6 @@ fn station(dir: &Path, name: &'static str, db: &str, port: u16, domain: u16) -> 
 /// publishes the vehicle's samples under the vehicle's own identity from the key store,
 /// and a fresh station's history then holds exactly the recorded state vectors.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "fails: station B does not accept every replayed state vector within 30 s \
-            (suspected: states reach it before the replayed announcement); under investigation"]
 async fn a_secure_fleet_is_recorded_and_its_replay_rebuilds_a_fresh_stations_history() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
@@ -221,7 +231,6 @@ async fn a_secure_fleet_is_recorded_and_its_replay_rebuilds_a_fresh_stations_his
         "{}",
         recorder.log()
     );
-    let accepted_a = fleet_states(port_a, "rec-auv");
     station_a.signal("-TERM");
     station_a.wait(30);
 
@@ -231,11 +240,26 @@ async fn a_secure_fleet_is_recorded_and_its_replay_rebuilds_a_fresh_stations_his
         error.is_none(),
         "a file closed with Ctrl-C is complete: {error:?}"
     );
-    assert!(recorded.len() >= 15, "{} recorded", recorded.len());
+    assert!(recorded.len() >= 10, "{} recorded", recorded.len());
+    // The recorder and station A are separate participants, each matched with the vehicle
+    // after its own (secure) handshake: either may hear the first states the other missed.
+    // From the moment both listened, the recording is station A's history.
+    let history_a = track(&d.join("a.db"));
+    let mut recorded_sorted = recorded.clone();
+    recorded_sorted.sort_by_key(|s| s.timestamp_ms);
+    let both = recorded_sorted[0]
+        .timestamp_ms
+        .max(history_a[0].timestamp_ms);
+    let since = |v: &[StateVector]| -> Vec<StateVector> {
+        v.iter()
+            .filter(|s| s.timestamp_ms >= both)
+            .cloned()
+            .collect()
+    };
     assert_eq!(
-        recorded.len() as u64,
-        accepted_a,
-        "the recording holds what station A accepted"
+        since(&recorded_sorted),
+        since(&history_a),
+        "from the moment both listened, the recording holds what station A accepted"
     );
     if let Some(python) = python_with_mcap() {
         let file = shoal_recorder::mcap_files(&rec).unwrap().remove(0);
@@ -264,24 +288,26 @@ async fn a_secure_fleet_is_recorded_and_its_replay_rebuilds_a_fresh_stations_his
         "{}",
         replay.log()
     );
-    wait_until(
-        30,
-        "station B to accept every replayed state vector",
-        || fleet_states(port_b, "rec-auv") >= recorded.len() as u64,
-    );
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while fleet_states(port_b, "rec-auv") < recorded.len() as u64 {
+        assert!(
+            Instant::now() < deadline,
+            "station B accepted {} of {}: {}\n---replay---\n{}",
+            fleet_states(port_b, "rec-auv"),
+            recorded.len(),
+            station_b.log(),
+            replay.log()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
     station_b.signal("-TERM");
     station_b.wait(30);
-    let history = History::open(&HistoryConfig {
-        path: d.join("b.db"),
-        ..HistoryConfig::default()
-    })
-    .unwrap();
-    let mut replayed = history.track("rec-auv", 0, i64::MAX, 100_000).unwrap();
-    replayed.sort_by_key(|s| s.timestamp_ms);
-    let mut expected = recorded;
-    expected.sort_by_key(|s| s.timestamp_ms);
-    assert_eq!(replayed.len(), expected.len());
-    assert_eq!(replayed, expected, "station B's history is the recording");
+    let replayed = track(&d.join("b.db"));
+    assert_eq!(replayed.len(), recorded_sorted.len());
+    assert_eq!(
+        replayed, recorded_sorted,
+        "station B's history is the recording"
+    );
 }
 
 /// With security on, a vehicle the key store has no identity for is refused by name
