@@ -457,3 +457,43 @@ async fn wait_for_reader(writer: &AnyWriter, timeout: Duration) -> Duration {
     }
     start.elapsed()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::RecordWriter;
+    use crate::tests::{one_of_each, state};
+
+    fn write(dir: &Path, samples: &[Sample]) {
+        let cfg = crate::RecorderConfig {
+            directory: dir.to_path_buf(),
+            ..crate::RecorderConfig::default()
+        };
+        let mut w = RecordWriter::new(&cfg).unwrap();
+        for (t, s) in (1..).zip(samples) {
+            w.write(s.topic(), t, t, &s.encode().unwrap()).unwrap();
+        }
+        w.close().unwrap();
+    }
+
+    #[test]
+    fn the_vehicles_a_replay_publishes_as_are_read_ahead_and_bounded() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut samples = one_of_each();
+        samples.extend((0..3).map(|i| Sample::StateVector(state(&format!("v-{i}"), i))));
+        write(dir.path(), &samples);
+        let with_tasks = publishing_vehicles(dir.path(), true, 100).unwrap();
+        let without = publishing_vehicles(dir.path(), false, 100).unwrap();
+        // A task assignment is the station's, whatever vehicle it names.
+        assert_eq!(with_tasks, without);
+        for i in 0..3 {
+            assert!(without.contains(&format!("v-{i}")), "{without:?}");
+        }
+        let n = without.len();
+        assert!(matches!(
+            publishing_vehicles(dir.path(), false, n - 1),
+            Err(ReplayError::TooManyVehicles { max }) if max == n - 1
+        ));
+        assert_eq!(publishing_vehicles(dir.path(), false, n).unwrap().len(), n);
+    }
+}
