@@ -22,6 +22,8 @@ pub enum Compression {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RecorderConfig {
+    /// Whether the station records (its `[recorder]` section); `shoal record` always does.
+    pub enabled: bool,
     /// Directory the files are written in (created if missing).
     pub directory: PathBuf,
     /// File names are `PREFIX-YYYYmmddTHHMMSSZ-N.mcap` (UTC time the file was opened, N
@@ -49,6 +51,7 @@ pub struct RecorderConfig {
 impl Default for RecorderConfig {
     fn default() -> Self {
         Self {
+            enabled: false,
             directory: PathBuf::from("recordings"),
             prefix: "shoal".into(),
             max_file_bytes: 512 * 1024 * 1024,

@@ -17,6 +17,7 @@ use shoal_foxglove::BridgeConfig;
 use shoal_history::HistoryConfig;
 use shoal_model::VehicleKind;
 use shoal_proxy::sim::{SimSettings, SimSpec};
+use shoal_recorder::RecorderConfig;
 #[cfg(feature = "console")]
 use shoal_station::StationConfig;
 #[cfg(feature = "console")]
@@ -63,6 +64,8 @@ pub struct ShoalConfig {
     pub traffic: TrafficConfig,
     /// The Foxglove live bridge.
     pub foxglove: BridgeConfig,
+    /// The station's own MCAP recorder (`shoal record` is the same, as a process).
+    pub recorder: RecorderConfig,
 }
 
 /// The `[vehicle]` section.
@@ -510,6 +513,10 @@ fn check(config: &ShoalConfig) -> Result<()> {
         .check()
         .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
     config
+        .recorder
+        .check()
+        .map_err(|e| anyhow::anyhow!("invalid configuration in [recorder]: {e}"))?;
+    config
         .fleet
         .check()
         .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
@@ -557,6 +564,8 @@ mod tests {
             parsed.station.clear();
             parsed.history.clear();
             parsed.console.clear();
+            parsed.traffic.clear();
+            parsed.foxglove.clear();
         }
         assert_eq!(parsed, ShoalConfig::default());
         assert_eq!(env(&[]).unwrap(), ShoalConfig::default());
@@ -587,6 +596,9 @@ mod tests {
         type Check = fn(&ShoalConfig) -> bool;
         let mut rows: Vec<(&str, &str, &str, Check)> = vec![
             ("dds", "SHOAL_DDS__DOMAIN_ID", "7", |c| c.dds.domain_id == 7),
+            ("recorder", "SHOAL_RECORDER__ENABLED", "true", |c| {
+                c.recorder.enabled && c.recorder.prefix == "shoal"
+            }),
             (
                 "security",
                 "SHOAL_SECURITY__BUNDLE",
@@ -724,7 +736,7 @@ mod tests {
         collect_sections(&parse_table(DEFAULT_CONFIG).unwrap(), "", &mut sections);
         #[cfg(not(feature = "console"))]
         sections.retain(|s| {
-            !["station", "history", "console"]
+            !["station", "history", "console", "traffic", "foxglove"]
                 .iter()
                 .any(|p| s.starts_with(p))
         });

@@ -166,6 +166,20 @@ pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> 
     } else {
         None
     };
+    // On the station's own participant: one identity per process, and it reads every
+    // vehicle's partition.
+    let recorder = if cfg.recorder.enabled {
+        let recorder = shoal_recorder::Recorder::start(&dds, &cfg.recorder).with_context(|| {
+            format!(
+                "cannot start recording ([recorder]) into {}",
+                cfg.recorder.directory.display()
+            )
+        })?;
+        info!(directory = %cfg.recorder.directory.display(), "recording every topic ([recorder])");
+        Some(recorder)
+    } else {
+        None
+    };
     let station =
         Station::new(cfg.station.clone(), dds, history).context("cannot start the station")?;
     if !cfg.traffic.inputs.is_empty() {
@@ -189,6 +203,20 @@ pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> 
     shutdown.cancel();
     if let Ok(Err(e)) = api.await {
         warn!(error = %e, "HTTP API stopped with an error");
+    }
+    if let Some(recorder) = recorder {
+        match recorder.stop().await {
+            Ok(s) => info!(
+                files = s.files,
+                messages = s.messages,
+                bytes = s.bytes,
+                dropped = s.dropped,
+                "recording closed"
+            ),
+            Err(e) => {
+                warn!(error = %e, "recording failed; its files are readable up to their last chunk")
+            }
+        }
     }
     info!(
         accepted = report.stats.states_accepted,

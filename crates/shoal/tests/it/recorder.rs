@@ -26,9 +26,20 @@ struct Proc {
 
 impl Proc {
     fn start(name: &'static str, dir: &Path, domain: u16, args: &[&str]) -> Self {
+        Self::start_with(name, dir, domain, args, &[])
+    }
+
+    fn start_with(
+        name: &'static str,
+        dir: &Path,
+        domain: u16,
+        args: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
         let log = dir.join(format!("{name}.log"));
         let child = Command::new(env!("CARGO_BIN_EXE_shoal"))
             .args(args)
+            .envs(env.iter().copied())
             .current_dir(dir)
             .env("SHOAL_DDS__DOMAIN_ID", domain.to_string())
             .env("SHOAL_CONSOLE__AUTH__ENABLED", "false")
@@ -176,12 +187,24 @@ fn wait_until(secs: u64, what: &str, mut check: impl FnMut() -> bool) {
 }
 
 fn station(dir: &Path, name: &'static str, db: &str, port: u16, domain: u16) -> Proc {
+    station_with(dir, name, db, port, domain, &[])
+}
+
+fn station_with(
+    dir: &Path,
+    name: &'static str,
+    db: &str,
+    port: u16,
+    domain: u16,
+    env: &[(&str, &str)],
+) -> Proc {
     let listen = format!("127.0.0.1:{port}");
-    let p = Proc::start(
+    let p = Proc::start_with(
         name,
         dir,
         domain,
         &["station", "--listen", &listen, "--db", db],
+        env,
     );
     wait_until(30, "the station's API", || {
         http_get(port, "/api/fleet").is_ok()
@@ -204,7 +227,18 @@ async fn a_secure_fleet_is_recorded_and_its_replay_rebuilds_a_fresh_stations_his
     assert!(init.status.success(), "{init:?}");
 
     let port_a = free_port();
-    let mut station_a = station(d, "station-a", "a.db", port_a, 171);
+    // Station A records too, through its own [recorder] on its own participant.
+    let mut station_a = station_with(
+        d,
+        "station-a",
+        "a.db",
+        port_a,
+        171,
+        &[
+            ("SHOAL_RECORDER__ENABLED", "true"),
+            ("SHOAL_RECORDER__DIRECTORY", "rec-station"),
+        ],
+    );
     let mut recorder = Proc::start("recorder", d, 171, &["record", "--output", "rec"]);
     // The recorder's readers are up once it prints its first progress line.
     wait_until(30, "the recorder to start", || {
@@ -261,6 +295,23 @@ async fn a_secure_fleet_is_recorded_and_its_replay_rebuilds_a_fresh_stations_his
         since(&history_a),
         "from the moment both listened, the recording holds what station A accepted"
     );
+    // The station's own recording holds every state it accepted (and any it refused).
+    assert!(
+        station_a.log().contains("recording closed"),
+        "{}",
+        station_a.log()
+    );
+    let (by_station, error) = recorded_states(&d.join("rec-station"));
+    assert!(
+        error.is_none(),
+        "a station stopped with SIGTERM closes its file: {error:?}"
+    );
+    for s in &history_a {
+        assert!(
+            by_station.contains(s),
+            "{s:?} is in station A's history but not in its recording"
+        );
+    }
     if let Some(python) = python_with_mcap() {
         let file = shoal_recorder::mcap_files(&rec).unwrap().remove(0);
         let v = check_mcap(&python, &file, "summary");
