@@ -864,6 +864,9 @@ impl LoginThrottle {
     }
 }
 
+/// `POST` of an MCAP recording whose tracks the replay shows: a read.
+const RECORDING_TRACKS: &str = "/api/recordings/tracks";
+
 /// The least role a request needs, or `None` for what anyone may fetch (the console's
 /// files, health, the API description, logging in and out, who am I). `/metrics` is a
 /// read like any other: a scraper sends a viewer token.
@@ -888,8 +891,9 @@ pub fn required_role(method: &Method, path: &str) -> Option<Role> {
         return Some(Role::Admin);
     }
     let reads = matches!(*method, Method::GET | Method::HEAD | Method::OPTIONS);
-    // SPARQL over POST is still a read-only query.
-    if reads || path == "/api/sparql" {
+    // SPARQL over POST is still a read-only query, and reading the tracks of a recording
+    // the client sends changes nothing either.
+    if reads || path == "/api/sparql" || path == RECORDING_TRACKS {
         return Some(Role::Viewer);
     }
     if path == "/api/rules" || path.starts_with("/api/rules/") || path == "/api/vehicles" {
@@ -932,6 +936,10 @@ mod tests {
         assert_eq!(required_role(&M::GET, "/metrics"), Some(Role::Viewer));
         assert_eq!(required_role(&M::GET, "/api/health"), None);
         assert_eq!(required_role(&M::POST, "/api/sparql"), Some(Role::Viewer));
+        assert_eq!(
+            required_role(&M::POST, "/api/recordings/tracks"),
+            Some(Role::Viewer)
+        );
         assert_eq!(
             required_role(&M::POST, "/api/missions"),
             Some(Role::Operator)

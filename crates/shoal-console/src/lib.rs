@@ -22,8 +22,9 @@
 //! `/api/` and described in `openapi.json` (served at `/api/openapi.json`): fleet,
 //! vehicles and their tracks, events and acknowledgement, tasks, missions (plan, start,
 //! abort, abort all, CSV/GeoJSON export), the vehicles able to do a task (from the semantic
-//! model), rules, environment subscriptions, SPARQL, the
-//! live WebSocket `/api/ws`, and logins (`/api/auth/...`, see [`auth`]).
+//! model), rules, environment subscriptions, SPARQL, the tracks of an MCAP recording for
+//! the replay (`POST /api/recordings/tracks`), the live WebSocket `/api/ws`, and logins
+//! (`/api/auth/...`, see [`auth`]).
 
 #![forbid(unsafe_code)]
 
@@ -59,6 +60,7 @@ pub mod limits;
 mod live;
 mod metrics;
 mod negotiate;
+mod recording;
 mod sparql;
 pub mod tls;
 mod traffic;
@@ -356,6 +358,13 @@ fn build(
         .route("/api/fleet/capable", get(capable::capable))
         .route("/api/vehicles/{id}", get(vehicle))
         .route("/api/vehicles/{id}/track", get(track))
+        // An MCAP recording's tracks for the replay: the one body allowed to be large.
+        .route(
+            "/api/recordings/tracks",
+            post(recording::tracks).layer(axum::extract::DefaultBodyLimit::max(
+                config.limits.max_recording_bytes,
+            )),
+        )
         .route("/api/stats", get(stats))
         .route("/api/events", get(events))
         .route("/api/tasks", get(tasks).post(dispatch))
@@ -400,7 +409,8 @@ fn build(
         // Before the guard: the Foxglove app sends its token as ?token=.
         .layer(axum::middleware::from_fn(foxglove::token_in_query))
         .layer(axum::middleware::from_fn(extract::json_errors))
-        // Every request body is small JSON; anything beyond this is refused before parsing.
+        // Every other request body is small JSON; anything beyond this is refused before
+        // parsing.
         .layer(axum::extract::DefaultBodyLimit::max(
             config.limits.max_body_bytes,
         ))

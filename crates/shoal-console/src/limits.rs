@@ -10,7 +10,10 @@
 //!   `request_queue_ms` for a turn, and answered within `request_timeout_s`; otherwise
 //!   503 with `Retry-After` ([`limit_requests`]). `/api/health` and `/metrics` skip the
 //!   queue so monitoring still sees a saturated station;
-//! - bodies: at most `max_body_bytes` (413);
+//! - bodies: at most `max_body_bytes` (413), except a recording opened in the replay
+//!   (`POST /api/recordings/tracks`): at most `max_recording_bytes`, and at most
+//!   [`MAX_CONCURRENT_RECORDINGS`] read at once, each waiting at most
+//!   [`RECORDING_QUEUE`] for a turn (503 with `Retry-After`);
 //! - WebSocket clients of `/api/ws`: at most `max_ws_clients`;
 //! - SPARQL queries: at most `max_concurrent_sparql` running and `max_queued_sparql`
 //!   waiting up to `sparql_queue_ms`; the rest get 503 with `Retry-After` at once.
@@ -54,6 +57,9 @@ pub struct LimitsConfig {
     pub request_timeout_s: f64,
     /// Largest request body, bytes. Default 1 MiB.
     pub max_body_bytes: usize,
+    /// Largest MCAP recording the replay may open (`POST /api/recordings/tracks`), bytes.
+    /// Default 64 MiB.
+    pub max_recording_bytes: usize,
     /// Live feed (`/api/ws`) clients at most. Default 32.
     pub max_ws_clients: usize,
     /// SPARQL queries running at once at most. Default 2 (one a core of a small station).
@@ -73,6 +79,7 @@ impl Default for LimitsConfig {
             request_queue_ms: 250,
             request_timeout_s: 30.0,
             max_body_bytes: 1 << 20,
+            max_recording_bytes: 64 << 20,
             max_ws_clients: 32,
             max_concurrent_sparql: 2,
             max_queued_sparql: 16,
@@ -97,17 +104,20 @@ pub struct LimitHits {
     pub requests_refused: u64,
     /// Requests that took longer than `request_timeout_s` (503).
     pub requests_timed_out: u64,
-    /// Requests whose body was over `max_body_bytes` (413).
+    /// Requests whose body was over `max_body_bytes` (or a recording over
+    /// `max_recording_bytes`) (413).
     pub bodies_too_large: u64,
     /// Live feed clients refused (503) because `max_ws_clients` were connected.
     pub ws_refused: u64,
     /// SPARQL queries refused (503) because the queue was full or the wait too long.
     pub sparql_refused: u64,
+    /// Recordings refused (503) because others were being read for too long.
+    pub recordings_refused: u64,
 }
 
 impl LimitHits {
     /// Each count with the name `/metrics` labels it with.
-    pub fn labelled(&self) -> [(&'static str, u64); 7] {
+    pub fn labelled(&self) -> [(&'static str, u64); 8] {
         [
             ("connections", self.connections_waited),
             ("slow_headers", self.slow_headers_cut),
@@ -116,6 +126,7 @@ impl LimitHits {
             ("body_size", self.bodies_too_large),
             ("ws_clients", self.ws_refused),
             ("sparql", self.sparql_refused),
+            ("recordings", self.recordings_refused),
         ]
     }
 }
@@ -142,6 +153,7 @@ struct Counters {
     bodies_too_large: AtomicU64,
     ws_refused: AtomicU64,
     sparql_refused: AtomicU64,
+    recordings_refused: AtomicU64,
 }
 
 fn bump(c: &AtomicU64) {
@@ -158,8 +170,17 @@ pub(crate) struct Limits {
     ws: Arc<Semaphore>,
     sparql: Arc<Semaphore>,
     sparql_waiting: AtomicUsize,
+    recordings: Arc<Semaphore>,
     hits: Counters,
 }
+
+/// Recordings read at once at most (`POST /api/recordings/tracks`): each holds its body
+/// (up to `max_recording_bytes`) and what is read from it, so a few concurrent uploads
+/// must not add up to gigabytes.
+pub const MAX_CONCURRENT_RECORDINGS: usize = 2;
+
+/// How long a recording waits for a turn before 503.
+pub const RECORDING_QUEUE: Duration = Duration::from_secs(2);
 
 /// Semaphores refuse more permits than this; a larger configured limit means "as many as
 /// that", which no station reaches.
@@ -175,6 +196,7 @@ impl Limits {
             ws: Arc::new(Semaphore::new(permits(config.max_ws_clients))),
             sparql: Arc::new(Semaphore::new(permits(config.max_concurrent_sparql))),
             sparql_waiting: AtomicUsize::new(0),
+            recordings: Arc::new(Semaphore::new(MAX_CONCURRENT_RECORDINGS)),
             hits: Counters::default(),
             config,
         }
@@ -192,6 +214,7 @@ impl Limits {
             bodies_too_large: get(&h.bodies_too_large),
             ws_refused: get(&h.ws_refused),
             sparql_refused: get(&h.sparql_refused),
+            recordings_refused: get(&h.recordings_refused),
         }
     }
 
@@ -243,6 +266,19 @@ impl Limits {
                 "no SPARQL query finished within {} ms; try again later",
                 self.config.sparql_queue_ms
             ))),
+        }
+    }
+
+    /// A turn to read one recording, waiting at most [`RECORDING_QUEUE`], or 503.
+    pub(crate) async fn recording_turn(&self) -> Result<OwnedSemaphorePermit, ApiError> {
+        match tokio::time::timeout(RECORDING_QUEUE, self.recordings.clone().acquire_owned()).await {
+            Ok(Ok(p)) => Ok(p),
+            _ => {
+                bump(&self.hits.recordings_refused);
+                Err(ApiError::Busy(format!(
+                    "{MAX_CONCURRENT_RECORDINGS} recordings are being read already; try again shortly"
+                )))
+            }
         }
     }
 }

@@ -1,5 +1,6 @@
 // Replay: a past time window on the map, from the history (GET /api/vehicles/{id}/track),
-// scrubbed with a slider or played faster than real time. All client side.
+// or the tracks of an MCAP recording the operator opens (POST /api/recordings/tracks, the
+// files `shoal record` writes), scrubbed with a slider or played faster than real time.
 
 import { api, describe } from './api.js';
 import { Feature, fromLonLat, LineString, Point, setLiveVisible, sources } from './map.js';
@@ -72,8 +73,62 @@ function play() {
   }, tick);
 }
 
+/** Sets the slider to [from, to] and shows the tracks loaded, from the start. */
+function ready(from, to) {
+  t0 = from;
+  t1 = to;
+  const slider = root.querySelector('#replay-slider');
+  slider.min = String(t0);
+  slider.max = String(t1);
+  slider.step = '1000';
+  slider.value = String(t0);
+  slider.disabled = false;
+  root.querySelector('#replay-play').disabled = false;
+  setLiveVisible(false);
+  draw(t0);
+}
+
+function plural(n, one, many = `${one}s`) {
+  return `${n.toLocaleString()} ${n === 1 ? one : many}`;
+}
+
+/** Opens an MCAP recording: the station reads its tracks; they replace those shown. */
+async function openRecording(file) {
+  stop();
+  const out = root.querySelector('#replay-status');
+  const err = root.querySelector('#replay-error');
+  err.textContent = '';
+  out.textContent = `Reading ${file.name}…`;
+  try {
+    const res = await api('POST', '/api/recordings/tracks', undefined, { raw: file, contentType: 'application/octet-stream' });
+    const loaded = new Map();
+    for (const v of res.vehicles) {
+      const live = state.vehicles.get(v.vehicle_id);
+      loaded.set(v.vehicle_id, { kind: v.kind || (live ? live.announcement.kind : 'auv'), rows: v.rows });
+    }
+    const summary = `${file.name}: ${plural(res.vehicles.length, 'vehicle')}, ${plural(res.messages, 'message')} (${plural(res.state_vectors, 'state vector')})${res.skipped ? `, ${res.skipped.toLocaleString()} skipped` : ''}.`;
+    const notes = [];
+    if (res.thinned) notes.push('Long tracks were thinned evenly to fit the answer.');
+    if (res.omitted) notes.push(`${plural(res.omitted, 'state vector')} of vehicles beyond the first 1000 left out.`);
+    if (res.error) err.textContent = `The file could not be read to its end: ${res.error}. What came before is shown.`;
+    if (!loaded.size || res.from_ms === null) {
+      out.textContent = `${summary} No state vectors to replay.`;
+      return;
+    }
+    tracks = loaded;
+    out.textContent = [summary, ...notes].join(' ');
+    ready(res.from_ms, Math.max(res.to_ms, res.from_ms + 1000));
+  } catch (e) {
+    out.textContent = `${file.name}: not opened.`;
+    err.textContent = e.status === 0 && file.size > 1 << 20
+      ? `${describe(e)} (a file this large may be over the station's [console.limits] max_recording_bytes)`
+      : describe(e);
+  }
+}
+
 async function load() {
   stop();
+  root.querySelector('#replay-error').textContent = '';
   const f = root.querySelector('#replay-form').elements;
   const out = root.querySelector('#replay-status');
   const from = new Date(f.from.value).getTime();
@@ -97,18 +152,8 @@ async function load() {
       tracks.set(id, { kind: v ? v.announcement.kind : 'auv', rows: results[i] });
       n += results[i].length;
     });
-    t0 = from;
-    t1 = to;
-    const slider = root.querySelector('#replay-slider');
-    slider.min = String(t0);
-    slider.max = String(t1);
-    slider.step = '1000';
-    slider.value = String(t0);
-    slider.disabled = false;
-    root.querySelector('#replay-play').disabled = false;
-    setLiveVisible(false);
     out.textContent = `${n} state vectors of ${ids.length} vehicle(s).${n >= 10000 * ids.length ? ' Some tracks were cut at 10 000 points: choose a shorter window.' : ''}`;
-    draw(t0);
+    ready(from, to);
   } catch (e) {
     out.textContent = describe(e);
   }
@@ -123,6 +168,7 @@ function exit() {
   slider.disabled = true;
   root.querySelector('#replay-play').disabled = true;
   root.querySelector('#replay-status').textContent = 'Live view.';
+  root.querySelector('#replay-error').textContent = '';
   root.querySelector('#replay-time').textContent = '';
 }
 
@@ -146,20 +192,35 @@ export function initReplay() {
   root = document.getElementById('tab-replay');
   const now = Date.now();
   root.replaceChildren(
-    h('h2', {}, 'Replay a time window'),
+    h('h2', {}, 'Replay a time window or a recording'),
     h('form', { id: 'replay-form', class: 'card', onsubmit: (e) => { e.preventDefault(); load(); } },
       h('div', { class: 'row' },
         h('label', {}, 'From', h('input', { type: 'datetime-local', name: 'from', step: 1, value: toLocalInput(now - 15 * 60000) })),
         h('label', {}, 'To', h('input', { type: 'datetime-local', name: 'to', step: 1, value: toLocalInput(now) }))),
       h('div', { id: 'replay-vehicles', class: 'row' }),
-      h('div', { class: 'row' }, h('button', { type: 'submit', class: 'primary', id: 'replay-load' }, 'Load'), h('button', { type: 'button', onclick: exit }, 'Back to live'))),
+      h('div', { class: 'row' },
+        h('button', { type: 'submit', class: 'primary', id: 'replay-load' }, 'Load'),
+        h('button', { type: 'button', onclick: exit }, 'Back to live'),
+        h('label', { class: 'inline', title: 'A file shoal record wrote: the station reads its state vectors and nothing is stored' }, 'Open recording (.mcap)',
+          h('input', {
+            type: 'file',
+            id: 'replay-file',
+            accept: '.mcap,application/x-mcap',
+            onchange: (e) => {
+              const file = e.target.files[0];
+              // Cleared, so that choosing the same file again opens it again.
+              e.target.value = '';
+              if (file) openRecording(file);
+            },
+          })))),
     h('div', { class: 'card' },
       h('input', { type: 'range', id: 'replay-slider', disabled: true, oninput: (e) => draw(Number(e.target.value)) }),
       h('div', { class: 'row' },
         h('button', { type: 'button', id: 'replay-play', disabled: true, onclick: play }, '▶ Play'),
         h('label', {}, 'Speed ', h('select', { onchange: (e) => { speed = Number(e.target.value); } }, [1, 10, 60, 300].map((s) => h('option', { value: s, selected: s === speed }, `×${s}`)))),
         h('strong', { id: 'replay-time' })),
-      h('p', { id: 'replay-status', class: 'muted' }, 'Live view.')),
+      h('p', { id: 'replay-status', class: 'muted' }, 'Live view.'),
+      h('p', { id: 'replay-error', class: 'field-error', role: 'alert' })),
   );
 }
 
