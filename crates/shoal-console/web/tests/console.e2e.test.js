@@ -6,7 +6,7 @@
 
 import { after, before, describe, test } from 'node:test';
 import assert from 'node:assert/strict';
-import { mkdirSync, mkdtempSync, rmSync, writeFileSync } from 'node:fs';
+import { mkdirSync, mkdtempSync, readdirSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { spawn } from 'node:child_process';
@@ -544,6 +544,62 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
         child.once('exit', () => { clearTimeout(t); resolve(); });
         if (child.exitCode !== null) { clearTimeout(t); resolve(); }
       });
+    }
+  });
+
+  test('a recording made by shoal record opens in a viewer\'s replay', { skip: !process.env.SHOAL_BIN && 'SHOAL_BIN is not set' }, async () => {
+    // Record the simulated fleet for a few seconds with the binary, as an operator would.
+    const dir = mkdtempSync(join(tmpdir(), 'shoal-e2e-recording-'));
+    try {
+      const child = spawn(process.env.SHOAL_BIN, ['--config', process.env.SHOAL_E2E_CONFIG, 'record', '--output', dir], { stdio: ['ignore', 'ignore', 'pipe'] });
+      let log = '';
+      child.stderr.on('data', (d) => { log = (log + d).slice(-4000); });
+      const exited = new Promise((resolve) => child.once('exit', resolve));
+      await new Promise((resolve) => setTimeout(resolve, 12000));
+      child.kill('SIGINT');
+      const done = await Promise.race([exited.then(() => true), new Promise((resolve) => setTimeout(() => resolve(false), 15000))]);
+      if (!done) child.kill('SIGKILL');
+      const files = readdirSync(dir).filter((f) => f.endsWith('.mcap'));
+      assert.equal(files.length, 1, `shoal record wrote ${files.join(', ')}\n${log}`);
+      const file = join(dir, files[0]);
+      const bytes = readFileSync(file);
+
+      const viewer = await browser();
+      await login(viewer, users.viewer);
+      await viewer.click('#tabs button[data-tab=replay]');
+      await viewer.setInputFiles('#replay-file', file);
+      const status = viewer.locator('#replay-status');
+      await viewer.waitForFunction(() => /vehicles?, [\d,]+ messages?/.test(document.querySelector('#replay-status').textContent), null, { timeout: 30000 });
+      assert.equal(await viewer.locator('#replay-error').textContent(), '', await status.textContent());
+      assert.equal(await viewer.locator('#replay-slider').isDisabled(), false);
+      // At the end of the recording, every recorded vehicle is on the replay map.
+      const drawn = await viewer.evaluate(() => {
+        const slider = document.querySelector('#replay-slider');
+        slider.value = slider.max;
+        slider.dispatchEvent(new Event('input'));
+        return window.shoalConsole.sources.replay.getFeatures().filter((f) => f.getGeometry().getType() === 'Point').map((f) => f.get('vehicle')).sort();
+      });
+      const fleetDrawn = FLEET.filter((id) => drawn.includes(id));
+      assert.ok(fleetDrawn.length >= 3, `replayed: ${drawn} (${await status.textContent()})`);
+      assert.match(await status.textContent(), new RegExp(`${files[0]}: \\d+ vehicles`));
+      await shot(viewer, '19-replay-recording');
+
+      // A copy cut short (a recorder killed mid-file): what was readable, and where it stopped.
+      const cut = join(dir, 'cut.mcap');
+      writeFileSync(cut, bytes.subarray(0, Math.floor(bytes.length * 0.6)));
+      await viewer.setInputFiles('#replay-file', cut);
+      await viewer.locator('#replay-error', { hasText: 'offset' }).waitFor({ timeout: 30000 });
+      assert.match(await viewer.locator('#replay-error').textContent(), /could not be read to its end: (truncated|corrupt)/);
+      await shot(viewer, '20-replay-truncated-recording');
+
+      // Not a recording at all: explained, and the tracks shown stay.
+      const junk = join(dir, 'junk.mcap');
+      writeFileSync(junk, 'not an MCAP file');
+      await viewer.setInputFiles('#replay-file', junk);
+      await viewer.locator('#replay-error', { hasText: 'Rejected' }).waitFor({ timeout: 30000 });
+      assert.match(await viewer.locator('#replay-error').textContent(), /no Shoal message could be read/);
+    } finally {
+      rmSync(dir, { recursive: true, force: true });
     }
   });
 
