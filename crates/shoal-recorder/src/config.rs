@@ -41,6 +41,17 @@ pub struct RecorderConfig {
     pub max_total_bytes: u64,
     /// Chunk compression.
     pub compression: Compression,
+    /// zstd level of the chunks, 1 (fastest) to 19 (smallest files). Recorded state
+    /// vectors are mostly full-precision doubles, which no level compresses much: at
+    /// 10,000 state vectors/s the levels from 3 to 19 differ by about 4 bytes per state
+    /// vector, while the CPU time grows from a few percent of a core to most of one
+    /// (docs/recorder.md, "Targets"). Ignored with `compression = "none"`.
+    pub compression_level: u32,
+    /// Largest chunk, uncompressed bytes (64 KiB to 16 MiB; for a small `max_file_bytes`
+    /// a quarter of it, so that rotation by size stays close). Whatever its size, a chunk
+    /// is written out at least every second, so this bounds memory and how much one chunk
+    /// holds at high rates; a larger chunk compresses a little better.
+    pub max_chunk_bytes: u64,
     /// DDS topic names to record; empty records every Shoal topic.
     pub topics: Vec<String>,
     /// Samples waiting for the file writer at most; beyond, new samples are dropped and
@@ -58,11 +69,23 @@ impl Default for RecorderConfig {
             max_file_seconds: 3600,
             max_total_bytes: 16 * 1024 * 1024 * 1024,
             compression: Compression::Zstd,
+            compression_level: DEFAULT_COMPRESSION_LEVEL,
+            max_chunk_bytes: DEFAULT_MAX_CHUNK_BYTES,
             topics: Vec::new(),
             queue_samples: 65_536,
         }
     }
 }
+
+/// Default `compression_level`: the data rate is low (a few MB/s at most), so a level
+/// above zstd's default buys a little for CPU time that stays small.
+const DEFAULT_COMPRESSION_LEVEL: u32 = 9;
+
+/// Default `max_chunk_bytes`.
+const DEFAULT_MAX_CHUNK_BYTES: u64 = 1024 * 1024;
+
+/// Range of `max_chunk_bytes`: the reader refuses chunks above 64 MiB.
+const CHUNK_BYTES: (u64, u64) = (64 * 1024, 16 * 1024 * 1024);
 
 /// Smallest `max_file_bytes`: each file carries the IDL six times in its summary (about
 /// 32 KiB), which should stay a small part of it.
@@ -98,6 +121,18 @@ impl RecorderConfig {
         }
         if self.max_file_seconds == 0 {
             return bad("recorder.max_file_seconds must be at least 1".into());
+        }
+        if !(1..=19).contains(&self.compression_level) {
+            return bad(format!(
+                "recorder.compression_level = {} is not a zstd level from 1 to 19",
+                self.compression_level
+            ));
+        }
+        if !(CHUNK_BYTES.0..=CHUNK_BYTES.1).contains(&self.max_chunk_bytes) {
+            return bad(format!(
+                "recorder.max_chunk_bytes = {} is not within {} to {}",
+                self.max_chunk_bytes, CHUNK_BYTES.0, CHUNK_BYTES.1
+            ));
         }
         if self.queue_samples == 0 {
             return bad("recorder.queue_samples must be at least 1".into());
@@ -144,6 +179,28 @@ mod tests {
             ..RecorderConfig::default()
         };
         assert!(cfg.check().is_err());
+    }
+
+    #[test]
+    fn the_compression_level_and_the_chunk_size_are_bounded() {
+        let cfg = |compression_level, max_chunk_bytes| RecorderConfig {
+            compression_level,
+            max_chunk_bytes,
+            ..RecorderConfig::default()
+        };
+        assert!(cfg(1, 64 * 1024).check().is_ok());
+        assert!(cfg(19, 16 * 1024 * 1024).check().is_ok());
+        for bad in [0, 20, 22] {
+            let e = cfg(bad, 1024 * 1024).check().unwrap_err().to_string();
+            assert!(e.contains("compression_level"), "{e}");
+        }
+        for bad in [0, 64 * 1024 - 1, 16 * 1024 * 1024 + 1] {
+            let e = cfg(9, bad).check().unwrap_err().to_string();
+            assert!(e.contains("max_chunk_bytes"), "{e}");
+        }
+        let parsed: RecorderConfig =
+            toml_like(r#"{"compression_level": 3, "max_chunk_bytes": 4194304}"#).unwrap();
+        assert_eq!(parsed, cfg(3, 4 * 1024 * 1024));
     }
 
     fn toml_like(json: &str) -> Result<RecorderConfig, serde_json::Error> {

@@ -34,7 +34,7 @@ pub use replay::{
     publishing_vehicles,
 };
 pub use topic::{Sample, Topic};
-pub use writer::{RecordWriter, WriterStats};
+pub use writer::{FLUSH_INTERVAL, RecordWriter, WriterStats};
 
 /// The IDL every recorded schema carries (`omgidl` schema encoding).
 pub const SHOAL_IDL: &str = include_str!("../../../idl/shoal.idl");

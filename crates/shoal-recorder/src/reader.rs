@@ -13,7 +13,8 @@ use crate::topic::Topic;
 use crate::{MESSAGE_ENCODING, SCHEMA_ENCODING};
 
 /// Largest record (or chunk, compressed or not) accepted: bounds the memory a hostile
-/// file can make the reader take. The recorder's chunks are at most 1 MiB.
+/// file can make the reader take. The recorder's chunks are at most 16 MiB
+/// (`recorder.max_chunk_bytes`).
 pub const MAX_RECORD_BYTES: u64 = 64 * 1024 * 1024;
 
 /// Most bytes read from the source at once, so that a record claiming a huge length

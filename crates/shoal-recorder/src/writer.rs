@@ -21,13 +21,6 @@ use crate::{MESSAGE_ENCODING, PROFILE, SCHEMA_ENCODING, SHOAL_IDL};
 /// killed with SIGKILL loses at most.
 pub const FLUSH_INTERVAL: Duration = Duration::from_secs(1);
 
-/// Largest uncompressed chunk: more compresses a little better but holds more in memory.
-const MAX_CHUNK_BYTES: u64 = 1024 * 1024;
-
-/// zstd level: the data rate is low (a few MB/s at most), so a level above the default
-/// buys smaller files for CPU time that stays small.
-const ZSTD_LEVEL: u32 = 9;
-
 /// What a [`RecordWriter`] has written so far.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct WriterStats {
@@ -92,8 +85,8 @@ struct OpenFile {
 ///
 /// Each file has one `omgidl` schema per type and one `cdr` channel per recorded topic.
 /// The current chunk is written out (and handed to the operating system) once it holds
-/// a second's samples or a megabyte, so a process killed at any instant leaves a file of
-/// complete chunks followed by at most one partial record, which readers stop at.
+/// a second's samples or `max_chunk_bytes`, so a process killed at any instant leaves a
+/// file of complete chunks followed by at most one partial record, which readers stop at.
 pub struct RecordWriter {
     directory: PathBuf,
     prefix: String,
@@ -101,6 +94,7 @@ pub struct RecordWriter {
     max_total_bytes: u64,
     max_file_age: Duration,
     compression: Compression,
+    compression_level: u32,
     topics: Vec<Topic>,
     chunk_bytes: u64,
     current: Option<OpenFile>,
@@ -135,9 +129,10 @@ impl RecordWriter {
             max_total_bytes: config.max_total_bytes,
             max_file_age: Duration::from_secs(config.max_file_seconds),
             compression: config.compression,
+            compression_level: config.compression_level,
             topics,
             // Small files get small chunks, so that rotation by size stays close.
-            chunk_bytes: (config.max_file_bytes / 4).min(MAX_CHUNK_BYTES),
+            chunk_bytes: (config.max_file_bytes / 4).min(config.max_chunk_bytes),
             current: None,
             closed_bytes: 0,
             stats: WriterStats::default(),
@@ -358,7 +353,7 @@ impl RecordWriter {
             .profile(PROFILE)
             .library(concat!("shoal-recorder ", env!("CARGO_PKG_VERSION")))
             .compression(compression)
-            .compression_level(ZSTD_LEVEL)
+            .compression_level(self.compression_level)
             // Compress on this thread: a worker pool would cost threads and CPU for a
             // data rate of a few MB/s at most.
             .compression_threads(0)
