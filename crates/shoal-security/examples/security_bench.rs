@@ -1,6 +1,6 @@
-//! Measures what security costs: signatures and verifications per second on IP links, HMAC
-//! tags per second on the acoustic link, the latency each adds per message, and the bytes
-//! each adds per envelope and per acoustic frame.
+//! Measures what acoustic-link security costs: HMAC tags sealed and opened per second, the
+//! latency each adds per frame, and the bytes each adds per frame. (The cost of DDS Security
+//! on IP links is measured by `shoal bench security`, beside the insecure bus.)
 //!
 //! Run with `cargo run --release -p shoal-security --example security_bench`; debug builds
 //! are several times slower and say so in the output.
@@ -9,22 +9,15 @@ use std::hint::black_box;
 use std::time::{Duration, Instant};
 
 use shoal_security::acoustic::{self, AcousticKey, AcousticTagger, TagSize};
-use shoal_security::envelope::{self, Envelope};
-use shoal_security::policy::Policy;
-use shoal_security::store::KeyStore;
-use shoal_security::verify::{Gate, VerifierConfig};
 
 /// Wall time spent on each measurement.
 const BUDGET: Duration = Duration::from_millis(1500);
-/// A CDR-encoded state vector is about this long (string id, ten doubles, a timestamp).
-const PAYLOAD_LEN: usize = 100;
 /// A DCCL state vector is 20 bytes (docs/acoustic.md#dccl-comparison).
 const DCCL_STATE_VECTOR: usize = 20;
 /// The EvoLogics instant-message limit.
 const IM_BYTES: usize = 64;
 /// The instant-message bit rate.
 const IM_BITRATE: f64 = 976.0;
-const TOPIC: &str = "shoal/state_vector";
 
 /// Runs `f` over pre-built inputs until the budget is spent; returns operations per second.
 fn rate<T>(inputs: &[T], mut f: impl FnMut(&T)) -> f64 {
@@ -44,18 +37,6 @@ fn us(per_s: f64) -> f64 {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let tmp = tempfile::tempdir()?;
-    let now = shoal_model::now_ms();
-    let mut store = KeyStore::init_with(
-        &tmp.path().join("keys"),
-        "ccs",
-        &Default::default(),
-        Some(now),
-    )?;
-    store.issue_vehicle("auv-1")?;
-    let signer = store.vehicle_identity("auv-1")?;
-    let payload = vec![0x5a_u8; PAYLOAD_LEN];
-
     println!(
         "shoal-security benchmark ({} build, {} CPUs)",
         if cfg!(debug_assertions) {
@@ -65,83 +46,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         },
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );
-    println!();
-    println!("IP links: Ed25519-signed envelopes, {PAYLOAD_LEN}-byte payload on {TOPIC:?}");
-
-    let counters: Vec<u64> = (1..=2_000).collect();
-    let sign_rate = rate(&counters, |c| {
-        black_box(signer.sign(TOPIC, &payload, now, *c).ok());
-    });
-
-    // Fresh envelopes for verification: each counter once per verifier.
-    let full: Vec<Envelope> = (1..=20_000u64)
-        .map(|c| signer.sign(TOPIC, &payload, now, c))
-        .collect::<Result<_, _>>()?;
-    let compact: Vec<Envelope> = full.iter().map(Envelope::to_compact).collect();
-    let mut verify_full = 0.0;
-    let mut verify_compact = 0.0;
-    for (list, out) in [(&full, &mut verify_full), (&compact, &mut verify_compact)] {
-        let mut v = store.verifier(VerifierConfig::default())?;
-        let start = Instant::now();
-        let mut n = 0usize;
-        for env in list.iter() {
-            v.verify(env, now).map_err(|e| e.to_string())?;
-            n += 1;
-            if start.elapsed() > BUDGET {
-                break;
-            }
-        }
-        *out = n as f64 / start.elapsed().as_secs_f64();
-    }
-
-    // The whole receive path: decode, verify, policy, counters.
-    let wires: Vec<Vec<u8>> = compact.iter().map(Envelope::encode).collect();
-    let mut gate = Gate::new(
-        store.verifier(VerifierConfig::default())?,
-        Policy::builtin(),
-    );
-    let start = Instant::now();
-    let mut n = 0usize;
-    for w in &wires {
-        gate.admit(w, now, |_, _| Ok("auv-1".to_owned()))
-            .map_err(|e| e.to_string())?;
-        n += 1;
-        if start.elapsed() > BUDGET {
-            break;
-        }
-    }
-    let gate_rate = n as f64 / start.elapsed().as_secs_f64();
-
-    let full_overhead = full[0].encoded_len() - PAYLOAD_LEN;
-    let compact_overhead = compact[0].encoded_len() - PAYLOAD_LEN;
-    println!(
-        "  signatures/s                  {sign_rate:>12.0}   ({:.1} µs each)",
-        us(sign_rate)
-    );
-    println!(
-        "  verifications/s (full cert)   {verify_full:>12.0}   ({:.1} µs each)",
-        us(verify_full)
-    );
-    println!(
-        "  verifications/s (compact)     {verify_compact:>12.0}   ({:.1} µs each)",
-        us(verify_compact)
-    );
-    println!(
-        "  gate admissions/s             {gate_rate:>12.0}   ({:.1} µs each: decode + verify + policy)",
-        us(gate_rate)
-    );
-    println!(
-        "  added latency per message     {:>12.1} µs (sign + admit)",
-        us(sign_rate) + us(gate_rate)
-    );
-    println!(
-        "  added bytes per message       {full_overhead:>12} (certificate embedded), {compact_overhead} (certificate id)"
-    );
-    println!(
-        "    of which fixed              {:>12} (version, kind, lengths, time, counter, 64-byte signature) + topic",
-        envelope::FIXED_OVERHEAD
-    );
-
     println!();
     println!(
         "Acoustic link: truncated HMAC-SHA256, {DCCL_STATE_VECTOR}-byte frame (one DCCL state vector)"

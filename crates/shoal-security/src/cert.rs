@@ -69,11 +69,6 @@ impl PrivateKey {
         self.signing.verifying_key()
     }
 
-    /// Signs `msg`.
-    pub(crate) fn sign(&self, msg: &[u8]) -> Signature {
-        self.signing.sign(msg)
-    }
-
     /// PKCS#8 PEM text (`-----BEGIN PRIVATE KEY-----`), wiped when dropped.
     pub fn to_pem(&self) -> Zeroizing<String> {
         let mut der = Zeroizing::new(Vec::with_capacity(48));
@@ -120,32 +115,6 @@ impl rcgen::SigningKey for PrivateKey {
     }
 }
 
-/// The first 16 bytes of a certificate's SHA-256: how compact envelopes name their signer.
-#[derive(Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct CertId(pub [u8; 16]);
-
-impl CertId {
-    /// The id of the certificate with this DER.
-    pub fn of_der(der: &[u8]) -> Self {
-        let digest = Sha256::digest(der);
-        let mut id = [0u8; 16];
-        id.copy_from_slice(&digest[..16]);
-        Self(id)
-    }
-}
-
-impl fmt::Display for CertId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&hex::encode(self.0))
-    }
-}
-
-impl fmt::Debug for CertId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "CertId({self})")
-    }
-}
-
 /// Why a certificate is not one Shoal accepts.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
@@ -186,7 +155,6 @@ impl From<IdentityError> for CertError {
 #[derive(Clone)]
 pub struct Certificate {
     der: Vec<u8>,
-    id: CertId,
     serial: String,
     common_name: String,
     identity: Option<Identity>,
@@ -203,7 +171,6 @@ pub struct Certificate {
 impl fmt::Debug for Certificate {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("Certificate")
-            .field("id", &self.id)
             .field("serial", &self.serial)
             .field("common_name", &self.common_name)
             .field("identity", &self.identity)
@@ -256,7 +223,6 @@ impl Certificate {
         let validity = x509.validity();
         Ok(Self {
             der: der.to_vec(),
-            id: CertId::of_der(der),
             serial: hex::encode(x509.raw_serial()),
             common_name,
             identity,
@@ -299,11 +265,6 @@ impl Certificate {
     /// The DER bytes.
     pub fn der(&self) -> &[u8] {
         &self.der
-    }
-
-    /// The id compact envelopes use.
-    pub fn id(&self) -> CertId {
-        self.id
     }
 
     /// The serial number as lower-case hex, as the revocation list names it.
@@ -498,7 +459,7 @@ impl TrustAnchor {
         }
         if leaf.is_ca {
             return Err(CertError::WrongKind(
-                "a CA certificate cannot sign messages; a leaf certificate is needed",
+                "a CA certificate where a leaf certificate is needed",
             ));
         }
         if leaf.identity.is_none() {
@@ -662,7 +623,8 @@ mod tests {
         assert_eq!(leaf.validity_at(T0 + 366 * DAY), Validity::Expired);
         // PEM round trip keeps everything.
         let again = Certificate::from_pem(&leaf.to_pem()).unwrap();
-        assert_eq!(again.id(), leaf.id());
+        assert_eq!(again.der(), leaf.der());
+        assert_eq!(again.serial(), leaf.serial());
     }
 
     #[test]

@@ -7,7 +7,7 @@ use shoal_model::{MAX_ID_LEN, MAX_VEHICLE_ID_LEN, is_identifier};
 /// Prefix of the subject-alternative-name URI of every Shoal identity certificate.
 pub const URN_PREFIX: &str = "urn:shoal:";
 
-/// The part an identity plays in the swarm; the access policy grants rights per role.
+/// The part an identity plays in the swarm.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Role {
     /// The Command and Control Station (its middleware core, CDT and console).
@@ -17,7 +17,7 @@ pub enum Role {
 }
 
 impl Role {
-    /// The role's name as written in certificates and the policy file.
+    /// The role's name as written in certificates.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Station => "station",

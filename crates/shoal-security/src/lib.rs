@@ -1,46 +1,39 @@
 //! Shoal's security library: who may say what on the swarm's links, and proof that they said it.
 //!
-//! The architecture's Security module, as a library the station, the DDS layer, the
-//! DDS-Acoustic Converter and the CLI call. It has no I/O besides the key-store files and
-//! no async.
+//! The architecture's Security module, as a library the DDS layer, the DDS-Acoustic
+//! Converter and the CLI call. It has no I/O besides the key-store files and no async.
+//! There is one mechanism per link: OMG DDS Security 1.1 on IP links, truncated HMAC tags
+//! on the acoustic link.
 //!
 //! # Main types
 //!
 //! - [`dds`]: the OMG DDS Security 1.1 keystore IP links use (identity and permissions CAs,
 //!   signed governance and per-participant permissions, a CRL, SROS2 layout), and
-//!   [`dds::Enclave::check`], which reads a participant's files as the plugins will.
-//! - The signed envelopes below ([`Envelope`], [`Gate`], [`Policy`]) are no longer used on
-//!   IP links, which run DDS Security instead; they remain only until their attack corpus
-//!   is moved to the standard path, and will be removed.
-//! - [`KeyStore`] (station side, on disk): a station CA, the station's certificate, a
-//!   certificate and a 256-bit acoustic key per vehicle, and a CRL. `init`, `issue_vehicle`,
-//!   `list`, `revoke`, `rotate`, `renew_station`, `export_vehicle`. [`VehicleBundle`] is
-//!   what a vehicle loads.
-//! - IP links: [`SigningIdentity::sign`] (or [`sign`]) wraps a sample's bytes in an
-//!   [`Envelope`] (Ed25519 signature over topic, payload, timestamp and counter);
-//!   [`Verifier::verify`] checks chain, dates, revocation, signature, freshness and replay;
-//!   [`Gate::admit`] adds the access [`Policy`] and counts refusals in
-//!   [`RejectionCounts`].
-//! - Acoustic link: [`AcousticTagger`] appends a counter and a truncated HMAC-SHA256 tag
-//!   (32 or 64 bits) to each modem frame and checks them with a sliding replay window.
-//! - [`Policy`]: TOML rules saying which identity may publish which topics for which
-//!   instances; [`VehicleOwned`] gives the instance key of each model type.
+//!   [`dds::Enclave::check`], which reads a participant's files as the plugins will. The
+//!   plugins themselves are Cyclone DDS's; `shoal-dds/src/omg.rs` loads them.
+//! - [`AcousticTagger`] (acoustic link): appends a counter and a truncated HMAC-SHA256 tag
+//!   (32 or 64 bits) to each modem frame under the sending vehicle's [`AcousticKey`], and
+//!   checks them with a sliding [`ReplayWindow`] per sender; what it refuses is a
+//!   [`Rejection`], counted by [`RejectionReason`] in [`RejectionCounts`].
+//! - [`KeyStore`] (station side, on disk): a 256-bit acoustic key per vehicle, with a
+//!   station CA, the station's certificate, an Ed25519 certificate per vehicle naming its
+//!   enrolment, and a CRL. `init`, `issue_vehicle`, `list`, `revoke`, `rotate`,
+//!   `renew_station`, `export_vehicle`. [`VehicleBundle`] loads and checks what
+//!   `export_vehicle` writes. The DDS Security keystore lives beside it (`<store>/dds`).
 //!
 //! # How the other parts use it
 //!
-//! - Station start-up: `KeyStore::open(dir)`, then `store.station_identity()` to sign,
-//!   `Gate::new(store.verifier(VerifierConfig::default())?, Policy::load(path)?)` to receive,
-//!   and `store.acoustic_key(id)` for each vehicle the CDT serves.
-//! - DDS layer, sending: `identity.sign(topic, &cdr_bytes, now_ms, counter)?.encode()`,
-//!   with `counter` from [`envelope::counter_start_from_clock`] then `+1` per message;
-//!   receiving: `gate.admit(&bytes, now_ms, |topic, payload| decode-and-owner)`, then
-//!   deliver `admitted.envelope.payload()`.
-//! - Acoustic converter: `tagger.seal(dst, &frame)` before `AT*SENDIM`;
-//!   `tagger.open(src, dst, &data)` on `RECVIM`, then the policy check with the vehicle
-//!   identity its address maps to. [`acoustic::OVERHEAD_32`] / [`acoustic::OVERHEAD_64`]
-//!   are the bytes this costs per frame (a 64-byte instant message keeps 56 or 52).
-//! - CLI (`shoal keys ...`): the [`KeyStore`] methods one to one; every error displays as
-//!   one line naming the file and the problem.
+//! - CLI (`shoal keys ...`, and `shoal up`/`shoal station` on first run): the [`KeyStore`]
+//!   and [`dds::DdsKeystore`] methods side by side (issue, revoke, rotate and export act on
+//!   both); every error displays as one line naming the file and the problem.
+//! - DDS layer (`shoal-dds/src/omg.rs`): [`dds::Enclave::check`] before a participant is
+//!   created, then the enclave's files as the plugins' properties;
+//!   [`dds::vehicle_partition`] ties a vehicle's samples to its partition.
+//! - Acoustic link (`shoal-acoustic/src/secure.rs`, set up by the converter with
+//!   `store.acoustic_key(id)` for each vehicle the CDT serves): `tagger.seal(dst, &frame)`
+//!   before transmitting, `tagger.open(src, dst, &data)` on reception.
+//!   [`acoustic::OVERHEAD_32`] / [`acoustic::OVERHEAD_64`] are the bytes this costs per
+//!   frame (a 64-byte instant message keeps 56 or 52).
 //!
 //! # Threat model
 //!
@@ -50,25 +43,33 @@
 //!
 //! ## What is protected
 //!
-//! - **Origin and integrity** of every sample: on IP links an Ed25519 signature by a
-//!   certificate the station CA issued covers the topic, payload, timestamp, counter and
-//!   the signer's certificate id; on the acoustic link an HMAC tag covers source and
-//!   destination address, counter and frame. A flipped bit anywhere is refused.
-//! - **Replay**: per-sender counters checked against a sliding window (1024 on IP, 64
-//!   acoustic); on IP also a freshness window on the timestamp (30 s old, 5 s ahead).
-//! - **Stolen or retired keys**: revocation (an X.509 CRL signed by the CA) and rotation;
-//!   expired certificates and an expired CA are refused.
-//! - **Authorisation**: a vehicle, even with a valid certificate, publishes only its own
-//!   data (no impersonation of another vehicle's position); only the station assigns tasks.
+//! - **Origin and integrity** of every sample: on IP links DDS Security authenticates each
+//!   participant by a certificate from the identity CA (PKI-DH) and protects discovery and
+//!   samples with AES-GCM (or GMAC where the governance says `sign`); on the acoustic link
+//!   an HMAC tag covers source and destination address, counter and frame. A flipped bit
+//!   anywhere is refused.
+//! - **Replay**: on IP links, RTPS sequence numbers under DDS Security's authenticated
+//!   encryption (the attack corpus in `tests/security` replays live and old captures, and
+//!   none is accepted); on the acoustic link, per-sender counters checked against a sliding
+//!   window of 64.
+//! - **Stolen or retired keys**: revocation (for IP links the identity CA's CRL, which a
+//!   running station checks every `security.crl_check_s`; for the acoustic link, removing
+//!   the vehicle's acoustic key) and rotation; expired certificates are refused.
+//! - **Authorisation on IP links**: signed permissions let a vehicle publish only its own
+//!   topics in its own partition and never a task; the station refuses a sample naming
+//!   another vehicle than the partition it came in.
 //!
 //! ## What is not protected
 //!
 //! - **Confidentiality on the acoustic link**: frames are authenticated, not encrypted;
 //!   anyone in range can read positions and tasks sent acoustically (IP links are
-//!   encrypted by DDS Security).
+//!   encrypted by DDS Security unless the governance says otherwise).
+//! - **Authorisation on the acoustic link**: a tag proves which vehicle's key sealed the
+//!   frame, but the CDT takes the vehicle from the PDU's address field and republishes as
+//!   the station, so a captured vehicle's key can send PDUs about another vehicle.
 //! - **Availability**: jamming the acoustic channel, flooding the radio, or a captured
-//!   vehicle sending junk. Cheap checks run before signatures to limit the CPU cost, and
-//!   refusals are counted so the operator can see an attack, but nothing stops it.
+//!   vehicle sending junk. Refusals are counted so the operator can see an attack, but
+//!   nothing stops it.
 //! - **A captured vehicle until it is revoked**: it can speak as itself. A revoked
 //!   vehicle's acoustic key must be removed from the CDT (`remove_key`); vehicles
 //!   underwater learn of revocations only when they next receive a CRL.
@@ -79,9 +80,8 @@
 //!   TTLs must bound how late a command may act.
 //! - **Traffic analysis**: with DDS Security, discovery and samples are encrypted, but the
 //!   participants' addresses, the RTPS headers and message sizes and timing are not.
-//! - **The station host**: the CA key lives in the store directory (0600). Whoever owns
+//! - **The station host**: the CA keys live in the store directory (0600). Whoever owns
 //!   the station owns the fleet; keep the store on the station only and back it up offline.
-//! - **Clocks**: freshness needs station and vehicle clocks within the skew window.
 //!
 //! # Forging an acoustic tag
 //!
@@ -110,26 +110,20 @@
 pub mod acoustic;
 pub mod cert;
 pub mod dds;
-pub mod envelope;
 pub mod files;
 pub mod identity;
-pub mod policy;
 pub mod reject;
 pub mod replay;
 pub mod revocation;
 pub mod store;
 mod util;
-pub mod verify;
 
 pub use acoustic::{AcousticKey, AcousticTagger, TagSize};
-pub use cert::{CertId, Certificate, PrivateKey, TrustAnchor};
-pub use envelope::{Envelope, SigningIdentity, sign};
+pub use cert::{Certificate, PrivateKey, TrustAnchor};
 pub use files::{FileError, FileProblem};
 pub use identity::{Identity, Role};
-pub use policy::{Denied, Policy, PolicyError, VehicleOwned};
 pub use reject::{Rejection, RejectionCounts, RejectionReason};
 pub use replay::ReplayWindow;
 pub use revocation::{RevocationList, RevokeReason};
 pub use store::{KeyStore, StoreError, StoreOptions, VehicleBundle};
 pub use util::RandomError;
-pub use verify::{Admitted, Gate, VerifiedSender, Verifier, VerifierConfig};

@@ -1,82 +1,17 @@
-//! Why a message was refused, and counters of refusals by reason for metrics and tests.
+//! Why an acoustic frame was refused, and counters of refusals by reason for logs and tests.
 
 use std::collections::BTreeMap;
 use std::fmt;
 
-use crate::cert::{CertError, CertId};
-use crate::envelope::DecodeError;
-use crate::policy::{Denied, DenyReason};
 use crate::replay::ReplayError;
-use crate::util;
 
-/// Why an envelope or acoustic frame was refused.
+/// Why an acoustic frame was refused by [`AcousticTagger::open`](crate::AcousticTagger::open).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
 pub enum Rejection {
-    /// The bytes are not an envelope.
-    #[error("malformed envelope: {0}")]
-    Malformed(#[from] DecodeError),
-    /// A compact envelope names a certificate this verifier has not seen.
-    #[error("unknown certificate {0} (send the full certificate first)")]
-    UnknownCertificate(CertId),
-    /// The embedded certificate does not parse or is not a Shoal leaf certificate.
-    #[error("bad certificate: {0}")]
-    BadCertificate(CertError),
-    /// The certificate was not issued by the trusted station CA.
-    #[error("certificate not issued by the station CA")]
-    UntrustedCertificate,
-    /// The sender's certificate has expired.
-    #[error("certificate {serial} expired on {}", util::rfc3339(*.not_after_ms))]
-    CertificateExpired {
-        /// Its serial number.
-        serial: String,
-        /// End of its validity.
-        not_after_ms: i64,
-    },
-    /// The sender's certificate is not valid yet.
-    #[error("certificate {serial} is not valid before {}", util::rfc3339(*.not_before_ms))]
-    CertificateNotYetValid {
-        /// Its serial number.
-        serial: String,
-        /// Start of its validity.
-        not_before_ms: i64,
-    },
-    /// The station CA itself has expired: nothing can be trusted until it is renewed.
-    #[error("the station CA expired on {}", util::rfc3339(*.not_after_ms))]
-    CaExpired {
-        /// End of the CA's validity.
-        not_after_ms: i64,
-    },
-    /// The sender's certificate is on the revocation list.
-    #[error("certificate {serial} is revoked")]
-    Revoked {
-        /// Its serial number.
-        serial: String,
-    },
-    /// The signature does not match the content and certificate.
-    #[error("bad signature")]
-    BadSignature,
-    /// The timestamp is older than the freshness window.
-    #[error("stale: sent {age_ms} ms ago")]
-    Stale {
-        /// How old, by the receiver's clock.
-        age_ms: i64,
-    },
-    /// The timestamp is further ahead of the receiver's clock than the allowed skew.
-    #[error("from the future: {ahead_ms} ms ahead")]
-    FromFuture {
-        /// How far ahead.
-        ahead_ms: i64,
-    },
     /// The counter was seen before or is older than the replay window.
     #[error("replayed: {0}")]
     Replayed(ReplayError),
-    /// The access policy does not let this sender publish this.
-    #[error("denied: {0}")]
-    Denied(#[from] Denied),
-    /// The signed payload does not decode as the topic's type (or has no instance key).
-    #[error("payload does not decode: {0}")]
-    MalformedPayload(String),
     /// An acoustic frame from (or broadcast to) an address without a key.
     #[error("no acoustic key for address {address}")]
     NoKey {
@@ -100,36 +35,8 @@ pub enum Rejection {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 #[non_exhaustive]
 pub enum RejectionReason {
-    /// [`Rejection::Malformed`].
-    Malformed,
-    /// [`Rejection::UnknownCertificate`].
-    UnknownCertificate,
-    /// [`Rejection::BadCertificate`].
-    BadCertificate,
-    /// [`Rejection::UntrustedCertificate`].
-    UntrustedCertificate,
-    /// [`Rejection::CertificateExpired`].
-    CertificateExpired,
-    /// [`Rejection::CertificateNotYetValid`].
-    CertificateNotYetValid,
-    /// [`Rejection::CaExpired`].
-    CaExpired,
-    /// [`Rejection::Revoked`].
-    Revoked,
-    /// [`Rejection::BadSignature`].
-    BadSignature,
-    /// [`Rejection::Stale`].
-    Stale,
-    /// [`Rejection::FromFuture`].
-    FromFuture,
     /// [`Rejection::Replayed`].
     Replayed,
-    /// [`Rejection::Denied`] because the topic is not allowed to this sender.
-    TopicNotAllowed,
-    /// [`Rejection::Denied`] because the instance belongs to someone else (impersonation).
-    WrongInstance,
-    /// [`Rejection::MalformedPayload`].
-    MalformedPayload,
     /// [`Rejection::NoKey`].
     NoKey,
     /// [`Rejection::BadTag`].
@@ -140,45 +47,17 @@ pub enum RejectionReason {
 
 impl RejectionReason {
     /// Every reason, in declaration order.
-    pub const ALL: [Self; 18] = [
-        Self::Malformed,
-        Self::UnknownCertificate,
-        Self::BadCertificate,
-        Self::UntrustedCertificate,
-        Self::CertificateExpired,
-        Self::CertificateNotYetValid,
-        Self::CaExpired,
-        Self::Revoked,
-        Self::BadSignature,
-        Self::Stale,
-        Self::FromFuture,
+    pub const ALL: [Self; 4] = [
         Self::Replayed,
-        Self::TopicNotAllowed,
-        Self::WrongInstance,
-        Self::MalformedPayload,
         Self::NoKey,
         Self::BadTag,
         Self::FrameTooShort,
     ];
 
-    /// The stable code, e.g. `bad_signature`.
+    /// The stable code, e.g. `bad_tag`.
     pub fn as_str(self) -> &'static str {
         match self {
-            Self::Malformed => "malformed",
-            Self::UnknownCertificate => "unknown_certificate",
-            Self::BadCertificate => "bad_certificate",
-            Self::UntrustedCertificate => "untrusted_certificate",
-            Self::CertificateExpired => "certificate_expired",
-            Self::CertificateNotYetValid => "certificate_not_yet_valid",
-            Self::CaExpired => "ca_expired",
-            Self::Revoked => "revoked",
-            Self::BadSignature => "bad_signature",
-            Self::Stale => "stale",
-            Self::FromFuture => "from_future",
             Self::Replayed => "replayed",
-            Self::TopicNotAllowed => "topic_not_allowed",
-            Self::WrongInstance => "wrong_instance",
-            Self::MalformedPayload => "malformed_payload",
             Self::NoKey => "no_key",
             Self::BadTag => "bad_tag",
             Self::FrameTooShort => "frame_too_short",
@@ -196,23 +75,7 @@ impl Rejection {
     /// The reason code of this rejection.
     pub fn reason(&self) -> RejectionReason {
         match self {
-            Self::Malformed(_) => RejectionReason::Malformed,
-            Self::UnknownCertificate(_) => RejectionReason::UnknownCertificate,
-            Self::BadCertificate(_) => RejectionReason::BadCertificate,
-            Self::UntrustedCertificate => RejectionReason::UntrustedCertificate,
-            Self::CertificateExpired { .. } => RejectionReason::CertificateExpired,
-            Self::CertificateNotYetValid { .. } => RejectionReason::CertificateNotYetValid,
-            Self::CaExpired { .. } => RejectionReason::CaExpired,
-            Self::Revoked { .. } => RejectionReason::Revoked,
-            Self::BadSignature => RejectionReason::BadSignature,
-            Self::Stale { .. } => RejectionReason::Stale,
-            Self::FromFuture { .. } => RejectionReason::FromFuture,
             Self::Replayed(_) => RejectionReason::Replayed,
-            Self::Denied(d) => match d.reason {
-                DenyReason::TopicNotAllowed => RejectionReason::TopicNotAllowed,
-                DenyReason::WrongInstance => RejectionReason::WrongInstance,
-            },
-            Self::MalformedPayload(_) => RejectionReason::MalformedPayload,
             Self::NoKey { .. } => RejectionReason::NoKey,
             Self::BadTag => RejectionReason::BadTag,
             Self::FrameTooShort { .. } => RejectionReason::FrameTooShort,
@@ -220,7 +83,7 @@ impl Rejection {
     }
 }
 
-/// How many messages were refused, by reason.
+/// How many frames were refused, by reason.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct RejectionCounts {
     counts: BTreeMap<RejectionReason, u64>,
@@ -283,9 +146,9 @@ mod tests {
         let mut c = RejectionCounts::new();
         c.record(&Rejection::BadTag);
         c.record(&Rejection::BadTag);
-        c.record(&Rejection::BadSignature);
+        c.record(&Rejection::NoKey { address: 3 });
         assert_eq!(c.get(RejectionReason::BadTag), 2);
-        assert_eq!(c.get(RejectionReason::Stale), 0);
+        assert_eq!(c.get(RejectionReason::Replayed), 0);
         assert_eq!(c.total(), 3);
         let mut d = RejectionCounts::new();
         d.merge(&c);

@@ -29,12 +29,10 @@ use crate::cert::{
     CertError, Certificate, IssueError, PrivateKey, TrustAnchor, Validity, issue_leaf,
     self_signed_ca,
 };
-use crate::envelope::SigningIdentity;
 use crate::files::{self, FileError, FileProblem};
 use crate::identity::{Identity, IdentityError, Role};
 use crate::revocation::{RevocationList, RevokeReason, Revoked};
 use crate::util::RandomError;
-use crate::verify::{Verifier, VerifierConfig};
 
 /// The store's settings file.
 pub const STORE_FILE: &str = "shoal-keys.toml";
@@ -388,14 +386,6 @@ impl KeyStore {
         Ok(cert)
     }
 
-    /// The station's certificate and key, to sign envelopes with.
-    pub fn station_identity(&self) -> Result<SigningIdentity, StoreError> {
-        Ok(SigningIdentity::load(
-            &self.path(STATION_CERT),
-            &self.path(STATION_KEY),
-        )?)
-    }
-
     fn active_cert_path(&self, id: &str) -> Result<PathBuf, StoreError> {
         Identity::vehicle(id)?;
         let path = self.vehicle_dir(id).join(VEHICLE_CERT);
@@ -412,16 +402,6 @@ impl KeyStore {
     /// A vehicle's active certificate.
     pub fn vehicle_certificate(&self, id: &str) -> Result<Certificate, StoreError> {
         Ok(Certificate::load(&self.active_cert_path(id)?)?)
-    }
-
-    /// A vehicle's certificate and key (for provisioning and tests; vehicles normally load
-    /// a [`VehicleBundle`]).
-    pub fn vehicle_identity(&self, id: &str) -> Result<SigningIdentity, StoreError> {
-        let cert = self.active_cert_path(id)?;
-        Ok(SigningIdentity::load(
-            &cert,
-            &self.vehicle_dir(id).join(VEHICLE_KEY),
-        )?)
     }
 
     /// A vehicle's acoustic key.
@@ -602,23 +582,6 @@ impl KeyStore {
         Ok(out)
     }
 
-    /// A verifier trusting this store's CA and revocation list, already knowing the
-    /// station's and every active vehicle's certificate (so compact envelopes verify).
-    pub fn verifier(&self, config: VerifierConfig) -> Result<Verifier, StoreError> {
-        let mut v = Verifier::new(self.anchor.clone(), self.crl.clone(), config);
-        let mut certs = vec![Certificate::load(&self.path(STATION_CERT))?];
-        for id in self.vehicles()? {
-            certs.push(self.vehicle_certificate(&id)?);
-        }
-        for cert in certs {
-            let serial = cert.serial().to_owned();
-            if let Err(e) = v.add_certificate(cert) {
-                warn!(serial, error = %e, "certificate in the store does not chain to its CA");
-            }
-        }
-        Ok(v)
-    }
-
     /// Writes what vehicle `vehicle_id` needs into `dest` (created 0700): CA and station
     /// certificates, the revocation list, and its own certificate, key and acoustic key.
     pub fn export_vehicle(&self, vehicle_id: &str, dest: &Path) -> Result<(), StoreError> {
@@ -658,12 +621,12 @@ fn remove_if_present(path: &Path) -> Result<(), StoreError> {
 pub struct VehicleBundle {
     /// The station CA.
     pub anchor: TrustAnchor,
-    /// The station's certificate (so compact envelopes from the station verify).
+    /// The station's certificate.
     pub station: Certificate,
     /// The revocation list at export time.
     pub revocations: RevocationList,
-    /// The vehicle's certificate and key.
-    pub identity: SigningIdentity,
+    /// The vehicle's certificate (its private key, next to it, is checked to match).
+    pub certificate: Certificate,
     /// The vehicle's acoustic key.
     pub acoustic_key: AcousticKey,
 }
@@ -680,18 +643,19 @@ impl VehicleBundle {
             FileError::new(&station_path, FileProblem::BadCertificate(e.to_string()))
         })?;
         let cert_path = dir.join(VEHICLE_CERT);
-        let identity = SigningIdentity::load(&cert_path, &dir.join(VEHICLE_KEY))?;
+        let certificate = Certificate::load(&cert_path)?;
+        let key_path = dir.join(VEHICLE_KEY);
+        if !certificate.matches_key(&PrivateKey::load(&key_path)?) {
+            return Err(FileError::new(&key_path, FileProblem::KeyMismatch(cert_path)).into());
+        }
         anchor
-            .verify_issued(identity.certificate())
+            .verify_issued(&certificate)
             .map_err(|_| FileError::new(&cert_path, FileProblem::BadSignature))?;
-        identity.certificate().check_dates(&cert_path, now_ms)?;
-        if revocations.is_revoked(identity.certificate().serial()) {
+        certificate.check_dates(&cert_path, now_ms)?;
+        if revocations.is_revoked(certificate.serial()) {
             return Err(FileError::new(
                 &cert_path,
-                FileProblem::Invalid(format!(
-                    "certificate {} is revoked",
-                    identity.certificate().serial()
-                )),
+                FileProblem::Invalid(format!("certificate {} is revoked", certificate.serial())),
             )
             .into());
         }
@@ -700,18 +664,9 @@ impl VehicleBundle {
             anchor,
             station,
             revocations,
-            identity,
+            certificate,
             acoustic_key,
         })
-    }
-
-    /// A verifier for messages from the station (and other vehicles), knowing the
-    /// station's certificate.
-    pub fn verifier(&self, config: VerifierConfig) -> Verifier {
-        let mut v = Verifier::new(self.anchor.clone(), self.revocations.clone(), config);
-        // Checked in `load`, so this cannot fail; a failure would only cost compact support.
-        let _ = v.add_certificate(self.station.clone());
-        v
     }
 }
 
@@ -720,7 +675,6 @@ mod tests {
     use std::os::unix::fs::PermissionsExt;
 
     use super::*;
-    use crate::reject::Rejection;
 
     const T0: i64 = 1_780_000_000_000;
 
@@ -853,14 +807,15 @@ mod tests {
 
     #[test]
     fn a_swapped_private_key_is_named() {
-        let (_tmp, mut store) = new_store();
+        let (tmp, mut store) = new_store();
         store.issue_vehicle("auv-1").unwrap();
-        let d = store.dir().to_owned();
-        fs::copy(d.join("vehicles/auv-1/vehicle.key"), d.join(STATION_KEY)).unwrap();
-        let err = store.station_identity().unwrap_err().to_string();
+        let bundle = tmp.path().join("auv-1");
+        store.export_vehicle("auv-1", &bundle).unwrap();
+        fs::copy(store.dir().join(STATION_KEY), bundle.join(VEHICLE_KEY)).unwrap();
+        let err = VehicleBundle::load(&bundle, T0).unwrap_err().to_string();
         assert!(err.contains("does not match the certificate"), "{err}");
         assert!(
-            err.starts_with(&d.join(STATION_KEY).display().to_string()),
+            err.starts_with(&bundle.join(VEHICLE_KEY).display().to_string()),
             "{err}"
         );
     }
@@ -901,26 +856,17 @@ mod tests {
     fn revocation_takes_effect_and_survives_reopening() {
         let (_tmp, mut store) = new_store();
         store.issue_vehicle("auv-1").unwrap();
-        let signer = store.vehicle_identity("auv-1").unwrap();
-        let env = signer.sign("shoal/state_vector", b"x", T0, 1).unwrap();
-        store
-            .verifier(VerifierConfig::default())
-            .unwrap()
-            .verify(&env, T0)
-            .unwrap();
+        let cert = store.vehicle_certificate("auv-1").unwrap();
 
         let serial = store.revoke("auv-1", RevokeReason::KeyCompromise).unwrap();
-        assert_eq!(serial, signer.certificate().serial());
+        assert_eq!(serial, cert.serial());
+        assert!(store.revocations().is_revoked(&serial));
         assert!(store.vehicles().unwrap().is_empty());
         assert!(!store.dir().join("vehicles/auv-1/vehicle.key").exists());
-        let env = signer.sign("shoal/state_vector", b"x", T0, 2).unwrap();
-        let mut v = store.verifier(VerifierConfig::default()).unwrap();
-        assert_eq!(
-            v.verify(&env, T0),
-            Err(Rejection::Revoked {
-                serial: serial.clone()
-            })
-        );
+        assert!(matches!(
+            store.vehicle_certificate("auv-1"),
+            Err(StoreError::UnknownVehicle { .. })
+        ));
 
         let reopened = KeyStore::open_at(store.dir(), T0).unwrap();
         assert!(reopened.revocations().is_revoked(&serial));
@@ -942,7 +888,6 @@ mod tests {
     fn rotation_replaces_every_key_and_revokes_the_old_certificate() {
         let (_tmp, mut store) = new_store();
         let first = store.issue_vehicle("auv-1").unwrap();
-        let old_signer = store.vehicle_identity("auv-1").unwrap();
         let second = store.rotate("auv-1").unwrap();
         assert_ne!(first.certificate.serial(), second.certificate.serial());
         assert_ne!(
@@ -959,16 +904,10 @@ mod tests {
             RevokeReason::Superseded
         );
         assert!(!crl.is_revoked(second.certificate.serial()));
-
-        let mut v = store.verifier(VerifierConfig::default()).unwrap();
-        let old = old_signer.sign("shoal/event", b"e", T0, 10).unwrap();
-        assert!(matches!(v.verify(&old, T0), Err(Rejection::Revoked { .. })));
-        let new = store
-            .vehicle_identity("auv-1")
-            .unwrap()
-            .sign_compact("shoal/event", b"e", T0, 11)
-            .unwrap();
-        v.verify(&new, T0).unwrap();
+        assert_eq!(
+            store.vehicle_certificate("auv-1").unwrap().serial(),
+            second.certificate.serial()
+        );
 
         let statuses: Vec<_> = store
             .list()
@@ -1004,21 +943,12 @@ mod tests {
         assert_eq!(mode(&bundle_dir.join(VEHICLE_KEY)), 0o600);
         assert_eq!(mode(&bundle_dir.join(ACOUSTIC_KEY)), 0o600);
         let bundle = VehicleBundle::load(&bundle_dir, T0).unwrap();
-        assert_eq!(bundle.identity.identity().name(), "auv-1");
+        assert_eq!(bundle.certificate.identity().unwrap().name(), "auv-1");
+        assert_eq!(bundle.station.identity().unwrap().name(), "ccs");
         assert_eq!(
             bundle.acoustic_key.fingerprint(),
             store.acoustic_key("auv-1").unwrap().fingerprint()
         );
-        // The vehicle verifies the station's compact envelopes.
-        let env = store
-            .station_identity()
-            .unwrap()
-            .sign_compact("shoal/task_assignment", b"t", T0, 1)
-            .unwrap();
-        bundle
-            .verifier(VerifierConfig::default())
-            .verify(&env, T0)
-            .unwrap();
 
         // A bundle whose certificate was revoked since refuses to load once the new list
         // reaches it.
