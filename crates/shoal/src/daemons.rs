@@ -214,7 +214,7 @@ pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> 
                 "recording closed"
             ),
             Err(e) => {
-                warn!(error = %e, "recording failed; its files are readable up to their last chunk")
+                warn!(error = %e, "recording failed; its files are readable up to their last chunk");
             }
         }
     }

@@ -10,7 +10,7 @@ use shoal_dds::{Credentials, PubSub};
 use shoal_recorder::{
     Identity, Publishers, Recorder, RecorderConfig, ReplayOptions, ReplayStats, Replayer, Speed,
 };
-use shoal_security::dds::{DdsKeystore, Grant};
+use shoal_security::dds::{DdsKeystore, Enclave, Grant};
 use tracing::{info, warn};
 
 use crate::config::ShoalConfig;
@@ -135,39 +135,10 @@ const MAX_REPLAY_VEHICLES: usize = 256;
 /// first message is due.
 const JOIN_GRACE: Duration = Duration::from_secs(3);
 
-/// A vehicle's participant for a replay: its identity from the key store (or its
-/// bundle), never one issued for the occasion, so a recording cannot make this host mint
-/// identities for vehicle ids it merely names.
-fn vehicle_participant(cfg: &ShoalConfig, vehicle: &str) -> Result<PubSub> {
+/// A vehicle's identity from the station's key store, never one issued for the occasion,
+/// so a recording cannot make this host mint identities for vehicle ids it merely names.
+fn stored_vehicle_enclave(cfg: &ShoalConfig, vehicle: &str) -> Result<Enclave> {
     let security = &cfg.security;
-    let credentials = if security.bundle.as_os_str().is_empty() {
-        let dir = crate::keys::dds_dir(&security.store);
-        let store = DdsKeystore::open(&dir, crate::keys::keystore_options(security))
-            .with_context(|| format!("the DDS Security keystore {}", dir.display()))?;
-        let enclave = store
-            .enclave(&Grant::Vehicle(vehicle.to_string()))
-            .with_context(|| {
-                format!(
-                    "cannot publish as vehicle {vehicle:?}: the key store {} has no identity for it (replay publishes only as vehicles already issued one)",
-                    security.store.display()
-                )
-            })?;
-        Credentials::vehicle(enclave, vehicle)
-    } else {
-        crate::keys::vehicle(security, vehicle)
-            .with_context(|| format!("cannot publish as vehicle {vehicle:?}"))?
-    };
-    PubSub::with_credentials(&cfg.dds, credentials)
-        .with_context(|| format!("cannot join DDS securely as vehicle {vehicle:?}"))
-}
-
-/// Whether the key store (or bundle) holds `vehicle`'s identity, checked before any
-/// process starts so that a missing one is named at once.
-fn check_vehicle_identity(cfg: &ShoalConfig, vehicle: &str) -> Result<()> {
-    let security = &cfg.security;
-    if !security.bundle.as_os_str().is_empty() {
-        return Ok(());
-    }
     let dir = crate::keys::dds_dir(&security.store);
     let store = DdsKeystore::open(&dir, crate::keys::keystore_options(security))
         .with_context(|| format!("the DDS Security keystore {}", dir.display()))?;
@@ -178,7 +149,28 @@ fn check_vehicle_identity(cfg: &ShoalConfig, vehicle: &str) -> Result<()> {
                 "cannot publish as vehicle {vehicle:?}: the key store {} has no identity for it (replay publishes only as vehicles already issued one)",
                 security.store.display()
             )
-        })?;
+        })
+}
+
+/// A vehicle's participant for a replay: its identity from the key store, or from its
+/// bundle on a vehicle's host.
+fn vehicle_participant(cfg: &ShoalConfig, vehicle: &str) -> Result<PubSub> {
+    let credentials = if cfg.security.bundle.as_os_str().is_empty() {
+        Credentials::vehicle(stored_vehicle_enclave(cfg, vehicle)?, vehicle)
+    } else {
+        crate::keys::vehicle(&cfg.security, vehicle)
+            .with_context(|| format!("cannot publish as vehicle {vehicle:?}"))?
+    };
+    PubSub::with_credentials(&cfg.dds, credentials)
+        .with_context(|| format!("cannot join DDS securely as vehicle {vehicle:?}"))
+}
+
+/// Whether the key store holds `vehicle`'s identity, checked before any process starts so
+/// that a missing one is named at once (a bundle is checked by the vehicle's process).
+fn check_vehicle_identity(cfg: &ShoalConfig, vehicle: &str) -> Result<()> {
+    if cfg.security.bundle.as_os_str().is_empty() {
+        stored_vehicle_enclave(cfg, vehicle)?;
+    }
     Ok(())
 }
 
