@@ -14,11 +14,13 @@
 //!   simulated hour of traffic.
 //! - [`scale`], [`latency`], [`late_joiner`]: a station with thousands of vehicles, the
 //!   vehicle-to-console latency, late-joining participants.
+//! - [`replay`]: an hour of a fleet's recording (MCAP) replayed at 100× to a subscriber
+//!   in another process: wall time against the ideal, loss, lag behind the schedule.
 //! - [`suite`]: every target in one table, each beside its peer.
 //! - [`helpers`]: what several of them share (participants, helper processes,
 //!   percentiles, memory, the machine and date of a run).
 //!
-//! Helper processes (`pong`, `sink`, `load`) are hidden subcommands of the same binary so
+//! Helper processes (`pong`, `sink`, `load`, `replay-sink`) are hidden subcommands of the same binary so
 //! the two sides of each measurement are separate DDS participants, as in deployment.
 
 mod acoustic;
@@ -29,6 +31,7 @@ mod ingest;
 mod late_joiner;
 mod latency;
 mod pipeline;
+mod replay;
 mod scale;
 mod security;
 mod semantic;
@@ -210,6 +213,23 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 74)]
         domain: u16,
     },
+    /// Replay: an hour at 100 vehicles (by default) written into an MCAP recording, then
+    /// replayed at 100× to a subscriber in another process; wall time against the ideal,
+    /// loss, and the lag of each state vector behind its due instant.
+    Replay {
+        /// Number of vehicles (each one announcement and a state vector per second).
+        #[arg(long, default_value_t = 100)]
+        vehicles: usize,
+        /// Seconds of recorded time.
+        #[arg(long, default_value_t = 3600)]
+        seconds: u64,
+        /// Times the recorded pace, 1 to 100.
+        #[arg(long, default_value_t = 100.0)]
+        speed: f64,
+        /// DDS domain for the measurement.
+        #[arg(long, default_value_t = 86)]
+        domain: u16,
+    },
     /// (helper) Echo pings back as pongs.
     #[command(hide = true)]
     Pong {
@@ -233,6 +253,12 @@ pub enum BenchCommand {
     /// (helper) Count throughput samples per step and print the counts.
     #[command(hide = true)]
     Sink {
+        #[arg(long)]
+        domain: u16,
+    },
+    /// (helper) Count replayed state vectors and stamp their arrival.
+    #[command(hide = true)]
+    ReplaySink {
         #[arg(long)]
         domain: u16,
     },
@@ -260,6 +286,7 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             | BenchCommand::Sink { .. }
             | BenchCommand::Load { .. }
             | BenchCommand::Crowd { .. }
+            | BenchCommand::ReplaySink { .. }
     );
     let mut owned = cfg.clone();
     if !helper_process {
@@ -335,6 +362,20 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             participants,
             domain,
         } => security::security(cfg, domain, seconds, participants).await,
+        BenchCommand::Replay {
+            vehicles,
+            seconds,
+            speed,
+            domain,
+        } => {
+            let plan = replay::Plan {
+                vehicles,
+                seconds,
+                speed,
+                domain,
+            };
+            replay::replay(cfg, plan).await
+        }
         BenchCommand::Pong { domain, keystore } => {
             bus::pong(cfg, domain, keystore.as_deref()).await
         }
@@ -344,6 +385,7 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             keystore,
         } => security::crowd(cfg, domain, count, keystore.as_deref()).await,
         BenchCommand::Sink { domain } => bus::sink(cfg, domain).await,
+        BenchCommand::ReplaySink { domain } => replay::sink(cfg, domain).await,
         BenchCommand::Load {
             domain,
             vehicles,
