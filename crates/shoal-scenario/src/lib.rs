@@ -1,0 +1,722 @@
+//! Scenario files: a simulated fleet and missions on a timeline, written in TOML.
+//!
+//! [`parse`] reads a file's text into a [`Scenario`]: its [`ScenarioVehicle`]s (kind,
+//! start position, battery, reporting rate) and its [`ScenarioMission`]s, each started
+//! `at_s` seconds after the scenario starts, made of [`ScenarioTask`]s that are the data
+//! model's own [`Task`]s. Every error is one [`ScenarioError`] line naming the key and
+//! the line of the file it is on. [`SHIPPED`] holds the scenarios in the repository's
+//! `scenarios/` folder, so a binary runs them with no file at hand.
+//!
+//! The format is described key by key in `docs/scenarios.md`. This crate does no I/O.
+#![forbid(unsafe_code)]
+
+use std::collections::HashMap;
+use std::ops::Range;
+
+use serde::Deserialize;
+use shoal_model::{
+    GeoPoint, MAX_NAME_LEN, MAX_VEHICLE_ID_LEN, StateVector, Task, TaskAssignment, VehicleKind,
+    is_identifier,
+};
+use toml::Spanned;
+
+/// The scenarios shipped in `scenarios/`, by name (the file name without `.toml`).
+pub const SHIPPED: &[(&str, &str)] = &[
+    (
+        "sea-trial",
+        include_str!("../../../scenarios/sea-trial.toml"),
+    ),
+    (
+        "harbour-survey",
+        include_str!("../../../scenarios/harbour-survey.toml"),
+    ),
+];
+
+/// The scenario `shoal up` runs when none is named.
+pub const DEFAULT: &str = "sea-trial";
+
+/// The text of a shipped scenario.
+pub fn shipped(name: &str) -> Option<&'static str> {
+    SHIPPED.iter().find(|(n, _)| *n == name).map(|(_, t)| *t)
+}
+
+/// Longest scenario, in seconds: a week.
+pub const MAX_DURATION_S: f64 = 7.0 * 86_400.0;
+/// Largest time scale (simulated seconds per wall-clock second).
+pub const MAX_TIME_SCALE: f64 = 1000.0;
+/// Longest mission id a scenario may give: the station appends a run suffix to it and
+/// mission ids are at most 64 characters.
+pub const MAX_MISSION_ID_LEN: usize = 40;
+
+/// A scenario, checked: every vehicle a mission names is in the fleet, every value in range.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scenario {
+    /// Its name, shown in logs.
+    pub name: String,
+    /// What it shows, for people.
+    pub description: String,
+    /// How long it runs, seconds; every mission starts within it.
+    pub duration_s: f64,
+    /// Simulated seconds per wall-clock second.
+    pub time_scale: f64,
+    /// The fleet, in file order.
+    pub vehicles: Vec<ScenarioVehicle>,
+    /// The missions, in file order (not necessarily time order).
+    pub missions: Vec<ScenarioMission>,
+}
+
+/// A simulated vehicle of a scenario's fleet.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScenarioVehicle {
+    /// Vehicle id.
+    pub id: String,
+    /// Platform kind.
+    pub kind: VehicleKind,
+    /// Start latitude, degrees.
+    pub latitude_deg: f64,
+    /// Start longitude, degrees.
+    pub longitude_deg: f64,
+    /// Battery at start, %.
+    pub battery_pct: f64,
+    /// State vectors per second.
+    pub rate_hz: f64,
+}
+
+/// A mission on the scenario's timeline.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScenarioMission {
+    /// Mission id, unique in the scenario.
+    pub id: String,
+    /// Name shown to operators.
+    pub name: String,
+    /// When it starts, seconds after the scenario starts.
+    pub at_s: f64,
+    /// Its tasks, in order per vehicle.
+    pub tasks: Vec<ScenarioTask>,
+}
+
+impl ScenarioMission {
+    /// The vehicles it names, each once, in first-use order.
+    pub fn vehicles(&self) -> Vec<&str> {
+        let mut out: Vec<&str> = Vec::new();
+        for t in &self.tasks {
+            if !out.contains(&t.vehicle_id.as_str()) {
+                out.push(&t.vehicle_id);
+            }
+        }
+        out
+    }
+}
+
+/// One task of a mission: the data model's task for one vehicle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScenarioTask {
+    /// The vehicle that runs it.
+    pub vehicle_id: String,
+    /// What it does.
+    pub task: Task,
+}
+
+/// Why a scenario file was refused: always one line naming the line of the file and the key.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ScenarioError {
+    /// Not TOML, an unknown key, a value of the wrong type or a missing key.
+    #[error("line {line}: {key}: {message}")]
+    Format {
+        /// Line of the file, from 1.
+        line: usize,
+        /// Dotted path of the key (`missions[0].tasks[1].kind`), or `file` when TOML
+        /// itself is broken.
+        key: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A mission task names a vehicle that is not in `[[vehicles]]`.
+    #[error("line {line}: {key}: unknown vehicle {vehicle:?} (not in [[vehicles]])")]
+    UnknownVehicle {
+        /// Line of the file, from 1.
+        line: usize,
+        /// Dotted path of the key.
+        key: String,
+        /// The id named.
+        vehicle: String,
+    },
+    /// A number outside its bounds.
+    #[error("line {line}: {key} = {value} is outside {bounds}")]
+    OutOfRange {
+        /// Line of the file, from 1.
+        line: usize,
+        /// Dotted path of the key.
+        key: String,
+        /// The value given.
+        value: f64,
+        /// The allowed range, as text (`[-90, 90]`).
+        bounds: String,
+    },
+    /// An id given twice.
+    #[error("line {line}: {key}: {id:?} is already used on line {first_line}")]
+    Duplicate {
+        /// Line of the file, from 1.
+        line: usize,
+        /// Dotted path of the key.
+        key: String,
+        /// The repeated id.
+        id: String,
+        /// Where it was first given.
+        first_line: usize,
+    },
+    /// A value the format or the data model does not allow for another reason.
+    #[error("line {line}: {key}: {reason}")]
+    Invalid {
+        /// Line of the file, from 1.
+        line: usize,
+        /// Dotted path of the key.
+        key: String,
+        /// Why.
+        reason: String,
+    },
+}
+
+impl ScenarioError {
+    /// The line of the file the error is on, from 1.
+    pub fn line(&self) -> usize {
+        match self {
+            Self::Format { line, .. }
+            | Self::UnknownVehicle { line, .. }
+            | Self::OutOfRange { line, .. }
+            | Self::Duplicate { line, .. }
+            | Self::Invalid { line, .. } => *line,
+        }
+    }
+}
+
+// The file as written. Every value a later check may refuse keeps its span, so that the
+// error can name its line.
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFile {
+    scenario: RawHeader,
+    #[serde(default)]
+    vehicles: Vec<RawVehicle>,
+    #[serde(default)]
+    missions: Vec<RawMission>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawHeader {
+    name: Spanned<String>,
+    #[serde(default)]
+    description: String,
+    duration_s: Option<Spanned<f64>>,
+    time_scale: Option<Spanned<f64>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawVehicle {
+    id: Spanned<String>,
+    kind: VehicleKind,
+    latitude_deg: Spanned<f64>,
+    longitude_deg: Spanned<f64>,
+    battery_pct: Option<Spanned<f64>>,
+    rate_hz: Option<Spanned<f64>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMission {
+    id: Option<Spanned<String>>,
+    name: Spanned<String>,
+    at_s: Spanned<f64>,
+    tasks: Spanned<Vec<RawTask>>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum TaskName {
+    Goto,
+    Survey,
+    Hold,
+    Surface,
+    ReturnHome,
+}
+
+/// One task as written: a flat table whose `kind` says which of the other keys it needs,
+/// so that a key another kind uses is refused by name rather than ignored.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawTask {
+    vehicle: Spanned<String>,
+    kind: Spanned<TaskName>,
+    latitude_deg: Option<Spanned<f64>>,
+    longitude_deg: Option<Spanned<f64>>,
+    polygon: Option<Spanned<Vec<[f64; 2]>>>,
+    spacing_m: Option<Spanned<f64>>,
+    depth_m: Option<Spanned<f64>>,
+    altitude_m: Option<Spanned<f64>>,
+    speed_mps: Option<Spanned<f64>>,
+    duration_s: Option<Spanned<f64>>,
+}
+
+/// Byte offsets to 1-based line numbers.
+struct Lines<'a>(&'a str);
+
+impl Lines<'_> {
+    fn of(&self, span: &Range<usize>) -> usize {
+        let end = span.start.min(self.0.len());
+        self.0.as_bytes()[..end]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count()
+            + 1
+    }
+}
+
+/// Reads and checks a scenario file's text.
+pub fn parse(text: &str) -> Result<Scenario, ScenarioError> {
+    let lines = Lines(text);
+    let de = toml::Deserializer::parse(text).map_err(|e| format_error(&lines, "file", &e))?;
+    let raw: RawFile = serde_path_to_error::deserialize(de).map_err(|e| {
+        // Spanned values show in serde's path as a private field: not a key of the file.
+        let path = e
+            .path()
+            .to_string()
+            .replace(".$__serde_spanned_private_value", "");
+        let key = if path == "." { "file".into() } else { path };
+        format_error(&lines, &key, e.inner())
+    })?;
+    Checker { lines }.check(&raw)
+}
+
+fn format_error(lines: &Lines<'_>, key: &str, e: &toml::de::Error) -> ScenarioError {
+    ScenarioError::Format {
+        line: e.span().map_or(1, |s| lines.of(&s)),
+        key: key.to_owned(),
+        // toml's own message is one line; its Display adds the source excerpt.
+        message: e.message().trim().to_owned(),
+    }
+}
+
+struct Checker<'a> {
+    lines: Lines<'a>,
+}
+
+impl Checker<'_> {
+    fn line<T>(&self, s: &Spanned<T>) -> usize {
+        self.lines.of(&s.span())
+    }
+
+    fn range(
+        &self,
+        key: &str,
+        v: &Spanned<f64>,
+        lo: f64,
+        hi: f64,
+        lo_open: bool,
+    ) -> Result<f64, ScenarioError> {
+        let x = *v.get_ref();
+        let ok = x.is_finite() && x <= hi && if lo_open { x > lo } else { x >= lo };
+        if ok {
+            Ok(x)
+        } else {
+            Err(ScenarioError::OutOfRange {
+                line: self.line(v),
+                key: key.to_owned(),
+                value: x,
+                bounds: format!("{}{lo}, {hi}]", if lo_open { "(" } else { "[" }),
+            })
+        }
+    }
+
+    fn optional(
+        &self,
+        key: &str,
+        v: Option<&Spanned<f64>>,
+        default: f64,
+        (lo, hi, lo_open): (f64, f64, bool),
+    ) -> Result<f64, ScenarioError> {
+        v.map_or(Ok(default), |v| self.range(key, v, lo, hi, lo_open))
+    }
+
+    fn check(&self, raw: &RawFile) -> Result<Scenario, ScenarioError> {
+        let h = &raw.scenario;
+        let name = h.name.get_ref().trim();
+        if name.is_empty() || name.chars().count() > MAX_NAME_LEN {
+            return Err(ScenarioError::Invalid {
+                line: self.line(&h.name),
+                key: "scenario.name".into(),
+                reason: format!("1..={MAX_NAME_LEN} characters"),
+            });
+        }
+        let duration_s = self.optional(
+            "scenario.duration_s",
+            h.duration_s.as_ref(),
+            3600.0,
+            (0.0, MAX_DURATION_S, true),
+        )?;
+        let time_scale = self.optional(
+            "scenario.time_scale",
+            h.time_scale.as_ref(),
+            1.0,
+            (0.0, MAX_TIME_SCALE, true),
+        )?;
+
+        let mut vehicles = Vec::with_capacity(raw.vehicles.len());
+        let mut seen: HashMap<String, usize> = HashMap::new();
+        for (i, v) in raw.vehicles.iter().enumerate() {
+            let key = |k: &str| format!("vehicles[{i}].{k}");
+            let id = v.id.get_ref();
+            if !is_identifier(id, MAX_VEHICLE_ID_LEN) {
+                return Err(ScenarioError::Invalid {
+                    line: self.line(&v.id),
+                    key: key("id"),
+                    reason: format!(
+                        "{id:?} is not a vehicle id (1..={MAX_VEHICLE_ID_LEN} of [A-Za-z0-9_.-])"
+                    ),
+                });
+            }
+            if let Some(first) = seen.insert(id.clone(), self.line(&v.id)) {
+                return Err(ScenarioError::Duplicate {
+                    line: self.line(&v.id),
+                    key: key("id"),
+                    id: id.clone(),
+                    first_line: first,
+                });
+            }
+            let (lat, lon) = (StateVector::LATITUDE, StateVector::LONGITUDE);
+            vehicles.push(ScenarioVehicle {
+                id: id.clone(),
+                kind: v.kind,
+                latitude_deg: self.range(
+                    &key("latitude_deg"),
+                    &v.latitude_deg,
+                    lat.0,
+                    lat.1,
+                    false,
+                )?,
+                longitude_deg: self.range(
+                    &key("longitude_deg"),
+                    &v.longitude_deg,
+                    lon.0,
+                    lon.1,
+                    false,
+                )?,
+                battery_pct: self.optional(
+                    &key("battery_pct"),
+                    v.battery_pct.as_ref(),
+                    100.0,
+                    (0.0, 100.0, false),
+                )?,
+                rate_hz: self.optional(
+                    &key("rate_hz"),
+                    v.rate_hz.as_ref(),
+                    1.0,
+                    (0.0, 100.0, true),
+                )?,
+            });
+        }
+
+        let mut missions = Vec::with_capacity(raw.missions.len());
+        let mut mission_ids: HashMap<String, usize> = HashMap::new();
+        for (i, m) in raw.missions.iter().enumerate() {
+            let key = |k: &str| format!("missions[{i}].{k}");
+            let id = match &m.id {
+                Some(id) => {
+                    if !is_identifier(id.get_ref(), MAX_MISSION_ID_LEN) {
+                        return Err(ScenarioError::Invalid {
+                            line: self.line(id),
+                            key: key("id"),
+                            reason: format!(
+                                "{:?} is not a mission id (1..={MAX_MISSION_ID_LEN} of [A-Za-z0-9_.-])",
+                                id.get_ref()
+                            ),
+                        });
+                    }
+                    if let Some(first) = mission_ids.insert(id.get_ref().clone(), self.line(id)) {
+                        return Err(ScenarioError::Duplicate {
+                            line: self.line(id),
+                            key: key("id"),
+                            id: id.get_ref().clone(),
+                            first_line: first,
+                        });
+                    }
+                    id.get_ref().clone()
+                }
+                None => format!("mission-{}", i + 1),
+            };
+            let at_s = self.range(&key("at_s"), &m.at_s, 0.0, duration_s, false)?;
+            if m.tasks.get_ref().is_empty() {
+                return Err(ScenarioError::Invalid {
+                    line: self.line(&m.tasks),
+                    key: key("tasks"),
+                    reason: "a mission needs at least one task".into(),
+                });
+            }
+            let mut tasks = Vec::with_capacity(m.tasks.get_ref().len());
+            for (j, t) in m.tasks.get_ref().iter().enumerate() {
+                tasks.push(self.task(&format!("missions[{i}].tasks[{j}]"), t, &vehicles, &id)?);
+            }
+            missions.push(ScenarioMission {
+                id,
+                name: m.name.get_ref().clone(),
+                at_s,
+                tasks,
+            });
+        }
+        // Default ids cannot collide with each other, but may with one given explicitly.
+        let mut all: HashMap<&str, usize> = HashMap::new();
+        for (i, m) in missions.iter().enumerate() {
+            if let Some(first) = all.insert(&m.id, i) {
+                let raw_m = &raw.missions[i];
+                return Err(ScenarioError::Duplicate {
+                    line: self.line(&raw_m.name),
+                    key: format!("missions[{i}].id"),
+                    id: m.id.clone(),
+                    first_line: self.line(&raw.missions[first].name),
+                });
+            }
+        }
+        Ok(Scenario {
+            name: name.to_owned(),
+            description: h.description.clone(),
+            duration_s,
+            time_scale,
+            vehicles,
+            missions,
+        })
+    }
+
+    fn task(
+        &self,
+        at: &str,
+        t: &RawTask,
+        fleet: &[ScenarioVehicle],
+        mission_id: &str,
+    ) -> Result<ScenarioTask, ScenarioError> {
+        let key = |k: &str| format!("{at}.{k}");
+        let vehicle_id = t.vehicle.get_ref();
+        let Some(vehicle) = fleet.iter().find(|v| &v.id == vehicle_id) else {
+            return Err(ScenarioError::UnknownVehicle {
+                line: self.line(&t.vehicle),
+                key: key("vehicle"),
+                vehicle: vehicle_id.clone(),
+            });
+        };
+        let kind = *t.kind.get_ref();
+        // A key the kind does not use is refused: it is a mistake, not a default.
+        let used: &[&str] = match kind {
+            TaskName::Goto => &[
+                "latitude_deg",
+                "longitude_deg",
+                "depth_m",
+                "altitude_m",
+                "speed_mps",
+            ],
+            TaskName::Survey => &["polygon", "spacing_m", "depth_m", "altitude_m", "speed_mps"],
+            TaskName::Hold => &["duration_s"],
+            TaskName::Surface | TaskName::ReturnHome => &[],
+        };
+        let given: [(&str, Option<Range<usize>>); 8] = [
+            ("latitude_deg", t.latitude_deg.as_ref().map(Spanned::span)),
+            ("longitude_deg", t.longitude_deg.as_ref().map(Spanned::span)),
+            ("polygon", t.polygon.as_ref().map(Spanned::span)),
+            ("spacing_m", t.spacing_m.as_ref().map(Spanned::span)),
+            ("depth_m", t.depth_m.as_ref().map(Spanned::span)),
+            ("altitude_m", t.altitude_m.as_ref().map(Spanned::span)),
+            ("speed_mps", t.speed_mps.as_ref().map(Spanned::span)),
+            ("duration_s", t.duration_s.as_ref().map(Spanned::span)),
+        ];
+        for (k, span) in &given {
+            if let Some(span) = span
+                && !used.contains(k)
+            {
+                return Err(ScenarioError::Invalid {
+                    line: self.lines.of(span),
+                    key: key(k),
+                    reason: format!("not a key of a {:?} task", kind_name(kind)),
+                });
+            }
+        }
+        let kind_line = self.line(&t.kind);
+        let missing = |k: &str| ScenarioError::Invalid {
+            line: kind_line,
+            key: key(k),
+            reason: format!("a {:?} task needs it", kind_name(kind)),
+        };
+        let (lat, lon) = (StateVector::LATITUDE, StateVector::LONGITUDE);
+        let speed = |this: &Self| match t.speed_mps.as_ref() {
+            // A cruising speed every simulated kind reaches.
+            None => Ok(1.5),
+            Some(s) => this.range(&key("speed_mps"), s, 0.0, StateVector::SPEED.1, true),
+        };
+        let depth = |this: &Self| -> Result<(Option<f64>, Option<f64>), ScenarioError> {
+            let d = t
+                .depth_m
+                .as_ref()
+                .map(|d| {
+                    this.range(
+                        &key("depth_m"),
+                        d,
+                        StateVector::DEPTH.0,
+                        StateVector::DEPTH.1,
+                        false,
+                    )
+                })
+                .transpose()?;
+            let a = t
+                .altitude_m
+                .as_ref()
+                .map(|a| {
+                    this.range(
+                        &key("altitude_m"),
+                        a,
+                        StateVector::ALTITUDE.0,
+                        StateVector::ALTITUDE.1,
+                        false,
+                    )
+                })
+                .transpose()?;
+            match (d, a) {
+                (Some(_), Some(_)) => Err(ScenarioError::Invalid {
+                    line: kind_line,
+                    key: key("altitude_m"),
+                    reason: "give depth_m or altitude_m, not both".into(),
+                }),
+                // A surface vehicle has one depth; anything else must say where to be.
+                (None, None) if !vehicle.kind.is_underwater() => Ok((Some(0.0), None)),
+                (None, None) => Err(ScenarioError::Invalid {
+                    line: kind_line,
+                    key: key("depth_m"),
+                    reason: format!(
+                        "{} is a {}: give depth_m or altitude_m",
+                        vehicle.id, vehicle.kind
+                    ),
+                }),
+                other => Ok(other),
+            }
+        };
+        let task = match kind {
+            TaskName::Goto => {
+                let la = t
+                    .latitude_deg
+                    .as_ref()
+                    .ok_or_else(|| missing("latitude_deg"))?;
+                let lo = t
+                    .longitude_deg
+                    .as_ref()
+                    .ok_or_else(|| missing("longitude_deg"))?;
+                let (depth_m, altitude_m) = depth(self)?;
+                Task::GotoWaypoint {
+                    target: GeoPoint {
+                        latitude_deg: self.range(&key("latitude_deg"), la, lat.0, lat.1, false)?,
+                        longitude_deg: self.range(
+                            &key("longitude_deg"),
+                            lo,
+                            lon.0,
+                            lon.1,
+                            false,
+                        )?,
+                    },
+                    depth_m,
+                    altitude_m,
+                    speed_mps: speed(self)?,
+                }
+            }
+            TaskName::Survey => {
+                let Some(polygon) = &t.polygon else {
+                    return Err(ScenarioError::Invalid {
+                        line: kind_line,
+                        key: key("polygon"),
+                        reason: "a \"survey\" task needs it: [[lat, lon], ...], 3 or more corners"
+                            .into(),
+                    });
+                };
+                let spacing = t.spacing_m.as_ref().ok_or_else(|| missing("spacing_m"))?;
+                let corners = polygon.get_ref();
+                let pline = self.line(polygon);
+                if corners.len() < 3 || corners.len() > TaskAssignment::MAX_AREA {
+                    return Err(ScenarioError::Invalid {
+                        line: pline,
+                        key: key("polygon"),
+                        reason: format!(
+                            "{} corners; a polygon has 3..={}",
+                            corners.len(),
+                            TaskAssignment::MAX_AREA
+                        ),
+                    });
+                }
+                let mut points = Vec::with_capacity(corners.len());
+                for (n, [la, lo]) in corners.iter().copied().enumerate() {
+                    for (what, x, (a, b)) in [("latitude", la, lat), ("longitude", lo, lon)] {
+                        if !(x.is_finite() && (a..=b).contains(&x)) {
+                            return Err(ScenarioError::OutOfRange {
+                                line: pline,
+                                key: format!("{at}.polygon[{n}] {what}"),
+                                value: x,
+                                bounds: format!("[{a}, {b}]"),
+                            });
+                        }
+                    }
+                    points.push(GeoPoint {
+                        latitude_deg: la,
+                        longitude_deg: lo,
+                    });
+                }
+                let (depth_m, altitude_m) = depth(self)?;
+                Task::SurveyArea {
+                    polygon: points,
+                    line_spacing_m: self.range(&key("spacing_m"), spacing, 0.0, 10_000.0, true)?,
+                    depth_m,
+                    altitude_m,
+                    speed_mps: speed(self)?,
+                }
+            }
+            TaskName::Hold => Task::Hold {
+                duration_s: self.optional(
+                    &key("duration_s"),
+                    t.duration_s.as_ref(),
+                    0.0,
+                    (0.0, 86_400.0, false),
+                )?,
+            },
+            TaskName::Surface => Task::Surface,
+            TaskName::ReturnHome => Task::ReturnHome,
+        };
+        // The data model's own checks (a self-intersecting polygon, for one), as the
+        // station will make them when it plans the mission.
+        let probe = TaskAssignment::new(
+            "scenario-check",
+            mission_id,
+            vehicle_id,
+            shoal_model::MIN_TIMESTAMP_MS,
+            &task,
+        );
+        if let Err(e) = probe.task() {
+            return Err(ScenarioError::Invalid {
+                line: kind_line,
+                key: key("kind"),
+                reason: e.to_string(),
+            });
+        }
+        Ok(ScenarioTask {
+            vehicle_id: vehicle_id.clone(),
+            task,
+        })
+    }
+}
+
+fn kind_name(k: TaskName) -> &'static str {
+    match k {
+        TaskName::Goto => "goto",
+        TaskName::Survey => "survey",
+        TaskName::Hold => "hold",
+        TaskName::Surface => "surface",
+        TaskName::ReturnHome => "return_home",
+    }
+}
+
+#[cfg(test)]
+mod tests;

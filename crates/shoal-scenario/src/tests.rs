@@ -1,0 +1,219 @@
+use super::*;
+
+const HEAD: &str = "[scenario]\nname = \"t\"\n\n[[vehicles]]\nid = \"auv-1\"\nkind = \"auv\"\nlatitude_deg = 63.0\nlongitude_deg = 10.0\n";
+
+fn err(text: &str) -> ScenarioError {
+    match parse(text) {
+        Ok(s) => panic!("parsed: {s:?}"),
+        Err(e) => e,
+    }
+}
+
+/// One line, naming the key and the line: what every error must say.
+fn assert_names(e: &ScenarioError, line: usize, key: &str) {
+    let text = e.to_string();
+    assert_eq!(e.line(), line, "{text}");
+    assert!(text.starts_with(&format!("line {line}: ")), "{text}");
+    assert!(text.contains(key), "{key:?} not in {text}");
+    assert!(!text.contains('\n'), "{text}");
+}
+
+#[test]
+fn every_shipped_scenario_parses_and_every_file_in_scenarios_is_shipped() {
+    for (name, text) in SHIPPED {
+        let s = parse(text).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(&s.name, name);
+        assert!(!s.missions.is_empty(), "{name}");
+    }
+    assert!(shipped(DEFAULT).is_some());
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios");
+    for f in std::fs::read_dir(&dir).unwrap() {
+        let path = f.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let stem = path.file_stem().unwrap().to_string_lossy().into_owned();
+            let on_disk = std::fs::read_to_string(&path).unwrap();
+            assert_eq!(
+                shipped(&stem),
+                Some(on_disk.as_str()),
+                "{stem} not in SHIPPED"
+            );
+        }
+    }
+}
+
+/// `shoal up`'s default scenario drives the default fleet, and moves it early.
+#[test]
+fn the_default_scenario_moves_every_vehicle_within_ten_seconds() {
+    let s = parse(shipped(DEFAULT).unwrap()).unwrap();
+    let ids: Vec<_> = s.vehicles.iter().map(|v| v.id.as_str()).collect();
+    assert_eq!(ids, ["auv-1", "auv-2", "usv-1", "rov-1"]);
+    for v in &s.vehicles {
+        assert!(
+            s.missions
+                .iter()
+                .any(|m| m.at_s <= 10.0 && m.vehicles().contains(&v.id.as_str())),
+            "{} has nothing to do in the first 10 s",
+            v.id
+        );
+    }
+    let usv = s.missions.iter().find(|m| m.id == "usv-transit").unwrap();
+    assert!(matches!(
+        usv.tasks[0].task,
+        Task::GotoWaypoint { depth_m: Some(d), .. } if d == 0.0
+    ));
+}
+
+#[test]
+fn defaults_fill_what_is_left_out() {
+    let s = parse(HEAD).unwrap();
+    assert_eq!(s.duration_s, 3600.0);
+    assert_eq!(s.time_scale, 1.0);
+    assert_eq!(s.vehicles[0].battery_pct, 100.0);
+    assert_eq!(s.vehicles[0].rate_hz, 1.0);
+    let s = parse(&format!(
+        "{HEAD}\n[[missions]]\nname = \"m\"\nat_s = 1\n[[missions.tasks]]\nvehicle = \"auv-1\"\nkind = \"hold\"\n"
+    ))
+    .unwrap();
+    assert_eq!(s.missions[0].id, "mission-1");
+    assert_eq!(s.missions[0].tasks[0].task, Task::Hold { duration_s: 0.0 });
+}
+
+#[test]
+fn an_unknown_key_is_named_with_its_line() {
+    let e = err(&format!("{HEAD}colour = \"red\"\n"));
+    assert!(matches!(e, ScenarioError::Format { .. }), "{e}");
+    assert_names(&e, 9, "colour");
+    let e = err("[scenario]\nname = \"t\"\nspeed = 3\n");
+    assert_names(&e, 3, "speed");
+}
+
+#[test]
+fn a_value_of_the_wrong_type_is_named_with_its_key_and_line() {
+    let e = err(&HEAD.replace("latitude_deg = 63.0", "latitude_deg = \"north\""));
+    assert_names(&e, 7, "vehicles[0].latitude_deg");
+    let e = err(&HEAD.replace("kind = \"auv\"", "kind = \"submarine\""));
+    assert_names(&e, 6, "vehicles[0].kind");
+}
+
+#[test]
+fn broken_toml_and_a_missing_key_give_a_line() {
+    let e = err("[scenario]\nname = \"t\n");
+    assert_names(&e, 2, "file");
+    let e = err(&HEAD.replace("longitude_deg = 10.0\n", ""));
+    assert_names(&e, 4, "longitude_deg");
+}
+
+#[test]
+fn a_mission_naming_an_unknown_vehicle_is_refused() {
+    let e = err(&format!(
+        "{HEAD}\n[[missions]]\nname = \"m\"\nat_s = 1\n\n[[missions.tasks]]\nvehicle = \"auv-9\"\nkind = \"surface\"\n"
+    ));
+    assert!(matches!(e, ScenarioError::UnknownVehicle { .. }), "{e}");
+    assert_names(&e, 15, "missions[0].tasks[0].vehicle");
+    assert!(e.to_string().contains("auv-9"));
+}
+
+#[test]
+fn out_of_range_values_are_refused_with_their_bounds() {
+    let e = err(&HEAD.replace("latitude_deg = 63.0", "latitude_deg = 91.5"));
+    assert!(matches!(e, ScenarioError::OutOfRange { .. }), "{e}");
+    assert_names(&e, 7, "vehicles[0].latitude_deg");
+    assert!(e.to_string().contains("[-90, 90]"), "{e}");
+    let e = err(&HEAD.replace("longitude_deg = 10.0", "longitude_deg = -181"));
+    assert_names(&e, 8, "vehicles[0].longitude_deg");
+    let e = err(&format!("{HEAD}battery_pct = 120\n"));
+    assert_names(&e, 9, "battery_pct");
+    let e = err(&format!(
+        "{HEAD}\n[[missions]]\nname = \"m\"\nat_s = 1\n[[missions.tasks]]\nvehicle = \"auv-1\"\nkind = \"goto\"\nlatitude_deg = 95.0\nlongitude_deg = 10.0\ndepth_m = 2\n"
+    ));
+    assert_names(&e, 16, "missions[0].tasks[0].latitude_deg");
+    let e = err(&format!(
+        "{HEAD}\n[[missions]]\nname = \"m\"\nat_s = 1\n[[missions.tasks]]\nvehicle = \"auv-1\"\nkind = \"survey\"\nspacing_m = 10\ndepth_m = 2\npolygon = [[63.0, 10.0], [63.1, 10.0], [63.1, 190.0]]\n"
+    ));
+    assert_names(&e, 18, "polygon[2] longitude");
+    // A mission after the end of the scenario.
+    let e = err(&format!(
+        "{}\n[[missions]]\nname = \"m\"\nat_s = 100\n[[missions.tasks]]\nvehicle = \"auv-1\"\nkind = \"surface\"\n",
+        HEAD.replace("name = \"t\"", "name = \"t\"\nduration_s = 60")
+    ));
+    assert_names(&e, 13, "missions[0].at_s");
+}
+
+#[test]
+fn duplicate_ids_name_both_lines() {
+    let e = err(&format!(
+        "{HEAD}\n[[vehicles]]\nid = \"auv-1\"\nkind = \"usv\"\nlatitude_deg = 63.0\nlongitude_deg = 10.0\n"
+    ));
+    assert!(
+        matches!(e, ScenarioError::Duplicate { first_line: 5, .. }),
+        "{e}"
+    );
+    assert_names(&e, 11, "vehicles[1].id");
+    let m = |id: &str| {
+        format!(
+            "\n[[missions]]\nid = \"{id}\"\nname = \"m\"\nat_s = 1\n[[missions.tasks]]\nvehicle = \"auv-1\"\nkind = \"surface\"\n"
+        )
+    };
+    let e = err(&format!("{HEAD}{}{}", m("a"), m("a")));
+    assert_names(&e, 19, "missions[1].id");
+    // A given id equal to another mission's default one.
+    let e = err(&format!("{HEAD}{}{}", m("x"), m("mission-1")).replacen("id = \"x\"\n", "", 1));
+    assert!(matches!(e, ScenarioError::Duplicate { .. }), "{e}");
+}
+
+#[test]
+fn task_keys_must_fit_the_task_kind() {
+    let task = |body: &str| {
+        format!(
+            "{HEAD}\n[[missions]]\nname = \"m\"\nat_s = 1\n[[missions.tasks]]\nvehicle = \"auv-1\"\n{body}"
+        )
+    };
+    // A key another kind uses.
+    let e = err(&task("kind = \"hold\"\nspacing_m = 3\n"));
+    assert_names(&e, 16, "missions[0].tasks[0].spacing_m");
+    // A key the kind needs.
+    let e = err(&task("kind = \"goto\"\nlatitude_deg = 63.0\ndepth_m = 1\n"));
+    assert_names(&e, 15, "longitude_deg");
+    // An AUV must be told a depth or an altitude.
+    let e = err(&task(
+        "kind = \"goto\"\nlatitude_deg = 63.0\nlongitude_deg = 10.0\n",
+    ));
+    assert_names(&e, 15, "depth_m");
+    // The data model's own check: a self-intersecting (bow-tie) polygon.
+    let e = err(&task(
+        "kind = \"survey\"\nspacing_m = 10\ndepth_m = 2\npolygon = [[63.0, 10.0], [63.1, 10.1], [63.0, 10.1], [63.1, 10.0]]\n",
+    ));
+    assert!(matches!(e, ScenarioError::Invalid { .. }), "{e}");
+    assert_names(&e, 15, "missions[0].tasks[0].kind");
+    let e = err(&task("kind = \"dance\"\n"));
+    assert_names(&e, 15, "missions[0].tasks[0].kind");
+}
+
+mod prop {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Whatever bytes come in, the answer is a scenario or one error line with a line
+        /// number inside the file.
+        #[test]
+        fn any_text_gives_a_scenario_or_one_line(text in "\\PC{0,200}") {
+            if let Err(e) = parse(&text) {
+                let s = e.to_string();
+                prop_assert!(!s.contains('\n'), "{}", s);
+                prop_assert!(e.line() >= 1 && e.line() <= text.lines().count().max(1) + 1);
+            }
+        }
+
+        /// Any in-range start position of a vehicle is accepted and kept exactly.
+        #[test]
+        fn in_range_positions_round_trip(lat in -90.0f64..=90.0, lon in -180.0f64..=180.0) {
+            let text = HEAD
+                .replace("latitude_deg = 63.0", &format!("latitude_deg = {lat:?}"))
+                .replace("longitude_deg = 10.0", &format!("longitude_deg = {lon:?}"));
+            let s = parse(&text).unwrap();
+            prop_assert_eq!(s.vehicles[0].latitude_deg, lat);
+            prop_assert_eq!(s.vehicles[0].longitude_deg, lon);
+        }
+    }
+}
