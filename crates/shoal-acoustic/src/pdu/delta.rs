@@ -3,10 +3,14 @@
 //! The sender codes each state against the last keyframe the receiver *acknowledged*, so a
 //! lost delta never corrupts later ones and a lost keyframe only costs keyframes until one
 //! gets through. Keyframes carry a 4-bit sequence number that deltas name.
+//!
+//! A [predictive](DeltaEncoder::predictive) encoder also codes each state as residuals from
+//! the keyframe's dead-reckoning prediction ([`PredictedDelta`], delta layout 2) and sends
+//! whichever delta is smaller; the decoder reads both layouts.
 
 use std::collections::HashMap;
 
-use super::{DecodeError, EncodeError, Pdu, StateDelta, StateKeyframe};
+use super::{DecodeError, EncodeError, Pdu, PredictedDelta, StateDelta, StateKeyframe};
 
 /// Sender side: chooses keyframe or delta for each state of one vehicle.
 #[derive(Debug, Clone)]
@@ -16,6 +20,7 @@ pub struct DeltaEncoder {
     next_seq: u8,
     refresh_after_s: u32,
     last_was_keyframe: bool,
+    predictive: bool,
 }
 
 impl Default for DeltaEncoder {
@@ -36,6 +41,18 @@ impl DeltaEncoder {
             next_seq: 0,
             refresh_after_s: 90,
             last_was_keyframe: false,
+            predictive: false,
+        }
+    }
+
+    /// An encoder that also sends predicted deltas (layout 2, message id
+    /// [`super::id::PREDICTED_DELTA`]) when they are smaller than layout-1 deltas. Only for
+    /// receivers whose [`DeltaDecoder`] is given them: a build that predates layout 2
+    /// refuses them as an unknown message.
+    pub fn predictive() -> Self {
+        Self {
+            predictive: true,
+            ..Self::new()
         }
     }
 
@@ -50,12 +67,12 @@ impl DeltaEncoder {
     /// enough, a keyframe otherwise (or, every other message, when it is getting old).
     pub fn encode(&mut self, state: &StateKeyframe) -> Result<Pdu, EncodeError> {
         if let Some(key) = &self.acked
-            && let Some(d) = StateDelta::between(key, state)
+            && let Some((d, dt_s)) = self.smallest_delta(key, state)
         {
-            let stale = d.dt_s >= self.refresh_after_s;
+            let stale = dt_s >= self.refresh_after_s;
             if !stale || self.last_was_keyframe {
                 self.last_was_keyframe = false;
-                return Ok(Pdu::StateDelta(d));
+                return Ok(d);
             }
         }
         let mut k = state.quantised()?;
@@ -67,6 +84,23 @@ impl DeltaEncoder {
         }
         self.last_was_keyframe = true;
         Ok(Pdu::StateKeyframe(k))
+    }
+
+    /// The smaller of the layout-1 and (if predictive) layout-2 deltas from `key` to
+    /// `state`, with its `dt_s`; the older layout on a tie, as more receivers read it.
+    fn smallest_delta(&self, key: &StateKeyframe, state: &StateKeyframe) -> Option<(Pdu, u32)> {
+        let old = StateDelta::between(key, state).map(|d| (d.dt_s, Pdu::StateDelta(d)));
+        let new = self
+            .predictive
+            .then(|| PredictedDelta::between(key, state))
+            .flatten()
+            .map(|d| (d.dt_s, Pdu::PredictedDelta(d)));
+        let size = |p: &Pdu| super::encode_sized(p).map_or(usize::MAX, |e| e.bytes.len());
+        let best = match (old, new) {
+            (Some(o), Some(n)) => Some(if size(&n.1) < size(&o.1) { n } else { o }),
+            (o, n) => o.or(n),
+        };
+        best.map(|(dt, p)| (p, dt))
     }
 
     /// Records that the receiver got keyframe `seq`; returns false for an unknown seq.
@@ -102,7 +136,9 @@ impl DeltaDecoder {
         Self::default()
     }
 
-    /// The full state carried by a keyframe or delta PDU; `Ok(None)` for other PDUs.
+    /// The full state carried by a keyframe or delta PDU (either layout); `Ok(None)` for
+    /// other PDUs. A delta whose keyframe this decoder does not hold is refused
+    /// ([`DecodeError::UnknownKeyframe`]), never guessed at.
     pub fn decode(&mut self, pdu: &Pdu) -> Result<Option<StateKeyframe>, DecodeError> {
         match pdu {
             Pdu::StateKeyframe(k) => {
@@ -117,6 +153,15 @@ impl DeltaDecoder {
                     },
                 )?;
                 Ok(Some(d.apply(key)))
+            }
+            Pdu::PredictedDelta(d) => {
+                let key = self.keys.get(&(d.vehicle, d.keyframe_seq)).ok_or(
+                    DecodeError::UnknownKeyframe {
+                        vehicle: d.vehicle,
+                        seq: d.keyframe_seq,
+                    },
+                )?;
+                d.apply(key).map(Some)
             }
             _ => Ok(None),
         }

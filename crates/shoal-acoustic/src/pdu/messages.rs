@@ -6,6 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::predict::PredictedDelta;
 use super::schema::{BitReader, BitWriter, Field, Schema};
 use super::{DecodeError, EncodeError};
 
@@ -34,6 +35,10 @@ pub mod id {
     /// sequence and expiry (docs/acoustic.md#task-identity). A build that predates it
     /// refuses it as an unknown message id.
     pub const IDENTIFIED_TASK: u8 = 9;
+    /// [`super::PredictedDelta`]: delta layout 2, residuals from a dead-reckoning
+    /// prediction (docs/acoustic.md#predicted-deltas). A build that predates it refuses it
+    /// as an unknown message id; [`STATE_DELTA`] stays readable and writable.
+    pub const PREDICTED_DELTA: u8 = 10;
 }
 
 const VEHICLE: Field = Field::new("vehicle", 0.0, 15.0, 1.0);
@@ -1154,8 +1159,10 @@ impl Ack {
 pub enum Pdu {
     /// Full State Vector.
     StateKeyframe(StateKeyframe),
-    /// State Vector relative to a keyframe.
+    /// State Vector relative to a keyframe (delta layout 1).
     StateDelta(StateDelta),
+    /// State Vector as residuals from a keyframe's dead-reckoning prediction (layout 2).
+    PredictedDelta(PredictedDelta),
     /// Task assignment without the station's identity (task layout 1).
     Task(CompactTask),
     /// Task assignment with the station's identity (task layout 2).
@@ -1178,6 +1185,7 @@ impl Pdu {
         match self {
             Self::StateKeyframe(_) => id::STATE_KEYFRAME,
             Self::StateDelta(_) => id::STATE_DELTA,
+            Self::PredictedDelta(_) => id::PREDICTED_DELTA,
             Self::Task(_) => id::TASK,
             Self::IdentifiedTask(_) => id::IDENTIFIED_TASK,
             Self::TaskStatus(_) => id::TASK_STATUS,
@@ -1193,6 +1201,7 @@ impl Pdu {
         match self {
             Self::StateKeyframe(_) => "state_keyframe",
             Self::StateDelta(_) => "state_delta",
+            Self::PredictedDelta(_) => "predicted_delta",
             Self::Task(_) => "task",
             Self::IdentifiedTask(_) => "identified_task",
             Self::TaskStatus(_) => "task_status",
@@ -1209,6 +1218,7 @@ impl Pdu {
         match self {
             Self::StateKeyframe(m) => m.write(w),
             Self::StateDelta(m) => m.write(w),
+            Self::PredictedDelta(m) => m.write(w),
             Self::Task(m) => m.write(w),
             Self::IdentifiedTask(m) => m.write(w),
             Self::TaskStatus(m) => m.write(w),
@@ -1226,6 +1236,7 @@ impl Pdu {
         Ok(match msg_id as u8 {
             id::STATE_KEYFRAME => Self::StateKeyframe(StateKeyframe::read(r)?),
             id::STATE_DELTA => Self::StateDelta(StateDelta::read(r)?),
+            id::PREDICTED_DELTA => Self::PredictedDelta(PredictedDelta::read(r)?),
             id::TASK => Self::Task(CompactTask::read(r)?),
             id::IDENTIFIED_TASK => Self::IdentifiedTask(IdentifiedTask::read(r)?),
             id::TASK_STATUS => Self::TaskStatus(CompactTaskStatus::read(r)?),

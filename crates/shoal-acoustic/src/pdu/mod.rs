@@ -14,11 +14,13 @@
 pub mod convert;
 mod delta;
 mod messages;
+mod predict;
 pub mod schema;
 
 pub use convert::{AddressBook, CAPABILITIES, ConvertError, SENSORS};
 pub use delta::{DeltaDecoder, DeltaEncoder};
 pub use messages::*;
+pub use predict::{DIVE_PITCH_DEG, MAX_DT_S, PredictedDelta, RESIDUALS, Residual, predict};
 pub use schema::{BitReader, BitWriter, Field, Schema};
 
 /// Largest modem frame: an EvoLogics instant message carries at most 64 bytes
@@ -116,6 +118,13 @@ pub enum DecodeError {
         vehicle: u8,
         /// Keyframe sequence number.
         seq: u8,
+    },
+    /// A variable-length code has more leading zeros than its field's largest value needs
+    /// (garbage, or a code from a layout this build does not know).
+    #[error("overlong variable-length code for {field}")]
+    Overlong {
+        /// Field name.
+        field: &'static str,
     },
     /// Not valid hexadecimal.
     #[error("invalid hex")]
