@@ -12,6 +12,7 @@ mod keys;
 mod query;
 mod record;
 mod relay;
+mod scenario;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -208,6 +209,9 @@ enum Command {
     /// recorded pace times --speed; with security on, each vehicle's samples under its own
     /// identity from the key store.
     Replay(record::ReplayArgs),
+    /// Scenario files: a simulated fleet and missions on a timeline (docs/scenarios.md).
+    /// `check` validates one; `shoal up --scenario FILE` runs one.
+    Scenario(scenario::ScenarioArgs),
     /// Print the effective configuration (defaults, file and environment merged) as TOML.
     Config {
         /// Print the commented default configuration file instead.
@@ -326,8 +330,14 @@ fn main() -> ExitCode {
         Command::ModemEmu(_) => "modem-emu".to_string(),
         Command::Record(_) => "record".to_string(),
         Command::Replay(_) => "replay".to_string(),
+        Command::Scenario(_) => "scenario".to_string(),
     };
     init_logging(&label);
+    // Before the configuration is loaded: checking a file needs none, and an invalid
+    // scenario has its own exit code.
+    if let Command::Scenario(args) = &cli.command {
+        return scenario::run(args);
+    }
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -470,6 +480,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::ModemEmu(args) => rt.block_on(acoustic::modem_emu(args)),
         Command::Record(args) => rt.block_on(record::record(&cfg, args)),
         Command::Replay(args) => rt.block_on(record::replay(&cfg, cli.config.as_deref(), args)),
+        // Run by `main` before the configuration is loaded.
+        Command::Scenario(_) => Ok(()),
         Command::Config { default } => {
             if default {
                 print!("{}", config::DEFAULT_CONFIG);

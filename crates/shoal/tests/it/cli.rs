@@ -319,3 +319,42 @@ fn the_endurance_benchmark_runs_short_with_no_task_twice_and_no_contact_change()
         "{stdout}"
     );
 }
+
+/// `shoal scenario check`: a valid file gives one summary line and exit 0; an invalid
+/// one a single error line naming the line and the key, and exit 2.
+#[test]
+fn scenario_check_summarises_or_names_the_line_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let shipped = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../scenarios/sea-trial.toml"
+    );
+    let out = shoal()
+        .args(["scenario", "check", shipped])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{out:?}");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(stdout.lines().count(), 1, "{stdout}");
+    assert!(stdout.contains("4 vehicles"), "{stdout}");
+
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad,
+        "[scenario]\nname = \"x\"\n\n[[vehicles]]\nid = \"auv-1\"\nkind = \"auv\"\nlatitude_deg = 63.0\nlongitude_deg = 10.0\n\n[[missions]]\nname = \"m\"\nat_s = 1\n[[missions.tasks]]\nvehicle = \"auv-7\"\nkind = \"surface\"\n",
+    )
+    .unwrap();
+    let out = shoal()
+        .args(["scenario", "check"])
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{out:?}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    let lines: Vec<_> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(
+        lines[0].contains("line 14") && lines[0].contains("missions[0].tasks[0].vehicle"),
+        "{err}"
+    );
+}
