@@ -404,6 +404,25 @@ pub fn samples() -> Vec<(&'static str, Pdu)> {
             }),
         ),
         (
+            // A straight, level leg 10 s after the keyframe: 1.1 m along and 0.2 m of
+            // altitude off the prediction.
+            "predicted_delta_straight_leg",
+            Pdu::PredictedDelta(PredictedDelta {
+                vehicle: 3,
+                keyframe_seq: 1,
+                dt_s: 10,
+                lat_steps: 0,
+                lon_steps: -1,
+                depth_steps: 0,
+                altitude_steps: Some(1),
+                speed_steps: 0,
+                yaw_steps: 0,
+                pitch_steps: 0,
+                roll_steps: 0,
+                battery_steps: 0,
+            }),
+        ),
+        (
             "task_goto",
             task(TaskAction::Goto {
                 target: p(43.1, 5.9),

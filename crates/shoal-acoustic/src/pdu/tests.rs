@@ -457,6 +457,129 @@ fn a_delta_against_an_unknown_keyframe_is_an_error() {
     );
 }
 
+#[test]
+fn a_predicted_delta_against_an_unknown_keyframe_is_refused() {
+    let Pdu::PredictedDelta(d) = sample("predicted_delta_straight_leg") else {
+        panic!("sample is not a predicted delta")
+    };
+    let mut dec = DeltaDecoder::new();
+    let refused = Err(DecodeError::UnknownKeyframe { vehicle: 3, seq: 1 });
+    assert_eq!(dec.decode(&Pdu::PredictedDelta(d.clone())), refused);
+    // Keyframes of another seq or another vehicle are not its reference either.
+    let Pdu::StateKeyframe(key) = sample("state_keyframe") else {
+        panic!()
+    };
+    for (vehicle, seq) in [(3, 2), (4, 1)] {
+        let k = StateKeyframe {
+            vehicle,
+            seq,
+            ..key.clone()
+        };
+        dec.decode(&Pdu::StateKeyframe(k)).unwrap();
+    }
+    assert_eq!(dec.decode(&Pdu::PredictedDelta(d.clone())), refused);
+    // `apply` checks the reference too, for callers that hold keyframes themselves.
+    let other = StateKeyframe { seq: 2, ..key };
+    assert_eq!(
+        d.apply(&other),
+        Err(DecodeError::UnknownKeyframe { vehicle: 3, seq: 1 })
+    );
+    dec.decode(&Pdu::StateKeyframe(key)).unwrap();
+    assert!(dec.decode(&Pdu::PredictedDelta(d)).unwrap().is_some());
+}
+
+#[test]
+fn an_overlong_predicted_delta_code_is_refused() {
+    // Header (vehicle 3, seq 1, dt 10), then a latitude code of 13 zeros: the largest
+    // latitude residual (zigzag 8190) needs 12.
+    let mut w = BitWriter::new();
+    w.write(u64::from(id::PREDICTED_DELTA), 8);
+    w.write(3, 4);
+    w.write(1, 4);
+    w.write(10, 7);
+    w.write(0, 13);
+    w.write(1, 1);
+    w.write(0, 30);
+    assert_eq!(
+        decode(&w.finish()),
+        Err(DecodeError::Overlong { field: "lat_steps" })
+    );
+    // Zero residuals up to speed, then a speed code of the right length (6 zeros) whose
+    // value 126 is above the field's largest code 80 (±40 steps).
+    let mut w = BitWriter::new();
+    w.write(u64::from(id::PREDICTED_DELTA), 8);
+    w.write(0x31, 8);
+    w.write(10, 7);
+    w.write(0b1111, 4);
+    w.write(0, 6);
+    w.write(127, 7);
+    w.write(0, 30);
+    assert_eq!(
+        decode(&w.finish()),
+        Err(DecodeError::InvalidCode {
+            field: "speed_steps",
+            code: 126
+        })
+    );
+}
+
+#[test]
+fn a_predicted_delta_too_far_from_its_prediction_falls_back_to_layout_1_or_a_keyframe() {
+    let Pdu::StateKeyframe(key) = sample("state_keyframe") else {
+        panic!()
+    };
+    let mut enc = DeltaEncoder::predictive();
+    let Pdu::StateKeyframe(k) = enc.encode(&key).unwrap() else {
+        panic!()
+    };
+    assert!(enc.acknowledge(k.seq));
+    let size = |p: Pdu| encode(&p).unwrap().len();
+    // Whichever delta is smaller goes, the older layout on a tie: a vehicle at full speed
+    // in the keyframe that stopped and turned about (1.3 km off the prediction, large speed
+    // and yaw residuals), and one that kept going.
+    let fast = StateKeyframe {
+        speed_mps: 10.0,
+        ..key.clone()
+    };
+    let mut enc = DeltaEncoder::predictive();
+    let Pdu::StateKeyframe(k) = enc.encode(&fast).unwrap() else {
+        panic!()
+    };
+    assert!(enc.acknowledge(k.seq));
+    let stopped = StateKeyframe {
+        seconds_of_day: key.seconds_of_day + 127,
+        yaw_deg: 270.0,
+        speed_mps: 0.0,
+        ..key.clone()
+    };
+    let kept_going = StateKeyframe {
+        seconds_of_day: key.seconds_of_day + 10,
+        latitude_deg: predict(&k, 10).latitude_deg,
+        longitude_deg: predict(&k, 10).longitude_deg,
+        ..fast.clone()
+    };
+    for s in [stopped.clone(), kept_going] {
+        let old = size(Pdu::StateDelta(StateDelta::between(&k, &s).unwrap()));
+        let new = size(Pdu::PredictedDelta(
+            PredictedDelta::between(&k, &s).unwrap(),
+        ));
+        let sent = enc.encode(&s).unwrap();
+        assert_eq!(encode(&sent).unwrap().len(), old.min(new), "{sent:?}");
+        assert_eq!(
+            matches!(sent, Pdu::PredictedDelta(_)),
+            new < old,
+            "{sent:?}"
+        );
+    }
+    let s = stopped;
+    // 20 km away: neither delta reaches; a keyframe.
+    let s = StateKeyframe {
+        latitude_deg: key.latitude_deg + 0.2,
+        ..s
+    };
+    assert!(matches!(enc.encode(&s).unwrap(), Pdu::StateKeyframe(_)));
+}
+
 fn arb_keyframe() -> impl Strategy<Value = StateKeyframe> {
     (
         (
@@ -594,6 +717,72 @@ proptest! {
     }
 
     #[test]
+    fn predicted_delta_round_trips_within_its_precision_for_every_field(
+        key in arb_keyframe(),
+        dt in 0u32..=127, dnorth in -300.0..300.0f64, deast in -300.0..300.0f64, dd in -20.0..20.0f64,
+        dalt in prop::option::of(-150.0..150.0f64),
+        speed in 0.0..=10.0f64, yaw in 0.0..360.0f64, pitch in -90.0..=90.0f64, roll in -180.0..180.0f64,
+        battery in 0.0..=100.0f64,
+    ) {
+        let mut key = key.quantised().unwrap();
+        // Away from the poles, where a few hundred metres are not a wrap of longitude.
+        key.latitude_deg = key.latitude_deg.clamp(-80.0, 80.0);
+        let p = predict(&key, dt);
+        let mut s = key.clone();
+        s.seconds_of_day = (key.seconds_of_day + dt) % 86_400;
+        s.latitude_deg = p.latitude_deg + dnorth / 111_000.0;
+        s.longitude_deg = p.longitude_deg + deast / 111_000.0;
+        s.longitude_deg = (s.longitude_deg + 180.0).rem_euclid(360.0) - 180.0;
+        s.depth_m = (p.depth_m + dd).max(0.0);
+        // The altitude residual reaches ±200 m from the predicted (same seabed) altitude.
+        s.altitude_m = key.altitude_m.and_then(|a| dalt.map(|d| (a - (s.depth_m - key.depth_m) + d).max(0.0)));
+        s.speed_mps = speed;
+        s.yaw_deg = yaw;
+        s.pitch_deg = pitch;
+        s.roll_deg = roll;
+        s.battery_pct = battery;
+        let d = PredictedDelta::between(&key, &s);
+        prop_assert!(d.is_some(), "{s:?} not codable against {key:?}");
+        let Some(d) = d else { unreachable!() };
+        let e = encode_sized(&Pdu::PredictedDelta(d.clone())).unwrap();
+        let Pdu::PredictedDelta(back) = decode(&e.bytes).unwrap() else { panic!() };
+        prop_assert_eq!(&back, &d);
+        let b = back.apply(&key).unwrap();
+        prop_assert_eq!(b.seconds_of_day, s.seconds_of_day);
+        prop_assert!(close(b.latitude_deg, s.latitude_deg, 2e-5), "lat {} vs {}", b.latitude_deg, s.latitude_deg);
+        prop_assert!(close_angle(b.longitude_deg, s.longitude_deg, 2e-5, 360.0), "lon {} vs {}", b.longitude_deg, s.longitude_deg);
+        prop_assert!(close(b.depth_m, s.depth_m, 0.1), "depth {} vs {}", b.depth_m, s.depth_m);
+        prop_assert_eq!(b.altitude_m.is_some(), s.altitude_m.is_some());
+        if let (Some(x), Some(y)) = (b.altitude_m, s.altitude_m) { prop_assert!(close(x, y, 0.2), "alt {x} vs {y}"); }
+        prop_assert!(close(b.speed_mps, s.speed_mps, 0.25));
+        prop_assert!(close_angle(b.yaw_deg, s.yaw_deg, 3.0, 360.0));
+        prop_assert!(close(b.pitch_deg, s.pitch_deg, 2.0));
+        prop_assert!(close_angle(b.roll_deg, s.roll_deg, 2.0, 360.0));
+        prop_assert!(close(b.battery_pct, s.battery_pct, 1.0));
+    }
+
+    #[test]
+    fn every_truncation_of_a_predicted_delta_is_refused(
+        vehicle in 0u8..16, seq in 0u8..16, dt in 0u32..=127,
+        r in prop::array::uniform8(-4095i32..=4095), alt in prop::option::of(-1000i32..=1000),
+    ) {
+        let d = PredictedDelta {
+            vehicle, keyframe_seq: seq, dt_s: dt,
+            lat_steps: r[0], lon_steps: r[1], depth_steps: r[2].clamp(-1270, 1270),
+            altitude_steps: alt, speed_steps: r[3].clamp(-40, 40), yaw_steps: r[4].clamp(-60, 60),
+            pitch_steps: r[5].clamp(-90, 90), roll_steps: r[6].clamp(-180, 180),
+            battery_steps: r[7].clamp(-100, 100),
+        };
+        let bytes = encode(&Pdu::PredictedDelta(d.clone())).unwrap();
+        prop_assert_eq!(decode(&bytes).unwrap(), Pdu::PredictedDelta(d));
+        for n in 0..bytes.len() {
+            prop_assert!(decode(&bytes[..n]).is_err(), "prefix of {} bytes decoded", n);
+            // An empty frame is a valid frame of no PDUs.
+            prop_assert!(n == 0 || unpack_frame(&bytes[..n]).is_err(), "prefix of {} bytes unpacked", n);
+        }
+    }
+
+    #[test]
     fn task_round_trips_within_resolution(vehicle in 0u8..16, task_no in any::<u8>(), action in arb_action()) {
         let t = CompactTask { vehicle, task_no, action };
         let Pdu::Task(b) = round_trip(&Pdu::Task(t.clone())) else { panic!() };
@@ -678,7 +867,7 @@ proptest! {
     }
 
     #[test]
-    fn arbitrary_bytes_after_a_valid_id_never_panic(id in 1u8..=9, rest in prop::collection::vec(any::<u8>(), 0..70)) {
+    fn arbitrary_bytes_after_a_valid_id_never_panic(id in 1u8..=10, rest in prop::collection::vec(any::<u8>(), 0..70)) {
         let mut bytes = vec![id];
         bytes.extend(rest);
         if let Ok(pdus) = unpack_frame(&bytes) {
