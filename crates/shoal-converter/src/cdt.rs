@@ -5,7 +5,10 @@
 //! keyframe or delta, and every datum republished with the **same types and topics as an
 //! IP vehicle's**: the station needs no acoustic code. Each keyframe is acknowledged to
 //! its VDT so it can code deltas against it. Alongside, a per-vehicle link-status event
-//! carries the link metadata ([`crate::link_status`]).
+//! carries the link metadata ([`crate::link_status`]). A PDU about a vehicle is accepted
+//! only from that vehicle's modem (whose key opened the frame on a tagged link) or from a
+//! relay configured to carry it ([`CdtConfig::relays`]); others are refused as
+//! impersonation, counted, and raise an alarm naming the sender.
 //!
 //! DDS → modem: task assignments for the vehicles in the address book are given an 8-bit
 //! task number and sent with the station's task id, issue sequence and expiry
@@ -25,8 +28,8 @@ use shoal_acoustic::pdu::{
 };
 use shoal_dds::{Priority, PubSub, Writer, WriterOptions};
 use shoal_model::{
-    EnvironmentObservation, Event, LinkKind, Severity, StateVector, TaskAssignment, TaskKind,
-    TaskState, TaskStatus, VehicleAnnouncement, now_ms,
+    EnvironmentObservation, Event, EventKind, LinkKind, Severity, StateVector, TaskAssignment,
+    TaskKind, TaskState, TaskStatus, VehicleAnnouncement, now_ms,
 };
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
@@ -123,11 +126,40 @@ struct Cdt {
     /// Link message id → (task id, vehicle id) of tasks in the link's hands.
     in_flight: HashMap<MessageId, (String, String)>,
     event_no: u64,
+    /// Relay address → the addresses it may speak for ([`CdtConfig::relays`]).
+    relays: HashMap<u8, Vec<u8>>,
+    impersonation: Impersonation,
+}
+
+/// PDUs refused because they spoke for a vehicle other than their sender.
+#[derive(Debug, Default)]
+struct Impersonation {
+    refused: u64,
+    /// Per sending address, when its last alarm went out: one a minute at most, so a
+    /// captured modem cannot flood the station's alarms either.
+    alarmed: HashMap<u8, Instant>,
+}
+
+/// How often one sender's impersonation attempts raise an alarm.
+const IMPERSONATION_ALARM_EVERY: std::time::Duration = std::time::Duration::from_secs(60);
+
+/// The vehicle address a PDU speaks for; `None` for PDUs a CDT does not act on.
+fn claimed_vehicle(p: &Pdu) -> Option<u8> {
+    match p {
+        Pdu::StateKeyframe(k) => Some(k.vehicle),
+        Pdu::StateDelta(d) => Some(d.vehicle),
+        Pdu::TaskStatus(s) => Some(s.vehicle),
+        Pdu::Event(e) => e.vehicle,
+        Pdu::Announcement(a) => Some(a.vehicle),
+        Pdu::Environment(o) => Some(o.vehicle),
+        _ => None,
+    }
 }
 
 impl Cdt {
     fn new(cfg: CdtConfig, dds: &PubSub, link: LinkSender) -> Result<Self, ConverterError> {
         let book = address_book(&cfg.vehicles)?;
+        let cfg_relays = cfg.relay_rules()?.into_iter().collect();
         let control = WriterOptions::new(Priority::Control);
         let w = Writers {
             state: dds.writer(WriterOptions::new(Priority::Telemetry))?,
@@ -152,6 +184,8 @@ impl Cdt {
             forwarded: VecDeque::new(),
             in_flight: HashMap::new(),
             event_no: 0,
+            relays: cfg_relays,
+            impersonation: Impersonation::default(),
         })
     }
 
@@ -304,7 +338,20 @@ impl Cdt {
         peer.rssi = rssi;
         peer.integrity = integrity;
         peer.heard_ms = now;
-        for p in pdus {
+        for mut p in pdus {
+            // A frame without a vehicle speaks for its sender.
+            if let Pdu::Event(e) = &mut p
+                && e.vehicle.is_none()
+            {
+                e.vehicle = Some(src);
+            }
+            if let Some(claimed) = claimed_vehicle(&p)
+                && !self.may_speak_for(src, claimed)
+            {
+                self.refuse_impersonation(src, &vehicle_id, claimed, p.name())
+                    .await;
+                continue;
+            }
             self.on_pdu(src, p, now).await?;
         }
         self.maybe_publish_link_status(src, &vehicle_id).await;
@@ -410,6 +457,61 @@ impl Cdt {
             other => debug!(pdu = other.name(), "PDU not meant for a CDT ignored"),
         }
         Ok(())
+    }
+
+    /// Whether the modem at `src` (authenticated by its key on a tagged link) may send
+    /// PDUs about the vehicle at `claimed`: its own, or those it relays by configuration.
+    fn may_speak_for(&self, src: u8, claimed: u8) -> bool {
+        claimed == src || self.relays.get(&src).is_some_and(|c| c.contains(&claimed))
+    }
+
+    /// Drops a PDU about another vehicle, counts it, and raises a data-rejected alarm
+    /// naming the sender (at most once a minute per sender).
+    async fn refuse_impersonation(&mut self, src: u8, sender: &str, claimed: u8, pdu: &str) {
+        let claimed_id = self
+            .book
+            .vehicle_id(claimed)
+            .unwrap_or("unknown")
+            .to_owned();
+        let imp = &mut self.impersonation;
+        imp.refused += 1;
+        warn!(
+            sender,
+            src,
+            claimed = %claimed_id,
+            claimed_address = claimed,
+            pdu,
+            refused = imp.refused,
+            "acoustic PDU about another vehicle refused (impersonation)"
+        );
+        let now = Instant::now();
+        if imp
+            .alarmed
+            .get(&src)
+            .is_some_and(|t| now.duration_since(*t) < IMPERSONATION_ALARM_EVERY)
+        {
+            return;
+        }
+        imp.alarmed.insert(src, now);
+        self.event_no += 1;
+        let ts = now_ms();
+        let alarm = Event {
+            event_id: format!("{sender}-ac-imp-{ts}-{}", self.event_no),
+            timestamp_ms: ts,
+            severity: Severity::Alarm,
+            kind: EventKind::DataRejected,
+            vehicle_id: sender.to_owned(),
+            task_id: String::new(),
+            text: format!(
+                "acoustic {pdu} from {sender}'s modem (address {src}) spoke for {claimed_id} \
+                 (address {claimed}) and was refused; {} refused so far. Its acoustic key \
+                 may be compromised.",
+                imp.refused
+            ),
+        };
+        if let Err(e) = self.w.alarm.write(alarm).await {
+            warn!(error = %e, "impersonation alarm not published");
+        }
     }
 
     async fn ack_keyframe(&self, src: u8, k: &StateKeyframe) -> Result<(), ConverterError> {

@@ -61,6 +61,16 @@ pub struct AddressEntry {
     pub address: u8,
 }
 
+/// A vehicle allowed to forward other vehicles' PDUs to a CDT (a multi-hop relay).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RelayEntry {
+    /// The forwarding vehicle's id (in the address book).
+    pub relay: String,
+    /// The vehicles it may speak for (in the address book).
+    pub carries: Vec<String>,
+}
+
 /// Time to live per message class, seconds (simulated).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -233,6 +243,10 @@ pub struct CdtConfig {
     pub address: u8,
     /// Vehicle id ↔ acoustic address of every vehicle this CDT serves.
     pub vehicles: Vec<AddressEntry>,
+    /// Vehicles whose modems may forward PDUs about other vehicles. Without an entry here
+    /// a frame may speak only for the vehicle whose modem (and, on a tagged link, whose
+    /// key) sent it: anything else is refused as impersonation.
+    pub relays: Vec<RelayEntry>,
     /// A per-vehicle link-status event is republished at most this often (seconds).
     pub link_status_interval_s: f64,
     /// Link layer settings.
@@ -247,6 +261,7 @@ impl Default for CdtConfig {
             modem: ModemSettings::default(),
             address: 1,
             vehicles: Vec::new(),
+            relays: Vec::new(),
             link_status_interval_s: 30.0,
             link: LinkSettings::default(),
             time_scale: 1.0,
@@ -343,7 +358,44 @@ impl CdtConfig {
         }
         check_scale(self.time_scale)?;
         secs("link_status_interval_s", self.link_status_interval_s)?;
+        self.relay_rules()?;
         self.link.link_config().map(|_| ())
+    }
+
+    /// The relays as (relay address, addresses it may speak for), checked against the
+    /// address book.
+    pub(crate) fn relay_rules(&self) -> Result<Vec<(u8, Vec<u8>)>, ConverterError> {
+        let book = address_book(&self.vehicles)?;
+        let addr = |id: &str| {
+            book.addr(id).map_err(|_| {
+                ConverterError::Config(format!(
+                    "relays: {id:?} is not in the address book (vehicles)"
+                ))
+            })
+        };
+        let mut rules: Vec<(u8, Vec<u8>)> = Vec::new();
+        for r in &self.relays {
+            let relay = addr(&r.relay)?;
+            if rules.iter().any(|(a, _)| *a == relay) {
+                return Err(ConverterError::Config(format!(
+                    "relays: {} listed twice",
+                    r.relay
+                )));
+            }
+            let carried = r
+                .carries
+                .iter()
+                .map(|id| addr(id))
+                .collect::<Result<Vec<u8>, _>>()?;
+            if carried.contains(&relay) {
+                return Err(ConverterError::Config(format!(
+                    "relays: {} carries itself",
+                    r.relay
+                )));
+            }
+            rules.push((relay, carried));
+        }
+        Ok(rules)
     }
 }
 
@@ -408,6 +460,39 @@ mod tests {
             ..CdtConfig::default()
         };
         assert!(c.check().unwrap_err().to_string().contains("1..=15"));
+    }
+
+    #[test]
+    fn relays_must_name_vehicles_of_the_address_book() {
+        let book = vec![
+            AddressEntry {
+                vehicle_id: "auv-1".into(),
+                address: 2,
+            },
+            AddressEntry {
+                vehicle_id: "auv-2".into(),
+                address: 3,
+            },
+        ];
+        let with = |relay: &str, carries: &[&str]| CdtConfig {
+            vehicles: book.clone(),
+            relays: vec![RelayEntry {
+                relay: relay.into(),
+                carries: carries.iter().map(|c| (*c).to_string()).collect(),
+            }],
+            ..CdtConfig::default()
+        };
+        assert_eq!(
+            with("auv-1", &["auv-2"]).relay_rules().unwrap(),
+            vec![(2, vec![3])]
+        );
+        let unknown = with("auv-1", &["auv-9"]).check().unwrap_err().to_string();
+        assert!(
+            unknown.contains("\"auv-9\" is not in the address book"),
+            "{unknown}"
+        );
+        let itself = with("auv-1", &["auv-1"]).check().unwrap_err().to_string();
+        assert!(itself.contains("carries itself"), "{itself}");
     }
 
     #[test]

@@ -58,15 +58,17 @@
 //! - **Authorisation on IP links**: signed permissions let a vehicle publish only its own
 //!   topics in its own partition and never a task; the station refuses a sample naming
 //!   another vehicle than the partition it came in.
+//! - **Authorisation on the acoustic link**: the CDT accepts a PDU about a vehicle only
+//!   from the modem whose key opened the frame, or from a relay configured to carry that
+//!   vehicle; others are refused, counted and raise an alarm naming the sender.
 //!
 //! ## What is not protected
 //!
 //! - **Confidentiality on the acoustic link**: frames are authenticated, not encrypted;
 //!   anyone in range can read positions and tasks sent acoustically (IP links are
 //!   encrypted by DDS Security unless the governance says otherwise).
-//! - **Authorisation on the acoustic link**: a tag proves which vehicle's key sealed the
-//!   frame, but the CDT takes the vehicle from the PDU's address field and republishes as
-//!   the station, so a captured vehicle's key can send PDUs about another vehicle.
+//! - **A configured relay's key** speaks for every vehicle the relay carries: capturing a
+//!   relay is capturing those vehicles' reports too.
 //! - **Availability**: jamming the acoustic channel, flooding the radio, or a captured
 //!   vehicle sending junk. Refusals are counted so the operator can see an attack, but
 //!   nothing stops it.

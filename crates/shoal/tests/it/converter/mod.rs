@@ -15,6 +15,8 @@
 //!   afterwards (domains 107, 108).
 //! - `relay`: the `run_emulated_relay` topology of `shoal up`'s acoustic demo (domains
 //!   105, 106).
+//! - `impersonation`: a vehicle's acoustic key speaks only for its vehicle, a relay only
+//!   for the vehicles it carries (domain 111).
 //! - `redelivery`: at most once over the acoustic link: a finished task delivered again
 //!   after the VDT and the vehicle restart is not run again (domains 109, 110).
 //!
@@ -23,6 +25,7 @@
 
 pub mod common;
 mod end_to_end;
+mod impersonation;
 mod outage;
 mod reconnect;
 mod redelivery;
