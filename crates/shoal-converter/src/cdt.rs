@@ -143,11 +143,13 @@ struct Impersonation {
 /// How often one sender's impersonation attempts raise an alarm.
 const IMPERSONATION_ALARM_EVERY: std::time::Duration = std::time::Duration::from_secs(60);
 
-/// The vehicle address a PDU speaks for; `None` for PDUs a CDT does not act on.
+/// The vehicle address a PDU speaks for; `None` for PDUs a CDT does not act on (keep in
+/// step with `Cdt::on_pdu`: a PDU it acts on must be listed here, or it goes unchecked).
 fn claimed_vehicle(p: &Pdu) -> Option<u8> {
     match p {
         Pdu::StateKeyframe(k) => Some(k.vehicle),
         Pdu::StateDelta(d) => Some(d.vehicle),
+        Pdu::PredictedDelta(d) => Some(d.vehicle),
         Pdu::TaskStatus(s) => Some(s.vehicle),
         Pdu::Event(e) => e.vehicle,
         Pdu::Announcement(a) => Some(a.vehicle),
@@ -372,15 +374,17 @@ impl Cdt {
         }
         let book = &self.book;
         match p {
-            Pdu::StateKeyframe(_) | Pdu::StateDelta(_) => match self.decoder.decode(&p) {
-                Ok(Some(k)) => self.on_state(&k, now).await,
-                Ok(None) => {}
-                Err(DecodeError::UnknownKeyframe { vehicle, seq }) => {
-                    // The VDT's keyframe refresh heals this within its refresh period.
-                    debug!(vehicle, seq, "delta against an unknown keyframe dropped");
+            Pdu::StateKeyframe(_) | Pdu::StateDelta(_) | Pdu::PredictedDelta(_) => {
+                match self.decoder.decode(&p) {
+                    Ok(Some(k)) => self.on_state(&k, now).await,
+                    Ok(None) => {}
+                    Err(DecodeError::UnknownKeyframe { vehicle, seq }) => {
+                        // The VDT's keyframe refresh heals this within its refresh period.
+                        debug!(vehicle, seq, "delta against an unknown keyframe dropped");
+                    }
+                    Err(e) => warn!(error = %e, "state PDU unusable"),
                 }
-                Err(e) => warn!(error = %e, "state PDU unusable"),
-            },
+            }
             Pdu::TaskStatus(s) => {
                 let task_id = self
                     .tasks
