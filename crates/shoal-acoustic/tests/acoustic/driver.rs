@@ -249,11 +249,22 @@ async fn tagged_drivers_authenticate_frames_and_refuse_forgeries_and_replays() {
         got.push(rx.data);
     }
     assert_eq!(got, [b"state".to_vec(), b"next".to_vec()]);
-    // The intruder's frame arrives last; wait until it has been counted.
+    // The intruder's frame arrives last; wait until every refusal has been counted. A
+    // sending modem whose ack comes late retransmits (at 100x on a loaded machine acks
+    // are often late), and the receiver hears the frame twice: a repeat is refused for the
+    // same reason again, or as replayed. So each reason is counted at least as often as
+    // its frames were sent, and a genuine frame heard twice counts as replayed.
+    let expected = [
+        (RejectionReason::FrameTooShort, 1),
+        (RejectionReason::BadTag, 2),
+        (RejectionReason::Replayed, 1),
+        (RejectionReason::NoKey, 1),
+    ];
     let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
     let counts = loop {
         let c = refused.lock().unwrap().clone();
-        if c.total() >= 5 || tokio::time::Instant::now() > deadline {
+        let all = expected.iter().all(|(r, n)| c.get(*r) >= *n);
+        if all || tokio::time::Instant::now() > deadline {
             break c;
         }
         tokio::select! {
@@ -261,9 +272,9 @@ async fn tagged_drivers_authenticate_frames_and_refuse_forgeries_and_replays() {
             () = tokio::time::sleep(Duration::from_millis(50)) => {}
         }
     };
-    assert_eq!(counts.get(RejectionReason::FrameTooShort), 1, "{counts}");
-    assert_eq!(counts.get(RejectionReason::BadTag), 2, "{counts}");
-    assert_eq!(counts.get(RejectionReason::Replayed), 1, "{counts}");
-    assert_eq!(counts.get(RejectionReason::NoKey), 1, "{counts}");
-    assert_eq!(counts.total(), 5, "{counts}");
+    for (reason, n) in expected {
+        assert!(counts.get(reason) >= n, "{reason:?}: {counts}");
+    }
+    // Only repeats add to the count: at most one per frame sent (8 refused or genuine).
+    assert!(counts.total() <= 5 + 8, "{counts}");
 }

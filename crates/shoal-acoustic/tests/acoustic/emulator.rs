@@ -227,6 +227,11 @@ async fn simultaneous_arrivals_collide_and_a_transmitting_modem_is_deaf() {
     assert_eq!(deaf, 1);
 }
 
+/// A modem whose acknowledgement comes late retransmits, so the receiver may hear a frame
+/// twice and the sender may still be busy just after `Delivered`: real modems do both
+/// (docs/acoustic.md#at-interface). At 100x, a loaded test machine makes acks late, so
+/// the test accepts those repeats and asserts what must hold: each payload arrives intact,
+/// delivery is reported, and a send after delivery is accepted.
 #[tokio::test]
 async fn nl_send_is_received_and_reported_delivered() {
     let emu = emulator(vec![modem(1, 0.0), modem(2, 800.0)], |_| {}).await;
@@ -235,42 +240,50 @@ async fn nl_send_is_received_and_reported_delivered() {
     a.write(&NlCommand::SetProtocol("staticrack".into()).to_bytes())
         .await;
     assert_eq!(a.event().await, NlEvent::Protocol("staticrack".into()));
-    a.write(
-        &NlCommand::Send {
+    let first = b"x,y\nz".to_vec();
+    let send = |data: Vec<u8>| {
+        NlCommand::Send {
             kind: None,
             dst: 2,
-            data: b"x,y\nz".to_vec(),
+            data,
         }
-        .to_bytes(),
-    )
-    .await;
+        .to_bytes()
+    };
+    a.write(&send(first.clone())).await;
     assert_eq!(a.event().await, NlEvent::SendOk);
-    assert_eq!(
-        b.event().await,
-        NlEvent::Recv {
-            src: 1,
-            dst: 2,
-            data: b"x,y\nz".to_vec()
-        }
-    );
+    let recv = |data: &[u8]| NlEvent::Recv {
+        src: 1,
+        dst: 2,
+        data: data.to_vec(),
+    };
+    assert_eq!(b.event().await, recv(&first));
     assert_eq!(a.event().await, NlEvent::Delivered { src: 1, dst: 2 });
-    // A second send while the first is pending would be busy; after delivery it is fine.
-    a.write(
-        &NlCommand::Send {
-            kind: None,
-            dst: 2,
-            data: vec![0; 80],
+    // A second send while the first is pending would be busy; after delivery it is
+    // accepted once any retransmission of the first has left the modem.
+    let second = vec![0; 80];
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
+    'send: loop {
+        a.write(&send(second.clone())).await;
+        loop {
+            match a.event().await {
+                NlEvent::SendOk => break 'send,
+                NlEvent::SendBusy if tokio::time::Instant::now() < deadline => break,
+                // The retransmission's own delivery report.
+                NlEvent::Delivered { src: 1, dst: 2 } => {}
+                other => panic!("second send answered {other:?}"),
+            }
         }
-        .to_bytes(),
-    )
-    .await;
-    assert_eq!(a.event().await, NlEvent::SendOk);
-    assert_eq!(
-        b.event().await,
-        NlEvent::Recv {
-            src: 1,
-            dst: 2,
-            data: vec![0; 80]
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    loop {
+        let e = b.event().await;
+        if e == recv(&second) {
+            break;
         }
-    );
+        assert_eq!(
+            e,
+            recv(&first),
+            "only a repeat of the first frame may come first"
+        );
+    }
 }
