@@ -238,22 +238,35 @@ impl AnyWriter {
     }
 
     /// Publishes `sample` (of this writer's topic); the error says why not.
-    async fn write(&self, sample: Sample) -> Result<(), String> {
-        let e = |e: &dyn std::fmt::Display| e.to_string();
+    async fn write(&self, sample: Sample) -> Result<(), SendFailure> {
+        fn dds<T: std::fmt::Debug + Send + Sync + 'static>(
+            r: Result<(), shoal_dds::WriteError<T>>,
+        ) -> Result<(), SendFailure> {
+            r.map_err(|e| SendFailure::Dds(Box::new(e)))
+        }
         match (self, sample) {
-            (Self::StateVector(w), Sample::StateVector(s)) => w.write(s).await.map_err(|x| e(&x)),
+            (Self::StateVector(w), Sample::StateVector(s)) => dds(w.write(s).await),
             (Self::VehicleAnnouncement(w), Sample::VehicleAnnouncement(s)) => {
-                w.write(s).await.map_err(|x| e(&x))
+                dds(w.write(s).await)
             }
-            (Self::TaskAssignment(w), Sample::TaskAssignment(s)) => {
-                w.write(s).await.map_err(|x| e(&x))
-            }
-            (Self::TaskStatus(w), Sample::TaskStatus(s)) => w.write(s).await.map_err(|x| e(&x)),
-            (Self::Event(w), Sample::Event(s)) => w.write(s).await.map_err(|x| e(&x)),
-            (Self::Environment(w), Sample::Environment(s)) => w.write(s).await.map_err(|x| e(&x)),
-            _ => Err("sample of another topic than its writer's".into()),
+            (Self::TaskAssignment(w), Sample::TaskAssignment(s)) => dds(w.write(s).await),
+            (Self::TaskStatus(w), Sample::TaskStatus(s)) => dds(w.write(s).await),
+            (Self::Event(w), Sample::Event(s)) => dds(w.write(s).await),
+            (Self::Environment(w), Sample::Environment(s)) => dds(w.write(s).await),
+            _ => Err(SendFailure::OtherTopic),
         }
     }
+}
+
+/// Why one replayed sample was not sent (counted and logged; the replay goes on).
+#[derive(Debug, thiserror::Error)]
+enum SendFailure {
+    /// The writer refused or could not send it.
+    #[error(transparent)]
+    Dds(Box<dyn std::error::Error + Send + Sync>),
+    /// A sample reached the writer of another topic.
+    #[error("sample of another topic than its writer's")]
+    OtherTopic,
 }
 
 /// Publishes recordings on DDS.
