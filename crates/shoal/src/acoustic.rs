@@ -58,6 +58,12 @@ pub fn pdu(cmd: PduCommand) -> Result<()> {
             println!(
                 "reference: DCCL State Vector 20 B (158 bits); SWARMs ASCII State Vector 51 B"
             );
+            // Layout 2 is variable-length: the table shows one sample, the benchmark the
+            // spread over a real track.
+            println!(
+                "predicted_delta (layout 2) varies with how well the keyframe predicts the state; \
+                 `shoal bench acoustic` gives its median and p90 over a manoeuvring track"
+            );
             print_tag_cost();
             Ok(())
         }

@@ -12,13 +12,11 @@
 //! receiver that lacks the keyframe refuses the delta instead of guessing.
 
 use serde::{Deserialize, Serialize};
+use shoal_model::geo::{EARTH_RADIUS_M, angle_diff};
 
 use super::messages::{StateKeyframe, id};
 use super::schema::{BitReader, BitWriter};
 use super::{DecodeError, EncodeError};
-
-/// Mean Earth radius of the predictor's spherical model, metres (the simulator's too).
-const EARTH_RADIUS_M: f64 = 6_371_000.0;
 
 /// Bits of the fixed header after the message id: vehicle 4, keyframe seq 4, dt 7.
 const HEADER_BITS: [u32; 3] = [4, 4, 7];
@@ -188,7 +186,8 @@ pub fn predict(key: &StateKeyframe, dt_s: u32) -> StateKeyframe {
         key.depth_m
     };
     StateKeyframe {
-        seconds_of_day: (key.seconds_of_day + dt_s) % 86_400,
+        // Reduced first, so a caller's out-of-range keyframe cannot overflow the sum.
+        seconds_of_day: (key.seconds_of_day % 86_400 + dt_s % 86_400) % 86_400,
         latitude_deg,
         longitude_deg,
         depth_m,
@@ -200,12 +199,6 @@ pub fn predict(key: &StateKeyframe, dt_s: u32) -> StateKeyframe {
 /// held (altitude + depth constant), never below zero.
 fn predict_altitude(key_alt: f64, key: &StateKeyframe, depth_m: f64) -> f64 {
     (key_alt - (depth_m - key.depth_m)).max(0.0)
-}
-
-/// Signed difference `a - b` of two angles in degrees, in (-180, 180].
-fn angle_diff(a: f64, b: f64) -> f64 {
-    let d = (a - b).rem_euclid(360.0);
-    if d > 180.0 { d - 360.0 } else { d }
 }
 
 /// A State Vector coded as residuals from the dead-reckoning prediction of keyframe

@@ -4,6 +4,8 @@
 //! - [`pdu_sizes`]: each compact message's size against the DCCL reference State Vector
 //!   (158 bits → 20 bytes) and the SWARMs paper's 51-byte ASCII payload
 //!   (docs/acoustic.md#dccl-comparison).
+//! - [`coding::coding`]: State Vector deltas of layout 1 and predicted deltas (layout 2)
+//!   over two hours of the simulated AUV's manoeuvring track, median and p90 bytes.
 //! - [`link::channel_use`]: a saturated telemetry link, two emulated modems `distance_m` apart;
 //!   how busy the channel is and how full its frames are.
 //! - [`link::emergency_latency`]: an alarm injected while telemetry saturates the channel; time
@@ -28,6 +30,7 @@ use shoal_acoustic::pdu::{self, MAX_FRAME};
 
 use super::helpers::{date, machine};
 
+mod coding;
 mod link;
 
 /// The DCCL-equivalent size of the SWARMs State Vector, bytes
@@ -195,6 +198,8 @@ pub struct ControlDelivery {
 pub struct AcousticBench {
     /// PDU sizes.
     pub sizes: SizeReport,
+    /// Predictive State Vector coding against layout-1 deltas.
+    pub coding: coding::CodingReport,
     /// Channel use under saturation.
     pub channel: ChannelUse,
     /// Emergency latency.
@@ -207,6 +212,7 @@ pub struct AcousticBench {
 pub async fn run(opts: &BenchOptions) -> Result<AcousticBench> {
     Ok(AcousticBench {
         sizes: pdu_sizes(),
+        coding: coding::coding()?,
         channel: link::channel_use(opts).await?,
         emergency: link::emergency_latency(opts).await?,
         control: link::control_delivery(opts).await?,
@@ -249,6 +255,7 @@ pub(super) async fn acoustic(time_scale: f64) -> Result<()> {
             row.per_frame_tagged
         );
     }
+    print_coding(&r.coding);
     let c = &r.channel;
     println!(
         "channel use under saturation: {:.2} (goal >= 0.90: {}) — {} frames in {:.0} s, on air {:.2}, frames {:.1}% full",
@@ -287,6 +294,35 @@ pub(super) async fn acoustic(time_scale: f64) -> Result<()> {
         d.packets_lost
     );
     Ok(())
+}
+
+/// The predictive coding lines of the report.
+fn print_coding(k: &coding::CodingReport) {
+    println!(
+        "State Vector deltas over {} states of a simulated AUV (turns, dives, speed changes) every {} s; keyframe {} B:",
+        k.states, k.interval_s, k.keyframe_bytes
+    );
+    for (name, c) in [
+        ("layout 1 (fixed fields)", &k.layout1),
+        ("predicted (layout 2 or 1)", &k.predictive),
+    ] {
+        println!(
+            "  {name:<26} deltas median {} B, p90 {} B; all state PDUs median {} B, p90 {} B, mean {:.1} B; {} keyframes, {} of {} deltas predicted",
+            c.deltas.median,
+            c.deltas.p90,
+            c.all.median,
+            c.all.p90,
+            c.mean_bytes,
+            c.keyframes,
+            c.predicted,
+            c.delta_count
+        );
+    }
+    println!(
+        "  median delta goal <= {} B: {}",
+        k.target_median_bytes,
+        if k.met { "met" } else { "NOT met" }
+    );
 }
 
 #[cfg(test)]
