@@ -10,6 +10,8 @@
 //! - `reporters` — the Event, Tasks and Environment Reporters and the live feed
 //!   ([`LiveUpdate`]).
 //! - `rules` — Rules & Policies as the API and the rules file see them ([`RuleDoc`]).
+//! - `scenario` — a scenario file's missions started on their timeline through the
+//!   Mission Manager ([`StationHandle::run_scenario`]).
 //! - `traffic` — AIS vessels in the semantic model and surface vehicles' encounters with
 //!   them; the collision-risk rule turns a close one into an alarm.
 //!
@@ -30,6 +32,7 @@ mod missions;
 mod register;
 mod reporters;
 mod rules;
+mod scenario;
 mod station;
 #[cfg(test)]
 mod testing;

@@ -142,9 +142,15 @@ fn vehicle_dds(cfg: &ShoalConfig, vehicle_id: &str) -> Result<Arc<PubSub>> {
     Ok(Arc::new(dds))
 }
 
-/// `shoal station`.
+/// `shoal station`; `scenario` (a file, a shipped scenario's name or `none`) names the
+/// missions it starts on their timeline.
 #[cfg(feature = "console")]
-pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> {
+pub async fn station(cfg: ShoalConfig, scenario: &str, exit_on_stdin_close: bool) -> Result<()> {
+    // Read before anything starts: a bad scenario is one line and no station.
+    let scenario = match crate::scenario::resolve(scenario)? {
+        Some(source) => Some(crate::scenario::load(&source)?),
+        None => None,
+    };
     let shutdown = shutdown_signal(exit_on_stdin_close);
     let listener = tokio::net::TcpListener::bind(cfg.console.listen)
         .await
@@ -188,6 +194,11 @@ pub async fn station(cfg: ShoalConfig, exit_on_stdin_close: bool) -> Result<()> 
         info!(inputs = ?cfg.traffic.inputs, "vessel traffic: reading AIS and NMEA 0183");
         // A fresh station has no picture yet, so this cannot be refused.
         let _ = station.handle().attach_traffic(picture);
+    }
+    if let Some(scenario) = scenario {
+        let handle = station.handle();
+        let stop = shutdown.clone();
+        tokio::spawn(async move { handle.run_scenario(scenario, stop).await });
     }
     let api = tokio::spawn(shoal_console::serve_with_bridge(
         listener,
@@ -320,12 +331,60 @@ async fn stop_child(mut c: Child) {
 
 /// What `shoal up` starts besides the station.
 #[cfg(feature = "console")]
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct UpOptions {
     /// No simulated vehicles at all.
     pub no_fleet: bool,
     /// Lightweight vehicles in a `shoal swarm` process.
     pub sim_vehicles: usize,
+    /// `--scenario`: a file, a shipped scenario's name, `none`, or not given.
+    pub scenario: Option<String>,
+}
+
+/// What `shoal up` runs: the fleet it starts and the scenario (as `--scenario` names it to
+/// the station) whose missions the station starts.
+#[cfg(feature = "console")]
+fn up_plan(
+    cfg: &ShoalConfig,
+    scenario: Option<&str>,
+    no_fleet: bool,
+) -> Result<(Vec<SimSpec>, Option<String>)> {
+    let configured = cfg.fleet.vehicles.clone();
+    let chosen = match scenario {
+        Some(value) => crate::scenario::resolve(value)?,
+        None if no_fleet => None,
+        // A user's own fleet is not replaced by vehicles they did not ask for.
+        None if configured != crate::config::FleetConfig::default().vehicles => {
+            info!(
+                vehicles = configured.len(),
+                "the configuration lists its own [[fleet.vehicles]]: starting them with no scenario (--scenario FILE runs one)"
+            );
+            None
+        }
+        None => Some(crate::scenario::Source::Shipped(shoal_scenario::DEFAULT)),
+    };
+    let Some(source) = chosen else {
+        return Ok((configured, None));
+    };
+    let s = crate::scenario::load(&source)?;
+    info!(scenario = %source, "{}", crate::scenario::summary(&s));
+    let fleet = s
+        .vehicles
+        .iter()
+        .map(|v| SimSpec {
+            id: v.id.clone(),
+            kind: v.kind,
+            latitude_deg: v.latitude_deg,
+            longitude_deg: v.longitude_deg,
+            rate_hz: v.rate_hz,
+            battery_pct: v.battery_pct,
+        })
+        .collect();
+    let arg = match source {
+        crate::scenario::Source::Shipped(name) => name.to_owned(),
+        crate::scenario::Source::File(path) => path,
+    };
+    Ok((fleet, Some(arg)))
 }
 
 /// `shoal swarm`.
@@ -355,7 +414,9 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Re
     let UpOptions {
         no_fleet,
         sim_vehicles,
+        scenario,
     } = opts;
+    let (fleet, scenario) = up_plan(cfg, scenario.as_deref(), no_fleet)?;
     let secure = cfg.security.enabled;
     if secure && sim_vehicles > 0 {
         bail!(
@@ -374,7 +435,7 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Re
         let demo = crate::relay::AcousticDemoConfig::default();
         let mut ids: Vec<&str> = Vec::new();
         if !no_fleet {
-            ids.extend(cfg.fleet.vehicles.iter().map(|v| v.id.as_str()));
+            ids.extend(fleet.iter().map(|v| v.id.as_str()));
             if cfg.fleet.acoustic_demo {
                 ids.extend(demo.vehicles.iter().map(|v| v.sim.id.as_str()));
             }
@@ -382,13 +443,11 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Re
         bundles = crate::keys::prepare_fleet(&cfg.security, &ids)?;
         station_env.push(("SHOAL_SECURITY__ENABLED".to_string(), "true".to_string()));
     }
-    let mut children = vec![spawn(
-        &exe,
-        config,
-        &station_env,
-        "station",
-        &["station".to_string()],
-    )?];
+    let mut station_args = vec!["station".to_string()];
+    if let Some(s) = &scenario {
+        station_args.extend(["--scenario".to_string(), s.clone()]);
+    }
+    let mut children = vec![spawn(&exe, config, &station_env, "station", &station_args)?];
     // Vehicles start once the API answers, so the station hears their announcements live.
     let addr = cfg.console.listen;
     // A station that stops (bad credentials, a port in use) has said why on stderr: say
@@ -417,7 +476,7 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Re
         },
     }
     if !no_fleet {
-        for v in &cfg.fleet.vehicles {
+        for v in &fleet {
             let args = [
                 "vehicle".to_string(),
                 "--sim".into(),
@@ -430,6 +489,8 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Re
                 v.longitude_deg.to_string(),
                 "--rate".into(),
                 v.rate_hz.to_string(),
+                "--battery".into(),
+                v.battery_pct.to_string(),
             ];
             let mut env = station_env.clone();
             if let Some(dir) = bundles.get(&v.id) {
@@ -615,5 +676,41 @@ pub async fn proxy(
                 .await
                 .context("ROS 2 proxy stopped")
         }
+    }
+}
+
+#[cfg(all(test, feature = "console"))]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    fn ids(fleet: &[SimSpec]) -> Vec<&str> {
+        fleet.iter().map(|v| v.id.as_str()).collect()
+    }
+
+    /// The default scenario drives the default fleet; a configured fleet is kept, with no
+    /// missions, unless a scenario is asked for by name.
+    #[test]
+    fn up_runs_the_default_scenario_unless_the_fleet_is_configured_or_none_is_asked() {
+        let cfg = ShoalConfig::default();
+        let (fleet, s) = up_plan(&cfg, None, false).unwrap();
+        assert_eq!(ids(&fleet), ["auv-1", "auv-2", "usv-1", "rov-1"]);
+        assert_eq!(fleet, cfg.fleet.vehicles);
+        assert_eq!(s.as_deref(), Some("sea-trial"));
+        let (fleet, s) = up_plan(&cfg, Some("none"), false).unwrap();
+        assert_eq!(fleet, cfg.fleet.vehicles);
+        assert_eq!(s, None);
+        assert_eq!(up_plan(&cfg, None, true).unwrap().1, None);
+
+        let mut own = ShoalConfig::default();
+        own.fleet.vehicles.truncate(1);
+        own.fleet.vehicles[0].id = "mine-1".into();
+        let (fleet, s) = up_plan(&own, None, false).unwrap();
+        assert_eq!(ids(&fleet), ["mine-1"]);
+        assert_eq!(s, None);
+        let (fleet, s) = up_plan(&own, Some("harbour-survey"), false).unwrap();
+        assert!(ids(&fleet).contains(&"auv-3"));
+        assert_eq!(s.as_deref(), Some("harbour-survey"));
+        assert!(up_plan(&own, Some("no-such.toml"), false).is_err());
     }
 }

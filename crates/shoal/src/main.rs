@@ -65,6 +65,13 @@ enum Command {
         /// Start only the station, no simulated vehicles.
         #[arg(long)]
         no_fleet: bool,
+        /// The scenario to run: its fleet is started and the station starts its missions
+        /// on their timeline (docs/scenarios.md). A TOML file, the name of a shipped
+        /// scenario (`shoal scenario list`), or `none` for the configured fleet and no
+        /// missions. Default: the shipped `sea-trial`, unless the configuration lists its
+        /// own [[fleet.vehicles]] (then none).
+        #[arg(long, value_name = "FILE|NAME|none")]
+        scenario: Option<String>,
         /// Security is on by default (the key store is created on first run, each vehicle
         /// gets its identity); kept so older scripts still run. See --insecure.
         #[arg(long, hide = true)]
@@ -106,6 +113,10 @@ enum Command {
         /// History database (overrides history.path); ":memory:" keeps it in RAM.
         #[arg(long, value_name = "PATH")]
         db: Option<PathBuf>,
+        /// Start the missions of this scenario (a TOML file or a shipped scenario's name)
+        /// on its timeline as its vehicles are heard; its fleet is not started here.
+        #[arg(long, value_name = "FILE|NAME", default_value = "none")]
+        scenario: String,
         /// Stop when standard input closes (used by `shoal up` to stop its children).
         #[arg(long, hide = true)]
         exit_on_stdin_close: bool,
@@ -150,6 +161,9 @@ enum Command {
         /// State vectors per second.
         #[arg(long, default_value_t = 1.0)]
         rate: f64,
+        /// Simulator: battery at start, %.
+        #[arg(long, default_value_t = 100.0)]
+        battery: f64,
         /// Stop when standard input closes (used by `shoal up`).
         #[arg(long, hide = true)]
         exit_on_stdin_close: bool,
@@ -385,12 +399,14 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             no_fleet,
             secure: _,
             sim_vehicles,
+            scenario,
         } => rt.block_on(daemons::up(
             cli.config.as_deref(),
             &cfg,
             daemons::UpOptions {
                 no_fleet,
                 sim_vehicles,
+                scenario,
             },
         )),
         Command::Swarm {
@@ -416,8 +432,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         #[cfg(feature = "console")]
         Command::Station {
             exit_on_stdin_close,
+            scenario,
             ..
-        } => rt.block_on(daemons::station(cfg, exit_on_stdin_close)),
+        } => rt.block_on(daemons::station(cfg, &scenario, exit_on_stdin_close)),
         Command::Vehicle {
             sim,
             proxy: Some(kind),
@@ -446,6 +463,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             lat,
             lon,
             rate,
+            battery,
             exit_on_stdin_close,
             ..
         } => {
@@ -455,7 +473,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 latitude_deg: lat,
                 longitude_deg: lon,
                 rate_hz: rate,
-                battery_pct: 100.0,
+                battery_pct: battery,
             };
             rt.block_on(daemons::vehicle(&cfg, spec, exit_on_stdin_close))
         }
