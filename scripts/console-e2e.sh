@@ -94,7 +94,9 @@ users_path = "$work/console-users.json"
 initial_admin_token = "$token"
 EOF
 
-ip netns exec "$ns" "$bin" --config "$work/shoal.toml" up >"$out/shoal-up.log" 2>&1 &
+# --scenario none: the tests dispatch their own tasks and expect idle vehicles; the
+# default scenario (scenarios/sea-trial.toml) would keep them busy.
+ip netns exec "$ns" "$bin" --config "$work/shoal.toml" up --scenario none >"$out/shoal-up.log" 2>&1 &
 up_pid=$!
 
 # Wait for the console to answer, then check the token is in no log line.

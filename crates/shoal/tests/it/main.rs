@@ -8,6 +8,7 @@
 //! - `station`: station + simulated vehicles in one process, the HTTP API, bad input.
 //! - `attacks`: a station process attacked six ways (slow rule, floods, 10 MB samples, slow
 //!   HTTP clients) while a real fleet's ingest rate is measured.
+//! - `demo`: `shoal up`'s default scenario seen through the API (vehicles move, tasks run).
 //! - `faults`: the station killed with SIGKILL and restarted.
 //! - `cli`: the `shoal` binary itself (`up`, configuration errors).
 //! - `console`: the console's logins through the binary (on by default, the first admin
@@ -27,6 +28,7 @@ mod cli;
 mod common;
 mod console;
 mod converter;
+mod demo;
 mod faults;
 mod interop;
 mod proxies;
