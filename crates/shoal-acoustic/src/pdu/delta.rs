@@ -15,8 +15,11 @@ use super::{DecodeError, EncodeError, Pdu, PredictedDelta, StateDelta, StateKeyf
 /// Sender side: chooses keyframe or delta for each state of one vehicle.
 #[derive(Debug, Clone)]
 pub struct DeltaEncoder {
-    acked: Option<StateKeyframe>,
-    pending: Vec<StateKeyframe>,
+    /// The acknowledged keyframe and its serial (keyframes sent before it).
+    acked: Option<(u64, StateKeyframe)>,
+    pending: Vec<(u64, StateKeyframe)>,
+    /// Keyframes sent so far; a keyframe's seq is its serial modulo 16.
+    sent: u64,
     next_seq: u8,
     refresh_after_s: u32,
     last_was_keyframe: bool,
@@ -38,6 +41,7 @@ impl DeltaEncoder {
         Self {
             acked: None,
             pending: Vec::new(),
+            sent: 0,
             next_seq: 0,
             refresh_after_s: 90,
             last_was_keyframe: false,
@@ -66,7 +70,11 @@ impl DeltaEncoder {
     /// The PDU to send for `state`: a delta when the last acknowledged keyframe is close
     /// enough, a keyframe otherwise (or, every other message, when it is getting old).
     pub fn encode(&mut self, state: &StateKeyframe) -> Result<Pdu, EncodeError> {
-        if let Some(key) = &self.acked
+        // Once 16 keyframes have followed the acknowledged one, the receiver may hold a
+        // newer keyframe under the same 4-bit seq: a delta naming it would decode against
+        // the wrong reference, so a keyframe goes instead.
+        if let Some((serial, key)) = &self.acked
+            && self.sent - serial <= 16
             && let Some((d, dt_s)) = self.smallest_delta(key, state)
         {
             let stale = dt_s >= self.refresh_after_s;
@@ -78,7 +86,8 @@ impl DeltaEncoder {
         let mut k = state.quantised()?;
         k.seq = self.next_seq;
         self.next_seq = (self.next_seq + 1) % 16;
-        self.pending.push(k.clone());
+        self.pending.push((self.sent, k.clone()));
+        self.sent += 1;
         if self.pending.len() > Self::MAX_PENDING {
             self.pending.remove(0);
         }
@@ -105,13 +114,13 @@ impl DeltaEncoder {
 
     /// Records that the receiver got keyframe `seq`; returns false for an unknown seq.
     pub fn acknowledge(&mut self, seq: u8) -> bool {
-        match self.pending.iter().position(|k| k.seq == seq) {
+        match self.pending.iter().position(|(_, k)| k.seq == seq) {
             Some(i) => {
-                let k = self.pending.remove(i);
+                let (serial, k) = self.pending.remove(i);
                 // Keyframes sent before the acknowledged one are now useless.
                 self.pending
-                    .retain(|p| p.seconds_of_day >= k.seconds_of_day);
-                self.acked = Some(k);
+                    .retain(|(_, p)| p.seconds_of_day >= k.seconds_of_day);
+                self.acked = Some((serial, k));
                 true
             }
             None => false,
@@ -120,7 +129,7 @@ impl DeltaEncoder {
 
     /// The keyframe deltas are currently coded against, if any.
     pub fn reference(&self) -> Option<&StateKeyframe> {
-        self.acked.as_ref()
+        self.acked.as_ref().map(|(_, k)| k)
     }
 }
 

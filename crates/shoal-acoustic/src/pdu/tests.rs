@@ -580,6 +580,35 @@ fn a_predicted_delta_too_far_from_its_prediction_falls_back_to_layout_1_or_a_key
     assert!(matches!(enc.encode(&s).unwrap(), Pdu::StateKeyframe(_)));
 }
 
+/// A stale reference: after 16 unacknowledged keyframes the receiver may hold a newer
+/// keyframe under the acknowledged one's 4-bit seq, so no delta may name it any more.
+#[test]
+fn no_delta_names_a_keyframe_whose_seq_has_wrapped() {
+    let Pdu::StateKeyframe(key) = sample("state_keyframe") else {
+        panic!()
+    };
+    for mut enc in [DeltaEncoder::new(), DeltaEncoder::predictive()] {
+        let Pdu::StateKeyframe(k) = enc.encode(&key).unwrap() else {
+            panic!()
+        };
+        assert!(enc.acknowledge(k.seq));
+        let near = StateKeyframe {
+            seconds_of_day: key.seconds_of_day + 2,
+            ..key.clone()
+        };
+        let far = StateKeyframe {
+            latitude_deg: key.latitude_deg + 1.0,
+            ..near.clone()
+        };
+        assert!(!matches!(enc.encode(&near).unwrap(), Pdu::StateKeyframe(_)));
+        // 16 keyframes nobody acknowledges: the last one reuses the reference's seq.
+        for _ in 0..16 {
+            assert!(matches!(enc.encode(&far).unwrap(), Pdu::StateKeyframe(_)));
+        }
+        assert!(matches!(enc.encode(&near).unwrap(), Pdu::StateKeyframe(_)));
+    }
+}
+
 fn arb_keyframe() -> impl Strategy<Value = StateKeyframe> {
     (
         (
