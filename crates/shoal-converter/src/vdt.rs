@@ -186,7 +186,9 @@ impl Vdt {
             .map(|v| Served {
                 id: v.vehicle_id.clone(),
                 addr: v.address,
-                encoder: DeltaEncoder::new(),
+                // Predicted deltas (layout 2) when smaller than layout 1: the CDT of this
+                // build reads both (docs/acoustic.md#predicted-deltas).
+                encoder: DeltaEncoder::predictive(),
                 pending_state: None,
                 announcement: None,
                 environment_sent: HashMap::new(),
