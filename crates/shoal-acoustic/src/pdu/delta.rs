@@ -35,6 +35,11 @@ impl Default for DeltaEncoder {
 impl DeltaEncoder {
     /// Keyframes still awaiting an ack that are remembered (older ones are forgotten).
     const MAX_PENDING: usize = 4;
+    /// Delta size (bytes) from which a predictive encoder re-anchors with a keyframe.
+    const REANCHOR_BYTES: usize = 8;
+    /// Age (s) of the acknowledged keyframe before a large delta re-anchors: a younger
+    /// one has just been acknowledged, and a keyframe would cost more than it saves.
+    const REANCHOR_AFTER_S: u32 = 10;
 
     /// An encoder with no acknowledged keyframe yet; refreshes the keyframe after 90 s.
     pub fn new() -> Self {
@@ -77,7 +82,12 @@ impl DeltaEncoder {
             && self.sent - serial <= 16
             && let Some((d, dt_s)) = self.smallest_delta(key, state)
         {
-            let stale = dt_s >= self.refresh_after_s;
+            // A predicted delta that has grown large (the vehicle turned or changed its dive
+            // since the keyframe) is cheaper re-anchored: one keyframe, then small deltas.
+            let grown = self.predictive
+                && dt_s >= Self::REANCHOR_AFTER_S
+                && super::encode_sized(&d).is_ok_and(|e| e.bytes.len() >= Self::REANCHOR_BYTES);
+            let stale = dt_s >= self.refresh_after_s || grown;
             if !stale || self.last_was_keyframe {
                 self.last_was_keyframe = false;
                 return Ok(d);

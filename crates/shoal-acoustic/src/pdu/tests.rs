@@ -609,6 +609,52 @@ fn no_delta_names_a_keyframe_whose_seq_has_wrapped() {
     }
 }
 
+/// After a turn a predicted delta grows; from 8 bytes (and a keyframe at least 10 s old) the
+/// predictive encoder re-anchors with a keyframe, every other message until one is acked.
+#[test]
+fn a_grown_predicted_delta_re_anchors_with_a_keyframe() {
+    let Pdu::StateKeyframe(key) = sample("state_keyframe") else {
+        panic!()
+    };
+    let mut enc = DeltaEncoder::predictive();
+    let Pdu::StateKeyframe(k) = enc.encode(&key).unwrap() else {
+        panic!()
+    };
+    assert!(enc.acknowledge(k.seq));
+    let at = |dt: u32, north_m: f64, yaw_deg: f64| StateKeyframe {
+        seconds_of_day: k.seconds_of_day + dt,
+        latitude_deg: k.latitude_deg + north_m / 111_195.0,
+        yaw_deg,
+        ..predict(&k, dt)
+    };
+    assert!(matches!(
+        enc.encode(&at(2, 0.0, 90.0)).unwrap(),
+        Pdu::PredictedDelta(_)
+    ));
+    // Turned north 30 s ago: 45 m off the prediction each way, yaw 90° off.
+    let turned = StateKeyframe {
+        longitude_deg: k.longitude_deg,
+        ..at(30, 45.0, 0.0)
+    };
+    let d = PredictedDelta::between(&k, &turned).unwrap();
+    assert!(encode(&Pdu::PredictedDelta(d)).unwrap().len() >= 8);
+    assert!(matches!(
+        enc.encode(&turned).unwrap(),
+        Pdu::StateKeyframe(_)
+    ));
+    assert!(!matches!(
+        enc.encode(&turned).unwrap(),
+        Pdu::StateKeyframe(_)
+    ));
+    // The layout-1 encoder does not re-anchor (its deltas do not grow with a turn).
+    let mut old = DeltaEncoder::new();
+    let Pdu::StateKeyframe(k) = old.encode(&key).unwrap() else {
+        panic!()
+    };
+    assert!(old.acknowledge(k.seq));
+    assert!(matches!(old.encode(&turned).unwrap(), Pdu::StateDelta(_)));
+}
+
 fn arb_keyframe() -> impl Strategy<Value = StateKeyframe> {
     (
         (
