@@ -7,7 +7,8 @@
 //!   `serde` gives their JSON form.
 //! - [`encode`] / [`decode`]: one PDU ↔ bytes; [`pack_frame`] / [`unpack_frame`]: several
 //!   PDUs in one modem frame of at most [`MAX_FRAME`] bytes (an instant message).
-//! - [`DeltaEncoder`] / [`DeltaDecoder`]: keyframe + delta State Vector coding.
+//! - [`DeltaEncoder`] / [`DeltaDecoder`]: keyframe + delta State Vector coding, with
+//!   [`PredictedDelta`] (delta layout 2: residuals from a dead-reckoning [`predict`]ion).
 //! - [`convert`]: to and from `shoal-model` types, with the precision each field loses.
 //! - [`size_table`]: each message's size in bits and bytes, for the benchmark.
 

@@ -1,8 +1,8 @@
 //! Predictive State Vector deltas: delta layout 2, message id [`id::PREDICTED_DELTA`]
 //! (docs/acoustic.md#predicted-deltas).
 //!
-//! Both ends run the same dead-reckoning [`predict`]or from the keyframe the receiver
-//! acknowledged — the only state both provably share, since deltas are never acknowledged —
+//! Both ends run the same dead-reckoning predictor ([`predict`]) from the keyframe the
+//! receiver acknowledged — the only state both provably share, since deltas are never acknowledged —
 //! and the PDU carries only the quantised residuals between the real state and the
 //! prediction, each as a zigzag-mapped exp-Golomb code, so a residual of zero costs one
 //! bit. Every field is carried at the precision of the layout-1 [`StateDelta`]
