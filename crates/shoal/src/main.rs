@@ -192,9 +192,14 @@ enum Command {
         /// Result format.
         #[arg(long, value_parser = ["csv", "json", "tsv", "xml"], default_value = "csv")]
         format: String,
-        /// Station API address (default: console.listen).
-        #[arg(long, value_name = "ADDR")]
-        station: Option<std::net::SocketAddr>,
+        /// Station API: host:port or an http(s):// URL (default: console.listen, over
+        /// HTTPS when [console.tls] is on).
+        #[arg(long, value_name = "ADDR|URL")]
+        station: Option<String>,
+        /// PEM certificate(s) to trust when the API is HTTPS (default: the console's own
+        /// [console.tls] cert).
+        #[arg(long, value_name = "FILE")]
+        ca: Option<PathBuf>,
         /// API token (viewer or better) sent as `Authorization: Bearer`; needed when the
         /// station requires logins (the default).
         #[arg(
@@ -488,13 +493,19 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             sparql,
             format,
             station,
+            ca,
             token,
-        } => rt.block_on(query::run(
-            &sparql,
-            &format,
-            station.unwrap_or(cfg.console.listen),
-            token.as_deref(),
-        )),
+        } => {
+            let tls = &cfg.console.tls;
+            let target = query::Target::new(
+                station.as_deref(),
+                ca.as_deref(),
+                cfg.console.listen,
+                tls.enabled().then_some(tls.cert.as_path()),
+            )?;
+            let client = query::ApiClient::new(&target, token.as_deref())?;
+            rt.block_on(query::run(&sparql, &format, &client))
+        }
         Command::ModemEmu(args) => rt.block_on(acoustic::modem_emu(args)),
         Command::Record(args) => rt.block_on(record::record(&cfg, args)),
         Command::Replay(args) => rt.block_on(record::replay(&cfg, cli.config.as_deref(), args)),

@@ -5,6 +5,9 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
+use reqwest::Method;
+
+use crate::query::{ApiClient, Target};
 
 use super::helpers::{child, percentile, rss_mb_of, tempfile_dir};
 
@@ -15,13 +18,9 @@ struct StationSample {
     pub(super) rejected: u64,
 }
 
-async fn station_sample(api: std::net::SocketAddr) -> Option<StationSample> {
-    let (_, fleet) = crate::query::request(api, "GET", "/api/fleet", None)
-        .await
-        .ok()?;
-    let (_, stats) = crate::query::request(api, "GET", "/api/stats", None)
-        .await
-        .ok()?;
+async fn station_sample(api: &ApiClient) -> Option<StationSample> {
+    let (_, fleet) = api.request(Method::GET, "/api/fleet", None).await.ok()?;
+    let (_, stats) = api.request(Method::GET, "/api/stats", None).await.ok()?;
     let fleet: serde_json::Value = serde_json::from_str(&fleet).ok()?;
     let stats: serde_json::Value = serde_json::from_str(&stats).ok()?;
     let alive = fleet
@@ -48,11 +47,11 @@ pub(super) struct ScaleFigures {
 
 /// Runs each standard SPARQL query once against the station's endpoint, as an operator's
 /// console would, and returns the round-trip times in ms (HTTP included).
-async fn standard_query_times(api: std::net::SocketAddr) -> Result<Vec<f64>> {
+async fn standard_query_times(api: &ApiClient) -> Result<Vec<f64>> {
     let mut times = Vec::with_capacity(shoal_semantic::STANDARD_QUERIES.len());
     for (name, q) in shoal_semantic::STANDARD_QUERIES {
         let t = Instant::now();
-        let (status, body) = crate::query::post(api, "json", q).await?;
+        let (status, body) = api.sparql("json", q).await?;
         if status != 200 {
             bail!("{name} answered {status}: {body}");
         }
@@ -180,9 +179,10 @@ pub(super) async fn scale_figures(
     let port = std::net::TcpListener::bind("127.0.0.1:0")?
         .local_addr()?
         .port();
-    let api = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    let addr = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    let api = &ApiClient::new(&Target::plain(addr), None)?;
     let db = dir.join("scale.db");
-    let listen = api.to_string();
+    let listen = addr.to_string();
     let db_arg = db.display().to_string();
     let mut station = child(&["station", "--listen", &listen, "--db", &db_arg], domain)?;
     let t = Instant::now();

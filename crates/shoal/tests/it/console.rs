@@ -165,3 +165,87 @@ fn a_station_requires_logins_by_default_and_shows_the_first_admin_only_on_the_te
     assert!(!out.status.success());
     drop(station);
 }
+
+/// The console over HTTPS: `shoal query` trusts the console's own certificate from the
+/// configuration, or the one `--ca` names; it refuses plain HTTP to a TLS port and a
+/// certificate it was not told to trust.
+#[test]
+fn shoal_query_reaches_a_console_over_tls() {
+    let dir = tempfile::tempdir().unwrap();
+    let tls = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shoal-console/tests/tls");
+    let (cert, key) = (tls.join("localhost.crt"), tls.join("localhost.key"));
+    let port = free_port();
+    let token = "shoal_tls_query_token_0123456789";
+    let listen = format!("127.0.0.1:{port}");
+    let with_console = |c: &mut Command| {
+        c.current_dir(dir.path())
+            .env("SHOAL_CONSOLE__LISTEN", &listen)
+            .env("SHOAL_CONSOLE__TLS__CERT", &cert)
+            .env("SHOAL_CONSOLE__TLS__KEY", &key);
+    };
+    let err_path = dir.path().join("station.stderr");
+    let mut station = shoal();
+    station
+        .args(["station", "--db", ":memory:"])
+        .env("SHOAL_DDS__DOMAIN_ID", "72")
+        .env("SHOAL_SECURITY__ENABLED", "false")
+        .env("SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_TOKEN", token)
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&err_path).unwrap());
+    with_console(&mut station);
+    let _station = KillOnDrop(station.spawn().unwrap());
+
+    let query = |args: &[&str], configured: bool| {
+        let mut c = shoal();
+        c.args(["query", "ASK {}", "--token", token]).args(args);
+        if configured {
+            with_console(&mut c);
+        } else {
+            c.current_dir(dir.path());
+        }
+        c.output().unwrap()
+    };
+    // From the station's own configuration: HTTPS to console.listen, trusting its cert.
+    let start = Instant::now();
+    let out = loop {
+        let out = query(&[], true);
+        if out.status.success() || start.elapsed() > Duration::from_secs(30) {
+            break out;
+        }
+        std::thread::sleep(Duration::from_millis(300));
+    };
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stderr),
+        std::fs::read_to_string(&err_path).unwrap_or_default()
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("true"));
+    // By name, with --ca.
+    let url = format!("https://localhost:{port}");
+    let ca = cert.display().to_string();
+    let out = query(&["--station", &url, "--ca", &ca], false);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // HTTPS without a certificate to trust, plain HTTP to the TLS port, and a CA that did
+    // not sign the console's certificate: each refused with a reason.
+    let out = query(&["--station", &url], false);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--ca"), "{err}");
+    let out = query(&["--station", &format!("http://localhost:{port}")], false);
+    assert!(!out.status.success());
+    let stranger = dir.path().join("stranger.pem");
+    std::fs::write(&stranger, STRANGER_CERT).unwrap();
+    let out = query(
+        &["--station", &url, "--ca", &stranger.display().to_string()],
+        false,
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("no answer"), "{err}");
+}
+
+/// A self-signed certificate for another name, which did not sign the console's.
+const STRANGER_CERT: &str = include_str!("console_stranger.crt");
