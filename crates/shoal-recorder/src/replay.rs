@@ -246,9 +246,7 @@ impl AnyWriter {
         }
         match (self, sample) {
             (Self::StateVector(w), Sample::StateVector(s)) => dds(w.write(s).await),
-            (Self::VehicleAnnouncement(w), Sample::VehicleAnnouncement(s)) => {
-                dds(w.write(s).await)
-            }
+            (Self::VehicleAnnouncement(w), Sample::VehicleAnnouncement(s)) => dds(w.write(s).await),
             (Self::TaskAssignment(w), Sample::TaskAssignment(s)) => dds(w.write(s).await),
             (Self::TaskStatus(w), Sample::TaskStatus(s)) => dds(w.write(s).await),
             (Self::Event(w), Sample::Event(s)) => dds(w.write(s).await),
