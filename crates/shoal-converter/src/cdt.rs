@@ -85,6 +85,7 @@ pub async fn run_cdt<D: ModemDriver + 'static>(
             return Err(e);
         }
     }
+    cdt.refusals.report(Instant::now());
     info!("CDT stopped");
     Ok(())
 }
@@ -129,6 +130,54 @@ struct Cdt {
     /// Relay address → the addresses it may speak for ([`CdtConfig::relays`]).
     relays: HashMap<u8, Vec<u8>>,
     impersonation: Impersonation,
+    refusals: Refusals,
+}
+
+/// Frames and PDUs the CDT refused, by reason: each is logged at debug level, and a
+/// warning sums them up at most every [`REFUSALS_REPORT_EVERY`] (and when the CDT stops),
+/// so a sender of junk cannot flood the log.
+#[derive(Debug, Default)]
+struct Refusals {
+    by_reason: std::collections::BTreeMap<&'static str, u64>,
+    unreported: u64,
+    reported_at: Option<Instant>,
+}
+
+/// How often refusals are summed up in the log while they go on.
+const REFUSALS_REPORT_EVERY: std::time::Duration = std::time::Duration::from_secs(10);
+
+impl Refusals {
+    /// Counts one refusal; logs the summary if one is due.
+    fn count(&mut self, reason: &'static str) {
+        *self.by_reason.entry(reason).or_default() += 1;
+        self.unreported += 1;
+        let now = Instant::now();
+        if self
+            .reported_at
+            .is_none_or(|t| now.duration_since(t) >= REFUSALS_REPORT_EVERY)
+        {
+            self.report(now);
+        }
+    }
+
+    /// Logs the totals by reason if anything was refused since the last report.
+    fn report(&mut self, now: Instant) {
+        if self.unreported == 0 {
+            return;
+        }
+        let reasons: Vec<String> = self
+            .by_reason
+            .iter()
+            .map(|(r, n)| format!("{r}={n}"))
+            .collect();
+        warn!(
+            new = self.unreported,
+            reasons = %reasons.join(" "),
+            "acoustic frames or PDUs refused (totals by reason)"
+        );
+        self.unreported = 0;
+        self.reported_at = Some(now);
+    }
 }
 
 /// PDUs refused because they spoke for a vehicle other than their sender.
@@ -188,6 +237,7 @@ impl Cdt {
             event_no: 0,
             relays: cfg_relays,
             impersonation: Impersonation::default(),
+            refusals: Refusals::default(),
         })
     }
 
@@ -331,7 +381,8 @@ impl Cdt {
         let pdus = match pdu::unpack_frame(frame) {
             Ok(p) => p,
             Err(e) => {
-                warn!(src, error = %e, "undecodable frame dropped");
+                debug!(src, error = %e, "undecodable frame dropped");
+                self.refusals.count("undecodable_frame");
                 return Ok(());
             }
         };
@@ -407,7 +458,10 @@ impl Cdt {
                             warn!(error = %e, "task status not published");
                         }
                     }
-                    Err(e) => warn!(task = %task_id, error = %e, "task status PDU unusable"),
+                    Err(e) => {
+                        debug!(task = %task_id, error = %e, "task status PDU unusable");
+                        self.refusals.count("unusable_status");
+                    }
                 }
             }
             Pdu::Event(e) => {
@@ -439,7 +493,10 @@ impl Cdt {
                             warn!(error = %err, "event not published");
                         }
                     }
-                    Err(err) => warn!(error = %err, "event PDU unusable"),
+                    Err(err) => {
+                        debug!(error = %err, "event PDU unusable");
+                        self.refusals.count("unusable_event");
+                    }
                 }
             }
             Pdu::Announcement(a) => match a.to_model(book, now) {
@@ -448,7 +505,10 @@ impl Cdt {
                         warn!(error = %e, "announcement not published");
                     }
                 }
-                Err(e) => warn!(error = %e, "announcement PDU unusable"),
+                Err(e) => {
+                    debug!(error = %e, "announcement PDU unusable");
+                    self.refusals.count("unusable_announcement");
+                }
             },
             Pdu::Environment(o) => match o.to_model(book, now) {
                 Ok(m) => {
@@ -456,7 +516,10 @@ impl Cdt {
                         warn!(error = %e, "observation not published");
                     }
                 }
-                Err(e) => warn!(error = %e, "environment PDU unusable"),
+                Err(e) => {
+                    debug!(error = %e, "environment PDU unusable");
+                    self.refusals.count("unusable_environment");
+                }
             },
             other => debug!(pdu = other.name(), "PDU not meant for a CDT ignored"),
         }
@@ -477,9 +540,10 @@ impl Cdt {
             .vehicle_id(claimed)
             .unwrap_or("unknown")
             .to_owned();
+        self.refusals.count("impersonation");
         let imp = &mut self.impersonation;
         imp.refused += 1;
-        warn!(
+        debug!(
             sender,
             src,
             claimed = %claimed_id,
@@ -546,7 +610,8 @@ impl Cdt {
         let sv = match k.to_model(&self.book, now) {
             Ok(s) => s,
             Err(e) => {
-                warn!(error = %e, "state PDU unusable");
+                debug!(error = %e, "state PDU unusable");
+                self.refusals.count("unusable_state");
                 return;
             }
         };
@@ -588,6 +653,43 @@ impl Cdt {
         };
         if let Err(e) = self.w.event.write(status.to_event()).await {
             warn!(error = %e, "link status not published");
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn refusals_are_summed_up_in_the_log_not_written_one_by_one() {
+        let mut r = Refusals::default();
+        // The first refusal is reported at once, later ones within 10 s wait for the next
+        // summary; the totals keep every one.
+        r.count("impersonation");
+        assert_eq!(r.unreported, 0);
+        r.count("impersonation");
+        r.count("undecodable_frame");
+        assert_eq!(r.unreported, 2);
+        assert_eq!(r.by_reason["impersonation"], 2);
+        r.report(Instant::now());
+        assert_eq!(r.unreported, 0);
+        assert_eq!(r.by_reason.values().sum::<u64>(), 3);
+    }
+
+    /// A PDU kind added later that speaks for a vehicle must be bound to its sender too:
+    /// every sample PDU but the station's own (tasks, acks) names its vehicle.
+    #[test]
+    fn every_pdu_a_vehicle_sends_names_the_vehicle_it_speaks_for() {
+        for (name, p) in pdu::samples() {
+            let from_station = matches!(p, Pdu::Task(_) | Pdu::IdentifiedTask(_) | Pdu::Ack(_));
+            let anonymous_event = matches!(&p, Pdu::Event(e) if e.vehicle.is_none());
+            assert_eq!(
+                claimed_vehicle(&p).is_some(),
+                !from_station && !anonymous_event,
+                "{name}"
+            );
         }
     }
 }
