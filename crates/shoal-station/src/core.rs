@@ -47,6 +47,9 @@ pub(crate) struct Core {
     pub(crate) reported_skew_ms: std::sync::atomic::AtomicI64,
     /// Log lines for rejected data: a flood's are cut to a budget (all still counted).
     pub(crate) rejection_log: Mutex<crate::ingest::LogBudget>,
+    /// Log lines for registrations and contact changes: a large fleet coming alive or
+    /// going quiet at once is summed up, not written vehicle by vehicle.
+    pub(crate) fleet_log: Mutex<crate::ingest::LogBudget>,
     /// Rules disabled over their time budget, as last read from the model.
     pub(crate) rules_over_budget_seen: AtomicU64,
     /// The traffic picture (AIS), when one is attached.
@@ -171,6 +174,9 @@ impl StationHandle {
             traffic: std::sync::OnceLock::new(),
             rejection_log: Mutex::new(crate::ingest::LogBudget::new(
                 crate::ingest::REJECTION_LOG_LINES_PER_S,
+            )),
+            fleet_log: Mutex::new(crate::ingest::LogBudget::new(
+                crate::register::FLEET_LOG_LINES_PER_S,
             )),
             config,
         };

@@ -17,6 +17,12 @@ use crate::reporters::LiveUpdate;
 pub(crate) use fleet::Fleet;
 pub use fleet::{Contact, VehicleView};
 
+/// INFO lines a second for registrations and contact changes together; beyond, a debug
+/// line each, the next INFO line says how many were left out, and the fleet summary
+/// counts vehicles by contact (ten thousand vehicles coming alive make ten thousand
+/// changes, which help nobody one by one).
+pub(crate) const FLEET_LOG_LINES_PER_S: u32 = 10;
+
 impl StationHandle {
     /// Registers (or re-registers) a vehicle as if it had announced itself, e.g. from the
     /// operator's tool; the announcement is validated first.
@@ -62,7 +68,20 @@ impl StationHandle {
         let fired = lock(&self.core.semantic).upsert_vehicle(&a);
         self.emit_fired(fired);
         if new {
-            info!(vehicle = %id, kind = %a.kind, vendor = %a.vendor, source, "vehicle registered");
+            match self.fleet_line() {
+                Some(0) => {
+                    info!(vehicle = %id, kind = %a.kind, vendor = %a.vendor, source, "vehicle registered");
+                }
+                Some(left_out) => info!(
+                    vehicle = %id,
+                    kind = %a.kind,
+                    vendor = %a.vendor,
+                    source,
+                    left_out,
+                    "vehicle registered (and {left_out} more registrations or contact changes not logged one by one; the fleet summary counts them)"
+                ),
+                None => debug!(vehicle = %id, kind = %a.kind, source, "vehicle registered"),
+            }
             self.mirror_availability(&id);
         } else {
             debug!(vehicle = %id, "vehicle re-announced");
@@ -205,7 +224,17 @@ impl StationHandle {
                 }
                 _ => {}
             }
-            info!(vehicle = %id, from = ?from, to = ?to, "contact changed");
+            match self.fleet_line() {
+                Some(0) => info!(vehicle = %id, from = ?from, to = ?to, "contact changed"),
+                Some(left_out) => info!(
+                    vehicle = %id,
+                    from = ?from,
+                    to = ?to,
+                    left_out,
+                    "contact changed (and {left_out} more registrations or contact changes not logged one by one; the fleet summary counts them)"
+                ),
+                None => debug!(vehicle = %id, from = ?from, to = ?to, "contact changed"),
+            }
             self.refresh_heard_availability(&id, now);
             // Stale and lost happen exactly when the vehicle sends nothing, so no state
             // carries the change to live clients: push the vehicle's view now.
@@ -226,6 +255,17 @@ impl StationHandle {
             .vehicles
             .get(id)
             .map(fleet::Entry::view)
+    }
+
+    /// Whether a registration or contact change gets its own INFO line: `Some(n)` yes,
+    /// with `n` left out before it; `None`: over the budget, a debug line only.
+    fn fleet_line(&self) -> Option<u64> {
+        lock(&self.core.fleet_log).take(std::time::Instant::now())
+    }
+
+    /// Registration and contact-change lines left out of the log so far.
+    pub fn fleet_lines_not_logged(&self) -> u64 {
+        lock(&self.core.fleet_log).left_out_total()
     }
 
     /// Logs the fleet: a line per vehicle for a small fleet, counts by contact for a large
@@ -256,7 +296,11 @@ impl StationHandle {
             info!("no vehicles yet");
         }
         if let Some([alive, stale, lost, silent]) = counts {
-            info!(vehicles = total, alive, stale, lost, silent, "fleet");
+            let changes_not_logged = self.fleet_lines_not_logged();
+            info!(
+                vehicles = total,
+                alive, stale, lost, silent, changes_not_logged, "fleet"
+            );
         }
         for v in lines {
             let (id, kind) = (&v.announcement.vehicle_id, v.announcement.kind.as_str());

@@ -303,3 +303,21 @@ fn a_flood_of_announcements_with_made_up_ids_is_capped_and_real_vehicles_go_on()
     f.announce("usv-7");
     assert!(f.h.vehicle("usv-7").is_some());
 }
+
+#[test]
+fn a_large_fleet_coming_alive_is_summed_up_in_the_log_not_written_vehicle_by_vehicle() {
+    let f = Fixture::new();
+    let start = std::time::Instant::now();
+    for i in 0..200 {
+        f.alive(&format!("sw-{i}"));
+    }
+    // 200 registrations and 200 contact changes: at most ten INFO lines in each second
+    // (window) the loop took get through, the rest are counted.
+    let windows = start.elapsed().as_secs() + 1;
+    let left_out = f.h.fleet_lines_not_logged();
+    assert!(
+        left_out >= 400 - windows * 10,
+        "{left_out} left out in {windows} s"
+    );
+    assert!(f.h.fleet().iter().all(|v| v.contact == Contact::Alive));
+}
