@@ -18,7 +18,19 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 NS="${SHOAL_NETNS:-shoal-test}"
-step() { printf '\n==> %s\n' "$*"; }
+# Each step says when it starts; the end lists how long each took (the test command has a
+# time budget, and this says where it goes).
+step_name=""
+step_start=$SECONDS
+timings=()
+step() {
+    if [[ -n "$step_name" ]]; then
+        timings+=("$(printf '%6d s  %s' $((SECONDS - step_start)) "$step_name")")
+    fi
+    step_name="$*"
+    step_start=$SECONDS
+    printf '\n==> %s  (at %d s)\n' "$*" "$SECONDS"
+}
 
 # A one-off run gains nothing from incremental compilation, which doubles the workspace
 # crates' share of target/; set CARGO_INCREMENTAL=1 to keep it between runs.
@@ -98,4 +110,6 @@ if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
 fi
 
 step "all tests passed"
+printf '%s\n' "${timings[@]}"
+echo "time: ${SECONDS} s in all"
 echo "summary: ${passed} passed, 0 failed"
