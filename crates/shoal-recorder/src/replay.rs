@@ -476,8 +476,17 @@ mod tests {
     use crate::tests::{one_of_each, state};
 
     fn write(dir: &Path, samples: &[Sample]) {
+        write_chunked(
+            dir,
+            samples,
+            crate::RecorderConfig::default().max_chunk_bytes,
+        );
+    }
+
+    fn write_chunked(dir: &Path, samples: &[Sample], max_chunk_bytes: u64) {
         let cfg = crate::RecorderConfig {
             directory: dir.to_path_buf(),
+            max_chunk_bytes,
             ..crate::RecorderConfig::default()
         };
         let mut w = RecordWriter::new(&cfg).unwrap();
@@ -506,5 +515,36 @@ mod tests {
             Err(ReplayError::TooManyVehicles { max }) if max == n - 1
         ));
         assert_eq!(publishing_vehicles(dir.path(), false, n).unwrap().len(), n);
+    }
+
+    /// A damaged recording (cut at any byte, as a killed recorder or a bad copy leaves it)
+    /// is read ahead as far as it is readable: never an error, never a vehicle that is not
+    /// in the whole file. Replay then reports where reading stopped.
+    #[test]
+    fn reading_ahead_a_cut_recording_finds_what_precedes_the_cut() {
+        let dir = tempfile::tempdir().unwrap();
+        // Vehicles appear one after another over 2,000 samples, in the smallest chunks, so
+        // that a cut keeps some chunks whole and so some of the vehicles.
+        let samples: Vec<Sample> = (0..2000)
+            .map(|i| Sample::StateVector(state(&format!("v-{}", i / 50), i)))
+            .collect();
+        write_chunked(dir.path(), &samples, 64 * 1024);
+        let file = mcap_files(dir.path()).unwrap().remove(0);
+        let whole = std::fs::read(&file).unwrap();
+        let all = publishing_vehicles(&file, false, 100).unwrap();
+        assert_eq!(all.len(), 40);
+        let cut = dir.path().join("cut");
+        std::fs::create_dir(&cut).unwrap();
+        let cut_file = cut.join("cut.mcap");
+        let mut partial = 0;
+        for len in (0..whole.len()).step_by(whole.len() / 200 + 1) {
+            std::fs::write(&cut_file, &whole[..len]).unwrap();
+            let found = publishing_vehicles(&cut_file, false, 100).unwrap();
+            assert!(found.is_subset(&all), "cut at {len}: {found:?}");
+            if !found.is_empty() && found.len() < all.len() {
+                partial += 1;
+            }
+        }
+        assert!(partial > 0, "no cut kept part of the recording");
     }
 }

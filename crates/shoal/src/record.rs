@@ -66,6 +66,24 @@ pub struct ReplayArgs {
     pub start_at_unix_ms: Option<u64>,
 }
 
+/// The shared start a parent replay passed (`--start-at-unix-ms`): within a minute of now,
+/// as the parent sets it a few seconds ahead; anything else is not from a parent replay.
+fn start_instant(ms: u64) -> Result<std::time::SystemTime> {
+    let at = std::time::UNIX_EPOCH + Duration::from_millis(ms);
+    let now = std::time::SystemTime::now();
+    let off = match at.duration_since(now) {
+        Ok(ahead) => ahead,
+        Err(behind) => behind.duration(),
+    };
+    if off > Duration::from_secs(60) {
+        bail!(
+            "--start-at-unix-ms {ms} is {} s from now; a replay's shared start is within a minute",
+            off.as_secs()
+        );
+    }
+    Ok(at)
+}
+
 /// The participant the recorder reads with: the station's identity (it reads every
 /// partition) with security on, a plain one with security off.
 fn station_participant(cfg: &ShoalConfig, who: &str) -> Result<PubSub> {
@@ -247,9 +265,7 @@ pub async fn replay(
             "replay".to_string(),
         )
     } else if let Some(vehicle) = &args.as_vehicle {
-        options.start_at = args
-            .start_at_unix_ms
-            .map(|ms| std::time::UNIX_EPOCH + Duration::from_millis(ms));
+        options.start_at = args.start_at_unix_ms.map(start_instant).transpose()?;
         let pubsub = vehicle_participant(cfg, vehicle)?;
         info!(vehicle = %vehicle, "replaying as this vehicle");
         (
@@ -348,4 +364,20 @@ fn print_stats(who: &str, what: &str, s: &ReplayStats) {
         s.tasks_skipped,
         s.write_failed
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_shared_start_far_from_now_is_refused() {
+        let now_ms = u64::try_from(shoal_model::now_ms()).unwrap();
+        assert!(start_instant(now_ms + 3_000).is_ok());
+        assert!(start_instant(now_ms - 3_000).is_ok());
+        for far in [0, now_ms + 3_600_000, now_ms - 3_600_000, u64::MAX / 2] {
+            let err = start_instant(far).unwrap_err().to_string();
+            assert!(err.contains("within a minute"), "{err}");
+        }
+    }
 }
