@@ -131,6 +131,8 @@ struct Cdt {
     relays: HashMap<u8, Vec<u8>>,
     impersonation: Impersonation,
     refusals: Refusals,
+    /// Per vehicle address, when it was last told a keyframe is missing (at most 16).
+    missing_reported: HashMap<u8, Instant>,
 }
 
 /// Frames and PDUs the CDT refused, by reason: each is logged at debug level, and a
@@ -189,6 +191,10 @@ struct Impersonation {
     alarmed: HashMap<u8, Instant>,
 }
 
+/// How often a vehicle is told at most that a keyframe its deltas name is missing here:
+/// its answer (a keyframe, then an ack) takes a few frames on air.
+const MISSING_KEYFRAME_EVERY: std::time::Duration = std::time::Duration::from_secs(10);
+
 /// How often one sender's impersonation attempts raise an alarm.
 const IMPERSONATION_ALARM_EVERY: std::time::Duration = std::time::Duration::from_secs(60);
 
@@ -238,6 +244,7 @@ impl Cdt {
             relays: cfg_relays,
             impersonation: Impersonation::default(),
             refusals: Refusals::default(),
+            missing_reported: HashMap::new(),
         })
     }
 
@@ -430,10 +437,15 @@ impl Cdt {
                     Ok(Some(k)) => self.on_state(&k, now).await,
                     Ok(None) => {}
                     Err(DecodeError::UnknownKeyframe { vehicle, seq }) => {
-                        // The VDT's keyframe refresh heals this within its refresh period.
                         debug!(vehicle, seq, "delta against an unknown keyframe dropped");
+                        self.refusals.count("unknown_keyframe");
+                        // Ask for a keyframe rather than wait for the VDT's refresh.
+                        self.report_missing_keyframe(vehicle, seq).await?;
                     }
-                    Err(e) => warn!(error = %e, "state PDU unusable"),
+                    Err(e) => {
+                        debug!(error = %e, "state PDU unusable");
+                        self.refusals.count("unusable_state");
+                    }
                 }
             }
             Pdu::TaskStatus(s) => {
@@ -580,6 +592,45 @@ impl Cdt {
         if let Err(e) = self.w.alarm.write(alarm).await {
             warn!(error = %e, "impersonation alarm not published");
         }
+    }
+
+    /// Tells the VDT of `vehicle` that keyframe `seq`, which its deltas name, is not held
+    /// here (this CDT restarted, or never got it): an [`Ack`] of the delta message id,
+    /// which makes the VDT send a keyframe next (docs/acoustic.md#converter). At most one
+    /// every [`MISSING_KEYFRAME_EVERY`] per vehicle; a queued one is replaced.
+    async fn report_missing_keyframe(
+        &mut self,
+        vehicle: u8,
+        seq: u8,
+    ) -> Result<(), ConverterError> {
+        let now = Instant::now();
+        if self
+            .missing_reported
+            .get(&vehicle)
+            .is_some_and(|t| now.duration_since(*t) < MISSING_KEYFRAME_EVERY)
+        {
+            return Ok(());
+        }
+        self.missing_reported.insert(vehicle, now);
+        let report = Pdu::Ack(Ack {
+            from: self.cfg.address,
+            msg_id: pdu::id::STATE_DELTA,
+            ref_no: seq,
+        });
+        let Some(bytes) = encode(&report) else {
+            return Ok(());
+        };
+        let msg = Outgoing {
+            dst: vehicle,
+            class: Class::Telemetry,
+            pdu: bytes,
+            supersede_key: Some(supersede_key(key::KEYFRAME_MISSING, vehicle, 0)),
+        };
+        self.link
+            .send(msg)
+            .await
+            .map(|_| ())
+            .map_err(|_| ConverterError::LinkStopped)
     }
 
     async fn ack_keyframe(&self, src: u8, k: &StateKeyframe) -> Result<(), ConverterError> {

@@ -41,6 +41,7 @@ pub(crate) mod key {
     pub(crate) const TASK_STATUS: u8 = 3;
     pub(crate) const ENVIRONMENT: u8 = 4;
     pub(crate) const KEYFRAME_ACK: u8 = 5;
+    pub(crate) const KEYFRAME_MISSING: u8 = 6;
 }
 
 /// The encoded bytes of a PDU, or `None` (logged) if it does not encode.

@@ -441,6 +441,16 @@ impl Vdt {
                     }
                 }
             }
+            // The CDT does not hold the keyframe our deltas name (it restarted): send one.
+            Pdu::Ack(a) if a.msg_id == pdu::id::STATE_DELTA => {
+                if self.delta_coding {
+                    for v in &mut self.served {
+                        if v.encoder.reference_unknown(a.ref_no) {
+                            info!(vehicle = %v.id, seq = a.ref_no, "the CDT lacks our keyframe; sending a new one");
+                        }
+                    }
+                }
+            }
             Pdu::IdentifiedTask(t) => {
                 let Some(bytes) = encode(&Pdu::IdentifiedTask(t.clone())) else {
                     return Ok(());

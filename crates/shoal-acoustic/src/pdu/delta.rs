@@ -137,6 +137,20 @@ impl DeltaEncoder {
         }
     }
 
+    /// The receiver reports that it does not hold keyframe `seq`, which a delta named (it
+    /// restarted, or lost its keyframes): if that is the acknowledged reference, forget it
+    /// so the next state goes as a keyframe. A report about an older reference is stale
+    /// and changes nothing. Returns whether the reference was dropped.
+    pub fn reference_unknown(&mut self, seq: u8) -> bool {
+        if self.acked.as_ref().is_some_and(|(_, k)| k.seq == seq) {
+            self.acked = None;
+            self.last_was_keyframe = false;
+            true
+        } else {
+            false
+        }
+    }
+
     /// The keyframe deltas are currently coded against, if any.
     pub fn reference(&self) -> Option<&StateKeyframe> {
         self.acked.as_ref().map(|(_, k)| k)

@@ -955,3 +955,51 @@ proptest! {
         }
     }
 }
+
+/// A receiver that lost its keyframes (a restarted CDT) says which reference it lacks: the
+/// encoder drops that reference and sends a keyframe next, instead of deltas nobody can
+/// decode until the periodic refresh; a report naming an older reference changes nothing.
+#[test]
+fn a_receiver_lacking_the_reference_gets_a_keyframe_next() {
+    let state = |t: u32| StateKeyframe {
+        vehicle: 3,
+        seq: 0,
+        seconds_of_day: t,
+        latitude_deg: 43.0,
+        longitude_deg: 5.9,
+        depth_m: 10.0,
+        altitude_m: None,
+        speed_mps: 1.0,
+        yaw_deg: 90.0,
+        pitch_deg: 0.0,
+        roll_deg: 0.0,
+        battery_pct: 80.0,
+    };
+    for mut enc in [DeltaEncoder::new(), DeltaEncoder::predictive()] {
+        let Pdu::StateKeyframe(k) = enc.encode(&state(100)).unwrap() else {
+            panic!("the first state is a keyframe");
+        };
+        assert!(enc.acknowledge(k.seq));
+        let delta = enc.encode(&state(102)).unwrap();
+        assert!(!matches!(delta, Pdu::StateKeyframe(_)), "{delta:?}");
+        let mut restarted = DeltaDecoder::new();
+        assert!(matches!(
+            restarted.decode(&delta),
+            Err(DecodeError::UnknownKeyframe { .. })
+        ));
+        assert!(
+            !enc.reference_unknown((k.seq + 1) % 16),
+            "not the reference"
+        );
+        assert!(enc.reference_unknown(k.seq));
+        let Pdu::StateKeyframe(fresh) = enc.encode(&state(104)).unwrap() else {
+            panic!("a keyframe after the receiver said it lacks the reference");
+        };
+        restarted
+            .decode(&Pdu::StateKeyframe(fresh.clone()))
+            .unwrap();
+        assert!(enc.acknowledge(fresh.seq));
+        let next = enc.encode(&state(106)).unwrap();
+        assert!(restarted.decode(&next).unwrap().is_some());
+    }
+}

@@ -7,7 +7,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use futures::{Stream, StreamExt};
+use shoal_acoustic::driver::{ModemDriver, OutFrame, Outcome, RxFrame, TransmitError};
 use shoal_acoustic::emulator::{Emulator, EmulatorConfig, EmulatorHandle, ModemConfig};
+use shoal_acoustic::pdu::{self, Pdu};
 use shoal_converter::emulated_relay::{EmulatedRelayConfig, RelayedVehicle, run_emulated_relay};
 use shoal_converter::{
     AddressEntry, CdtConfig, ConverterError, ModemKind, ModemSettings, VdtConfig,
@@ -15,6 +17,7 @@ use shoal_converter::{
 use shoal_dds::{DdsConfig, PubSub, ReadError, SampleMeta};
 use shoal_model::{GeoPoint, Task, TaskAssignment, Validated, VehicleKind, now_ms};
 use shoal_proxy::sim::SimSpec;
+use shoal_security::{AcousticKey, AcousticTagger, TagSize};
 
 /// Wall-clock seconds per simulated second in these tests.
 pub const SCALE: f64 = 0.1;
@@ -291,4 +294,68 @@ pub async fn run_relayed_sim(
         }
     };
     run_emulated_relay(relay, cdt_dds, None, start_sim, stop).await
+}
+
+/// A modem whose received frames the test pushes; what the CDT sends is accepted.
+pub struct ScriptedModem {
+    rx: tokio::sync::Mutex<tokio::sync::mpsc::Receiver<RxFrame>>,
+    /// Every frame the CDT transmitted, in order.
+    pub sent: Arc<std::sync::Mutex<Vec<OutFrame>>>,
+}
+
+impl ScriptedModem {
+    /// A modem that receives what is pushed into `rx`.
+    pub fn new(rx: tokio::sync::mpsc::Receiver<RxFrame>) -> Self {
+        Self {
+            rx: tokio::sync::Mutex::new(rx),
+            sent: Arc::default(),
+        }
+    }
+}
+
+impl ModemDriver for ScriptedModem {
+    async fn transmit(&self, frame: OutFrame) -> Result<Outcome, TransmitError> {
+        self.sent.lock().unwrap().push(frame);
+        Ok(Outcome::Sent)
+    }
+
+    async fn receive(&self) -> Option<RxFrame> {
+        self.rx.lock().await.recv().await
+    }
+
+    fn local_address(&self) -> Option<u8> {
+        Some(CDT)
+    }
+
+    fn is_connected(&self) -> bool {
+        true
+    }
+}
+
+/// One vehicle's modem: seals frames to the CDT with the key it shares with the station.
+pub struct Sender {
+    address: u8,
+    tagger: AcousticTagger,
+}
+
+impl Sender {
+    pub fn new(address: u8, key: &AcousticKey) -> Self {
+        let mut tagger = AcousticTagger::new(address, TagSize::Bits64, 1);
+        tagger.set_key(CDT, key);
+        Self { address, tagger }
+    }
+
+    pub fn frame(&mut self, p: &Pdu) -> RxFrame {
+        let data = self
+            .tagger
+            .seal(CDT, &pdu::pack_frame(std::slice::from_ref(p)).unwrap())
+            .unwrap();
+        RxFrame {
+            src: self.address,
+            dst: CDT,
+            data,
+            rssi: None,
+            integrity: None,
+        }
+    }
 }

@@ -7,39 +7,15 @@
 use std::time::Duration;
 
 use futures::StreamExt;
-use shoal_acoustic::driver::{ModemDriver, OutFrame, Outcome, RxFrame, TransmitError};
-use shoal_acoustic::pdu::{self, Pdu, StateKeyframe};
+use shoal_acoustic::pdu::{Pdu, StateKeyframe};
 use shoal_acoustic::secure::TaggedDriver;
 use shoal_converter::{AddressEntry, CdtConfig, RelayEntry, run_cdt};
 use shoal_model::{Event, EventKind, Severity, StateVector};
 use shoal_security::{AcousticKey, AcousticTagger, TagSize};
-use tokio::sync::{Mutex, mpsc};
+use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
 use super::common::*;
-
-/// A modem whose received frames the test pushes; what the CDT sends is accepted.
-struct ScriptedModem {
-    rx: Mutex<mpsc::Receiver<RxFrame>>,
-}
-
-impl ModemDriver for ScriptedModem {
-    async fn transmit(&self, _frame: OutFrame) -> Result<Outcome, TransmitError> {
-        Ok(Outcome::Sent)
-    }
-
-    async fn receive(&self) -> Option<RxFrame> {
-        self.rx.lock().await.recv().await
-    }
-
-    fn local_address(&self) -> Option<u8> {
-        Some(CDT)
-    }
-
-    fn is_connected(&self) -> bool {
-        true
-    }
-}
 
 const AUV_1: u8 = 2;
 const AUV_2: u8 = 3;
@@ -64,34 +40,6 @@ fn keyframe(vehicle: u8, seq: u8, latitude_deg: f64) -> Pdu {
     })
 }
 
-/// One vehicle's modem: seals frames to the CDT with the key it shares with the station.
-struct Sender {
-    address: u8,
-    tagger: AcousticTagger,
-}
-
-impl Sender {
-    fn new(address: u8, key: &AcousticKey) -> Self {
-        let mut tagger = AcousticTagger::new(address, TagSize::Bits64, 1);
-        tagger.set_key(CDT, key);
-        Self { address, tagger }
-    }
-
-    fn frame(&mut self, p: &Pdu) -> RxFrame {
-        let data = self
-            .tagger
-            .seal(CDT, &pdu::pack_frame(std::slice::from_ref(p)).unwrap())
-            .unwrap();
-        RxFrame {
-            src: self.address,
-            dst: CDT,
-            data,
-            rssi: None,
-            integrity: None,
-        }
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_vehicle_key_speaks_only_for_its_vehicle_and_a_relay_only_for_what_it_carries() {
     let keys: Vec<AcousticKey> = (0..3).map(|_| AcousticKey::generate().unwrap()).collect();
@@ -100,7 +48,7 @@ async fn a_vehicle_key_speaks_only_for_its_vehicle_and_a_relay_only_for_what_it_
         cdt_tagger.set_key(addr, key);
     }
     let (push, rx) = mpsc::channel(16);
-    let driver = TaggedDriver::new(ScriptedModem { rx: Mutex::new(rx) }, cdt_tagger);
+    let driver = TaggedDriver::new(ScriptedModem::new(rx), cdt_tagger);
     let entry = |id: &str, address| AddressEntry {
         vehicle_id: id.into(),
         address,

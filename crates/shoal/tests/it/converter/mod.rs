@@ -17,6 +17,8 @@
 //!   105, 106).
 //! - `impersonation`: a vehicle's acoustic key speaks only for its vehicle, a relay only
 //!   for the vehicles it carries (domain 111).
+//! - `keyframes`: a CDT lacking the keyframe a delta names asks the VDT for one (domain
+//!   112).
 //! - `redelivery`: at most once over the acoustic link: a finished task delivered again
 //!   after the VDT and the vehicle restart is not run again (domains 109, 110).
 //!
@@ -26,6 +28,7 @@
 pub mod common;
 mod end_to_end;
 mod impersonation;
+mod keyframes;
 mod outage;
 mod reconnect;
 mod redelivery;
