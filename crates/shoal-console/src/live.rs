@@ -1,5 +1,6 @@
 //! `GET /api/ws`: the live feed over a WebSocket, one JSON message per update
-//! (`{"type": "event" | "task" | "mission" | "vehicle" | "observation", "data": ...}`).
+//! (`{"type": "event" | "task" | "mission" | "vehicle" | "observation" | "vessel" |
+//! "vessel_gone", "data": ...}`; `lagged` when a slow client missed some).
 
 use std::sync::Arc;
 

@@ -12,6 +12,7 @@ use shoal_traffic::{ApproachWindow, Motion, OwnVehicle, TrafficHandle};
 use tracing::info;
 
 use crate::core::{StationHandle, lock};
+use crate::reporters::LiveUpdate;
 
 /// Metres per second in one knot.
 const MS_PER_KNOT: f64 = shoal_traffic::MS_PER_KNOT;
@@ -103,6 +104,7 @@ impl StationHandle {
         let mut semantic = lock(&self.core.semantic);
         let mut fired = Vec::new();
         let mut present = HashSet::with_capacity(targets.len());
+        let mut moved = Vec::new();
         for t in &targets {
             let (Some(lat), Some(lon)) = (t.lat, t.lon) else {
                 continue;
@@ -121,6 +123,8 @@ impl StationHandle {
                 #[allow(clippy::cast_possible_truncation)]
                 seen_ms: now - (t.age_s * 1000.0) as i64,
             });
+            // A new report, whether or not the model took it: the map shows it at once.
+            moved.push(t.clone());
             match written {
                 Ok(()) => {
                     mirror.targets.insert(t.mmsi, t.messages);
@@ -160,12 +164,19 @@ impl StationHandle {
             .filter(|m| !present.contains(m))
             .copied()
             .collect();
-        for mmsi in gone {
+        for &mmsi in &gone {
             mirror.targets.remove(&mmsi);
             let _ = semantic.forget_traffic_target(mmsi);
         }
         drop(semantic);
         drop(mirror);
+        // Live clients get what changed this second; the locks are released first.
+        for t in moved {
+            self.publish_live(LiveUpdate::Vessel(Box::new(t)));
+        }
+        for mmsi in gone {
+            self.publish_live(LiveUpdate::VesselGone { mmsi });
+        }
         if !fired.is_empty() {
             info!(alarms = fired.len(), "collision risk with AIS traffic");
         }
@@ -218,7 +229,20 @@ mod tests {
             (s.latitude_deg, s.longitude_deg, s.speed_mps, s.yaw_deg) = (63.44, 10.40, 2.0, 0.0);
             f.h.ingest_state(s).unwrap();
         }
+        let mut live = f.h.live();
         f.h.traffic_tick(now);
+        // Each vessel with a position goes to live clients once, with its new report.
+        let vessels = |live: &mut tokio::sync::broadcast::Receiver<LiveUpdate>| {
+            let mut mmsis = Vec::new();
+            while let Ok(u) = live.try_recv() {
+                if let LiveUpdate::Vessel(t) = u {
+                    mmsis.push(t.mmsi);
+                }
+            }
+            mmsis.sort_unstable();
+            mmsis
+        };
+        assert_eq!(vessels(&mut live), [257_000_001, 257_000_002]);
         let alarms: Vec<_> = f
             .out
             .events()
@@ -240,8 +264,10 @@ mod tests {
             )
             .unwrap();
         assert!(matches!(named, shoal_semantic::QueryResult::Boolean(true)));
-        // The next second: still the same encounter, no second alarm.
+        // The next second: still the same encounter, no second alarm, and no vessel sent
+        // again without a new report.
         f.h.traffic_tick(now + 1000);
+        assert!(vessels(&mut live).is_empty());
         let n = f
             .out
             .events()

@@ -3,6 +3,7 @@
 // nothing missed in between is lost (the same happens on a "lagged" notice).
 
 import { api, describe } from './api.js';
+import { removeVessel, renderVessel } from './map.js';
 import { emit, putEvent, putMission, putTask, putVehicle, state } from './store.js';
 import { toast } from './util.js';
 
@@ -84,6 +85,13 @@ function handle(msg) {
       break;
     case 'observation':
       emit('observation', msg.data);
+      break;
+    case 'vessel':
+      // An AIS target's new report; the traffic poll keeps the summary and catches up.
+      renderVessel(msg.data);
+      break;
+    case 'vessel_gone':
+      removeVessel(msg.data.mmsi);
       break;
     case 'lagged':
       // Updates were dropped for this slow client: the snapshots are the truth.

@@ -173,22 +173,31 @@ function vesselStyle(feature, resolution) {
   });
 }
 
-/** Draws the AIS targets of `GET /api/traffic` (those with a position). */
-export function renderTraffic(targets) {
-  const seen = new Set();
-  for (const t of targets) {
-    if (t.lat == null || t.lon == null) continue;
-    const id = `ais-${t.mmsi}`;
-    seen.add(id);
-    let f = sources.traffic.getFeatureById(id);
-    if (!f) {
-      f = new Feature();
-      f.setId(id);
-      sources.traffic.addFeature(f);
-    }
-    f.setGeometry(new Point(fromLonLat([t.lon, t.lat])));
-    f.set('target', t);
+/** Draws or moves one AIS target (from `GET /api/traffic` or the live feed); one without
+ *  a position is left out. Returns its feature id, or null. */
+export function renderVessel(t) {
+  if (t.lat == null || t.lon == null) return null;
+  const id = `ais-${t.mmsi}`;
+  let f = sources.traffic.getFeatureById(id);
+  if (!f) {
+    f = new Feature();
+    f.setId(id);
+    sources.traffic.addFeature(f);
   }
+  f.setGeometry(new Point(fromLonLat([t.lon, t.lat])));
+  f.set('target', t);
+  return id;
+}
+
+/** Removes an AIS target whose reports stopped. */
+export function removeVessel(mmsi) {
+  const f = sources.traffic.getFeatureById(`ais-${mmsi}`);
+  if (f) sources.traffic.removeFeature(f);
+}
+
+/** Draws the AIS targets of `GET /api/traffic` (those with a position), removing others. */
+export function renderTraffic(targets) {
+  const seen = new Set(targets.map(renderVessel).filter((id) => id !== null));
   for (const f of sources.traffic.getFeatures()) if (!seen.has(f.getId())) sources.traffic.removeFeature(f);
 }
 

@@ -1,11 +1,12 @@
-// Vessel traffic from AIS: polls GET /api/traffic and keeps the map's vessels and the
-// traffic summary (count, nearest report age, inputs' dropped lines) current.
+// Vessel traffic from AIS: the live feed moves each vessel as its reports come (live.js);
+// this polls GET /api/traffic for the traffic summary (count, inputs' dropped lines) and
+// to catch up on what a dropped message or a reconnection missed.
 
 import { api, describe } from './api.js';
 import { renderTraffic } from './map.js';
 
 /** Seconds between polls while traffic inputs are configured, and while they are not. */
-const POLL_S = 3;
+const POLL_S = 10;
 const IDLE_POLL_S = 30;
 
 /** The counters of lines the inputs refused, one per reason (see docs/traffic.md). */

@@ -432,6 +432,13 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
       await new Promise((ok, fail) => socket.send(`${l}\r\n`, Number(process.env.SHOAL_AIS_PORT), '127.0.0.1', (e) => (e ? fail(e) : ok())));
     }
     socket.close();
+    // The live feed moves vessels on the map within the station's next second; the
+    // summary comes with the 10-second poll.
+    await page.waitForFunction(
+      () => ['ais-257000001', 'ais-258000002'].every((id) => window.shoalConsole.sources.traffic.getFeatureById(id)),
+      null,
+      { timeout: 5000 },
+    );
     await page.locator('#traffic-summary', { hasText: 'AIS: 2 vessel(s), 1 line(s) dropped' }).waitFor({ timeout: 15000 });
     const doc = await page.evaluate(async () => (await fetch('/api/traffic')).json());
     const norne = doc.targets.find((t) => t.mmsi === 257000001);

@@ -180,6 +180,7 @@ fn the_live_feed_carries_events_tasks_missions_and_vehicles() {
             LiveUpdate::Mission(_) => "mission",
             LiveUpdate::Vehicle(_) => "vehicle",
             LiveUpdate::Observation { .. } => "observation",
+            LiveUpdate::Vessel(_) | LiveUpdate::VesselGone { .. } => "vessel",
         });
     }
     assert!(kinds.contains("event"), "{kinds:?}");

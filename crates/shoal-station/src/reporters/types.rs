@@ -146,6 +146,13 @@ pub enum LiveUpdate {
         /// The observation.
         observation: EnvironmentObservation,
     },
+    /// An AIS target with a position that sent a new report (at most once a second each).
+    Vessel(Box<shoal_traffic::TargetView>),
+    /// An AIS target no longer in the traffic picture (its reports stopped).
+    VesselGone {
+        /// Its MMSI.
+        mmsi: u32,
+    },
 }
 
 #[cfg(test)]
