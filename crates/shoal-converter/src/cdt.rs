@@ -612,43 +612,38 @@ impl Cdt {
             return Ok(());
         }
         self.missing_reported.insert(vehicle, now);
-        let report = Pdu::Ack(Ack {
-            from: self.cfg.address,
-            msg_id: pdu::id::STATE_DELTA,
-            ref_no: seq,
-        });
-        let Some(bytes) = encode(&report) else {
-            return Ok(());
-        };
-        let msg = Outgoing {
-            dst: vehicle,
-            class: Class::Telemetry,
-            pdu: bytes,
-            supersede_key: Some(supersede_key(key::KEYFRAME_MISSING, vehicle, 0)),
-        };
-        self.link
-            .send(msg)
+        self.send_ack(vehicle, pdu::id::STATE_DELTA, seq, key::KEYFRAME_MISSING)
             .await
-            .map(|_| ())
-            .map_err(|_| ConverterError::LinkStopped)
     }
 
     async fn ack_keyframe(&self, src: u8, k: &StateKeyframe) -> Result<(), ConverterError> {
+        self.send_ack(src, pdu::id::STATE_KEYFRAME, k.seq, key::KEYFRAME_ACK)
+            .await
+    }
+
+    /// Sends an [`Ack`] of (`msg_id`, `ref_no`) to `dst`. Telemetry class: a lost ack
+    /// costs one more keyframe, not a retransmission; a newer one of the same `kind`
+    /// replaces a queued older one.
+    async fn send_ack(
+        &self,
+        dst: u8,
+        msg_id: u8,
+        ref_no: u8,
+        kind: u8,
+    ) -> Result<(), ConverterError> {
         let ack = Pdu::Ack(Ack {
             from: self.cfg.address,
-            msg_id: pdu::id::STATE_KEYFRAME,
-            ref_no: k.seq,
+            msg_id,
+            ref_no,
         });
         let Some(bytes) = encode(&ack) else {
             return Ok(());
         };
-        // Telemetry class: a lost ack costs one more keyframe, not a retransmission; a
-        // newer ack replaces a queued older one.
         let msg = Outgoing {
-            dst: src,
+            dst,
             class: Class::Telemetry,
             pdu: bytes,
-            supersede_key: Some(supersede_key(key::KEYFRAME_ACK, src, 0)),
+            supersede_key: Some(supersede_key(kind, dst, 0)),
         };
         self.link
             .send(msg)
