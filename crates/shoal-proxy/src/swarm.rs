@@ -54,27 +54,30 @@ impl Default for SwarmSpec {
 
 impl SwarmSpec {
     /// Checks the values; the error names the flag.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), SwarmError> {
         if !(1..=100_000).contains(&self.count) {
-            return Err(format!("--count {} is outside 1..=100000", self.count));
+            return Err(SwarmError::Spec(format!(
+                "--count {} is outside 1..=100000",
+                self.count
+            )));
         }
         if !(self.rate_hz > 0.0 && self.rate_hz <= 10.0) {
-            return Err(format!(
+            return Err(SwarmError::Spec(format!(
                 "--rate {} is outside (0, 10] state vectors per second",
                 self.rate_hz
-            ));
+            )));
         }
         if !(self.latitude_deg.abs() <= 85.0 && self.longitude_deg.abs() <= 180.0) {
-            return Err(format!(
+            return Err(SwarmError::Spec(format!(
                 "--lat {} --lon {}: the swarm's centre must be within ±85° latitude, ±180° longitude",
                 self.latitude_deg, self.longitude_deg
-            ));
+            )));
         }
         if !shoal_model::is_identifier(&format!("{}-{}", self.prefix, self.count), 32) {
-            return Err(format!(
+            return Err(SwarmError::Spec(format!(
                 "--prefix {:?} does not make valid vehicle ids (letters, digits, '_', '-', '.'; at most 32 with the number)",
                 self.prefix
-            ));
+            )));
         }
         Ok(())
     }
@@ -193,7 +196,7 @@ pub async fn run_swarm(
     dds: Arc<PubSub>,
     shutdown: CancellationToken,
 ) -> Result<(), SwarmError> {
-    spec.check().map_err(SwarmError::Spec)?;
+    spec.check()?;
     let announce = dds.writer::<VehicleAnnouncement>(WriterOptions::new(Priority::Control))?;
     let states = dds.writer::<StateVector>(WriterOptions::new(Priority::Telemetry))?;
     let mut vehicles: Vec<Lite> = (0..spec.count).map(|i| Lite::new(&spec, i)).collect();
@@ -293,7 +296,7 @@ mod tests {
         let bad = |f: fn(&mut SwarmSpec)| {
             let mut s = SwarmSpec::default();
             f(&mut s);
-            s.check().unwrap_err()
+            s.check().unwrap_err().to_string()
         };
         assert!(bad(|s| s.count = 0).starts_with("--count 0"));
         assert!(bad(|s| s.rate_hz = f64::NAN).starts_with("--rate NaN"));

@@ -393,7 +393,7 @@ pub async fn swarm(
     spec: shoal_proxy::swarm::SwarmSpec,
     exit_on_stdin_close: bool,
 ) -> Result<()> {
-    spec.check().map_err(anyhow::Error::msg)?;
+    spec.check()?;
     if cfg.security.enabled {
         bail!(
             "shoal swarm runs many vehicles on one participant, which no vehicle's permissions allow: run it with --insecure (it is for scale tests)"
