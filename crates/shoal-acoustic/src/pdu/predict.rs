@@ -401,13 +401,15 @@ impl PredictedDelta {
         let p = predict(key, self.dt_s);
         let step = |i: usize| RESIDUALS.get(i).map_or(0.0, |f| f.step);
         let add = |pred: f64, r: i32, i: usize| pred + f64::from(r) * step(i);
-        // Re-rounding removes float noise from the additions only (1e-9° ≈ 0.1 mm).
+        // Re-rounding removes float noise from the additions only. It must stay far below
+        // every field's half step, or it could push a value past the precision the layout
+        // promises (a millimetre did, by 0.3 mm, on a depth a proptest found).
         let clean = |x: f64, q: f64| (x / q).round() * q;
         let depth_m = decoded_depth(&p, self.depth_steps);
         let altitude_m = match (key.altitude_m, self.altitude_steps) {
             (Some(ka), Some(r)) => Some(clean(
                 add(predict_altitude(ka, key, depth_m), r, ALT).max(0.0),
-                1e-3,
+                NOISE,
             )),
             (None, Some(0)) | (_, None) => None,
             (None, Some(_)) => {
@@ -428,12 +430,12 @@ impl PredictedDelta {
             altitude_m,
             // Clamping to a physical bound the real value also respects can only shrink
             // the error.
-            speed_mps: clean(add(p.speed_mps, self.speed_steps, SPEED), 1e-3).clamp(0.0, 10.0),
-            yaw_deg: clean(add(p.yaw_deg, self.yaw_steps, YAW).rem_euclid(360.0), 1e-3) % 360.0,
-            pitch_deg: clean(add(p.pitch_deg, self.pitch_steps, PITCH), 1e-3).clamp(-90.0, 90.0),
+            speed_mps: clean(add(p.speed_mps, self.speed_steps, SPEED), NOISE).clamp(0.0, 10.0),
+            yaw_deg: clean(add(p.yaw_deg, self.yaw_steps, YAW).rem_euclid(360.0), NOISE) % 360.0,
+            pitch_deg: clean(add(p.pitch_deg, self.pitch_steps, PITCH), NOISE).clamp(-90.0, 90.0),
             roll_deg: clean(
                 (add(p.roll_deg, self.roll_steps, ROLL) + 180.0).rem_euclid(360.0) - 180.0,
-                1e-3,
+                NOISE,
             ),
             battery_pct: add(p.battery_pct, self.battery_steps, BATTERY).clamp(0.0, 100.0),
         })
@@ -441,7 +443,11 @@ impl PredictedDelta {
 }
 
 /// Depth the receiver decodes: prediction plus residual, never above the surface.
+/// The grain decoded values are re-rounded to, to remove float noise: far below every
+/// field's half step (the coarsest error the layout allows).
+const NOISE: f64 = 1e-9;
+
 fn decoded_depth(p: &StateKeyframe, r: i32) -> f64 {
     let step = RESIDUALS.get(DEPTH).map_or(0.0, |f| f.step);
-    (((p.depth_m + f64::from(r) * step) / 1e-3).round() * 1e-3).max(0.0)
+    (((p.depth_m + f64::from(r) * step) / NOISE).round() * NOISE).max(0.0)
 }
