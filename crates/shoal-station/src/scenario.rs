@@ -10,7 +10,7 @@ use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
 use crate::core::StationHandle;
-use crate::missions::{MissionSpec, MissionTaskSpec};
+use crate::missions::{MissionSpec, MissionState, MissionTaskSpec};
 use crate::register::Contact;
 
 /// How often a due mission looks again for the vehicles it waits for.
@@ -57,7 +57,11 @@ impl StationHandle {
                     .into_iter()
                     .filter(|v| !self.heard(v))
                     .collect();
-                if unheard.is_empty() {
+                if let Some(earlier) = self.earlier_run_still_active(&m.id) {
+                    // A restarted station must not send a vehicle the same mission twice.
+                    info!(mission = %m.id, %earlier, "scenario mission still under way from an earlier start; not started again");
+                    pending.remove(i);
+                } else if unheard.is_empty() {
                     self.start_scenario_mission(m, run);
                     pending.remove(i);
                 } else if now >= end {
@@ -77,6 +81,23 @@ impl StationHandle {
             }
         }
         info!(scenario = %scenario.name, "scenario: every mission handled");
+    }
+
+    /// The id of this scenario mission as an earlier start of the station ran it
+    /// (`<id>-<run>`), if that one is still planned or running (the register keeps
+    /// missions across restarts).
+    fn earlier_run_still_active(&self, id: &str) -> Option<String> {
+        self.missions()
+            .into_iter()
+            .find(|v| {
+                let run = v
+                    .mission_id
+                    .strip_prefix(id)
+                    .and_then(|r| r.strip_prefix('-'));
+                run.is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+                    && matches!(v.state, MissionState::Planned | MissionState::Running)
+            })
+            .map(|v| v.mission_id)
     }
 
     /// Registered, with a state vector, and not lost: what planning a task needs.
@@ -125,7 +146,6 @@ impl StationHandle {
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
-    use crate::missions::MissionState;
     use crate::testing::Fixture;
 
     const SCENARIO: &str = r#"
@@ -225,5 +245,29 @@ kind = "hold"
                 .all(|m| !m.mission_id.starts_with("early-"))
         );
         assert!(started(&f, "late-"));
+    }
+
+    /// A station started again while a scenario's missions are under way (the register
+    /// restores them) does not send them a second time.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_second_start_does_not_send_a_mission_still_under_way_again() {
+        let f = Fixture::new();
+        f.alive("auv-1");
+        f.alive("auv-2");
+        let text = SCENARIO.replace("at_s = 5", "at_s = 1");
+        for _ in 0..2 {
+            let scenario = shoal_scenario::parse(&text).unwrap();
+            tokio::time::timeout(
+                Duration::from_secs(5),
+                f.h.run_scenario(scenario, CancellationToken::new()),
+            )
+            .await
+            .unwrap();
+            // The run suffix is in seconds: the second start gets another one.
+            tokio::time::sleep(Duration::from_millis(1100)).await;
+        }
+        let ids: Vec<String> = f.h.missions().into_iter().map(|m| m.mission_id).collect();
+        assert_eq!(ids.len(), 2, "{ids:?}");
+        assert_eq!(f.out.tasks().len(), 2, "each vehicle got its task once");
     }
 }
