@@ -493,6 +493,10 @@ mod tests {
         );
         let itself = with("auv-1", &["auv-1"]).check().unwrap_err().to_string();
         assert!(itself.contains("carries itself"), "{itself}");
+        let mut twice = with("auv-1", &["auv-2"]);
+        twice.relays.push(twice.relays[0].clone());
+        let twice = twice.check().unwrap_err().to_string();
+        assert!(twice.contains("auv-1 listed twice"), "{twice}");
     }
 
     #[test]

@@ -269,6 +269,23 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("--ca"), "{err}");
+        // A CA file that is missing, or holds no certificate, is named.
+        let dir = std::env::temp_dir().join(format!("shoal-query-ca-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let junk = dir.join("junk.pem");
+        std::fs::write(&junk, "not a certificate\n").unwrap();
+        for (ca, says) in [
+            (dir.join("missing.pem"), "cannot read the certificate"),
+            (junk, "holds no PEM certificate"),
+        ] {
+            let target = Target::new(Some("https://127.0.0.1:1"), Some(&ca), listen, None).unwrap();
+            let err = format!("{:#}", ApiClient::new(&target, None).unwrap_err());
+            assert!(
+                err.contains(says) && err.contains(&*ca.to_string_lossy()),
+                "{err}"
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// A one-shot server on 127.0.0.1 that answers 200 and hands back what it was sent.
