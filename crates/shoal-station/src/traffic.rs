@@ -105,6 +105,8 @@ impl StationHandle {
         let mut fired = Vec::new();
         let mut present = HashSet::with_capacity(targets.len());
         let mut moved = Vec::new();
+        // Copies for live clients only while some are connected (as vehicle states).
+        let live_clients = self.has_live_clients();
         for t in &targets {
             let (Some(lat), Some(lon)) = (t.lat, t.lon) else {
                 continue;
@@ -124,7 +126,9 @@ impl StationHandle {
                 seen_ms: now - (t.age_s * 1000.0) as i64,
             });
             // A new report, whether or not the model took it: the map shows it at once.
-            moved.push(t.clone());
+            if live_clients {
+                moved.push(t.clone());
+            }
             match written {
                 Ok(()) => {
                     mirror.targets.insert(t.mmsi, t.messages);

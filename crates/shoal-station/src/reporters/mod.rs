@@ -117,9 +117,14 @@ impl StationHandle {
         let _ = self.reporters().live.send(update);
     }
 
+    /// Whether any live client is connected: updates built only for them can be skipped.
+    pub(crate) fn has_live_clients(&self) -> bool {
+        self.reporters().live.receiver_count() > 0
+    }
+
     /// Sends a vehicle's view to live clients, at most once a second per vehicle.
     pub(crate) fn push_state(&self, vehicle_id: &str) {
-        if self.reporters().live.receiver_count() == 0 {
+        if !self.has_live_clients() {
             return;
         }
         let now = self.now();
