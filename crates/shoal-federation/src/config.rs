@@ -1,0 +1,447 @@
+//! `FederationConfig`: the `[federation]` section of a station's configuration.
+//!
+//! Every key has a default (`federation.default.toml` beside this crate's manifest lists
+//! them, and a test checks it parses to `FederationConfig::default()`). Defaults never
+//! reach beyond this machine: the site listens on loopback only, connects nowhere, and
+//! Zenoh's multicast scouting (UDP 224.0.0.224:7446) and gossip are off unless turned on.
+
+use serde::{Deserialize, Serialize};
+use shoal_model::Severity;
+
+use crate::types::is_site_name;
+
+/// A configuration value that cannot work, with the key that holds it.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ConfigError {
+    /// The value at `federation.<key>` is refused.
+    #[error("federation.{key}: {problem}")]
+    Invalid {
+        /// Dotted key under `federation`, e.g. `positions.max_rate_hz`.
+        key: String,
+        /// What is wrong and what is accepted.
+        problem: String,
+    },
+}
+
+fn invalid(key: impl Into<String>, problem: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid {
+        key: key.into(),
+        problem: problem.into(),
+    }
+}
+
+/// The federation settings of one site.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FederationConfig {
+    /// This site's name, the `<site>` of every key it publishes.
+    pub site: String,
+    /// How this site joins the Zenoh network.
+    pub mode: Mode,
+    /// Endpoints to listen on, e.g. `tcp/127.0.0.1:7447`; empty for a client.
+    pub listen: Vec<String>,
+    /// Endpoints to connect to: remote sites or a `zenohd` router.
+    pub connect: Vec<String>,
+    /// Remote sites whose data is accepted; data from any other site is refused.
+    pub remote_sites: Vec<String>,
+    /// Zenoh's UDP multicast scouting (224.0.0.224:7446): off unless asked for.
+    pub multicast_scouting: bool,
+    /// Zenoh's gossip: peers learn and connect to each other's peers. Off, so the links
+    /// are exactly those configured.
+    pub gossip: bool,
+    /// Vehicle positions.
+    pub positions: PositionsPolicy,
+    /// Alarms.
+    pub alarms: AlarmsPolicy,
+    /// Task transitions.
+    pub tasks: TasksPolicy,
+    /// Environment observations.
+    pub environment: EnvironmentPolicy,
+    /// Bounds on what remote sites can make this site hold.
+    pub limits: Limits,
+}
+
+impl Default for FederationConfig {
+    fn default() -> Self {
+        Self {
+            site: "local".into(),
+            mode: Mode::Peer,
+            listen: vec!["tcp/127.0.0.1:7447".into()],
+            connect: Vec::new(),
+            remote_sites: Vec::new(),
+            multicast_scouting: false,
+            gossip: false,
+            positions: PositionsPolicy::default(),
+            alarms: AlarmsPolicy::default(),
+            tasks: TasksPolicy::default(),
+            environment: EnvironmentPolicy::default(),
+            limits: Limits::default(),
+        }
+    }
+}
+
+/// The Zenoh role of a site.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// Talks directly to the peers it connects to or accepts.
+    Peer,
+    /// Connects to one router (e.g. a shore `zenohd`) that relays everything.
+    Client,
+    /// Routes for others too (a shore station relaying between ships).
+    Router,
+}
+
+impl Mode {
+    /// Zenoh's name of the mode.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Peer => "peer",
+            Self::Client => "client",
+            Self::Router => "router",
+        }
+    }
+}
+
+/// Zenoh's priority classes, highest first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[allow(missing_docs)]
+pub enum Priority {
+    RealTime,
+    InteractiveHigh,
+    InteractiveLow,
+    DataHigh,
+    Data,
+    DataLow,
+    Background,
+}
+
+/// What a publisher does when the link's queue is full.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Congestion {
+    /// Drop the message (a later value replaces it).
+    Drop,
+    /// Wait for room (the federation's own queue absorbs the wait).
+    Block,
+}
+
+/// Zenoh QoS of one kind of data.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Qos {
+    /// Priority class.
+    pub priority: Priority,
+    /// Congestion control.
+    pub congestion: Congestion,
+    /// Sent at once rather than batched with other messages.
+    pub express: bool,
+}
+
+/// Policy for vehicle positions: latest value wins, at most `max_rate_hz` per vehicle.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PositionsPolicy {
+    /// Whether this site's positions cross.
+    pub crosses: bool,
+    /// Most positions per second per vehicle; newer values replace unsent ones.
+    pub max_rate_hz: f64,
+    /// Zenoh QoS.
+    pub qos: Qos,
+}
+
+impl Default for PositionsPolicy {
+    fn default() -> Self {
+        Self {
+            crosses: true,
+            max_rate_hz: 0.2,
+            qos: Qos {
+                priority: Priority::Data,
+                congestion: Congestion::Drop,
+                express: false,
+            },
+        }
+    }
+}
+
+/// Policy for alarms: sent at once; with `reliable`, caught up after an outage.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AlarmsPolicy {
+    /// Whether this site's alarms cross.
+    pub crosses: bool,
+    /// Least severity that crosses.
+    pub min_severity: Severity,
+    /// Keep the last `catchup` alarms for remote sites to catch up on after an outage.
+    pub reliable: bool,
+    /// How many recent alarms are kept for catch-up.
+    pub catchup: usize,
+    /// Zenoh QoS.
+    pub qos: Qos,
+}
+
+impl Default for AlarmsPolicy {
+    fn default() -> Self {
+        Self {
+            crosses: true,
+            min_severity: Severity::Warning,
+            reliable: true,
+            catchup: 1000,
+            qos: Qos {
+                priority: Priority::RealTime,
+                congestion: Congestion::Block,
+                express: true,
+            },
+        }
+    }
+}
+
+/// Policy for task transitions: reliable, caught up after an outage.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TasksPolicy {
+    /// Whether this site's task transitions cross.
+    pub crosses: bool,
+    /// Keep the last `catchup` transitions for remote sites to catch up on.
+    pub reliable: bool,
+    /// How many recent transitions are kept for catch-up.
+    pub catchup: usize,
+    /// Zenoh QoS.
+    pub qos: Qos,
+}
+
+impl Default for TasksPolicy {
+    fn default() -> Self {
+        Self {
+            crosses: true,
+            reliable: true,
+            catchup: 1000,
+            qos: Qos {
+                priority: Priority::InteractiveHigh,
+                congestion: Congestion::Block,
+                express: false,
+            },
+        }
+    }
+}
+
+/// Policy for environment observations.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EnvironmentPolicy {
+    /// `off`, or `aggregated` (not built yet: refused by validation).
+    pub mode: EnvironmentMode,
+}
+
+/// Whether environment data crosses.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EnvironmentMode {
+    /// Nothing crosses.
+    #[default]
+    Off,
+    /// Aggregates per property and window (planned).
+    Aggregated,
+}
+
+/// Bounds on what remote sites can make this site hold or do.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Limits {
+    /// Remote vehicles held in the picture; positions of further ones are refused.
+    pub remote_vehicles: usize,
+    /// Remote alarms kept in the picture (oldest dropped).
+    pub remote_alarms: usize,
+    /// Remote task transitions kept in the picture (oldest dropped).
+    pub remote_transitions: usize,
+    /// Sequence numbers held above a gap per site and stream before the gap is given up.
+    pub reorder_window: usize,
+    /// Replies read from one catch-up query at most.
+    pub catchup_replies: usize,
+    /// How long a catch-up query waits for its replies, ms.
+    pub catchup_timeout_ms: u64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self {
+            remote_vehicles: 5000,
+            remote_alarms: 1000,
+            remote_transitions: 1000,
+            reorder_window: 1024,
+            catchup_replies: 1000,
+            catchup_timeout_ms: 10_000,
+        }
+    }
+}
+
+/// Most positions per second per vehicle the federation accepts to send.
+pub const MAX_POSITION_RATE_HZ: f64 = 10.0;
+/// Largest catch-up buffer and limit accepted.
+pub const MAX_BUFFER: usize = 100_000;
+
+impl FederationConfig {
+    /// Checks every key; the error names the first one that cannot work.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if !is_site_name(&self.site) {
+            return Err(invalid("site", "must be 1..=32 of [A-Za-z0-9_.-]"));
+        }
+        for (i, remote) in self.remote_sites.iter().enumerate() {
+            let key = format!("remote_sites[{i}]");
+            if !is_site_name(remote) {
+                return Err(invalid(key, "must be 1..=32 of [A-Za-z0-9_.-]"));
+            }
+            if *remote == self.site {
+                return Err(invalid(key, "is this site's own name"));
+            }
+            if self.remote_sites[..i].contains(remote) {
+                return Err(invalid(key, format!("{remote} is listed twice")));
+            }
+        }
+        endpoints("listen", &self.listen)?;
+        endpoints("connect", &self.connect)?;
+        if self.mode == Mode::Client && !self.listen.is_empty() {
+            return Err(invalid(
+                "listen",
+                "a client does not listen: set listen = []",
+            ));
+        }
+        if self.mode == Mode::Client && self.connect.is_empty() {
+            return Err(invalid("connect", "a client needs a router to connect to"));
+        }
+        let rate = self.positions.max_rate_hz;
+        if !(rate.is_finite() && rate > 0.0 && rate <= MAX_POSITION_RATE_HZ) {
+            return Err(invalid(
+                "positions.max_rate_hz",
+                format!("{rate} is not in (0, {MAX_POSITION_RATE_HZ}]"),
+            ));
+        }
+        bounded("alarms.catchup", self.alarms.catchup)?;
+        bounded("tasks.catchup", self.tasks.catchup)?;
+        if self.environment.mode == EnvironmentMode::Aggregated {
+            return Err(invalid(
+                "environment.mode",
+                "aggregated is not built yet; only off is accepted",
+            ));
+        }
+        let l = &self.limits;
+        bounded("limits.remote_vehicles", l.remote_vehicles)?;
+        bounded("limits.remote_alarms", l.remote_alarms)?;
+        bounded("limits.remote_transitions", l.remote_transitions)?;
+        bounded("limits.reorder_window", l.reorder_window)?;
+        bounded("limits.catchup_replies", l.catchup_replies)?;
+        if !(1..=600_000).contains(&l.catchup_timeout_ms) {
+            return Err(invalid(
+                "limits.catchup_timeout_ms",
+                "must be in 1..=600000",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Whether data from `site` is accepted.
+    pub fn accepts(&self, site: &str) -> bool {
+        self.remote_sites.iter().any(|s| s == site)
+    }
+}
+
+fn bounded(key: &str, n: usize) -> Result<(), ConfigError> {
+    if !(1..=MAX_BUFFER).contains(&n) {
+        return Err(invalid(key, format!("{n} is not in 1..={MAX_BUFFER}")));
+    }
+    Ok(())
+}
+
+/// Checks each endpoint parses as Zenoh's and uses TCP, the only transport built in.
+fn endpoints(key: &str, list: &[String]) -> Result<(), ConfigError> {
+    for (i, e) in list.iter().enumerate() {
+        let endpoint: zenoh::config::EndPoint = e
+            .parse()
+            .map_err(|err| invalid(format!("{key}[{i}]"), format!("{e:?}: {err}")))?;
+        if endpoint.protocol().as_str() != "tcp" {
+            return Err(invalid(
+                format!("{key}[{i}]"),
+                format!("{e:?}: only tcp/<host>:<port> is built in"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The commented default file, as a station's `[federation]` section.
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct File {
+        federation: FederationConfig,
+    }
+
+    #[test]
+    fn the_default_file_is_the_default_config() {
+        let text = include_str!("../federation.default.toml");
+        let file: File = toml::from_str(text).unwrap();
+        assert_eq!(file.federation, FederationConfig::default());
+        assert_eq!(file.federation.validate(), Ok(()));
+    }
+
+    #[test]
+    fn the_default_listens_on_loopback_only_and_does_not_scout() {
+        let c = FederationConfig::default();
+        assert!(c.listen.iter().all(|e| e.starts_with("tcp/127.0.0.1:")));
+        assert!(!c.multicast_scouting && !c.gossip && c.connect.is_empty());
+    }
+
+    #[test]
+    fn an_unknown_key_is_refused() {
+        let e = toml::from_str::<File>("[federation]\nsite = \"a\"\nsitee = \"b\"\n").unwrap_err();
+        assert!(e.to_string().contains("sitee"), "{e}");
+    }
+
+    fn refused(edit: impl FnOnce(&mut FederationConfig)) -> String {
+        let mut c = FederationConfig::default();
+        edit(&mut c);
+        c.validate().unwrap_err().to_string()
+    }
+
+    #[test]
+    fn each_bad_value_names_its_key() {
+        assert!(refused(|c| c.site = "a/b".into()).starts_with("federation.site:"));
+        assert!(
+            refused(|c| c.remote_sites = vec!["x".into(), "x".into()])
+                .starts_with("federation.remote_sites[1]:")
+        );
+        assert!(
+            refused(|c| c.remote_sites = vec!["local".into()])
+                .starts_with("federation.remote_sites[0]:")
+        );
+        assert!(
+            refused(|c| c.listen = vec!["udp/127.0.0.1:1".into()])
+                .starts_with("federation.listen[0]:")
+        );
+        assert!(
+            refused(|c| c.connect = vec!["nonsense".into()]).starts_with("federation.connect[0]:")
+        );
+        assert!(
+            refused(|c| c.positions.max_rate_hz = f64::NAN)
+                .starts_with("federation.positions.max_rate_hz:")
+        );
+        assert!(refused(|c| c.alarms.catchup = 0).starts_with("federation.alarms.catchup:"));
+        assert!(
+            refused(|c| c.environment.mode = EnvironmentMode::Aggregated)
+                .starts_with("federation.environment.mode:")
+        );
+        assert!(refused(|c| c.mode = Mode::Client).starts_with("federation.listen:"));
+        assert!(
+            refused(|c| {
+                c.mode = Mode::Client;
+                c.listen.clear();
+            })
+            .starts_with("federation.connect:")
+        );
+    }
+}

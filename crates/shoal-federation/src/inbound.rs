@@ -1,0 +1,464 @@
+//! The receiving side's core, with no network: every sample from a remote site passes
+//! here, is checked, deduplicated and put in the [`FederatedPicture`], or refused and
+//! counted by reason. Nothing a remote sends can make it panic or grow without bound.
+//!
+//! Sequenced streams (alarms, task transitions) are tracked per site and stream by a
+//! [`SeqWindow`]: everything up to `contiguous` has been delivered, and a bounded set of
+//! numbers above it. A number seen twice is a duplicate; a number past a gap asks for a
+//! catch-up query (the transport sends it). A later epoch means the sender restarted
+//! and numbers from 1 again; an earlier one is stale.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+
+use tracing::debug;
+
+use crate::config::{FederationConfig, Limits};
+use crate::keys::{Key, Stream};
+use crate::picture::{FederatedPicture, PositionRefusal};
+use crate::wire::{self, DecodeError, Sequenced};
+
+/// Why a received sample was not taken.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum Refusal {
+    /// The key expression is not one the federation publishes.
+    #[error("not a federation key")]
+    BadKey,
+    /// The site is not in `remote_sites`.
+    #[error("site {0} is not a configured remote site")]
+    UnknownSite(String),
+    /// Another session uses this site's own name.
+    #[error("a remote session uses this site's name")]
+    OwnSite,
+    /// The site in the frame is not the site in the key expression.
+    #[error("frame from site {frame} under the key of site {key}")]
+    SiteMismatch {
+        /// The site named by the key.
+        key: String,
+        /// The site named in the frame.
+        frame: String,
+    },
+    /// The payload does not decode.
+    #[error("malformed payload: {0}")]
+    Malformed(#[from] DecodeError),
+    /// From an earlier run of the sending site than one already heard.
+    #[error("from an earlier epoch of its site")]
+    StaleEpoch,
+    /// Already delivered.
+    #[error("duplicate")]
+    Duplicate,
+    /// A position older than the one held.
+    #[error("older than the position held")]
+    StalePosition,
+    /// A new remote vehicle beyond `limits.remote_vehicles`.
+    #[error("too many remote vehicles")]
+    TooManyVehicles,
+    /// A catch-up query answered with more than `limits.catchup_replies`.
+    #[error("catch-up reply beyond the limit")]
+    CatchupOverflow,
+    /// A catch-up reply for another site or stream than asked.
+    #[error("catch-up reply for another site or stream")]
+    CatchupKey,
+}
+
+impl Refusal {
+    /// A stable short code for counters, e.g. `unknown_site`, `malformed:truncated`.
+    pub fn reason(&self) -> String {
+        match self {
+            Self::BadKey => "bad_key".into(),
+            Self::UnknownSite(_) => "unknown_site".into(),
+            Self::OwnSite => "own_site".into(),
+            Self::SiteMismatch { .. } => "site_mismatch".into(),
+            Self::Malformed(e) => format!("malformed:{}", e.reason()),
+            Self::StaleEpoch => "stale_epoch".into(),
+            Self::Duplicate => "duplicate".into(),
+            Self::StalePosition => "stale_position".into(),
+            Self::TooManyVehicles => "too_many_vehicles".into(),
+            Self::CatchupOverflow => "catchup_overflow".into(),
+            Self::CatchupKey => "catchup_key".into(),
+        }
+    }
+}
+
+/// A query for what a remote site's stream has after `after`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CatchupRequest {
+    /// The remote site.
+    pub site: String,
+    /// The stream.
+    pub stream: Stream,
+    /// The epoch `after` counts in, if any was heard.
+    pub epoch: Option<u64>,
+    /// Everything up to this sequence number has been delivered.
+    pub after: u64,
+}
+
+/// The receiving side's counters.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct InboundCounters {
+    /// Positions taken into the picture.
+    pub positions: u64,
+    /// Alarms delivered (each once).
+    pub alarms: u64,
+    /// Task transitions delivered (each once).
+    pub transitions: u64,
+    /// Sequenced frames received again and suppressed.
+    pub duplicates: u64,
+    /// Sequence numbers given up: the sender no longer had them, or the reorder window
+    /// overflowed.
+    pub lost: u64,
+    /// Catch-up queries asked.
+    pub catchup_queries: u64,
+    /// Catch-up replies received (duplicates included).
+    pub catchup_replies: u64,
+    /// Refusals by reason (duplicates are counted above, not here).
+    pub refused: BTreeMap<String, u64>,
+}
+
+impl InboundCounters {
+    /// Refusals of one reason so far.
+    pub fn refused(&self, reason: &str) -> u64 {
+        self.refused.get(reason).copied().unwrap_or(0)
+    }
+}
+
+/// One remote stream's delivered sequence numbers.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SeqWindow {
+    epoch: u64,
+    contiguous: u64,
+    above: BTreeSet<u64>,
+}
+
+/// What a window says of a sequence number.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Admit {
+    /// New; `gap` when some number below it has not arrived.
+    New {
+        /// A number below it is missing.
+        gap: bool,
+    },
+    /// Already delivered.
+    Duplicate,
+    /// From an earlier epoch.
+    Stale,
+}
+
+impl SeqWindow {
+    /// A window for a stream first heard under `epoch`.
+    pub fn new(epoch: u64) -> Self {
+        Self {
+            epoch,
+            contiguous: 0,
+            above: BTreeSet::new(),
+        }
+    }
+
+    /// Records `seq` of `epoch` if new. Holds at most `capacity` numbers above a gap;
+    /// past that the oldest gap is given up, and the numbers given up are added to `lost`.
+    pub fn admit(&mut self, epoch: u64, seq: u64, capacity: usize, lost: &mut u64) -> Admit {
+        if epoch < self.epoch {
+            return Admit::Stale;
+        }
+        if epoch > self.epoch {
+            *self = Self::new(epoch);
+        }
+        if seq <= self.contiguous || self.above.contains(&seq) {
+            return Admit::Duplicate;
+        }
+        if seq == self.contiguous + 1 {
+            self.contiguous = seq;
+            self.absorb();
+        } else {
+            self.above.insert(seq);
+            while self.above.len() > capacity {
+                // The oldest gap is given up: jump to the lowest number held.
+                if let Some(first) = self.above.pop_first() {
+                    *lost += first - self.contiguous - 1;
+                    self.contiguous = first;
+                    self.absorb();
+                }
+            }
+        }
+        Admit::New {
+            gap: !self.above.is_empty(),
+        }
+    }
+
+    /// Gives up every number up to `upto` not yet delivered (the sender has answered a
+    /// catch-up query and no longer has them); returns how many.
+    pub fn settle(&mut self, upto: u64) -> u64 {
+        if upto <= self.contiguous {
+            return 0;
+        }
+        let held = self.above.range(..=upto).count() as u64;
+        let missing = upto - self.contiguous - held;
+        self.above.retain(|s| *s > upto);
+        self.contiguous = upto;
+        self.absorb();
+        missing
+    }
+
+    /// Moves `contiguous` over the numbers held right above it.
+    fn absorb(&mut self) {
+        while self.above.first() == Some(&(self.contiguous + 1)) {
+            self.above.pop_first();
+            self.contiguous += 1;
+        }
+    }
+
+    /// The epoch and the number up to which everything was delivered.
+    pub fn position(&self) -> (u64, u64) {
+        (self.epoch, self.contiguous)
+    }
+}
+
+/// A catch-up query under way: the highest number its replies brought.
+#[derive(Debug, Clone, Copy, Default)]
+struct Pending {
+    replies: usize,
+    /// Highest (epoch, seq) received in this query's replies.
+    highest: Option<(u64, u64)>,
+}
+
+/// One site's receiving side.
+#[derive(Debug)]
+pub struct Inbound {
+    site: String,
+    remote_sites: Vec<String>,
+    limits: Limits,
+    windows: HashMap<(String, Stream), SeqWindow>,
+    pending: HashMap<(String, Stream), Pending>,
+    picture: FederatedPicture,
+    counters: InboundCounters,
+}
+
+impl Inbound {
+    /// The receiving side of a (validated) configuration.
+    pub fn new(config: &FederationConfig) -> Self {
+        let l = &config.limits;
+        Self {
+            site: config.site.clone(),
+            remote_sites: config.remote_sites.clone(),
+            limits: l.clone(),
+            windows: HashMap::new(),
+            pending: HashMap::new(),
+            picture: FederatedPicture::new(
+                l.remote_vehicles,
+                l.remote_alarms,
+                l.remote_transitions,
+            ),
+            counters: InboundCounters::default(),
+        }
+    }
+
+    /// The picture built so far.
+    pub fn picture(&self) -> &FederatedPicture {
+        &self.picture
+    }
+
+    /// The counters so far.
+    pub fn counters(&self) -> &InboundCounters {
+        &self.counters
+    }
+
+    /// Takes one published sample; may ask for a catch-up query.
+    pub fn receive(
+        &mut self,
+        key: &str,
+        payload: &[u8],
+        now_ms: i64,
+    ) -> Result<Option<CatchupRequest>, Refusal> {
+        let result = self.take(key, payload, now_ms, None);
+        self.count(key, result.as_ref().err());
+        result
+    }
+
+    /// Takes one reply to the catch-up query `request`.
+    pub fn receive_catchup(
+        &mut self,
+        request: &CatchupRequest,
+        key: &str,
+        payload: &[u8],
+        now_ms: i64,
+    ) -> Result<(), Refusal> {
+        self.counters.catchup_replies += 1;
+        let result = self.take(key, payload, now_ms, Some(request)).map(|_| ());
+        self.count(key, result.as_ref().err());
+        result
+    }
+
+    /// Notes that a remote site's session came up or went down; when it comes up,
+    /// returns the catch-up queries to ask it.
+    pub fn site_alive(&mut self, key: &str, online: bool, now_ms: i64) -> Vec<CatchupRequest> {
+        let site = match Key::parse(key) {
+            Some(Key::Alive { site }) => site.to_string(),
+            _ => {
+                self.count(key, Some(&Refusal::BadKey));
+                return Vec::new();
+            }
+        };
+        if let Err(refusal) = self.check_site(&site) {
+            self.count(key, Some(&refusal));
+            return Vec::new();
+        }
+        self.picture.site(&site, online, now_ms);
+        if !online {
+            return Vec::new();
+        }
+        Stream::ALL
+            .into_iter()
+            .filter_map(|stream| self.request(&site, stream))
+            .collect()
+    }
+
+    /// Ends a catch-up query. When it `completed` (the sender answered), every number up
+    /// to the highest it sent and not received is given up: the sender no longer has it.
+    pub fn finish_catchup(&mut self, request: &CatchupRequest, completed: bool) {
+        let key = (request.site.clone(), request.stream);
+        let Some(pending) = self.pending.remove(&key) else {
+            return;
+        };
+        let (true, Some((epoch, upto)), Some(window)) =
+            (completed, pending.highest, self.windows.get_mut(&key))
+        else {
+            return;
+        };
+        if window.epoch == epoch {
+            let lost = window.settle(upto);
+            if lost > 0 {
+                debug!(site = %request.site, stream = request.stream.as_str(), lost, "numbers the sender no longer had");
+            }
+            self.counters.lost += lost;
+        }
+    }
+
+    /// A catch-up query for a stream, unless one is already under way.
+    fn request(&mut self, site: &str, stream: Stream) -> Option<CatchupRequest> {
+        let key = (site.to_string(), stream);
+        if self.pending.contains_key(&key) {
+            return None;
+        }
+        self.pending.insert(key.clone(), Pending::default());
+        self.counters.catchup_queries += 1;
+        let (epoch, after) = match self.windows.get(&key) {
+            Some(w) => (Some(w.epoch), w.contiguous),
+            None => (None, 0),
+        };
+        Some(CatchupRequest {
+            site: site.to_string(),
+            stream,
+            epoch,
+            after,
+        })
+    }
+
+    fn check_site(&self, site: &str) -> Result<(), Refusal> {
+        if site == self.site {
+            return Err(Refusal::OwnSite);
+        }
+        if !self.remote_sites.iter().any(|s| s == site) {
+            return Err(Refusal::UnknownSite(site.to_string()));
+        }
+        Ok(())
+    }
+
+    fn take(
+        &mut self,
+        key: &str,
+        payload: &[u8],
+        now_ms: i64,
+        catchup: Option<&CatchupRequest>,
+    ) -> Result<Option<CatchupRequest>, Refusal> {
+        let parsed = Key::parse(key).ok_or(Refusal::BadKey)?;
+        self.check_site(parsed.site())?;
+        match parsed {
+            Key::Position { site, vehicle } => {
+                if catchup.is_some() {
+                    return Err(Refusal::CatchupKey);
+                }
+                let p = wire::decode_position(vehicle, payload)?;
+                self.picture
+                    .position(site, p, now_ms)
+                    .map_err(|r| match r {
+                        PositionRefusal::Stale => Refusal::StalePosition,
+                        PositionRefusal::Full => Refusal::TooManyVehicles,
+                    })?;
+                self.counters.positions += 1;
+                Ok(None)
+            }
+            Key::Alarms { site } => {
+                let frame = wire::decode_alarm(payload)?;
+                let gap = self.sequenced(site, Stream::Alarms, &frame, catchup)?;
+                self.picture.alarm(site, frame.seq, frame.item, now_ms);
+                self.counters.alarms += 1;
+                Ok(gap.then(|| self.request(site, Stream::Alarms)).flatten())
+            }
+            Key::Task { site } => {
+                let frame = wire::decode_task(payload)?;
+                let gap = self.sequenced(site, Stream::Tasks, &frame, catchup)?;
+                self.picture.transition(site, frame.seq, frame.item, now_ms);
+                self.counters.transitions += 1;
+                Ok(gap.then(|| self.request(site, Stream::Tasks)).flatten())
+            }
+            Key::Alive { .. } => Err(Refusal::BadKey),
+        }
+    }
+
+    /// Checks a sequenced frame's envelope and admits its number; true when a gap
+    /// below it calls for a catch-up query.
+    fn sequenced<T>(
+        &mut self,
+        site: &str,
+        stream: Stream,
+        frame: &Sequenced<T>,
+        catchup: Option<&CatchupRequest>,
+    ) -> Result<bool, Refusal> {
+        if frame.site != site {
+            return Err(Refusal::SiteMismatch {
+                key: site.to_string(),
+                frame: frame.site.clone(),
+            });
+        }
+        let key = (site.to_string(), stream);
+        if let Some(request) = catchup {
+            if request.site != site || request.stream != stream {
+                return Err(Refusal::CatchupKey);
+            }
+            let pending = self.pending.get_mut(&key).ok_or(Refusal::CatchupKey)?;
+            pending.replies += 1;
+            if pending.replies > self.limits.catchup_replies {
+                return Err(Refusal::CatchupOverflow);
+            }
+            pending.highest = pending.highest.max(Some((frame.epoch, frame.seq)));
+        }
+        let window = self
+            .windows
+            .entry(key)
+            .or_insert_with(|| SeqWindow::new(frame.epoch));
+        match window.admit(
+            frame.epoch,
+            frame.seq,
+            self.limits.reorder_window,
+            &mut self.counters.lost,
+        ) {
+            Admit::New { gap } => Ok(gap && catchup.is_none()),
+            Admit::Duplicate => Err(Refusal::Duplicate),
+            Admit::Stale => Err(Refusal::StaleEpoch),
+        }
+    }
+
+    fn count(&mut self, key: &str, refusal: Option<&Refusal>) {
+        match refusal {
+            None => {}
+            Some(Refusal::Duplicate) => self.counters.duplicates += 1,
+            Some(r) => {
+                debug!(key, reason = %r, "federation sample refused");
+                *self.counters.refused.entry(r.reason()).or_default() += 1;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

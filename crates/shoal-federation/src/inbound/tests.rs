@@ -1,0 +1,232 @@
+//! The receiving core: refusals by reason, duplicates, gaps and catch-up.
+
+use shoal_model::TaskState;
+
+use super::*;
+use crate::keys;
+use crate::types::tests::position;
+use crate::wire::tests::{alarm, transition};
+
+fn shore() -> Inbound {
+    let config = FederationConfig {
+        site: "shore".into(),
+        remote_sites: vec!["ship".into()],
+        ..FederationConfig::default()
+    };
+    Inbound::new(&config)
+}
+
+fn alarm_frame(site: &str, epoch: u64, seq: u64) -> Vec<u8> {
+    wire::encode_alarm(site, epoch, seq, &alarm(&format!("e{seq}"))).unwrap()
+}
+
+fn seqs(inb: &Inbound) -> Vec<u64> {
+    inb.picture().alarms_after(0).map(|a| a.seq).collect()
+}
+
+#[test]
+fn a_window_delivers_each_number_once_and_reports_gaps() {
+    let mut lost = 0;
+    let mut w = SeqWindow::new(1);
+    assert_eq!(w.admit(1, 1, 8, &mut lost), Admit::New { gap: false });
+    assert_eq!(w.admit(1, 3, 8, &mut lost), Admit::New { gap: true });
+    assert_eq!(w.admit(1, 3, 8, &mut lost), Admit::Duplicate);
+    assert_eq!(w.admit(1, 2, 8, &mut lost), Admit::New { gap: false });
+    assert_eq!(w.position(), (1, 3));
+    assert_eq!(w.admit(1, 1, 8, &mut lost), Admit::Duplicate);
+    assert_eq!(w.admit(0, 9, 8, &mut lost), Admit::Stale);
+    // A restarted sender numbers from 1 under a later epoch.
+    assert_eq!(w.admit(2, 1, 8, &mut lost), Admit::New { gap: false });
+    assert_eq!(lost, 0);
+}
+
+#[test]
+fn a_window_past_its_capacity_gives_up_the_oldest_gap() {
+    let mut lost = 0;
+    let mut w = SeqWindow::new(1);
+    for seq in [3, 4, 5] {
+        w.admit(1, seq, 2, &mut lost);
+    }
+    // 1 and 2 were given up to keep at most 2 numbers above the gap.
+    assert_eq!(lost, 2);
+    assert_eq!(w.position(), (1, 5));
+}
+
+#[test]
+fn settling_gives_up_only_what_is_missing() {
+    let mut lost = 0;
+    let mut w = SeqWindow::new(1);
+    w.admit(1, 1, 8, &mut lost);
+    w.admit(1, 4, 8, &mut lost);
+    w.admit(1, 7, 8, &mut lost);
+    assert_eq!(w.settle(5), 3); // 2, 3, 5
+    assert_eq!(w.position(), (1, 5));
+    assert_eq!(w.admit(1, 6, 8, &mut lost), Admit::New { gap: false });
+    assert_eq!(w.position(), (1, 7));
+}
+
+#[test]
+fn an_alarm_crosses_once() {
+    let mut inb = shore();
+    let key = keys::alarms("ship");
+    assert_eq!(inb.receive(&key, &alarm_frame("ship", 1, 1), 0), Ok(None));
+    assert_eq!(
+        inb.receive(&key, &alarm_frame("ship", 1, 1), 0),
+        Err(Refusal::Duplicate)
+    );
+    assert_eq!(seqs(&inb), vec![1]);
+    assert_eq!(inb.counters().duplicates, 1);
+}
+
+#[test]
+fn bad_input_is_refused_and_counted_by_reason() {
+    let mut inb = shore();
+    let cases: Vec<(String, Vec<u8>, &str)> = vec![
+        (
+            keys::alarms("pirate"),
+            alarm_frame("pirate", 1, 1),
+            "unknown_site",
+        ),
+        (
+            keys::alarms("shore"),
+            alarm_frame("shore", 1, 1),
+            "own_site",
+        ),
+        (
+            keys::alarms("ship"),
+            alarm_frame("ship2", 1, 1),
+            "site_mismatch",
+        ),
+        (keys::alarms("ship"), vec![1, 2, 3], "malformed:truncated"),
+        (keys::alarms("ship"), vec![], "malformed:truncated"),
+        (keys::alarms("ship"), vec![9; 40], "malformed:version"),
+        ("shoal/ship/elsewhere".into(), vec![], "bad_key"),
+        (
+            keys::position("ship", "auv-1"),
+            alarm_frame("ship", 1, 1),
+            "malformed:kind",
+        ),
+    ];
+    for (key, payload, reason) in &cases {
+        let refusal = inb.receive(key, payload, 0).unwrap_err();
+        assert_eq!(refusal.reason(), *reason, "{key}");
+    }
+    let c = inb.counters();
+    assert_eq!(c.refused("unknown_site"), 1);
+    assert_eq!(c.refused("malformed:truncated"), 2);
+    assert_eq!(c.alarms, 0);
+    assert_eq!(inb.picture().alarms_after(0).count(), 0);
+}
+
+#[test]
+fn positions_fill_the_picture_and_stale_ones_are_refused() {
+    let mut inb = shore();
+    let key = keys::position("ship", "auv-1");
+    let p = position("auv-1");
+    inb.receive(&key, &wire::encode_position(&p).unwrap(), 5)
+        .unwrap();
+    let mut older = p;
+    older.timestamp_ms -= 1000;
+    let refusal = inb
+        .receive(&key, &wire::encode_position(&older).unwrap(), 6)
+        .unwrap_err();
+    assert_eq!(refusal, Refusal::StalePosition);
+    let v = inb.picture().vehicle("ship", "auv-1").unwrap();
+    assert_eq!((v.site.as_str(), v.received_ms), ("ship", 5));
+}
+
+#[test]
+fn a_gap_asks_for_catch_up_which_fills_it_without_duplicates() {
+    let mut inb = shore();
+    let key = keys::alarms("ship");
+    inb.receive(&key, &alarm_frame("ship", 1, 1), 0).unwrap();
+    let request = inb
+        .receive(&key, &alarm_frame("ship", 1, 4), 0)
+        .unwrap()
+        .expect("a gap asks for catch-up");
+    assert_eq!((request.epoch, request.after), (Some(1), 1));
+    // A second gap while the query is under way asks for nothing more.
+    assert_eq!(inb.receive(&key, &alarm_frame("ship", 1, 6), 0), Ok(None));
+    // The sender answers with everything after 1 it still has: 3..=6 (2 is gone).
+    let reply_key = keys::catchup("ship", Stream::Alarms);
+    for seq in 3..=6 {
+        let r = inb.receive_catchup(&request, &reply_key, &alarm_frame("ship", 1, seq), 0);
+        assert_eq!(r.is_ok(), seq == 3 || seq == 5, "{seq}");
+    }
+    inb.finish_catchup(&request, true);
+    assert_eq!(seqs(&inb), vec![1, 4, 6, 3, 5]);
+    assert_eq!(inb.counters().duplicates, 2);
+    assert_eq!(inb.counters().lost, 1);
+    // Settled: 7 follows without a gap.
+    assert_eq!(inb.receive(&key, &alarm_frame("ship", 1, 7), 0), Ok(None));
+}
+
+#[test]
+fn a_site_coming_up_is_asked_for_what_was_missed_on_each_stream() {
+    let mut inb = shore();
+    inb.receive(&keys::alarms("ship"), &alarm_frame("ship", 3, 1), 0)
+        .unwrap();
+    let requests = inb.site_alive(&keys::alive("ship"), true, 10);
+    assert_eq!(requests.len(), 2);
+    assert_eq!(
+        requests[0],
+        CatchupRequest {
+            site: "ship".into(),
+            stream: Stream::Alarms,
+            epoch: Some(3),
+            after: 1
+        }
+    );
+    assert_eq!((requests[1].epoch, requests[1].after), (None, 0));
+    // Under way: not asked twice.
+    assert!(inb.site_alive(&keys::alive("ship"), true, 11).is_empty());
+    assert!(inb.site_alive(&keys::alive("pirate"), true, 11).is_empty());
+    assert_eq!(inb.counters().refused("unknown_site"), 1);
+    let (_, status) = inb.picture().sites().next().unwrap();
+    assert!(status.online);
+}
+
+#[test]
+fn a_catch_up_query_answered_with_too_much_is_cut_at_the_limit() {
+    let mut inb = shore();
+    inb.limits.catchup_replies = 2;
+    let request = inb.site_alive(&keys::alive("ship"), true, 0).remove(0);
+    let key = keys::catchup("ship", Stream::Alarms);
+    let results: Vec<bool> = (1..=4)
+        .map(|seq| {
+            inb.receive_catchup(&request, &key, &alarm_frame("ship", 1, seq), 0)
+                .is_ok()
+        })
+        .collect();
+    assert_eq!(results, vec![true, true, false, false]);
+    assert_eq!(inb.counters().refused("catchup_overflow"), 2);
+    // Only what was read is settled; the rest comes with the next query.
+    inb.finish_catchup(&request, true);
+    let next = inb
+        .receive(&keys::alarms("ship"), &alarm_frame("ship", 1, 5), 0)
+        .unwrap()
+        .unwrap();
+    assert_eq!(next.after, 2);
+}
+
+#[test]
+fn a_catch_up_reply_for_another_stream_is_refused() {
+    let mut inb = shore();
+    let request = inb.site_alive(&keys::alive("ship"), true, 0).remove(0);
+    let t = wire::encode_task("ship", 1, 1, &transition("t", TaskState::Done)).unwrap();
+    let r = inb.receive_catchup(&request, &keys::catchup("ship", Stream::Tasks), &t, 0);
+    assert_eq!(r, Err(Refusal::CatchupKey));
+}
+
+#[test]
+fn a_restarted_sender_is_heard_again_from_one() {
+    let mut inb = shore();
+    let key = keys::alarms("ship");
+    inb.receive(&key, &alarm_frame("ship", 1, 1), 0).unwrap();
+    inb.receive(&key, &alarm_frame("ship", 1, 2), 0).unwrap();
+    assert_eq!(inb.receive(&key, &alarm_frame("ship", 2, 1), 0), Ok(None));
+    assert_eq!(
+        inb.receive(&key, &alarm_frame("ship", 1, 3), 0),
+        Err(Refusal::StaleEpoch)
+    );
+}

@@ -1,0 +1,174 @@
+//! The key expressions the federation publishes under, and their parsing on receipt.
+//!
+//! Every key starts with `shoal/<site>/`, so a subscriber can take one site
+//! (`shoal/ship-1/**`) or one kind of data from every site (`shoal/*/alarms`):
+//!
+//! | key | what |
+//! |-----|------|
+//! | `shoal/<site>/vehicles/<vehicle>/position` | a vehicle's position (rate limited) |
+//! | `shoal/<site>/alarms` | alarms, sequenced |
+//! | `shoal/<site>/tasks/<task>` | task transitions, sequenced |
+//! | `shoal/<site>/catchup/alarms` | queryable: the site's recent alarms |
+//! | `shoal/<site>/catchup/tasks` | queryable: the site's recent task transitions |
+//! | `shoal/<site>/alive` | liveliness token while the site's session is up |
+
+use shoal_model::{MAX_ID_LEN, is_identifier};
+
+use crate::types::{MAX_VEHICLE_ID, is_site_name};
+
+/// The first chunk of every federation key.
+pub const ROOT: &str = "shoal";
+
+/// A sequenced stream: each has its own sequence numbers and catch-up buffer per site.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Stream {
+    /// Alarms (`shoal_model::Event`).
+    Alarms,
+    /// Task transitions.
+    Tasks,
+}
+
+impl Stream {
+    /// Both streams, in a fixed order.
+    pub const ALL: [Self; 2] = [Self::Alarms, Self::Tasks];
+
+    /// The stream's name in catch-up keys and counters.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Alarms => "alarms",
+            Self::Tasks => "tasks",
+        }
+    }
+}
+
+/// Key of a vehicle's position.
+pub fn position(site: &str, vehicle: &str) -> String {
+    format!("{ROOT}/{site}/vehicles/{vehicle}/position")
+}
+
+/// Key of a site's alarms.
+pub fn alarms(site: &str) -> String {
+    format!("{ROOT}/{site}/alarms")
+}
+
+/// Key of one task's transitions.
+pub fn task(site: &str, task_id: &str) -> String {
+    format!("{ROOT}/{site}/tasks/{task_id}")
+}
+
+/// Key of a site's catch-up queryable for one stream.
+pub fn catchup(site: &str, stream: Stream) -> String {
+    format!("{ROOT}/{site}/catchup/{}", stream.as_str())
+}
+
+/// Key of a site's liveliness token.
+pub fn alive(site: &str) -> String {
+    format!("{ROOT}/{site}/alive")
+}
+
+/// What a received key expression addresses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Key<'a> {
+    /// `shoal/<site>/vehicles/<vehicle>/position`
+    Position {
+        /// The publishing site.
+        site: &'a str,
+        /// The vehicle.
+        vehicle: &'a str,
+    },
+    /// `shoal/<site>/alarms` or, in a catch-up reply, `shoal/<site>/catchup/alarms`.
+    Alarms {
+        /// The publishing site.
+        site: &'a str,
+    },
+    /// `shoal/<site>/tasks/<task>` or, in a catch-up reply, `shoal/<site>/catchup/tasks`.
+    Task {
+        /// The publishing site.
+        site: &'a str,
+    },
+    /// `shoal/<site>/alive`
+    Alive {
+        /// The site whose session is up.
+        site: &'a str,
+    },
+}
+
+impl<'a> Key<'a> {
+    /// Parses a key this crate publishes; `None` for anything else.
+    pub fn parse(key: &'a str) -> Option<Self> {
+        let mut chunks = key.split('/');
+        if chunks.next() != Some(ROOT) {
+            return None;
+        }
+        let site = chunks.next().filter(|s| is_site_name(s))?;
+        let rest: Vec<&str> = chunks.collect();
+        let parsed = match rest.as_slice() {
+            ["vehicles", vehicle, "position"] if is_identifier(vehicle, MAX_VEHICLE_ID) => {
+                Self::Position { site, vehicle }
+            }
+            ["alarms"] | ["catchup", "alarms"] => Self::Alarms { site },
+            ["tasks", task] if is_identifier(task, MAX_ID_LEN) => Self::Task { site },
+            ["catchup", "tasks"] => Self::Task { site },
+            ["alive"] => Self::Alive { site },
+            _ => return None,
+        };
+        Some(parsed)
+    }
+
+    /// The site named in the key.
+    pub fn site(&self) -> &'a str {
+        match *self {
+            Self::Position { site, .. }
+            | Self::Alarms { site }
+            | Self::Task { site }
+            | Self::Alive { site } => site,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn built_keys_parse_back() {
+        assert_eq!(
+            Key::parse(&position("ship-1", "auv-7")),
+            Some(Key::Position {
+                site: "ship-1",
+                vehicle: "auv-7"
+            })
+        );
+        assert_eq!(
+            Key::parse(&alarms("shore")),
+            Some(Key::Alarms { site: "shore" })
+        );
+        assert_eq!(
+            Key::parse(&catchup("shore", Stream::Alarms)),
+            Some(Key::Alarms { site: "shore" })
+        );
+        assert_eq!(Key::parse(&task("s", "t-1")), Some(Key::Task { site: "s" }));
+        assert_eq!(
+            Key::parse(&catchup("s", Stream::Tasks)),
+            Some(Key::Task { site: "s" })
+        );
+        assert_eq!(Key::parse(&alive("s")), Some(Key::Alive { site: "s" }));
+    }
+
+    #[test]
+    fn foreign_keys_are_not_ours() {
+        for k in [
+            "",
+            "shoal",
+            "other/s/alarms",
+            "shoal/s",
+            "shoal/s/alarms/x",
+            "shoal/s/vehicles/a b/position",
+            "shoal/s/vehicles/v",
+            "shoal/s/tasks",
+            "shoal/../alarms",
+        ] {
+            assert_eq!(Key::parse(k), None, "{k}");
+        }
+    }
+}

@@ -1,0 +1,35 @@
+//! Ship ↔ shore federation over Zenoh: what crosses between Shoal sites, how often, in
+//! what encoding, and how a site catches up after its link was down.
+//!
+//! - [`FederationConfig`]: the `[federation]` section: this site, its remote sites, the
+//!   endpoints, and per kind of data whether it crosses, how often and with what QoS.
+//! - [`Federation`]: the running transport. The station pushes its local data
+//!   ([`Federation::push_position`], [`Federation::push_alarm`],
+//!   [`Federation::push_transition`]) and reads the remote part of the fleet picture
+//!   ([`Federation::picture`], [`Federation::counters`], [`Federation::changed`]).
+//! - The cores, tested without a network: [`outbound`] (rate limiting per vehicle,
+//!   sequence numbers, catch-up journals) and [`inbound`] (validation, duplicate
+//!   suppression, gaps, the [`FederatedPicture`]).
+//! - [`wire`]: the compact WAN encoding; [`keys`]: the key expressions. Both are
+//!   documented byte for byte in `docs/federation.md` for third-party clients.
+
+#![forbid(unsafe_code)]
+
+pub mod config;
+mod error;
+mod federation;
+pub mod inbound;
+pub mod keys;
+pub mod outbound;
+pub mod picture;
+pub mod types;
+pub mod wire;
+mod zenoh_config;
+
+pub use config::{ConfigError, FederationConfig};
+pub use error::{ShutdownError, StartError};
+pub use federation::{Counters, Federation};
+pub use inbound::{InboundCounters, Refusal};
+pub use outbound::{OutboundCounters, PushError};
+pub use picture::{FederatedPicture, RemoteAlarm, RemoteTransition, RemoteVehicle, SiteStatus};
+pub use types::{TaskTransition, VehiclePosition};

@@ -1,0 +1,434 @@
+//! The sending side's core, with no network: what to publish and when.
+//!
+//! - [`PositionLimiter`]: per vehicle, the latest position waits until the vehicle's
+//!   period has passed since its last one was sent (coalescing, latest value wins).
+//! - [`Journal`]: numbers one stream (alarms or task transitions) from 1 under this run's
+//!   epoch and keeps the last frames, so a remote site can catch up after an outage.
+//! - [`Outbound`]: both, for one site, applying the configured policy.
+//!
+//! Times are in ms of any monotonic clock the caller keeps; the transport uses tokio's.
+
+use std::collections::{HashMap, VecDeque};
+
+use shoal_model::{Event, Validate as _, ValidationError};
+
+use crate::config::FederationConfig;
+use crate::keys::{self, Stream};
+use crate::types::{TaskTransition, VehiclePosition};
+use crate::wire;
+
+/// Releases each vehicle's latest position at most once per period.
+#[derive(Debug)]
+pub struct PositionLimiter {
+    period_ms: i64,
+    vehicles: HashMap<String, Slot>,
+    coalesced: u64,
+}
+
+#[derive(Debug, Default)]
+struct Slot {
+    pending: Option<VehiclePosition>,
+    last_sent_ms: Option<i64>,
+    /// Fix time of the newest position taken, to ignore older ones arriving late.
+    newest_fix_ms: i64,
+}
+
+/// What became of an offered position.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Offer {
+    /// Waiting for its vehicle's period.
+    Queued,
+    /// Replaced a position not yet sent.
+    Coalesced,
+    /// Older than one already taken: ignored.
+    Stale,
+}
+
+impl PositionLimiter {
+    /// A limiter releasing at most `max_rate_hz` positions per vehicle per second.
+    pub fn new(max_rate_hz: f64) -> Self {
+        // Rounded up, so the rate is never exceeded; validation keeps the rate in (0, 10].
+        #[allow(clippy::cast_possible_truncation)]
+        let period_ms = (1000.0 / max_rate_hz).ceil() as i64;
+        Self {
+            period_ms: period_ms.max(1),
+            vehicles: HashMap::new(),
+            coalesced: 0,
+        }
+    }
+
+    /// The minimum time between two positions of one vehicle, ms.
+    pub fn period_ms(&self) -> i64 {
+        self.period_ms
+    }
+
+    /// Takes a (validated) position to send when its vehicle is due.
+    pub fn offer(&mut self, p: VehiclePosition) -> Offer {
+        let slot = self.vehicles.entry(p.vehicle_id.clone()).or_default();
+        if p.timestamp_ms < slot.newest_fix_ms {
+            return Offer::Stale;
+        }
+        slot.newest_fix_ms = p.timestamp_ms;
+        if slot.pending.replace(p).is_some() {
+            self.coalesced += 1;
+            Offer::Coalesced
+        } else {
+            Offer::Queued
+        }
+    }
+
+    /// The positions to send at `now_ms`, each marked sent.
+    pub fn due(&mut self, now_ms: i64) -> Vec<VehiclePosition> {
+        let mut out = Vec::new();
+        for slot in self.vehicles.values_mut() {
+            let ready = slot
+                .last_sent_ms
+                .is_none_or(|last| now_ms - last >= self.period_ms);
+            if ready && let Some(p) = slot.pending.take() {
+                slot.last_sent_ms = Some(now_ms);
+                out.push(p);
+            }
+        }
+        out
+    }
+
+    /// Positions replaced before they were sent, since the start.
+    pub fn coalesced(&self) -> u64 {
+        self.coalesced
+    }
+}
+
+/// One stream's sequence numbers and its last frames, for catch-up.
+#[derive(Debug)]
+pub struct Journal {
+    epoch: u64,
+    last_seq: u64,
+    frames: VecDeque<(u64, Vec<u8>)>,
+    capacity: usize,
+}
+
+impl Journal {
+    /// An empty stream of this run (`epoch`) keeping at most `capacity` frames.
+    pub fn new(epoch: u64, capacity: usize) -> Self {
+        Self {
+            epoch,
+            last_seq: 0,
+            frames: VecDeque::with_capacity(capacity.min(1024)),
+            capacity,
+        }
+    }
+
+    /// Encodes the next item with the next sequence number, keeps the frame and returns
+    /// it; a failed encoding uses no number.
+    pub fn append<E>(
+        &mut self,
+        encode: impl FnOnce(u64, u64) -> Result<Vec<u8>, E>,
+    ) -> Result<Vec<u8>, E> {
+        let seq = self.last_seq + 1;
+        let frame = encode(self.epoch, seq)?;
+        self.last_seq = seq;
+        if self.capacity > 0 {
+            if self.frames.len() == self.capacity {
+                self.frames.pop_front();
+            }
+            self.frames.push_back((seq, frame.clone()));
+        }
+        Ok(frame)
+    }
+
+    /// The kept frames a remote site that has everything up to `after` of `epoch` is
+    /// missing, oldest first, at most `limit`. A remote that knows another epoch (or
+    /// none) gets every kept frame.
+    pub fn since(&self, epoch: Option<u64>, after: u64, limit: usize) -> Vec<Vec<u8>> {
+        let after = if epoch == Some(self.epoch) { after } else { 0 };
+        self.frames
+            .iter()
+            .filter(|(seq, _)| *seq > after)
+            .take(limit)
+            .map(|(_, f)| f.clone())
+            .collect()
+    }
+
+    /// The last sequence number used.
+    pub fn last_seq(&self) -> u64 {
+        self.last_seq
+    }
+}
+
+/// A message ready to publish: its key expression and frame.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Publication {
+    /// Where to publish.
+    pub key: String,
+    /// The encoded frame.
+    pub frame: Vec<u8>,
+}
+
+/// The sending side's counters.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct OutboundCounters {
+    /// Positions released by the limiter.
+    pub positions_sent: u64,
+    /// Positions replaced by a newer one before they were sent.
+    pub positions_coalesced: u64,
+    /// Alarms numbered and published.
+    pub alarms_sent: u64,
+    /// Alarms below `alarms.min_severity`, not sent.
+    pub alarms_below_severity: u64,
+    /// Task transitions numbered and published.
+    pub transitions_sent: u64,
+    /// Frames sent in answer to catch-up queries.
+    pub catchup_served: u64,
+    /// Frames the publishing queue had no room for (remote sites catch up on them).
+    pub queue_full: u64,
+}
+
+/// One site's sending side.
+#[derive(Debug)]
+pub struct Outbound {
+    site: String,
+    config: FederationConfig,
+    positions: PositionLimiter,
+    alarms: Journal,
+    tasks: Journal,
+    counters: OutboundCounters,
+}
+
+/// Why a local datum was not taken.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum PushError {
+    /// The datum breaks the model's rules; nothing was sent.
+    #[error("not sent: {0}")]
+    Invalid(#[from] ValidationError),
+}
+
+impl Outbound {
+    /// The sending side of a (validated) configuration, numbering under `epoch`.
+    pub fn new(config: &FederationConfig, epoch: u64) -> Self {
+        let keep = |reliable: bool, n: usize| if reliable { n } else { 0 };
+        Self {
+            site: config.site.clone(),
+            positions: PositionLimiter::new(config.positions.max_rate_hz),
+            alarms: Journal::new(epoch, keep(config.alarms.reliable, config.alarms.catchup)),
+            tasks: Journal::new(epoch, keep(config.tasks.reliable, config.tasks.catchup)),
+            config: config.clone(),
+            counters: OutboundCounters::default(),
+        }
+    }
+
+    /// Takes a local position; it goes out when its vehicle is due. Returns whether it
+    /// is queued (`false` when positions do not cross).
+    pub fn position(&mut self, p: VehiclePosition) -> Result<Offer, PushError> {
+        p.validate()?;
+        if !self.config.positions.crosses {
+            return Ok(Offer::Stale);
+        }
+        Ok(self.positions.offer(p))
+    }
+
+    /// The positions due at `now_ms`, encoded.
+    pub fn due_positions(&mut self, now_ms: i64) -> Vec<Publication> {
+        let due = self.positions.due(now_ms);
+        self.counters.positions_coalesced = self.positions.coalesced();
+        let mut out = Vec::with_capacity(due.len());
+        for p in due {
+            // Validated when offered, so encoding cannot fail; skip rather than panic.
+            if let Ok(frame) = wire::encode_position(&p) {
+                self.counters.positions_sent += 1;
+                out.push(Publication {
+                    key: keys::position(&self.site, &p.vehicle_id),
+                    frame,
+                });
+            }
+        }
+        out
+    }
+
+    /// Numbers a local alarm and returns it to publish; `None` when alarms do not cross
+    /// or it is below the configured severity.
+    pub fn alarm(&mut self, e: &Event) -> Result<Option<Publication>, PushError> {
+        e.validate()?;
+        let policy = &self.config.alarms;
+        if !policy.crosses {
+            return Ok(None);
+        }
+        if e.severity < policy.min_severity {
+            self.counters.alarms_below_severity += 1;
+            return Ok(None);
+        }
+        let site = &self.site;
+        let frame = self
+            .alarms
+            .append(|epoch, seq| wire::encode_alarm(site, epoch, seq, e))?;
+        self.counters.alarms_sent += 1;
+        Ok(Some(Publication {
+            key: keys::alarms(site),
+            frame,
+        }))
+    }
+
+    /// Numbers a local task transition and returns it to publish; `None` when tasks do
+    /// not cross.
+    pub fn task(&mut self, t: &TaskTransition) -> Result<Option<Publication>, PushError> {
+        t.validate()?;
+        if !self.config.tasks.crosses {
+            return Ok(None);
+        }
+        let site = &self.site;
+        let frame = self
+            .tasks
+            .append(|epoch, seq| wire::encode_task(site, epoch, seq, t))?;
+        self.counters.transitions_sent += 1;
+        Ok(Some(Publication {
+            key: keys::task(site, &t.task_id),
+            frame,
+        }))
+    }
+
+    /// Answers a catch-up query: the kept frames after `after` of `epoch`.
+    pub fn catchup(
+        &mut self,
+        stream: Stream,
+        epoch: Option<u64>,
+        after: u64,
+        limit: usize,
+    ) -> Vec<Vec<u8>> {
+        let frames = match stream {
+            Stream::Alarms => self.alarms.since(epoch, after, limit),
+            Stream::Tasks => self.tasks.since(epoch, after, limit),
+        };
+        self.counters.catchup_served += frames.len() as u64;
+        frames
+    }
+
+    /// Counts a frame the publishing queue had no room for.
+    pub fn queue_full(&mut self) {
+        self.counters.queue_full += 1;
+    }
+
+    /// The counters so far.
+    pub fn counters(&self) -> &OutboundCounters {
+        &self.counters
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use shoal_model::{Severity, TaskState};
+
+    use super::*;
+    use crate::types::tests::position;
+    use crate::wire::tests::{alarm, transition};
+
+    fn at(id: &str, fix_ms: i64, lat: f64) -> VehiclePosition {
+        let mut p = position(id);
+        p.timestamp_ms += fix_ms;
+        p.latitude_deg = lat;
+        p
+    }
+
+    #[test]
+    fn a_vehicle_sends_at_most_once_per_period_and_the_latest_value_wins() {
+        let mut l = PositionLimiter::new(0.2); // every 5 s
+        assert_eq!(l.offer(at("a", 0, 1.0)), Offer::Queued);
+        assert_eq!(l.due(0).len(), 1);
+        // Four fixes within the period: only the last crosses, when the period is over.
+        for (i, lat) in [2.0, 3.0, 4.0, 5.0].into_iter().enumerate() {
+            l.offer(at("a", 1000 * (i as i64 + 1), lat));
+            assert!(l.due(1000 * (i as i64 + 1)).is_empty());
+        }
+        assert!(l.due(4999).is_empty());
+        let sent = l.due(5000);
+        assert_eq!(sent.len(), 1);
+        assert_eq!(sent[0].latitude_deg, 5.0);
+        assert_eq!(l.coalesced(), 3);
+        // Nothing new: nothing sent, however late.
+        assert!(l.due(60_000).is_empty());
+    }
+
+    #[test]
+    fn vehicles_are_limited_independently() {
+        let mut l = PositionLimiter::new(1.0);
+        l.offer(at("a", 0, 1.0));
+        l.offer(at("b", 0, 1.0));
+        assert_eq!(l.due(0).len(), 2);
+        l.offer(at("a", 10, 2.0));
+        assert!(l.due(500).is_empty());
+        assert_eq!(l.due(1000).len(), 1);
+    }
+
+    #[test]
+    fn an_older_fix_arriving_late_is_ignored() {
+        let mut l = PositionLimiter::new(1.0);
+        l.offer(at("a", 100, 1.0));
+        assert_eq!(l.offer(at("a", 50, 2.0)), Offer::Stale);
+        assert_eq!(l.due(0)[0].latitude_deg, 1.0);
+    }
+
+    #[test]
+    fn the_journal_numbers_from_one_and_keeps_only_its_capacity() {
+        let mut j = Journal::new(7, 3);
+        for _ in 0..5 {
+            j.append(|e, s| Ok::<_, ()>(vec![e as u8, s as u8]))
+                .unwrap();
+        }
+        assert_eq!(j.last_seq(), 5);
+        assert_eq!(
+            j.since(Some(7), 0, 10),
+            vec![vec![7, 3], vec![7, 4], vec![7, 5]]
+        );
+        assert_eq!(j.since(Some(7), 4, 10), vec![vec![7, 5]]);
+        assert_eq!(j.since(Some(7), 3, 1), vec![vec![7, 4]]);
+        // Another epoch, or none: everything kept.
+        assert_eq!(j.since(Some(6), 4, 10).len(), 3);
+        assert_eq!(j.since(None, 4, 10).len(), 3);
+        // A failed encoding uses no number.
+        assert!(j.append(|_, _| Err::<Vec<u8>, _>(())).is_err());
+        assert_eq!(
+            j.append(|_, s| Ok::<_, ()>(vec![s as u8])).unwrap(),
+            vec![6]
+        );
+    }
+
+    #[test]
+    fn alarms_below_the_severity_do_not_cross_and_use_no_number() {
+        let mut o = Outbound::new(&FederationConfig::default(), 1);
+        let mut e = alarm("e1");
+        e.severity = Severity::Info;
+        assert_eq!(o.alarm(&e), Ok(None));
+        e.severity = Severity::Warning;
+        let p = o.alarm(&e).unwrap().unwrap();
+        assert_eq!(p.key, "shoal/local/alarms");
+        assert_eq!(wire::decode_alarm(&p.frame).unwrap().seq, 1);
+        assert_eq!(o.counters().alarms_below_severity, 1);
+    }
+
+    #[test]
+    fn an_invalid_datum_is_refused_and_uses_no_number() {
+        let mut o = Outbound::new(&FederationConfig::default(), 1);
+        let mut t = transition("t-1", TaskState::Running);
+        t.task_id = "bad id".into();
+        assert!(o.task(&t).is_err());
+        let ok = o
+            .task(&transition("t-1", TaskState::Running))
+            .unwrap()
+            .unwrap();
+        assert_eq!(ok.key, "shoal/local/tasks/t-1");
+        assert_eq!(wire::decode_task(&ok.frame).unwrap().seq, 1);
+        let mut p = position("auv-1");
+        p.latitude_deg = 91.0;
+        assert!(o.position(p).is_err());
+    }
+
+    #[test]
+    fn an_unreliable_stream_keeps_nothing_for_catch_up() {
+        let mut c = FederationConfig::default();
+        c.alarms.reliable = false;
+        let mut o = Outbound::new(&c, 1);
+        o.alarm(&alarm("e1")).unwrap();
+        assert!(o.catchup(Stream::Alarms, None, 0, 10).is_empty());
+        o.task(&transition("t", TaskState::Done)).unwrap();
+        assert_eq!(o.catchup(Stream::Tasks, None, 0, 10).len(), 1);
+    }
+}

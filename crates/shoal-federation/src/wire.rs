@@ -1,0 +1,480 @@
+//! The WAN encoding, version 1: hand-packed little-endian fields, fixed point where a
+//! float would waste bytes. `docs/federation.md` gives the byte layout a third party
+//! decodes from; this file and that table must agree (the tests check the offsets).
+//!
+//! Every frame opens with a version byte and a kind byte; a decoder refuses any other
+//! version, a frame cut short, bytes past the end and any code or value outside its
+//! range, so that what it returns always passes the model's validation.
+//!
+//! Positions carry no site or vehicle name: both are in the key expression, and a
+//! position crosses every few seconds for every vehicle. Alarms and task transitions
+//! carry their site, the sender's epoch and a sequence number, which the receiver uses to
+//! suppress duplicates and to ask for what it missed.
+
+use shoal_model::{
+    Event, EventKind, MAX_ID_LEN, MAX_TEXT_LEN, MAX_TIMESTAMP_MS, MAX_VEHICLE_ID_LEN,
+    MIN_TIMESTAMP_MS, Severity, TaskState, Validate, ValidationError, VehicleKind,
+};
+
+use crate::types::{MAX_SITE_LEN, TaskTransition, VehiclePosition, is_site_name};
+
+/// The wire version this crate writes and reads.
+pub const VERSION: u8 = 1;
+/// Kind byte of a position frame.
+pub const KIND_POSITION: u8 = 1;
+/// Kind byte of an alarm frame.
+pub const KIND_ALARM: u8 = 2;
+/// Kind byte of a task-transition frame.
+pub const KIND_TASK: u8 = 3;
+/// Size of a position frame, bytes.
+pub const POSITION_LEN: usize = 24;
+
+/// Latitude and longitude step: 1e-7 degree (about 1.1 cm of latitude).
+const DEG_SCALE: f64 = 1e7;
+/// Depth step, metres: 11 000 m fits a u16 at 0.2 m.
+const DEPTH_STEP_M: f64 = 0.2;
+/// Heading step: a full turn in a u16.
+const HEADING_STEP_DEG: f64 = 360.0 / 65_536.0;
+/// Speed step, m/s.
+const SPEED_STEP_MPS: f64 = 0.01;
+/// Battery step, percent.
+const BATTERY_STEP_PCT: f64 = 0.5;
+
+// Codes of the model's enums, in the order of `idl/shoal.idl` (their declaration order).
+const VEHICLE_KINDS: [VehicleKind; 5] = [
+    VehicleKind::Auv,
+    VehicleKind::Usv,
+    VehicleKind::Asv,
+    VehicleKind::Rov,
+    VehicleKind::Glider,
+];
+const SEVERITIES: [Severity; 4] = [
+    Severity::Info,
+    Severity::Warning,
+    Severity::Alarm,
+    Severity::Critical,
+];
+const EVENT_KINDS: [EventKind; 9] = [
+    EventKind::LowBattery,
+    EventKind::OutOfArea,
+    EventKind::CommLost,
+    EventKind::Fault,
+    EventKind::Detection,
+    EventKind::Task,
+    EventKind::Rule,
+    EventKind::DataRejected,
+    EventKind::Other,
+];
+const TASK_STATES: [TaskState; 8] = [
+    TaskState::Pending,
+    TaskState::Sent,
+    TaskState::Accepted,
+    TaskState::Running,
+    TaskState::Done,
+    TaskState::Failed,
+    TaskState::Aborted,
+    TaskState::Expired,
+];
+
+/// Why bytes were refused as a frame.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum DecodeError {
+    /// The frame ended before a field.
+    #[error("frame too short: {field} needs bytes past the end")]
+    Truncated {
+        /// The field that did not fit.
+        field: &'static str,
+    },
+    /// A version this decoder does not read.
+    #[error("wire version {0} is not supported (this decoder reads version {VERSION})")]
+    Version(u8),
+    /// A frame of another kind than the key expression announces.
+    #[error("frame kind {found} where kind {expected} was expected")]
+    Kind {
+        /// The kind the key expression calls for.
+        expected: u8,
+        /// The kind byte received.
+        found: u8,
+    },
+    /// An enum code outside its table.
+    #[error("{field} code {value} is unknown")]
+    Code {
+        /// The field.
+        field: &'static str,
+        /// The code received.
+        value: u8,
+    },
+    /// A fixed-point value outside its encoded range.
+    #[error("{field} = {value} is outside its encoded range")]
+    Range {
+        /// The field.
+        field: &'static str,
+        /// The raw value received.
+        value: i64,
+    },
+    /// A text field that is not UTF-8.
+    #[error("{field} is not UTF-8")]
+    Utf8 {
+        /// The field.
+        field: &'static str,
+    },
+    /// Bytes after the last field.
+    #[error("{0} bytes after the end of the frame")]
+    Trailing(usize),
+    /// Decoded, but the value breaks the model's rules (e.g. a bad identifier).
+    #[error(transparent)]
+    Invalid(#[from] ValidationError),
+}
+
+impl DecodeError {
+    /// A stable short code for counters, e.g. `truncated`, `code:severity`,
+    /// `invalid:bad_text:event_id`.
+    pub fn reason(&self) -> String {
+        match self {
+            Self::Truncated { .. } => "truncated".into(),
+            Self::Version(_) => "version".into(),
+            Self::Kind { .. } => "kind".into(),
+            Self::Code { field, .. } => format!("code:{field}"),
+            Self::Range { field, .. } => format!("range:{field}"),
+            Self::Utf8 { field } => format!("utf8:{field}"),
+            Self::Trailing(_) => "trailing".into(),
+            Self::Invalid(e) => format!("invalid:{}", e.reason()),
+        }
+    }
+}
+
+/// The envelope of a sequenced frame: who sent it and where it sits in the sender's
+/// stream.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sequenced<T> {
+    /// The sending site.
+    pub site: String,
+    /// The sender's epoch: when its federation started, ms since the Unix epoch. A
+    /// restarted sender numbers from 1 again under a later epoch.
+    pub epoch: u64,
+    /// Position in the sender's stream, from 1, without gaps.
+    pub seq: u64,
+    /// The alarm or transition.
+    pub item: T,
+}
+
+// ------------------------------------------------------------------ encoding
+
+/// Encodes a position (validated first) into its 24-byte frame.
+pub fn encode_position(p: &VehiclePosition) -> Result<Vec<u8>, ValidationError> {
+    p.validate()?;
+    let mut out = Vec::with_capacity(POSITION_LEN);
+    out.extend([VERSION, KIND_POSITION, code_of(&VEHICLE_KINDS, p.kind)]);
+    put_u48(&mut out, p.timestamp_ms);
+    // Validated ranges keep every rounded value inside its integer type.
+    out.extend(fixed_i32(p.latitude_deg * DEG_SCALE).to_le_bytes());
+    out.extend(fixed_i32(p.longitude_deg * DEG_SCALE).to_le_bytes());
+    out.extend(fixed_u16(p.depth_m / DEPTH_STEP_M).to_le_bytes());
+    // 359.999..° rounds to a full turn, which is north again.
+    let heading = (p.heading_deg / HEADING_STEP_DEG).round() as u32 % 65_536;
+    out.extend((heading as u16).to_le_bytes());
+    out.extend(fixed_u16(p.speed_mps / SPEED_STEP_MPS).to_le_bytes());
+    out.push((p.battery_pct / BATTERY_STEP_PCT).round() as u8);
+    Ok(out)
+}
+
+/// Encodes an alarm (validated first) with its envelope.
+pub fn encode_alarm(
+    site: &str,
+    epoch: u64,
+    seq: u64,
+    e: &Event,
+) -> Result<Vec<u8>, ValidationError> {
+    e.validate()?;
+    let mut out = envelope(KIND_ALARM, site, epoch, seq, e.timestamp_ms)?;
+    out.push(code_of(&SEVERITIES, e.severity));
+    out.push(code_of(&EVENT_KINDS, e.kind));
+    put_str8(&mut out, &e.event_id);
+    put_str8(&mut out, &e.vehicle_id);
+    put_str8(&mut out, &e.task_id);
+    // Validation caps the text at 512 bytes, well inside a u16.
+    out.extend((e.text.len() as u16).to_le_bytes());
+    out.extend(e.text.as_bytes());
+    Ok(out)
+}
+
+/// Encodes a task transition (validated first) with its envelope.
+pub fn encode_task(
+    site: &str,
+    epoch: u64,
+    seq: u64,
+    t: &TaskTransition,
+) -> Result<Vec<u8>, ValidationError> {
+    t.validate()?;
+    let mut out = envelope(KIND_TASK, site, epoch, seq, t.timestamp_ms)?;
+    out.push(code_of(&TASK_STATES, t.state));
+    put_str8(&mut out, &t.task_id);
+    put_str8(&mut out, &t.mission_id);
+    put_str8(&mut out, &t.vehicle_id);
+    Ok(out)
+}
+
+fn envelope(
+    kind: u8,
+    site: &str,
+    epoch: u64,
+    seq: u64,
+    timestamp_ms: i64,
+) -> Result<Vec<u8>, ValidationError> {
+    if !is_site_name(site) {
+        return Err(ValidationError::BadText {
+            field: "site",
+            rule: "must be 1..=32 of [A-Za-z0-9_.-]",
+        });
+    }
+    let mut out = Vec::with_capacity(64);
+    out.extend([VERSION, kind]);
+    put_str8(&mut out, site);
+    out.extend(epoch.to_le_bytes());
+    out.extend(seq.to_le_bytes());
+    put_u48(&mut out, timestamp_ms);
+    Ok(out)
+}
+
+fn code_of<T: PartialEq + Copy>(table: &[T], value: T) -> u8 {
+    // Every table lists every variant, and none has more than 255.
+    table.iter().position(|v| *v == value).unwrap_or(0) as u8
+}
+
+#[allow(clippy::cast_possible_truncation)]
+fn fixed_i32(v: f64) -> i32 {
+    v.round() as i32
+}
+
+#[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+fn fixed_u16(v: f64) -> u16 {
+    v.round() as u16
+}
+
+fn put_u48(out: &mut Vec<u8>, v: i64) {
+    // Validated timestamps lie in 2000..2100: positive and far below 2^48 ms (year 10889).
+    out.extend(&v.to_le_bytes()[..6]);
+}
+
+fn put_str8(out: &mut Vec<u8>, s: &str) {
+    // Every str8 field is an identifier of at most 64 bytes, validated before.
+    out.push(s.len() as u8);
+    out.extend(s.as_bytes());
+}
+
+// ------------------------------------------------------------------ decoding
+
+/// Decodes a position frame; the vehicle id comes from the key expression.
+pub fn decode_position(vehicle_id: &str, bytes: &[u8]) -> Result<VehiclePosition, DecodeError> {
+    let mut r = Reader::open(bytes, KIND_POSITION)?;
+    let kind = r.code("vehicle_kind", &VEHICLE_KINDS)?;
+    let timestamp_ms = r.timestamp()?;
+    let lat = r.i32("latitude")?;
+    let lon = r.i32("longitude")?;
+    let depth = r.u16("depth")?;
+    let heading = r.u16("heading")?;
+    let speed = r.u16("speed")?;
+    let battery = r.u8("battery")?;
+    r.end()?;
+    range("latitude", i64::from(lat), 900_000_000)?;
+    range("longitude", i64::from(lon), 1_800_000_000)?;
+    range("depth", i64::from(depth), 55_000)?;
+    range("speed", i64::from(speed), 3_000)?;
+    range("battery", i64::from(battery), 200)?;
+    let p = VehiclePosition {
+        vehicle_id: vehicle_id.to_string(),
+        kind,
+        timestamp_ms,
+        latitude_deg: f64::from(lat) / DEG_SCALE,
+        longitude_deg: f64::from(lon) / DEG_SCALE,
+        depth_m: f64::from(depth) * DEPTH_STEP_M,
+        heading_deg: f64::from(heading) * HEADING_STEP_DEG,
+        speed_mps: f64::from(speed) * SPEED_STEP_MPS,
+        battery_pct: f64::from(battery) * BATTERY_STEP_PCT,
+    };
+    p.validate()?;
+    Ok(p)
+}
+
+/// Decodes an alarm frame.
+pub fn decode_alarm(bytes: &[u8]) -> Result<Sequenced<Event>, DecodeError> {
+    let mut r = Reader::open(bytes, KIND_ALARM)?;
+    let (site, epoch, seq, timestamp_ms) = r.envelope()?;
+    let severity = r.code("severity", &SEVERITIES)?;
+    let kind = r.code("event_kind", &EVENT_KINDS)?;
+    let event_id = r.str8("event_id", MAX_ID_LEN)?;
+    let vehicle_id = r.str8("vehicle_id", MAX_VEHICLE_ID_LEN)?;
+    let task_id = r.str8("task_id", MAX_ID_LEN)?;
+    let text_len = r.u16("text")?;
+    range("text", i64::from(text_len), MAX_TEXT_LEN as i64)?;
+    let text = r.text("text", usize::from(text_len))?;
+    r.end()?;
+    let event = Event {
+        event_id,
+        timestamp_ms,
+        severity,
+        kind,
+        vehicle_id,
+        task_id,
+        text,
+    };
+    event.validate()?;
+    Ok(Sequenced {
+        site,
+        epoch,
+        seq,
+        item: event,
+    })
+}
+
+/// Decodes a task-transition frame.
+pub fn decode_task(bytes: &[u8]) -> Result<Sequenced<TaskTransition>, DecodeError> {
+    let mut r = Reader::open(bytes, KIND_TASK)?;
+    let (site, epoch, seq, timestamp_ms) = r.envelope()?;
+    let state = r.code("state", &TASK_STATES)?;
+    let task_id = r.str8("task_id", MAX_ID_LEN)?;
+    let mission_id = r.str8("mission_id", MAX_ID_LEN)?;
+    let vehicle_id = r.str8("vehicle_id", MAX_VEHICLE_ID_LEN)?;
+    r.end()?;
+    let t = TaskTransition {
+        task_id,
+        mission_id,
+        vehicle_id,
+        state,
+        timestamp_ms,
+    };
+    t.validate()?;
+    Ok(Sequenced {
+        site,
+        epoch,
+        seq,
+        item: t,
+    })
+}
+
+fn range(field: &'static str, value: i64, max_abs: i64) -> Result<(), DecodeError> {
+    if value.abs() > max_abs {
+        return Err(DecodeError::Range { field, value });
+    }
+    Ok(())
+}
+
+/// A cursor over a frame that never reads past its end.
+struct Reader<'a> {
+    rest: &'a [u8],
+}
+
+impl<'a> Reader<'a> {
+    /// Checks the version and kind bytes.
+    fn open(bytes: &'a [u8], kind: u8) -> Result<Self, DecodeError> {
+        let mut r = Self { rest: bytes };
+        let version = r.u8("version")?;
+        if version != VERSION {
+            return Err(DecodeError::Version(version));
+        }
+        let found = r.u8("kind")?;
+        if found != kind {
+            return Err(DecodeError::Kind {
+                expected: kind,
+                found,
+            });
+        }
+        Ok(r)
+    }
+
+    fn take<const N: usize>(&mut self, field: &'static str) -> Result<[u8; N], DecodeError> {
+        let (head, rest) = self
+            .rest
+            .split_first_chunk::<N>()
+            .ok_or(DecodeError::Truncated { field })?;
+        self.rest = rest;
+        Ok(*head)
+    }
+
+    fn u8(&mut self, field: &'static str) -> Result<u8, DecodeError> {
+        Ok(self.take::<1>(field)?[0])
+    }
+
+    fn u16(&mut self, field: &'static str) -> Result<u16, DecodeError> {
+        Ok(u16::from_le_bytes(self.take(field)?))
+    }
+
+    fn i32(&mut self, field: &'static str) -> Result<i32, DecodeError> {
+        Ok(i32::from_le_bytes(self.take(field)?))
+    }
+
+    fn u64(&mut self, field: &'static str) -> Result<u64, DecodeError> {
+        Ok(u64::from_le_bytes(self.take(field)?))
+    }
+
+    /// A u48 of ms since the Unix epoch, inside the model's accepted years.
+    fn timestamp(&mut self) -> Result<i64, DecodeError> {
+        let b: [u8; 6] = self.take("timestamp_ms")?;
+        let mut full = [0u8; 8];
+        full[..6].copy_from_slice(&b);
+        let ms = i64::from_le_bytes(full);
+        if !(MIN_TIMESTAMP_MS..=MAX_TIMESTAMP_MS).contains(&ms) {
+            return Err(DecodeError::Range {
+                field: "timestamp_ms",
+                value: ms,
+            });
+        }
+        Ok(ms)
+    }
+
+    fn code<T: Copy>(&mut self, field: &'static str, table: &[T]) -> Result<T, DecodeError> {
+        let value = self.u8(field)?;
+        table
+            .get(usize::from(value))
+            .copied()
+            .ok_or(DecodeError::Code { field, value })
+    }
+
+    fn text(&mut self, field: &'static str, len: usize) -> Result<String, DecodeError> {
+        if self.rest.len() < len {
+            return Err(DecodeError::Truncated { field });
+        }
+        let (head, rest) = self.rest.split_at(len);
+        self.rest = rest;
+        String::from_utf8(head.to_vec()).map_err(|_| DecodeError::Utf8 { field })
+    }
+
+    fn str8(&mut self, field: &'static str, max: usize) -> Result<String, DecodeError> {
+        let len = self.u8(field)?;
+        range(field, i64::from(len), max as i64)?;
+        self.text(field, usize::from(len))
+    }
+
+    /// Site, epoch, sequence number and timestamp of a sequenced frame.
+    fn envelope(&mut self) -> Result<(String, u64, u64, i64), DecodeError> {
+        let site = self.str8("site", MAX_SITE_LEN)?;
+        if !is_site_name(&site) {
+            return Err(ValidationError::BadText {
+                field: "site",
+                rule: "must be 1..=32 of [A-Za-z0-9_.-]",
+            }
+            .into());
+        }
+        let epoch = self.u64("epoch")?;
+        let seq = self.u64("seq")?;
+        if seq == 0 {
+            return Err(DecodeError::Range {
+                field: "seq",
+                value: 0,
+            });
+        }
+        let ts = self.timestamp()?;
+        Ok((site, epoch, seq, ts))
+    }
+
+    fn end(&self) -> Result<(), DecodeError> {
+        match self.rest.len() {
+            0 => Ok(()),
+            n => Err(DecodeError::Trailing(n)),
+        }
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests;

@@ -1,0 +1,257 @@
+//! Round trips, the documented layout, and refusal of every kind of bad bytes.
+
+use proptest::prelude::*;
+use shoal_model::{Event, EventKind, Severity, TaskState, VehicleKind};
+
+use super::*;
+use crate::types::tests::position;
+
+pub(crate) fn alarm(id: &str) -> Event {
+    Event {
+        event_id: id.into(),
+        timestamp_ms: 1_700_000_000_123,
+        severity: Severity::Critical,
+        kind: EventKind::LowBattery,
+        vehicle_id: "auv-1".into(),
+        task_id: String::new(),
+        text: "battery 9 %, surfacing".into(),
+    }
+}
+
+pub(crate) fn transition(task: &str, state: TaskState) -> TaskTransition {
+    TaskTransition {
+        task_id: task.into(),
+        mission_id: "m-1".into(),
+        vehicle_id: "auv-1".into(),
+        state,
+        timestamp_ms: 1_700_000_000_456,
+    }
+}
+
+#[test]
+fn a_position_frame_has_the_documented_layout() {
+    let bytes = encode_position(&position("auv-1")).unwrap();
+    assert_eq!(bytes.len(), POSITION_LEN);
+    assert_eq!(&bytes[0..3], &[1, 1, 0]); // version, kind, AUV
+    assert_eq!(&bytes[3..9], &1_700_000_000_000i64.to_le_bytes()[..6]);
+    assert_eq!(&bytes[9..13], &431_000_000i32.to_le_bytes());
+    assert_eq!(&bytes[13..17], &59_000_000i32.to_le_bytes());
+    assert_eq!(&bytes[17..19], &62u16.to_le_bytes()); // 12.4 m / 0.2
+    assert_eq!(&bytes[19..21], &49_425u16.to_le_bytes()); // 271.5° * 65536 / 360
+    assert_eq!(&bytes[21..23], &150u16.to_le_bytes());
+    assert_eq!(bytes[23], 160);
+}
+
+#[test]
+fn an_alarm_frame_has_the_documented_layout() {
+    let bytes = encode_alarm("ship-1", 7, 3, &alarm("e1")).unwrap();
+    let mut expected = vec![1, 2, 6];
+    expected.extend(b"ship-1");
+    expected.extend(7u64.to_le_bytes());
+    expected.extend(3u64.to_le_bytes());
+    expected.extend(&1_700_000_000_123i64.to_le_bytes()[..6]);
+    expected.extend([3, 0, 2]);
+    expected.extend(b"e1");
+    expected.push(5);
+    expected.extend(b"auv-1");
+    expected.push(0);
+    expected.extend(22u16.to_le_bytes());
+    expected.extend(b"battery 9 %, surfacing");
+    assert_eq!(bytes, expected);
+}
+
+#[test]
+fn a_task_frame_has_the_documented_layout() {
+    let bytes = encode_task("s", 1, 1, &transition("t-9", TaskState::Done)).unwrap();
+    let mut expected = vec![1, 3, 1, b's'];
+    expected.extend(1u64.to_le_bytes());
+    expected.extend(1u64.to_le_bytes());
+    expected.extend(&1_700_000_000_456i64.to_le_bytes()[..6]);
+    expected.extend([4, 3]);
+    expected.extend(b"t-9");
+    expected.push(3);
+    expected.extend(b"m-1");
+    expected.push(5);
+    expected.extend(b"auv-1");
+    assert_eq!(bytes, expected);
+}
+
+#[test]
+fn every_truncation_of_every_frame_is_refused() {
+    let frames = [
+        encode_position(&position("auv-1")).unwrap(),
+        encode_alarm("ship-1", 7, 3, &alarm("e1")).unwrap(),
+        encode_task("s", 1, 1, &transition("t-9", TaskState::Done)).unwrap(),
+    ];
+    for frame in &frames {
+        for len in 0..frame.len() {
+            let cut = &frame[..len];
+            assert!(decode_position("v", cut).is_err(), "{len}");
+            assert!(decode_alarm(cut).is_err(), "{len}");
+            assert!(decode_task(cut).is_err(), "{len}");
+        }
+    }
+}
+
+#[test]
+fn a_byte_past_the_end_is_refused() {
+    let mut bytes = encode_task("s", 1, 1, &transition("t", TaskState::Done)).unwrap();
+    bytes.push(0);
+    assert_eq!(decode_task(&bytes), Err(DecodeError::Trailing(1)));
+}
+
+#[test]
+fn another_version_or_kind_is_refused() {
+    let mut bytes = encode_position(&position("auv-1")).unwrap();
+    assert_eq!(
+        decode_alarm(&bytes).unwrap_err(),
+        DecodeError::Kind {
+            expected: KIND_ALARM,
+            found: KIND_POSITION
+        }
+    );
+    bytes[0] = 2;
+    assert_eq!(
+        decode_position("v", &bytes).unwrap_err(),
+        DecodeError::Version(2)
+    );
+}
+
+#[test]
+fn out_of_range_codes_and_values_are_refused_with_their_field() {
+    let good = encode_position(&position("auv-1")).unwrap();
+    let mut b = good.clone();
+    b[2] = 5;
+    assert_eq!(
+        decode_position("v", &b).unwrap_err().reason(),
+        "code:vehicle_kind"
+    );
+    let mut b = good.clone();
+    b[9..13].copy_from_slice(&900_000_001i32.to_le_bytes());
+    assert_eq!(
+        decode_position("v", &b).unwrap_err().reason(),
+        "range:latitude"
+    );
+    let mut b = good;
+    b[23] = 201;
+    assert_eq!(
+        decode_position("v", &b).unwrap_err().reason(),
+        "range:battery"
+    );
+
+    let mut a = encode_alarm("ship-1", 7, 3, &alarm("e1")).unwrap();
+    let severity_at = 2 + 1 + 6 + 8 + 8 + 6;
+    a[severity_at] = 4;
+    assert_eq!(decode_alarm(&a).unwrap_err().reason(), "code:severity");
+}
+
+#[test]
+fn a_sequence_number_of_zero_is_refused() {
+    let mut a = encode_alarm("s", 7, 1, &alarm("e1")).unwrap();
+    a[4 + 8..4 + 16].copy_from_slice(&0u64.to_le_bytes());
+    assert_eq!(decode_alarm(&a).unwrap_err().reason(), "range:seq");
+}
+
+#[test]
+fn a_site_that_is_not_a_key_chunk_is_refused() {
+    let mut a = encode_alarm("ab", 7, 1, &alarm("e1")).unwrap();
+    a[3] = b'*';
+    assert_eq!(
+        decode_alarm(&a).unwrap_err().reason(),
+        "invalid:bad_text:site"
+    );
+    assert!(encode_alarm("a/b", 1, 1, &alarm("e1")).is_err());
+}
+
+#[test]
+fn text_that_is_not_utf8_is_refused() {
+    let mut a = encode_alarm("s", 7, 1, &alarm("e1")).unwrap();
+    let last = a.len() - 1;
+    a[last] = 0xff;
+    assert_eq!(decode_alarm(&a).unwrap_err().reason(), "utf8:text");
+}
+
+#[test]
+fn a_heading_just_under_a_full_turn_comes_back_as_north() {
+    let mut p = position("auv-1");
+    p.heading_deg = 359.999_9;
+    let back = decode_position("auv-1", &encode_position(&p).unwrap()).unwrap();
+    assert_eq!(back.heading_deg, 0.0);
+}
+
+fn kinds() -> impl Strategy<Value = VehicleKind> {
+    proptest::sample::select(VEHICLE_KINDS.to_vec())
+}
+
+fn ids() -> impl Strategy<Value = String> {
+    "[A-Za-z0-9_.-]{1,32}"
+}
+
+proptest! {
+    #[test]
+    fn positions_round_trip_within_half_a_step(
+        kind in kinds(), id in ids(),
+        ts in MIN_TIMESTAMP_MS..=MAX_TIMESTAMP_MS,
+        lat in -90.0..=90.0f64, lon in -180.0..=180.0f64, depth in 0.0..=11_000.0f64,
+        heading in 0.0..360.0f64, speed in 0.0..=30.0f64, battery in 0.0..=100.0f64,
+    ) {
+        let p = VehiclePosition {
+            vehicle_id: id.clone(), kind, timestamp_ms: ts, latitude_deg: lat,
+            longitude_deg: lon, depth_m: depth, heading_deg: heading, speed_mps: speed,
+            battery_pct: battery,
+        };
+        let back = decode_position(&id, &encode_position(&p).unwrap()).unwrap();
+        prop_assert_eq!(back.kind, kind);
+        prop_assert_eq!(back.timestamp_ms, ts);
+        prop_assert!((back.latitude_deg - lat).abs() <= 0.5e-7 + 1e-12);
+        prop_assert!((back.longitude_deg - lon).abs() <= 0.5e-7 + 1e-12);
+        prop_assert!((back.depth_m - depth).abs() <= DEPTH_STEP_M / 2.0 + 1e-9);
+        let dh = shoal_model::geo::angle_diff(back.heading_deg, heading).abs();
+        prop_assert!(dh <= HEADING_STEP_DEG / 2.0 + 1e-9);
+        prop_assert!((back.speed_mps - speed).abs() <= SPEED_STEP_MPS / 2.0 + 1e-9);
+        prop_assert!((back.battery_pct - battery).abs() <= BATTERY_STEP_PCT / 2.0 + 1e-9);
+    }
+
+    #[test]
+    fn alarms_round_trip_exactly(
+        site in "[a-z0-9-]{1,32}", epoch in any::<u64>(), seq in 1..u64::MAX,
+        id in "[A-Za-z0-9_.-]{1,64}", severity in 0..4usize, kind in 0..9usize,
+        text in "[ -~]{0,512}", vehicle in proptest::option::of(ids()),
+    ) {
+        let e = Event {
+            event_id: id, timestamp_ms: 1_700_000_000_000, severity: SEVERITIES[severity],
+            kind: EVENT_KINDS[kind], vehicle_id: vehicle.unwrap_or_default(),
+            task_id: "t-1".into(), text,
+        };
+        let back = decode_alarm(&encode_alarm(&site, epoch, seq, &e).unwrap()).unwrap();
+        prop_assert_eq!(back, Sequenced { site, epoch, seq, item: e });
+    }
+
+    #[test]
+    fn transitions_round_trip_exactly(
+        state in 0..8usize, task in "[A-Za-z0-9_.-]{1,64}", seq in 1..u64::MAX,
+    ) {
+        let mut t = transition(&task, TASK_STATES[state]);
+        t.mission_id = String::new();
+        let back = decode_task(&encode_task("shore", 9, seq, &t).unwrap()).unwrap();
+        prop_assert_eq!(back.item, t);
+        prop_assert_eq!(back.seq, seq);
+    }
+
+    #[test]
+    fn garbage_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..600)) {
+        let _ = decode_position("v", &bytes);
+        let _ = decode_alarm(&bytes);
+        let _ = decode_task(&bytes);
+    }
+
+    #[test]
+    fn garbage_after_a_valid_header_is_refused(tail in proptest::collection::vec(any::<u8>(), 0..40)) {
+        let mut bytes = vec![VERSION, KIND_ALARM];
+        bytes.extend(tail);
+        // Random bytes almost never form a valid alarm; when they do, it must validate.
+        if let Ok(a) = decode_alarm(&bytes) {
+            prop_assert!(a.item.validate().is_ok());
+        }
+    }
+}
