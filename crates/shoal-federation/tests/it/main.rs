@@ -1,0 +1,16 @@
+//! The federation's integration tests: real Zenoh sessions in one process, talking over
+//! tcp/127.0.0.1 only (multicast scouting and gossip off in every configuration).
+//!
+//! One test binary; where new tests go:
+//! - `common`: ports, configurations, a router to cut the link with, waiting helpers.
+//! - `two_sites`: positions at the configured rate, coalesced; an alarm crosses once.
+//! - `outage`: the link goes down and comes back; both sides catch up exactly.
+//! - `three_sites`: two ships and a shore; unknown sites and bad payloads are refused.
+
+// Test code: a failed step is a failed test.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+mod common;
+mod outage;
+mod three_sites;
+mod two_sites;

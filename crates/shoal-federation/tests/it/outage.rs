@@ -1,0 +1,106 @@
+//! The link goes down while both sites keep working, then comes back: each side catches
+//! up on exactly what it missed, once.
+//!
+//! The two sites are clients of a router (as a ship and a shore linked through a
+//! `zenohd`); closing the router's session cuts the link, and a new router on the same
+//! port restores it. The sites' own sessions stay up throughout and reconnect by
+//! themselves.
+
+use shoal_federation::Federation;
+use shoal_model::TaskState;
+
+use crate::common::*;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn after_an_outage_each_side_catches_up_on_exactly_what_it_missed() {
+    logs();
+    let port = free_port();
+    let link = router(port).await;
+    let ship = Federation::start(client("ship", port, &["shore"]))
+        .await
+        .unwrap();
+    let shore = Federation::start(client("shore", port, &["ship"]))
+        .await
+        .unwrap();
+    eventually("the sites to see each other", || {
+        sees(&shore, "ship") && sees(&ship, "shore")
+    })
+    .await;
+
+    // Before the outage.
+    ship.push_alarm(&alarm("a1")).unwrap();
+    ship.push_transition(&transition("t1", TaskState::Running))
+        .unwrap();
+    shore.push_alarm(&alarm("s1")).unwrap();
+    eventually("the first items", || {
+        alarm_ids(&shore, "ship") == ["a1"]
+            && transitions(&shore, "ship").len() == 1
+            && alarm_ids(&ship, "shore") == ["s1"]
+    })
+    .await;
+
+    // The link goes down: each site sees the other's session go.
+    link.close().await.unwrap();
+    eventually("the sites to see the link is down", || {
+        lost(&shore, "ship") && lost(&ship, "shore")
+    })
+    .await;
+
+    // Both keep working alone.
+    for id in ["a2", "a3", "a4"] {
+        ship.push_alarm(&alarm(id)).unwrap();
+    }
+    ship.push_transition(&transition("t1", TaskState::Done))
+        .unwrap();
+    ship.push_transition(&transition("t2", TaskState::Running))
+        .unwrap();
+    shore.push_alarm(&alarm("s2")).unwrap();
+    assert_eq!(
+        alarm_ids(&shore, "ship"),
+        ["a1"],
+        "nothing crosses a cut link"
+    );
+
+    // The link comes back.
+    let link = router(port).await;
+    eventually("each side to catch up", || {
+        alarm_ids(&shore, "ship").len() >= 4
+            && transitions(&shore, "ship").len() >= 3
+            && alarm_ids(&ship, "shore").len() >= 2
+    })
+    .await;
+    // A last item on each side after the catch-up, so that anything arriving twice would
+    // have arrived by the time it does.
+    ship.push_alarm(&alarm("a5")).unwrap();
+    shore.push_alarm(&alarm("s3")).unwrap();
+    eventually("the items after the outage", || {
+        alarm_ids(&shore, "ship").len() >= 5 && alarm_ids(&ship, "shore").len() >= 3
+    })
+    .await;
+
+    assert_eq!(alarm_ids(&shore, "ship"), ["a1", "a2", "a3", "a4", "a5"]);
+    assert_eq!(alarm_seqs(&shore, "ship"), [1, 2, 3, 4, 5]);
+    assert_eq!(
+        transitions(&shore, "ship"),
+        [
+            ("t1".to_string(), TaskState::Running),
+            ("t1".to_string(), TaskState::Done),
+            ("t2".to_string(), TaskState::Running),
+        ]
+    );
+    assert_eq!(alarm_ids(&ship, "shore"), ["s1", "s2", "s3"]);
+    for fed in [&ship, &shore] {
+        let c = fed.counters().inbound;
+        assert_eq!(c.lost, 0, "{}: nothing given up", fed.site());
+        assert!(c.refused.is_empty(), "{}: {:?}", fed.site(), c.refused);
+        assert!(
+            c.catchup_queries >= 2,
+            "{}: asked after reconnecting",
+            fed.site()
+        );
+    }
+
+    ship.shutdown().await.unwrap();
+    shore.shutdown().await.unwrap();
+    link.close().await.unwrap();
+}
