@@ -10,7 +10,9 @@
 #   - $REPO/.venv with PyPI cyclonedds and rticonnextdds-connector (DDS peers),
 #     rdflib (independent SPARQL engine for the semantic cross-check and SPARQL protocol
 #     client), schemathesis (OpenAPI conformance, scripts/api-conformance.sh), mcap (the
-#     reference MCAP reader for recordings) and pyais (an independent AIS encoder)
+#     reference MCAP reader for recordings), pyais (an independent AIS encoder) and
+#     eclipse-zenoh (the federation's independent client, tests/federation; the same
+#     Zenoh 1.x protocol as the zenoh crate in Cargo.toml)
 #   - tests/foxglove/node_modules: Foxglove's own client (npm), for the bridge's test
 #   - the Fast DDS C++ peer and the Cyclone DDS C peer, built into tests/interop/build/
 #     (gitignored; the C peer's type support is generated there by idlc)
@@ -21,7 +23,7 @@
 #
 # Environment overrides: PYTHON (interpreter for the venv, default python3),
 # SHOAL_PIP_CYCLONEDDS / SHOAL_PIP_RTI / SHOAL_PIP_RDFLIB / SHOAL_PIP_SCHEMATHESIS /
-# SHOAL_PIP_MCAP / SHOAL_PIP_PYAIS (pip requirement specs).
+# SHOAL_PIP_MCAP / SHOAL_PIP_PYAIS / SHOAL_PIP_ZENOH (pip requirement specs).
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -33,6 +35,7 @@ PIP_RDFLIB="${SHOAL_PIP_RDFLIB:-rdflib==7.6.0}"
 PIP_SCHEMATHESIS="${SHOAL_PIP_SCHEMATHESIS:-schemathesis==4.32.5}"
 PIP_MCAP="${SHOAL_PIP_MCAP:-mcap==1.6.0}"
 PIP_PYAIS="${SHOAL_PIP_PYAIS:-pyais==3.3.1}"
+PIP_ZENOH="${SHOAL_PIP_ZENOH:-eclipse-zenoh==1.10.2}"
 export DEBIAN_FRONTEND=noninteractive
 
 say() { echo "install-test-deps: $*"; }
@@ -50,19 +53,19 @@ fi
 # ---------------------------------------------------------------- venv
 venv_ok() {
     [[ -x "$VENV/bin/python" ]] &&
-        "$VENV/bin/python" -c 'import cyclonedds.domain, rticonnextdds_connector, rdflib, schemathesis, mcap, pyais' 2>/dev/null
+        "$VENV/bin/python" -c 'import cyclonedds.domain, rticonnextdds_connector, rdflib, schemathesis, mcap, pyais, zenoh' 2>/dev/null
 }
 if venv_ok; then
-    say "venv $VENV ready (cyclonedds, rticonnextdds-connector, rdflib, schemathesis, mcap, pyais importable)"
+    say "venv $VENV ready (cyclonedds, rticonnextdds-connector, rdflib, schemathesis, mcap, pyais, zenoh importable)"
 else
     if [[ ! -x "$VENV/bin/python" ]]; then
         say "creating venv $VENV with $(command -v "$PYTHON")"
         "$PYTHON" -m venv "$VENV"
     fi
-    say "pip install $PIP_CYCLONEDDS $PIP_RTI $PIP_RDFLIB $PIP_SCHEMATHESIS $PIP_MCAP $PIP_PYAIS"
+    say "pip install $PIP_CYCLONEDDS $PIP_RTI $PIP_RDFLIB $PIP_SCHEMATHESIS $PIP_MCAP $PIP_PYAIS $PIP_ZENOH"
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check "$PIP_CYCLONEDDS" "$PIP_RTI" \
-        "$PIP_RDFLIB" "$PIP_SCHEMATHESIS" "$PIP_MCAP" "$PIP_PYAIS"
-    venv_ok || { say "venv still cannot import cyclonedds / rticonnextdds_connector / rdflib / schemathesis / mcap / pyais" >&2; exit 1; }
+        "$PIP_RDFLIB" "$PIP_SCHEMATHESIS" "$PIP_MCAP" "$PIP_PYAIS" "$PIP_ZENOH"
+    venv_ok || { say "venv still cannot import cyclonedds / rticonnextdds_connector / rdflib / schemathesis / mcap / pyais / zenoh" >&2; exit 1; }
 fi
 
 # ---------------------------------------------------------------- Foxglove client

@@ -61,6 +61,21 @@ fn an_alarm_frame_has_the_documented_layout() {
 }
 
 #[test]
+fn the_example_in_the_doc_is_what_the_encoder_writes() {
+    // docs/federation.md is the specification third parties decode from.
+    let doc = include_str!("../../../../docs/federation.md");
+    let example = doc
+        .split("### Example")
+        .nth(1)
+        .and_then(|s| s.split("```").nth(1))
+        .expect("the doc has an example block");
+    let hex: String = example.split_whitespace().collect();
+    let bytes = hex::decode(hex).unwrap();
+    assert_eq!(bytes, encode_alarm("ship-1", 7, 3, &alarm("e1")).unwrap());
+    assert_eq!(decode_alarm(&bytes).unwrap().item, alarm("e1"));
+}
+
+#[test]
 fn a_task_frame_has_the_documented_layout() {
     let bytes = encode_task("s", 1, 1, &transition("t-9", TaskState::Done)).unwrap();
     let mut expected = vec![1, 3, 1, b's'];

@@ -6,6 +6,7 @@
 //! - `two_sites`: positions at the configured rate, coalesced; an alarm crosses once.
 //! - `outage`: the link goes down and comes back; both sides catch up exactly.
 //! - `three_sites`: two ships and a shore; unknown sites and bad payloads are refused.
+//! - `python_client`: an independent PyPI `eclipse-zenoh` client decodes from the doc.
 //! - `encoding_size`: the WAN encoding measured against CDR (+ zstd) on a realistic fleet.
 
 // Test code: a failed step is a failed test.
@@ -14,5 +15,6 @@
 mod common;
 mod encoding_size;
 mod outage;
+mod python_client;
 mod three_sites;
 mod two_sites;
