@@ -12,11 +12,16 @@
 //!   suppression, gaps, the [`FederatedPicture`]).
 //! - [`wire`]: the compact WAN encoding; [`keys`]: the key expressions. Both are
 //!   documented byte for byte in `docs/federation.md` for third-party clients.
+//!
+//! The `transport` feature (default) brings the Zenoh transport; without it the crate is
+//! the cores and the codec alone (the fuzz targets build it so).
 
 #![forbid(unsafe_code)]
 
 pub mod config;
+#[cfg(feature = "transport")]
 mod error;
+#[cfg(feature = "transport")]
 mod federation;
 pub mod inbound;
 pub mod keys;
@@ -24,10 +29,13 @@ pub mod outbound;
 pub mod picture;
 pub mod types;
 pub mod wire;
+#[cfg(feature = "transport")]
 mod zenoh_config;
 
 pub use config::{ConfigError, FederationConfig};
+#[cfg(feature = "transport")]
 pub use error::{ShutdownError, StartError};
+#[cfg(feature = "transport")]
 pub use federation::{Counters, Federation};
 pub use inbound::{InboundCounters, Refusal};
 pub use outbound::{OutboundCounters, PushError};
