@@ -16,7 +16,8 @@
 //!
 //! Every type implements [`Validate`]; units and valid ranges are documented on each field
 //! and exported as constants so codecs and checks share one source of truth. The crate has
-//! no I/O and no async.
+//! no I/O and no async. [`Warp`] is the simulated clock a scenario run shares between
+//! its station and its simulated vehicles.
 
 #![forbid(unsafe_code)]
 
@@ -29,6 +30,7 @@ mod state;
 mod task;
 mod validate;
 mod vehicle;
+mod warp;
 
 pub use environment::EnvironmentObservation;
 pub use event::{Event, EventKind, Severity};
@@ -37,6 +39,7 @@ pub use state::StateVector;
 pub use task::{GeoPoint, Task, TaskAssignment, TaskKind, TaskState, TaskStatus};
 pub use validate::{Reason, Validate, Validated, ValidationError, is_identifier};
 pub use vehicle::{Availability, LinkKind, VehicleAnnouncement, VehicleKind};
+pub use warp::{MAX_WARP, Warp, WarpError};
 
 /// Sentinel for an optional measurement that is not available (e.g. altitude at the surface).
 pub const UNKNOWN: f64 = -1.0;

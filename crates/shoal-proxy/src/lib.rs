@@ -118,7 +118,10 @@ pub async fn run_sim_on(
         state_rate_hz: spec.rate_hz,
         ..options
     };
-    let adapter = SimAdapter::new(&spec, &settings);
+    let adapter = match options.clock {
+        Some(warp) => SimAdapter::warped(&spec, &settings, warp),
+        None => SimAdapter::new(&spec, &settings),
+    };
     match run_proxy(adapter, dds, options, shutdown).await {
         Ok(()) => Ok(()),
         Err(ProxyError::Dds(e)) => Err(e),

@@ -16,7 +16,7 @@ use shoal_dds::{
 };
 use shoal_model::{
     EnvironmentObservation, Event, MAX_TEXT_LEN, Severity, StateVector, Task, TaskAssignment,
-    TaskState, TaskStatus, Validated, ValidationError, VehicleAnnouncement, now_ms,
+    TaskState, TaskStatus, Validated, ValidationError, VehicleAnnouncement, Warp, now_ms,
 };
 use tokio::time::{Instant, Interval, MissedTickBehavior};
 use tokio_util::sync::CancellationToken;
@@ -43,6 +43,10 @@ pub struct ProxyOptions {
     /// run at most once across restarts. `None` keeps it in memory only, so a restart
     /// forgets what ran: for tests and tools, never for a vehicle.
     pub ledger_dir: Option<PathBuf>,
+    /// The simulated clock of a scenario run (`None`: the system clock). The proxy's
+    /// timestamps come from it and its reporting rate is in simulated time, so a vehicle
+    /// run ten times as fast reports ten times as often in real time.
+    pub clock: Option<Warp>,
 }
 
 impl Default for ProxyOptions {
@@ -52,6 +56,7 @@ impl Default for ProxyOptions {
             announce_interval: Duration::from_secs(60),
             max_task_age: Some(Duration::from_secs(15 * 60)),
             ledger_dir: None,
+            clock: None,
         }
     }
 }
@@ -195,6 +200,16 @@ struct Proxy {
 }
 
 impl Proxy {
+    /// The vehicle's time now: the system clock, or the scenario run's simulated one.
+    fn now(&self) -> i64 {
+        self.options.clock.map_or_else(now_ms, |w| w.now_ms())
+    }
+
+    /// The real-time rate of a reporting rate in the vehicle's time.
+    fn real_rate(&self, rate_hz: f64) -> f64 {
+        rate_hz * self.options.clock.map_or(1.0, |w| w.scale())
+    }
+
     fn new(vehicle_id: &str, options: ProxyOptions, ledger: TaskLedger, started_ms: i64) -> Self {
         Self {
             vehicle_id: vehicle_id.to_string(),
@@ -211,7 +226,7 @@ impl Proxy {
     fn announcement<A: VehicleAdapter>(&self, adapter: &A) -> VehicleAnnouncement {
         let mut a = adapter.announcement();
         a.vehicle_id.clone_from(&self.vehicle_id);
-        a.timestamp_ms = now_ms();
+        a.timestamp_ms = self.now();
         for code in PROXY_CAPABILITIES {
             if a.capabilities.len() < VehicleAnnouncement::MAX_LIST
                 && !a.capabilities.iter().any(|c| c == code)
@@ -232,7 +247,7 @@ impl Proxy {
         Outgoing::Status(TaskStatus {
             task_id: task_id.to_string(),
             vehicle_id: self.vehicle_id.clone(),
-            timestamp_ms: now_ms(),
+            timestamp_ms: self.now(),
             state,
             progress_pct: if progress.is_finite() {
                 progress.clamp(0.0, 100.0)
@@ -246,7 +261,7 @@ impl Proxy {
     /// Records a task's end in the ledger; a failure is loud, since a restart would then
     /// take the task for one still under way.
     fn ended(&mut self, task_id: &str, state: TaskState) {
-        if let Err(e) = self.ledger.end(task_id, state, now_ms()) {
+        if let Err(e) = self.ledger.end(task_id, state, self.now()) {
             warn!(vehicle = %self.vehicle_id, task = task_id, error = %e, "task end not recorded in the ledger");
         }
     }
@@ -314,13 +329,14 @@ where
 {
     let vehicle_id = adapter.announcement().vehicle_id;
     let announce_every = options.announce_interval.max(Duration::from_secs(1));
-    let mut proxy = Proxy::new(&vehicle_id, options, ledger, now_ms());
+    let started_ms = options.clock.map_or_else(now_ms, |w| w.now_ms());
+    let mut proxy = Proxy::new(&vehicle_id, options, ledger, started_ms);
     outbox
         .publish(Outgoing::Announcement(proxy.announcement(&adapter)))
         .await;
     let mut announce = tokio::time::interval_at(Instant::now() + announce_every, announce_every);
     announce.set_missed_tick_behavior(MissedTickBehavior::Delay);
-    let mut state_tick = state_ticker(proxy.options.state_rate_hz);
+    let mut state_tick = state_ticker(proxy.real_rate(proxy.options.state_rate_hz));
     let mut tasks_open = true;
     loop {
         // Biased: shutdown first, then tasks (operators' commands), then the timers, and the
@@ -336,7 +352,7 @@ where
                 Some(Err(e)) => warn!(vehicle = %vehicle_id, error = %e, "bad task sample ignored"),
                 Some(Ok((a, _))) => {
                     if let Some(rate_hz) = on_assignment(&mut proxy, &mut adapter, outbox, a.into_inner()).await {
-                        state_tick = state_ticker(rate_hz);
+                        state_tick = state_ticker(proxy.real_rate(rate_hz));
                     }
                 }
             },
@@ -375,7 +391,8 @@ async fn on_assignment<A: VehicleAdapter, O: Outbox>(
     }
     let vehicle = proxy.vehicle_id.clone();
     let id = a.task_id.as_str();
-    let resumed = match proxy.ledger.admit(&a, now_ms()) {
+    let now = proxy.now();
+    let resumed = match proxy.ledger.admit(&a, now) {
         Ok(Admission::Start) => false,
         Ok(Admission::Resume) => true,
         Ok(Admission::Duplicate) => {

@@ -26,6 +26,8 @@ enum Elapsed {
     Real(Instant),
     /// A test's monotonic time, in ms since the origin.
     Manual(Arc<AtomicI64>),
+    /// Simulated time run faster than real time (a scenario run).
+    Warped(shoal_model::Warp),
 }
 
 impl std::fmt::Debug for Clock {
@@ -64,6 +66,17 @@ impl Clock {
         }
     }
 
+    /// Simulated time shared with the simulated vehicles of a scenario run: the station's
+    /// timeouts, rate limits and timestamps all run `warp.scale()` times as fast. Its
+    /// "system clock" is the warp itself, so no skew is reported.
+    pub fn warped(warp: shoal_model::Warp) -> Self {
+        Self {
+            origin_wall_ms: warp.origin_ms(),
+            elapsed: Elapsed::Warped(warp),
+            wall: Arc::new(move || warp.now_ms()),
+        }
+    }
+
     /// A clock for tests: starts at `start_ms`; [`ManualTime`] advances its monotonic
     /// time and steps its system time independently.
     pub fn manual(start_ms: i64) -> (Self, ManualTime) {
@@ -90,8 +103,17 @@ impl Clock {
                 i64::try_from(origin.elapsed().as_millis()).unwrap_or(i64::MAX)
             }
             Elapsed::Manual(ms) => ms.load(Ordering::SeqCst),
+            Elapsed::Warped(warp) => return warp.now_ms(),
         };
         self.origin_wall_ms.saturating_add(elapsed)
+    }
+
+    /// Station seconds per real second: 1, or a scenario run's speed-up.
+    pub fn rate(&self) -> f64 {
+        match &self.elapsed {
+            Elapsed::Warped(warp) => warp.scale(),
+            Elapsed::Real(_) | Elapsed::Manual(_) => 1.0,
+        }
     }
 
     /// How far the system clock is from station time now (positive: the system clock is
@@ -124,6 +146,17 @@ impl ManualTime {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_warped_clock_is_the_warp_and_reports_no_skew() {
+        let warp = shoal_model::Warp::start_at(2_000_000, 50.0).unwrap();
+        let clock = Clock::warped(warp);
+        std::thread::sleep(std::time::Duration::from_millis(10));
+        let (c, w) = (clock.now_ms(), warp.now_ms());
+        assert!(c >= 2_000_500, "{c}");
+        assert!((w - c).abs() < 50, "{w} {c}");
+        assert!(clock.skew_ms().abs() < 50);
+    }
 
     #[test]
     fn station_time_follows_monotonic_time_not_system_clock_steps() {

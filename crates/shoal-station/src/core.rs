@@ -203,6 +203,11 @@ impl StationHandle {
         lock(&self.core.tasks).sizes()
     }
 
+    /// Station seconds per real second: 1, or a scenario run's speed-up.
+    pub fn clock_rate(&self) -> f64 {
+        self.core.clock.rate()
+    }
+
     /// How far the system clock is from station time (after a step, for health reports).
     pub fn clock_skew_ms(&self) -> i64 {
         self.core.clock.skew_ms()

@@ -5,7 +5,6 @@
 use std::time::Duration;
 
 use shoal_scenario::{Scenario, ScenarioMission};
-use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
@@ -13,22 +12,26 @@ use crate::core::StationHandle;
 use crate::missions::{MissionSpec, MissionState, MissionTaskSpec};
 use crate::register::Contact;
 
-/// How often a due mission looks again for the vehicles it waits for.
+/// How often, in station time, a due mission looks again for the vehicles it waits for.
 const POLL: Duration = Duration::from_millis(250);
+/// Shortest real time between two looks on a fast (warped) clock.
+const MIN_POLL: Duration = Duration::from_millis(5);
 
 impl StationHandle {
-    /// Runs `scenario`'s missions on their timeline, counted from now on tokio's monotonic
+    /// Runs `scenario`'s missions on their timeline, counted from now on the station's
     /// clock, until each has started, failed to plan, or outlived the scenario's duration
     /// waiting for its vehicles; returns then, or when `shutdown` is cancelled.
     ///
-    /// The timeline is in wall-clock seconds: `time_scale` is not applied, since the
-    /// vehicles it would speed up run in their own processes at real time.
+    /// The timeline is in station time: real seconds under `shoal up` (its vehicles run in
+    /// their own processes at real time), simulated seconds when the station runs on a
+    /// warped clock with its simulated vehicles (`shoal scenario run --speed N`).
     pub async fn run_scenario(&self, scenario: Scenario, shutdown: CancellationToken) {
-        let start = Instant::now();
-        let end = start + Duration::from_secs_f64(scenario.duration_s);
+        let start_ms = self.now();
+        let offset_ms = |s: f64| start_ms.saturating_add((s * 1000.0) as i64);
+        let end_ms = offset_ms(scenario.duration_s);
         // A suffix per run: missions of an earlier run of the same scenario may still be in
         // the register (ended tasks are kept a day), and their ids must not collide.
-        let run = self.now() / 1000;
+        let run = start_ms / 1000;
         let mut pending: Vec<ScenarioMission> = scenario.missions;
         pending.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
         info!(
@@ -37,18 +40,18 @@ impl StationHandle {
             "scenario: missions start at their offsets once their vehicles are heard"
         );
         let mut waiting_said = Vec::new();
-        let mut tick = tokio::time::interval(POLL);
+        let mut tick = tokio::time::interval(POLL.div_f64(self.clock_rate()).max(MIN_POLL));
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         while !pending.is_empty() {
             tokio::select! {
                 () = shutdown.cancelled() => return,
                 _ = tick.tick() => {}
             }
-            let now = Instant::now();
+            let now = self.now();
             let mut i = 0;
             while i < pending.len() {
                 let m = &pending[i];
-                if now < start + Duration::from_secs_f64(m.at_s) {
+                if now < offset_ms(m.at_s) {
                     // Sorted: the rest are later still.
                     break;
                 }
@@ -64,7 +67,7 @@ impl StationHandle {
                 } else if unheard.is_empty() {
                     self.start_scenario_mission(m, run);
                     pending.remove(i);
-                } else if now >= end {
+                } else if now >= end_ms {
                     warn!(
                         mission = %m.id,
                         vehicles = ?unheard,

@@ -3,7 +3,7 @@
 use std::convert::Infallible;
 use std::time::Duration;
 
-use shoal_model::{StateVector, VehicleAnnouncement, now_ms};
+use shoal_model::{StateVector, VehicleAnnouncement, Warp, now_ms};
 use tokio::time::{Instant, Interval, MissedTickBehavior};
 
 use super::{SimSettings, SimSpec, SimVehicle};
@@ -12,17 +12,21 @@ use crate::adapter::{Acceptance, Refusal, TaskOrder, VehicleAdapter, VehicleOutp
 /// How often the simulation advances when nothing asks for it sooner.
 pub const TICK: Duration = Duration::from_millis(100);
 
+/// Shortest real time between two advances of a warped vehicle: finer steps only cost CPU.
+const MIN_WARPED_TICK: Duration = Duration::from_millis(10);
+
 /// A simulated vehicle behind a DDS Proxy, advancing with the Tokio clock.
 ///
 /// Simulated time follows the Tokio clock (so tests with paused time run a long mission
-/// in an instant), and the state vector is brought up to date whenever it is read, so
-/// states are fresh at any reporting rate.
+/// in an instant), or a scenario run's [`Warp`], and the state vector is brought up to
+/// date whenever it is read, so states are fresh at any reporting rate.
 #[derive(Debug)]
 pub struct SimAdapter {
     vehicle: SimVehicle,
     /// Created on first use: an interval needs a running Tokio runtime.
     ticker: Option<Interval>,
     last: Option<Instant>,
+    warp: Option<Warp>,
 }
 
 impl SimAdapter {
@@ -37,6 +41,16 @@ impl SimAdapter {
             vehicle,
             ticker: None,
             last: None,
+            warp: None,
+        }
+    }
+
+    /// A simulated vehicle at its start position living on `warp`'s simulated clock,
+    /// which a station in the same process shares (`shoal scenario run`).
+    pub fn warped(spec: &SimSpec, settings: &SimSettings, warp: Warp) -> Self {
+        Self {
+            warp: Some(warp),
+            ..Self::from_vehicle(SimVehicle::with_settings(spec, settings, warp.now_ms()))
         }
     }
 
@@ -47,6 +61,14 @@ impl SimAdapter {
 
     /// Advances the simulation to the current instant.
     fn catch_up(&mut self) {
+        if let Some(warp) = self.warp {
+            // Anchored to the warp, not summed from ticks, so the vehicle's clock never
+            // drifts from the station's.
+            #[allow(clippy::cast_precision_loss)]
+            let behind_ms = (warp.now_ms() - self.vehicle.clock_ms()) as f64;
+            self.vehicle.step(behind_ms / 1000.0);
+            return;
+        }
         let now = Instant::now();
         if let Some(last) = self.last {
             self.vehicle.step(now.duration_since(last).as_secs_f64());
@@ -72,8 +94,11 @@ impl VehicleAdapter for SimAdapter {
             if let Some(out) = self.vehicle.pop_output() {
                 return Ok(out);
             }
+            let period = self
+                .warp
+                .map_or(TICK, |w| TICK.div_f64(w.scale()).max(MIN_WARPED_TICK));
             let ticker = self.ticker.get_or_insert_with(|| {
-                let mut t = tokio::time::interval(TICK);
+                let mut t = tokio::time::interval(period);
                 t.set_missed_tick_behavior(MissedTickBehavior::Delay);
                 t
             });
@@ -115,6 +140,18 @@ mod tests {
         tokio::time::sleep(Duration::from_secs(30)).await;
         let t1 = a.state().unwrap().timestamp_ms;
         assert_eq!(t1 - t0, 30_000);
+    }
+
+    #[tokio::test]
+    async fn a_warped_vehicle_lives_on_the_warp_clock() {
+        let warp = Warp::start(200.0).unwrap();
+        let mut a = SimAdapter::warped(&spec(), &SimSettings::default(), warp);
+        let t0 = a.state().unwrap().timestamp_ms;
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let (t1, now) = (a.state().unwrap().timestamp_ms, warp.now_ms());
+        // 50 ms real is at least 10 s simulated; the state is stamped on the warp's clock.
+        assert!(t1 - t0 >= 10_000, "{}", t1 - t0);
+        assert!((now - t1).abs() <= 50, "{now} {t1}");
     }
 
     #[tokio::test(start_paused = true)]
