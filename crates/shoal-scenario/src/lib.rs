@@ -7,8 +7,11 @@
 //! the line of the file it is on. [`SHIPPED`] holds the scenarios in the repository's
 //! `scenarios/` folder, so a binary runs them with no file at hand.
 //!
-//! The format is described key by key in `docs/scenarios.md`. This crate does no I/O.
+//! The format is described key by key in `docs/scenarios.md`. [`report`] turns what a
+//! run stored into its summary and HTML page. This crate does no I/O.
 #![forbid(unsafe_code)]
+
+pub mod report;
 
 use std::collections::HashMap;
 use std::ops::Range;

@@ -1,0 +1,306 @@
+//! What a scenario run leaves behind: the figures of its [`Summary`] (written as JSON)
+//! and a static HTML page with plots ([`render_html`]), both computed from a
+//! [`RunRecord`] of what the station stored. No I/O here: the runner reads the history
+//! store into a record and writes the files.
+
+mod html;
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+use shoal_model::{Event, Severity, StateVector, TaskAssignment, TaskState, TaskStatus, geo};
+
+pub use html::render_html;
+
+/// Version of the summary's JSON layout; raised when a field changes meaning.
+pub const SUMMARY_FORMAT: u32 = 1;
+
+/// Everything a run's report is made from, in simulated time.
+#[derive(Debug, Clone, Default)]
+pub struct RunRecord {
+    /// The scenario's name.
+    pub scenario: String,
+    /// What it shows.
+    pub description: String,
+    /// The seed the simulated vehicles drew from.
+    pub seed: u64,
+    /// Simulated seconds per real second.
+    pub speed: f64,
+    /// Simulated time at the start, ms since the Unix epoch.
+    pub start_ms: i64,
+    /// Simulated time at the end, ms since the Unix epoch.
+    pub end_ms: i64,
+    /// Real seconds the run took.
+    pub wall_s: f64,
+    /// The fleet: each vehicle's id, kind and stored state vectors, oldest first.
+    pub vehicles: Vec<VehicleRecord>,
+    /// Every task the station issued in the run, with its status reports.
+    pub tasks: Vec<TaskRecord>,
+    /// Events and alarms, oldest first.
+    pub events: Vec<Event>,
+    /// The station's own counters at the end.
+    pub station: StationFigures,
+}
+
+/// One vehicle of a run.
+#[derive(Debug, Clone)]
+pub struct VehicleRecord {
+    /// Vehicle id.
+    pub id: String,
+    /// Platform kind, as the scenario names it.
+    pub kind: String,
+    /// State vectors the station accepted, oldest first.
+    pub track: Vec<StateVector>,
+}
+
+/// One task of a run.
+#[derive(Debug, Clone)]
+pub struct TaskRecord {
+    /// The assignment the station sent.
+    pub assignment: TaskAssignment,
+    /// Its status reports, oldest first.
+    pub statuses: Vec<TaskStatus>,
+}
+
+impl TaskRecord {
+    /// The state its last report gave (`Pending` with none).
+    pub fn last_state(&self) -> TaskState {
+        self.statuses.last().map_or(TaskState::Pending, |s| s.state)
+    }
+
+    /// When it started running (or was accepted), ms.
+    pub fn started_ms(&self) -> Option<i64> {
+        let first = |wanted: TaskState| {
+            self.statuses
+                .iter()
+                .find(|s| s.state == wanted)
+                .map(|s| s.timestamp_ms)
+        };
+        first(TaskState::Running).or_else(|| first(TaskState::Accepted))
+    }
+
+    /// When it reached its final state, ms.
+    pub fn ended_ms(&self) -> Option<i64> {
+        self.statuses
+            .iter()
+            .find(|s| s.state.is_final())
+            .map(|s| s.timestamp_ms)
+    }
+}
+
+/// The station's counters a report shows.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct StationFigures {
+    /// State vectors accepted.
+    pub states_accepted: u64,
+    /// Samples refused, every reason together.
+    pub rejected: u64,
+    /// Records the history store committed.
+    pub history_committed: u64,
+}
+
+/// The figures of a run, written as `summary.json`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Summary {
+    /// [`SUMMARY_FORMAT`].
+    pub format: u32,
+    /// The scenario's name.
+    pub scenario: String,
+    /// The seed.
+    pub seed: u64,
+    /// Simulated seconds per real second.
+    pub speed: f64,
+    /// Simulated seconds covered.
+    pub simulated_s: f64,
+    /// Real seconds the run took.
+    pub wall_s: f64,
+    /// Per vehicle, by id.
+    pub vehicles: BTreeMap<String, VehicleFigures>,
+    /// Tasks by their last state (`done`, `failed`, ...), and `total`.
+    pub tasks: BTreeMap<String, usize>,
+    /// Each task's outcome, by [`task_key`].
+    pub task_outcomes: BTreeMap<String, TaskOutcome>,
+    /// Events by severity (`info`, `warning`, `alarm`, `critical`).
+    pub events: BTreeMap<String, usize>,
+    /// The station's counters.
+    pub station: StationFigures,
+}
+
+/// What one vehicle did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct VehicleFigures {
+    /// Platform kind.
+    pub kind: String,
+    /// State vectors stored.
+    pub states: usize,
+    /// Distance along its reported track, m (rounded to 1 m).
+    pub distance_m: f64,
+    /// Deepest reported depth, m (rounded to 0.1 m).
+    pub max_depth_m: f64,
+    /// Battery at the first and last stored state and the lowest, % (rounded to 0.1).
+    pub battery_start_pct: f64,
+    /// Battery at the last stored state, %.
+    pub battery_end_pct: f64,
+    /// Lowest battery, %.
+    pub battery_min_pct: f64,
+    /// Simulated seconds from the start to the first state with speed over 0.2 m/s.
+    pub first_motion_s: Option<f64>,
+}
+
+/// How one task ended.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TaskOutcome {
+    /// The task's id in this run.
+    pub task_id: String,
+    /// The vehicle.
+    pub vehicle: String,
+    /// Its mission.
+    pub mission: String,
+    /// Task kind.
+    pub kind: String,
+    /// Last state reported.
+    pub state: String,
+    /// Simulated seconds from its start to its end, when both were reported (0.1 s).
+    pub duration_s: Option<f64>,
+}
+
+/// `v` rounded to `decimals` places (multiplying, not dividing by a step, keeps the
+/// result the nearest double to the decimal: 20.4, not 20.400000000000002).
+fn round_dp(v: f64, decimals: i32) -> f64 {
+    let f = 10f64.powi(decimals);
+    (v * f).round() / f
+}
+
+/// A task's key in the summary: its scenario mission's id (without the station's run
+/// suffix) and its place in the mission, e.g. `survey-box/1`, so two runs compare.
+pub fn task_key(a: &TaskAssignment) -> String {
+    let base = a
+        .mission_id
+        .rsplit_once('-')
+        .filter(|(_, run)| !run.is_empty() && run.bytes().all(|b| b.is_ascii_digit()))
+        .map_or(a.mission_id.as_str(), |(m, _)| m);
+    let place = a
+        .task_id
+        .strip_prefix(a.mission_id.as_str())
+        .and_then(|r| r.strip_prefix('-'))
+        .unwrap_or(a.task_id.as_str());
+    format!("{base}/{place}")
+}
+
+/// A task state's name as operators read it.
+pub fn state_name(s: TaskState) -> &'static str {
+    match s {
+        TaskState::Pending => "pending",
+        TaskState::Sent => "sent",
+        TaskState::Accepted => "accepted",
+        TaskState::Running => "running",
+        TaskState::Done => "done",
+        TaskState::Failed => "failed",
+        TaskState::Aborted => "aborted",
+        TaskState::Expired => "expired",
+    }
+}
+
+fn severity_name(s: Severity) -> &'static str {
+    match s {
+        Severity::Info => "info",
+        Severity::Warning => "warning",
+        Severity::Alarm => "alarm",
+        Severity::Critical => "critical",
+    }
+}
+
+/// Distance along a track, m.
+fn track_length(track: &[StateVector]) -> f64 {
+    track
+        .windows(2)
+        .map(|w| {
+            geo::distance_m(
+                w[0].latitude_deg,
+                w[0].longitude_deg,
+                w[1].latitude_deg,
+                w[1].longitude_deg,
+            )
+        })
+        .sum()
+}
+
+/// The figures of a run.
+pub fn summarise(r: &RunRecord) -> Summary {
+    #[allow(clippy::cast_precision_loss)]
+    let seconds = |ms: i64| (ms - r.start_ms) as f64 / 1000.0;
+    let vehicles = r
+        .vehicles
+        .iter()
+        .map(|v| {
+            let battery = v.track.iter().map(|s| s.battery_pct);
+            let figures = VehicleFigures {
+                kind: v.kind.clone(),
+                states: v.track.len(),
+                distance_m: round_dp(track_length(&v.track), 0),
+                max_depth_m: round_dp(v.track.iter().map(|s| s.depth_m).fold(0.0, f64::max), 1),
+                battery_start_pct: round_dp(v.track.first().map_or(0.0, |s| s.battery_pct), 1),
+                battery_end_pct: round_dp(v.track.last().map_or(0.0, |s| s.battery_pct), 1),
+                battery_min_pct: round_dp(
+                    if v.track.is_empty() {
+                        0.0
+                    } else {
+                        battery.fold(f64::INFINITY, f64::min)
+                    },
+                    1,
+                ),
+                first_motion_s: v
+                    .track
+                    .iter()
+                    .find(|s| s.speed_mps > 0.2)
+                    .map(|s| round_dp(seconds(s.timestamp_ms), 1)),
+            };
+            (v.id.clone(), figures)
+        })
+        .collect();
+    let mut tasks: BTreeMap<String, usize> = BTreeMap::new();
+    let mut task_outcomes = BTreeMap::new();
+    for t in &r.tasks {
+        let state = state_name(t.last_state());
+        *tasks.entry(state.to_owned()).or_default() += 1;
+        #[allow(clippy::cast_precision_loss)]
+        let duration_s = match (t.started_ms(), t.ended_ms()) {
+            (Some(a), Some(b)) if b >= a => Some(round_dp((b - a) as f64 / 1000.0, 1)),
+            _ => None,
+        };
+        task_outcomes.insert(
+            task_key(&t.assignment),
+            TaskOutcome {
+                task_id: t.assignment.task_id.clone(),
+                vehicle: t.assignment.vehicle_id.clone(),
+                mission: t.assignment.mission_id.clone(),
+                kind: t.assignment.kind.capability().to_owned(),
+                state: state.to_owned(),
+                duration_s,
+            },
+        );
+    }
+    tasks.insert("total".to_owned(), r.tasks.len());
+    let mut events: BTreeMap<String, usize> = BTreeMap::new();
+    for e in &r.events {
+        *events
+            .entry(severity_name(e.severity).to_owned())
+            .or_default() += 1;
+    }
+    Summary {
+        format: SUMMARY_FORMAT,
+        scenario: r.scenario.clone(),
+        seed: r.seed,
+        speed: r.speed,
+        simulated_s: round_dp(seconds(r.end_ms), 1),
+        wall_s: round_dp(r.wall_s, 1),
+        vehicles,
+        tasks,
+        task_outcomes,
+        events,
+        station: r.station,
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,187 @@
+#![allow(clippy::unwrap_used)]
+use shoal_model::{EventKind, Task};
+
+use super::*;
+
+const T0: i64 = 1_800_000_000_000;
+
+fn state(id: &str, s: f64, lat: f64, depth: f64, battery: f64, speed: f64) -> StateVector {
+    StateVector {
+        vehicle_id: id.into(),
+        #[allow(clippy::cast_possible_truncation)]
+        timestamp_ms: T0 + (s * 1000.0) as i64,
+        latitude_deg: lat,
+        longitude_deg: 10.0,
+        depth_m: depth,
+        altitude_m: -1.0,
+        speed_mps: speed,
+        yaw_deg: 0.0,
+        pitch_deg: 0.0,
+        roll_deg: 0.0,
+        battery_pct: battery,
+    }
+}
+
+fn status(task: &str, s: i64, state: TaskState) -> TaskStatus {
+    TaskStatus {
+        task_id: task.into(),
+        vehicle_id: "auv-1".into(),
+        timestamp_ms: T0 + s * 1000,
+        state,
+        progress_pct: 0.0,
+        message: String::new(),
+    }
+}
+
+fn record() -> RunRecord {
+    // 0.001° of latitude is 111.2 m: two legs of it.
+    let track = vec![
+        state("auv-1", 0.0, 63.0, 0.0, 100.0, 0.0),
+        state("auv-1", 60.0, 63.001, 5.0, 98.0, 1.5),
+        state("auv-1", 120.0, 63.002, 2.5, 97.0, 1.5),
+    ];
+    let goto = TaskAssignment::new(
+        "survey-1-1",
+        "survey-1",
+        "auv-1",
+        T0,
+        &Task::Hold { duration_s: 30.0 },
+    );
+    let lost = TaskAssignment::new("survey-1-2", "survey-1", "auv-1", T0, &Task::Surface);
+    RunRecord {
+        scenario: "box <survey>".into(),
+        description: "a & b".into(),
+        seed: 7,
+        speed: 60.0,
+        start_ms: T0,
+        end_ms: T0 + 180_000,
+        wall_s: 3.04,
+        vehicles: vec![
+            VehicleRecord {
+                id: "auv-1".into(),
+                kind: "auv".into(),
+                track,
+            },
+            VehicleRecord {
+                id: "usv-1".into(),
+                kind: "usv".into(),
+                track: vec![],
+            },
+        ],
+        tasks: vec![
+            TaskRecord {
+                assignment: goto,
+                statuses: vec![
+                    status("survey-1-1", 1, TaskState::Sent),
+                    status("survey-1-1", 2, TaskState::Accepted),
+                    status("survey-1-1", 3, TaskState::Running),
+                    status("survey-1-1", 33, TaskState::Done),
+                ],
+            },
+            TaskRecord {
+                assignment: lost,
+                statuses: vec![status("survey-1-2", 34, TaskState::Failed)],
+            },
+        ],
+        events: vec![Event {
+            event_id: "e1".into(),
+            timestamp_ms: T0 + 90_000,
+            severity: Severity::Alarm,
+            kind: EventKind::Fault,
+            vehicle_id: "auv-1".into(),
+            task_id: String::new(),
+            text: "battery <low> & falling".into(),
+        }],
+        station: StationFigures {
+            states_accepted: 3,
+            rejected: 1,
+            history_committed: 9,
+        },
+    }
+}
+
+#[test]
+fn the_summary_has_each_vehicles_figures_and_each_tasks_outcome() {
+    let s = summarise(&record());
+    let auv = &s.vehicles["auv-1"];
+    assert_eq!(auv.states, 3);
+    assert!((auv.distance_m - 222.0).abs() <= 1.0, "{}", auv.distance_m);
+    assert_eq!(auv.max_depth_m, 5.0);
+    assert_eq!(
+        (
+            auv.battery_start_pct,
+            auv.battery_end_pct,
+            auv.battery_min_pct
+        ),
+        (100.0, 97.0, 97.0)
+    );
+    assert_eq!(auv.first_motion_s, Some(60.0));
+    assert_eq!(round_dp(20.400_000_000_000_002, 1).to_string(), "20.4");
+    let usv = &s.vehicles["usv-1"];
+    assert_eq!(
+        (usv.states, usv.distance_m, usv.first_motion_s),
+        (0, 0.0, None)
+    );
+    assert_eq!(s.tasks["total"], 2);
+    assert_eq!(s.tasks["done"], 1);
+    assert_eq!(s.tasks["failed"], 1);
+    let hold = &s.task_outcomes["survey/1"];
+    assert_eq!(
+        (hold.kind.as_str(), hold.state.as_str(), hold.duration_s),
+        ("hold", "done", Some(30.0))
+    );
+    assert_eq!(s.task_outcomes["survey/2"].duration_s, None);
+    assert_eq!(s.task_outcomes["survey/2"].task_id, "survey-1-2");
+    assert_eq!(s.events["alarm"], 1);
+    assert_eq!(s.simulated_s, 180.0);
+    assert_eq!(s.wall_s, 3.0);
+}
+
+#[test]
+fn the_page_is_self_contained_escaped_and_plots_every_vehicle() {
+    let r = record();
+    let html = render_html(&r, &summarise(&r));
+    assert!(html.starts_with("<!DOCTYPE html>"));
+    assert!(html.ends_with("</html>"));
+    // Nothing is fetched: the page opens offline.
+    for outside in ["http://", "https://", "src=", "<script", "@import", "url("] {
+        assert!(!html.contains(outside), "{outside}");
+    }
+    assert!(html.contains("box &lt;survey&gt;"));
+    assert!(html.contains("battery &lt;low&gt; &amp; falling"));
+    assert!(!html.contains("<low>"));
+    // Tracks, depth, battery, speed: one line each for the vehicle with data.
+    assert_eq!(html.matches("<polyline").count(), 4);
+    assert!(html.contains("aria-label=\"Task timeline\""));
+    assert!(html.matches("<rect x=").count() >= 2);
+}
+
+#[test]
+fn an_empty_run_still_renders() {
+    let r = RunRecord {
+        scenario: "empty".into(),
+        start_ms: T0,
+        end_ms: T0,
+        ..RunRecord::default()
+    };
+    let html = render_html(&r, &summarise(&r));
+    assert!(html.contains("No positions were stored."));
+    assert!(html.contains("No task was issued."));
+}
+
+#[test]
+fn ticks_are_round_numbers() {
+    assert_eq!(html_tick(3600.0), 500.0);
+    assert_eq!(html_tick(7.3), 1.0);
+}
+
+#[test]
+fn time_ticks_are_whole_minutes_and_hours() {
+    assert_eq!(html::time_step_for_tests(900.0), 300.0);
+    assert_eq!(html::time_step_for_tests(3600.0), 600.0);
+    assert_eq!(html::time_step_for_tests(7.0 * 86_400.0), 86_400.0 * 2.0);
+}
+
+fn html_tick(span: f64) -> f64 {
+    html::tick_step_for_tests(span)
+}
