@@ -3,8 +3,10 @@
 # with [console.auth] on) inside a private network namespace, then runs
 # crates/shoal-console/web/tests/*.test.js with playwright-core driving Debian's Chromium
 # in the same namespace (one test also starts a `shoal vehicle --sim` of its own on the
-# same DDS domain, to watch it go stale and lost). Screenshots and the browser's request
-# log go to target/console-e2e/.
+# same DDS domain, to watch it go stale and lost). It also runs a short `shoal scenario
+# run` and opens its HTML report from the file, offline
+# (web/tests/scenario-report.e2e.test.js). Screenshots and the browser's request log go
+# to target/console-e2e/.
 #
 # Usage: scripts/console-e2e.sh [<netns>]        (default: shoal-test)
 #   SHOAL_BIN   the shoal binary (default: target/release/shoal; build it first with
@@ -119,8 +121,15 @@ code="$(ip netns exec "$ns" curl -s -o /dev/null -w '%{http_code}' "http://127.0
 ip netns exec "$ns" curl -sf -H "Authorization: Bearer $token" "http://127.0.0.1:$port/api/fleet" >/dev/null \
     || die "the configured admin token does not work"
 
+# A headless scenario run (DDS domain 146), ten simulated minutes at 100x, whose report
+# the browser opens from its file.
+ip netns exec "$ns" "$bin" --config "$work/shoal.toml" scenario run sea-trial --speed 100 \
+    --duration 600 --domain 146 --out "$work/run" >"$out/scenario-run.log" 2>&1 \
+    || die "shoal scenario run failed; see $out/scenario-run.log"
+
 set +e
 ip netns exec "$ns" env \
+    SHOAL_REPORT="$work/run/report.html" \
     SHOAL_URL="http://127.0.0.1:$port" \
     SHOAL_AIS_PORT="$((port + 1))" \
     SHOAL_ADMIN_TOKEN="$token" \
@@ -128,7 +137,7 @@ ip netns exec "$ns" env \
     SHOAL_BIN="$bin" \
     SHOAL_E2E_CONFIG="$work/shoal.toml" \
     node --test --test-reporter=spec --test-reporter-destination=stdout \
-    "$web/tests/console.e2e.test.js" 2>&1 | tee "$out/results.txt"
+    "$web/tests/console.e2e.test.js" "$web/tests/scenario-report.e2e.test.js" 2>&1 | tee "$out/results.txt"
 status=${PIPESTATUS[0]}
 set -e
 

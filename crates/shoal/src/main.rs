@@ -296,10 +296,10 @@ where
     }
 }
 
-fn init_logging(label: &str) {
+fn init_logging(label: &str, default_filter: &str) {
     use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,cyclonedds=warn"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter));
     let ansi = std::io::stderr().is_terminal();
     let format = tracing_subscriber::fmt::format()
         .with_target(false)
@@ -351,11 +351,24 @@ fn main() -> ExitCode {
         Command::Replay(_) => "replay".to_string(),
         Command::Scenario(_) => "scenario".to_string(),
     };
-    init_logging(&label);
+    // A scenario run prints its own progress; its station's and vehicles' INFO lines
+    // would bury it (RUST_LOG=info shows them).
+    let default_filter = if matches!(cli.command, Command::Scenario(_)) {
+        "warn,cyclonedds=warn"
+    } else {
+        "info,cyclonedds=warn"
+    };
+    init_logging(&label, default_filter);
     // Before the configuration is loaded: checking a file needs none, and an invalid
     // scenario has its own exit code.
     if let Command::Scenario(args) = &cli.command {
-        return scenario::run(args);
+        #[cfg(feature = "console")]
+        let offline = args.run_args().is_none();
+        #[cfg(not(feature = "console"))]
+        let offline = true;
+        if offline {
+            return scenario::run(args);
+        }
     }
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
@@ -509,7 +522,16 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::ModemEmu(args) => rt.block_on(acoustic::modem_emu(args)),
         Command::Record(args) => rt.block_on(record::record(&cfg, args)),
         Command::Replay(args) => rt.block_on(record::replay(&cfg, cli.config.as_deref(), args)),
-        // Run by `main` before the configuration is loaded.
+        #[cfg(feature = "console")]
+        Command::Scenario(args) => match args.run_args() {
+            Some(run) => rt.block_on(async {
+                let stop = daemons::shutdown_signal(false);
+                scenario::run::run(&cfg, run, stop).await
+            }),
+            // `check` and `list` are run by `main` before the configuration is loaded.
+            None => Ok(()),
+        },
+        #[cfg(not(feature = "console"))]
         Command::Scenario(_) => Ok(()),
         Command::Config { default } => {
             if default {

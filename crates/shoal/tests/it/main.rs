@@ -17,6 +17,7 @@
 //! - `security`: `[security]` on: signed fleet, refused intruders, revocation, start-up
 //!   errors.
 //! - `scenario`: the services end to end — missions on three vehicles, one acoustic.
+//! - `scenario_run`: `shoal scenario run` headless at 60x and its report directory.
 //! - `converter`: the DDS-Acoustic Converter (VDT, CDT, the emulated relay) with a
 //!   simulated vehicle behind it; its own module list says where its tests go.
 //! - `interop`: foreign DDS implementations (Cyclone DDS, RTI Connext, Fast DDS) against
@@ -34,5 +35,6 @@ mod interop;
 mod proxies;
 mod recorder;
 mod scenario;
+mod scenario_run;
 mod security;
 mod station;

@@ -1,5 +1,9 @@
-//! `shoal scenario`: scenario files (the `shoal-scenario` crate) on the command line, and
-//! how `shoal up` and `shoal station` find the scenario their `--scenario` names.
+//! `shoal scenario`: scenario files (the `shoal-scenario` crate) on the command line, how
+//! `shoal up` and `shoal station` find the scenario their `--scenario` names, and
+//! [`run`]: a scenario run headless, faster than real time, with its report.
+
+#[cfg(feature = "console")]
+pub mod run;
 
 use std::path::Path;
 use std::process::ExitCode;
@@ -30,6 +34,23 @@ enum ScenarioCommand {
     },
     /// List the scenarios shipped in this binary (scenarios/ in the repository).
     List,
+    /// Run a scenario headless, faster than real time: a station and the scenario's
+    /// simulated vehicles in this process on a private loopback DDS domain, with a
+    /// progress line every two seconds; then write its report directory.
+    #[cfg(feature = "console")]
+    Run(run::RunArgs),
+}
+
+impl ScenarioArgs {
+    /// The `run` subcommand's arguments: it needs the configuration and a runtime,
+    /// unlike `check` and `list`.
+    #[cfg(feature = "console")]
+    pub fn run_args(&self) -> Option<&run::RunArgs> {
+        match &self.which {
+            ScenarioCommand::Run(args) => Some(args),
+            _ => None,
+        }
+    }
 }
 
 /// Where a scenario's text came from: a file, or one compiled into the binary.
@@ -106,6 +127,12 @@ pub fn summary(s: &Scenario) -> String {
 /// `shoal scenario ...`; its own exit code (2: the scenario is not valid).
 pub fn run(args: &ScenarioArgs) -> ExitCode {
     match &args.which {
+        #[cfg(feature = "console")]
+        // main runs it with the configuration and a runtime; never reached from there.
+        ScenarioCommand::Run(_) => {
+            eprintln!("shoal: error: `scenario run` needs the configuration loaded first");
+            ExitCode::FAILURE
+        }
         ScenarioCommand::List => {
             for (name, text) in SHIPPED {
                 match shoal_scenario::parse(text) {

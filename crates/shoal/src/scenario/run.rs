@@ -1,0 +1,477 @@
+//! `shoal scenario run`: a scenario headless in one process — a station and the
+//! scenario's simulated vehicles on a private loopback DDS domain, all on one simulated
+//! clock run `--speed` times as fast as real time — and its report directory.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use shoal_dds::PubSub;
+use shoal_history::{Backend, History};
+use shoal_model::{TaskState, Warp};
+use shoal_proxy::ProxyOptions;
+use shoal_proxy::sim::{SimSettings, SimSpec};
+use shoal_scenario::report::{self, RunRecord, StationFigures, TaskRecord, VehicleRecord};
+use shoal_scenario::{MAX_DURATION_S, Scenario};
+use shoal_station::{Clock, Station};
+use tokio_util::sync::CancellationToken;
+use tracing::{info, warn};
+
+use crate::config::ShoalConfig;
+
+/// Fastest run: a vehicle reports at most 100 times a real second, so beyond this a 1 Hz
+/// vehicle's reports thin out in simulated time.
+pub const MAX_SPEED: f64 = 100.0;
+/// The DDS domain of a run unless `--domain` says otherwise: not the default domain 0, so
+/// a run never mixes with a station that `shoal up` runs on the same host.
+pub const DEFAULT_DOMAIN: u16 = 200;
+/// Most rows of one kind read back for the report.
+const READ_LIMIT: usize = 1_000_000;
+
+/// `shoal scenario run FILE`.
+#[derive(Debug, Args)]
+#[command(
+    after_help = "Example: shoal scenario run sea-trial --speed 60 --duration 600 --out runs/trial-1\n\n\
+The report directory holds report.html (open it in a browser; it needs no network), \
+summary.json (the figures), history.sqlite (every state, task and event the station \
+stored) and recording/ (every DDS sample, as MCAP)."
+)]
+pub struct RunArgs {
+    /// The scenario: a TOML file, or the name of a shipped one (`shoal scenario list`).
+    #[arg(value_name = "FILE")]
+    file: String,
+    /// Simulated seconds per real second, at most 100 (default: the scenario's
+    /// `time_scale`).
+    #[arg(long)]
+    speed: Option<f64>,
+    /// Seed of the simulated vehicles' random draws (detections, environment noise); each
+    /// vehicle draws from the seed and its id.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Simulated seconds to run (default: the scenario's `duration_s`).
+    #[arg(long, value_name = "SECONDS")]
+    duration: Option<f64>,
+    /// Directory for the report, created; it must not hold anything yet (default:
+    /// scenario-runs/<scenario>-<UTC time>).
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// DDS domain of the run (loopback only), so it does not mix with a running station.
+    #[arg(long, default_value_t = DEFAULT_DOMAIN)]
+    domain: u16,
+}
+
+/// The run's settings, checked before anything starts.
+struct Plan {
+    scenario: Scenario,
+    speed: f64,
+    duration_s: f64,
+    dir: PathBuf,
+    cfg: ShoalConfig,
+}
+
+fn plan(cfg: &ShoalConfig, args: &RunArgs) -> Result<Plan> {
+    let source = super::resolve(&args.file)?.context("`none` is not a scenario to run")?;
+    let mut scenario = super::load(&source)?;
+    let speed = args.speed.unwrap_or(scenario.time_scale);
+    if !(speed.is_finite() && speed > 0.0 && speed <= MAX_SPEED) {
+        bail!("--speed must be in (0, {MAX_SPEED}] simulated seconds per real second, not {speed}");
+    }
+    let duration_s = args.duration.unwrap_or(scenario.duration_s);
+    if !(duration_s.is_finite() && duration_s > 0.0 && duration_s <= MAX_DURATION_S) {
+        bail!("--duration must be in (0, {MAX_DURATION_S}] seconds, not {duration_s}");
+    }
+    scenario.duration_s = duration_s;
+    let dir = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_dir(&scenario.name));
+    let mut cfg = cfg.clone();
+    cfg.dds.domain_id = args.domain;
+    if !cfg.dds.is_loopback_only() {
+        bail!(
+            "a scenario run keeps its simulated fleet on this host: [dds] interfaces must be loopback addresses, not {:?}",
+            cfg.dds.interfaces
+        );
+    }
+    // Everything the run stores goes into its report directory.
+    cfg.history.backend = Backend::Sqlite;
+    cfg.history.path = dir.join("history.sqlite");
+    cfg.recorder.enabled = true;
+    cfg.recorder.directory = dir.join("recording");
+    Ok(Plan {
+        scenario,
+        speed,
+        duration_s,
+        dir,
+        cfg,
+    })
+}
+
+fn default_dir(name: &str) -> PathBuf {
+    let now = time::OffsetDateTime::now_utc();
+    PathBuf::from("scenario-runs").join(format!(
+        "{name}-{:04}{:02}{:02}T{:02}{:02}{:02}Z",
+        now.year(),
+        u8::from(now.month()),
+        now.day(),
+        now.hour(),
+        now.minute(),
+        now.second()
+    ))
+}
+
+/// Creates the report directory; one that already holds files is refused, so a run never
+/// mixes its history with another's.
+fn create_dir(dir: &Path) -> Result<()> {
+    if dir.exists() {
+        let mut entries = std::fs::read_dir(dir)
+            .with_context(|| format!("cannot read the report directory {}", dir.display()))?;
+        if entries.next().is_some() {
+            bail!(
+                "the report directory {} is not empty: name another with --out",
+                dir.display()
+            );
+        }
+    }
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create the report directory {}", dir.display()))
+}
+
+/// A vehicle's seed: the run's seed and its id, so vehicles draw differently and a
+/// vehicle draws the same in every run with the same seed.
+fn vehicle_seed(seed: u64, id: &str) -> u64 {
+    // FNV-1a over the id, from the seed.
+    id.bytes().fold(
+        0xcbf2_9ce4_8422_2325 ^ seed.wrapping_mul(0x9e37_79b9_7f4a_7c15),
+        |h, b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3),
+    )
+}
+
+/// Runs a scenario headless and writes its report; Ctrl-C ends it early with a report of
+/// what ran.
+pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> Result<()> {
+    let Plan {
+        scenario,
+        speed,
+        duration_s,
+        dir,
+        cfg,
+    } = plan(cfg, args)?;
+    create_dir(&dir)?;
+    eprintln!(
+        "shoal: running scenario {:?} for {} simulated at {speed}x (about {:.0} s), seed {}, into {}",
+        scenario.name,
+        format_s(duration_s),
+        duration_s / speed,
+        args.seed,
+        dir.display()
+    );
+    info!(
+        domain = cfg.dds.domain_id,
+        "simulated fleet on loopback only, DDS security off (a closed simulation)"
+    );
+    let history = History::open(&cfg.history).context("cannot create the run's history store")?;
+    let station_dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?);
+    let fleet_dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?);
+    let recorder = shoal_recorder::Recorder::start(&station_dds, &cfg.recorder)
+        .context("cannot start the run's recording")?;
+    let warp = Warp::start(speed)?;
+    let station = Station::with_clock(
+        cfg.station.clone(),
+        Arc::clone(&station_dds),
+        history,
+        Clock::warped(warp),
+    )
+    .context("cannot start the station")?;
+    let handle = station.handle();
+    let station_stop = CancellationToken::new();
+    let station_task = tokio::spawn(station.run(station_stop.clone()));
+    let fleet_stop = CancellationToken::new();
+    let mut vehicles = Vec::new();
+    for v in &scenario.vehicles {
+        let spec = SimSpec {
+            id: v.id.clone(),
+            kind: v.kind,
+            latitude_deg: v.latitude_deg,
+            longitude_deg: v.longitude_deg,
+            rate_hz: v.rate_hz,
+            battery_pct: v.battery_pct,
+        };
+        let settings = SimSettings {
+            seed: Some(vehicle_seed(args.seed, &v.id)),
+            ..cfg.fleet.sim.clone()
+        };
+        let options = ProxyOptions {
+            clock: Some(warp),
+            // A real ledger, as on a vehicle: a task runs once even across a restart.
+            ledger_dir: Some(dir.join("vehicles")),
+            ..ProxyOptions::default()
+        };
+        let id = v.id.clone();
+        let run = shoal_proxy::run_sim_on(
+            spec,
+            settings,
+            options,
+            Arc::clone(&fleet_dds),
+            fleet_stop.clone(),
+        );
+        vehicles.push(tokio::spawn(async move {
+            if let Err(e) = run.await {
+                warn!(vehicle = %id, error = %e, "simulated vehicle stopped");
+            }
+        }));
+    }
+    let missions = tokio::spawn({
+        let handle = handle.clone();
+        let scenario = scenario.clone();
+        let stop = station_stop.clone();
+        async move { handle.run_scenario(scenario, stop).await }
+    });
+    let started = Instant::now();
+    let start_ms = warp.origin_ms();
+    let end_ms = start_ms + (duration_s * 1000.0) as i64;
+    let mut progress = tokio::time::interval(Duration::from_secs(2));
+    progress.tick().await;
+    let stopped_early = loop {
+        let left_ms = end_ms - warp.now_ms();
+        if left_ms <= 0 {
+            break false;
+        }
+        let wait = warp.real(Duration::from_millis(u64::try_from(left_ms).unwrap_or(0)));
+        tokio::select! {
+            () = stop.cancelled() => break true,
+            () = tokio::time::sleep(wait) => {}
+            _ = progress.tick() => eprintln!("{}", progress_line(&handle, warp.now_ms() - start_ms, duration_s)),
+        }
+    };
+    if stopped_early {
+        eprintln!("shoal: stopping early; the report covers what ran");
+    }
+    let end_ms = warp.now_ms().min(end_ms);
+    // Vehicles first, then the station a moment later, so what they sent last is stored.
+    fleet_stop.cancel();
+    for v in vehicles {
+        let _ = tokio::time::timeout(Duration::from_secs(5), v).await;
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    station_stop.cancel();
+    missions.abort();
+    let station_report = station_task
+        .await
+        .context("the station task failed")?
+        .context("the station failed")?;
+    match recorder.stop().await {
+        Ok(s) => info!(
+            files = s.files,
+            messages = s.messages,
+            bytes = s.bytes,
+            "recording closed"
+        ),
+        Err(e) => {
+            warn!(error = %e, "recording failed; its files are readable up to their last chunk");
+        }
+    }
+    let wall_s = started.elapsed().as_secs_f64();
+    let record = read_back(
+        &cfg,
+        &scenario,
+        args.seed,
+        speed,
+        (start_ms, end_ms),
+        wall_s,
+        StationFigures {
+            states_accepted: station_report.stats.states_accepted,
+            rejected: station_report.stats.total_rejected(),
+            history_committed: station_report.history_committed,
+        },
+    )?;
+    let summary = report::summarise(&record);
+    let json = serde_json::to_string_pretty(&summary).context("cannot write the summary")?;
+    std::fs::write(dir.join("summary.json"), json + "\n")
+        .with_context(|| format!("cannot write {}", dir.join("summary.json").display()))?;
+    std::fs::write(
+        dir.join("report.html"),
+        report::render_html(&record, &summary),
+    )
+    .with_context(|| format!("cannot write {}", dir.join("report.html").display()))?;
+    eprintln!("{}", closing_line(&summary, &dir));
+    Ok(())
+}
+
+/// Reads what the station stored during the run back from its history store.
+fn read_back(
+    cfg: &ShoalConfig,
+    scenario: &Scenario,
+    seed: u64,
+    speed: f64,
+    (start_ms, end_ms): (i64, i64),
+    wall_s: f64,
+    station: StationFigures,
+) -> Result<RunRecord> {
+    let history = History::open(&cfg.history).context("cannot read the run's history store")?;
+    let reader = history.reader();
+    let mut vehicles = Vec::new();
+    for v in &scenario.vehicles {
+        let track = reader
+            .track(&v.id, start_ms, end_ms, READ_LIMIT)
+            .with_context(|| format!("cannot read the track of {}", v.id))?;
+        vehicles.push(VehicleRecord {
+            id: v.id.clone(),
+            kind: v.kind.as_str().to_owned(),
+            track,
+        });
+    }
+    let tasks = reader
+        .tasks_since(start_ms, READ_LIMIT)
+        .context("cannot read the run's tasks")?
+        .into_iter()
+        .filter_map(|t| {
+            Some(TaskRecord {
+                assignment: t.assignment?,
+                statuses: t.statuses,
+            })
+        })
+        .collect();
+    let events = reader
+        .events(start_ms, READ_LIMIT)
+        .context("cannot read the run's events")?;
+    let _ = history.close();
+    Ok(RunRecord {
+        scenario: scenario.name.clone(),
+        description: scenario.description.clone(),
+        seed,
+        speed,
+        start_ms,
+        end_ms,
+        wall_s,
+        vehicles,
+        tasks,
+        events,
+        station,
+    })
+}
+
+fn format_s(s: f64) -> String {
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+    let s = s.max(0.0).round() as u64;
+    format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
+}
+
+/// One line of progress: simulated time, vehicles heard, tasks by state, alarms.
+fn progress_line(
+    handle: &shoal_station::StationHandle,
+    elapsed_ms: i64,
+    duration_s: f64,
+) -> String {
+    #[allow(clippy::cast_precision_loss)]
+    let elapsed_s = elapsed_ms as f64 / 1000.0;
+    let fleet = handle.fleet();
+    let heard = fleet.iter().filter(|v| v.latest.is_some()).count();
+    let tasks = handle.tasks();
+    let count = |f: fn(TaskState) -> bool| tasks.iter().filter(|t| f(t.state)).count();
+    let alarms = handle
+        .recent_events()
+        .iter()
+        .filter(|e| e.severity >= shoal_model::Severity::Alarm)
+        .count();
+    format!(
+        "  {} / {} simulated ({:>3.0} %)  vehicles heard {heard}/{}  tasks: {} done, {} under way, {} failed  alarms {alarms}",
+        format_s(elapsed_s),
+        format_s(duration_s),
+        (elapsed_s / duration_s * 100.0).min(100.0),
+        fleet.len(),
+        count(|s| s == TaskState::Done),
+        count(|s| !s.is_final()),
+        count(|s| s.is_final() && s != TaskState::Done),
+    )
+}
+
+fn closing_line(s: &report::Summary, dir: &Path) -> String {
+    let moved = s.vehicles.values().filter(|v| v.distance_m > 0.0).count();
+    format!(
+        "shoal: scenario {:?} ran {} simulated in {:.1} s: {} of {} vehicles moved, tasks {}; report: {}",
+        s.scenario,
+        format_s(s.simulated_s),
+        s.wall_s,
+        moved,
+        s.vehicles.len(),
+        s.tasks
+            .iter()
+            .map(|(k, n)| format!("{k} {n}"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        dir.join("report.html").display()
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    fn args(extra: &[&str]) -> RunArgs {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            run: RunArgs,
+        }
+        let mut argv = vec!["run"];
+        argv.extend_from_slice(extra);
+        Cli::try_parse_from(argv).unwrap().run
+    }
+
+    #[test]
+    fn a_run_is_planned_into_its_directory_on_a_private_loopback_domain() {
+        let p = plan(
+            &ShoalConfig::default(),
+            &args(&["sea-trial", "--out", "/tmp/x", "--speed", "30"]),
+        )
+        .unwrap();
+        assert_eq!(p.speed, 30.0);
+        assert_eq!(p.cfg.dds.domain_id, DEFAULT_DOMAIN);
+        assert_eq!(p.cfg.history.path, Path::new("/tmp/x/history.sqlite"));
+        assert!(p.cfg.recorder.enabled);
+        assert_eq!(p.duration_s, p.scenario.duration_s);
+    }
+
+    #[test]
+    fn bad_speeds_durations_and_interfaces_are_refused_before_anything_starts() {
+        let cfg = ShoalConfig::default();
+        for (flags, says) in [
+            (vec!["sea-trial", "--speed", "0"], "--speed"),
+            (vec!["sea-trial", "--speed", "1000"], "--speed"),
+            (vec!["sea-trial", "--duration", "-5"], "--duration"),
+            (vec!["none"], "not a scenario"),
+        ] {
+            let e = plan(&cfg, &args(&flags)).err().unwrap().to_string();
+            assert!(e.contains(says), "{flags:?}: {e}");
+        }
+        let mut open = ShoalConfig::default();
+        open.dds.interfaces = vec!["192.0.2.1".parse().unwrap()];
+        let e = plan(&open, &args(&["sea-trial"]))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("loopback"), "{e}");
+    }
+
+    #[test]
+    fn a_directory_with_files_is_not_reused() {
+        let d = tempfile::tempdir().unwrap();
+        create_dir(d.path()).unwrap();
+        create_dir(&d.path().join("new/deeper")).unwrap();
+        std::fs::write(d.path().join("summary.json"), "{}").unwrap();
+        let e = create_dir(d.path()).unwrap_err().to_string();
+        assert!(e.contains("not empty"), "{e}");
+    }
+
+    #[test]
+    fn vehicles_draw_from_the_seed_and_their_id() {
+        assert_eq!(vehicle_seed(1, "auv-1"), vehicle_seed(1, "auv-1"));
+        assert_ne!(vehicle_seed(1, "auv-1"), vehicle_seed(1, "auv-2"));
+        assert_ne!(vehicle_seed(1, "auv-1"), vehicle_seed(2, "auv-1"));
+    }
+}

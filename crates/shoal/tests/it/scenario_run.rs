@@ -1,0 +1,175 @@
+//! `shoal scenario run`: a scenario headless, faster than real time, and its report
+//! directory, through the binary. Domain 113.
+
+use std::process::Command;
+use std::time::Instant;
+
+/// Two vehicles, three tasks; ten simulated minutes.
+const SCENARIO: &str = r#"
+[scenario]
+name = "two-boats"
+description = "An AUV goes out and holds; a USV crosses."
+duration_s = 600.0
+
+[[vehicles]]
+id = "auv-7"
+kind = "auv"
+latitude_deg = 63.44
+longitude_deg = 10.36
+
+[[vehicles]]
+id = "usv-7"
+kind = "usv"
+latitude_deg = 63.441
+longitude_deg = 10.362
+
+[[missions]]
+id = "out"
+name = "out and hold"
+at_s = 5.0
+
+[[missions.tasks]]
+vehicle = "auv-7"
+kind = "goto"
+latitude_deg = 63.442
+longitude_deg = 10.36
+depth_m = 4.0
+speed_mps = 1.5
+
+[[missions.tasks]]
+vehicle = "auv-7"
+kind = "hold"
+duration_s = 60.0
+
+[[missions]]
+id = "cross"
+name = "crossing"
+at_s = 30.0
+
+[[missions.tasks]]
+vehicle = "usv-7"
+kind = "goto"
+latitude_deg = 63.441
+longitude_deg = 10.372
+speed_mps = 2.0
+"#;
+
+fn shoal(dir: &std::path::Path) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_shoal"));
+    c.current_dir(dir);
+    c
+}
+
+#[test]
+fn a_scenario_runs_at_60x_and_leaves_a_report_with_its_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("two-boats.toml"), SCENARIO).unwrap();
+    let started = Instant::now();
+    let out = shoal(dir.path())
+        .args([
+            "scenario",
+            "run",
+            "two-boats.toml",
+            "--speed",
+            "60",
+            "--seed",
+            "3",
+        ])
+        .args(["--domain", "113", "--out", "run"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    // Ten simulated minutes at 60x: about ten real seconds, plus start and report.
+    let took = started.elapsed().as_secs_f64();
+    assert!(took < 60.0, "{took} s");
+    assert!(stderr.contains("simulated ("), "progress lines: {stderr}");
+
+    let run = dir.path().join("run");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["format"], 1);
+    assert_eq!(summary["scenario"], "two-boats");
+    assert_eq!(summary["seed"], 3);
+    assert_eq!(summary["simulated_s"], 600.0);
+    // Both vehicles reported through the run (1 Hz simulated: hundreds of states) and moved.
+    for id in ["auv-7", "usv-7"] {
+        let v = &summary["vehicles"][id];
+        assert!(v["states"].as_u64().unwrap() > 400, "{id}: {v}");
+        assert!(v["distance_m"].as_f64().unwrap() > 150.0, "{id}: {v}");
+    }
+    assert!(
+        summary["vehicles"]["auv-7"]["max_depth_m"]
+            .as_f64()
+            .unwrap()
+            > 3.0
+    );
+    assert_eq!(summary["vehicles"]["usv-7"]["max_depth_m"], 0.0);
+    // The missions started on the timeline, in simulated time: the USV not before 30 s.
+    let usv_moved = summary["vehicles"]["usv-7"]["first_motion_s"]
+        .as_f64()
+        .unwrap();
+    assert!((30.0..90.0).contains(&usv_moved), "{usv_moved}");
+    // Every task ran to done; each is keyed by its mission and place, whatever the run.
+    assert_eq!(summary["tasks"]["total"], 3, "{summary}");
+    assert_eq!(summary["tasks"]["done"], 3, "{summary}");
+    for key in ["out/1", "out/2", "cross/1"] {
+        assert_eq!(summary["task_outcomes"][key]["state"], "done", "{key}");
+    }
+    let hold = summary["task_outcomes"]["out/2"]["duration_s"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        (55.0..75.0).contains(&hold),
+        "the 60 s hold took {hold} simulated s"
+    );
+
+    let html = std::fs::read_to_string(run.join("report.html")).unwrap();
+    assert!(html.contains("auv-7") && html.contains("usv-7") && html.contains("<svg"));
+    assert!(run.join("history.sqlite").exists());
+    let mcap: Vec<_> = std::fs::read_dir(run.join("recording"))
+        .unwrap()
+        .filter_map(Result::ok)
+        .filter(|e| e.path().extension().is_some_and(|x| x == "mcap"))
+        .collect();
+    assert_eq!(mcap.len(), 1);
+    assert!(mcap[0].metadata().unwrap().len() > 10_000);
+
+    // The same directory again is refused: runs never mix their histories.
+    let again = shoal(dir.path())
+        .args([
+            "scenario",
+            "run",
+            "two-boats.toml",
+            "--domain",
+            "113",
+            "--out",
+            "run",
+        ])
+        .output()
+        .unwrap();
+    assert!(!again.status.success());
+    assert!(String::from_utf8_lossy(&again.stderr).contains("not empty"));
+}
+
+#[test]
+fn a_bad_scenario_is_one_line_and_nothing_starts() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = SCENARIO.replace("vehicle = \"usv-7\"", "vehicle = \"usv-9\"");
+    std::fs::write(dir.path().join("bad.toml"), bad).unwrap();
+    let out = shoal(dir.path())
+        .args([
+            "scenario", "run", "bad.toml", "--domain", "113", "--out", "run",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let errors: Vec<&str> = stderr.lines().filter(|l| l.contains("error")).collect();
+    assert_eq!(errors.len(), 1, "{stderr}");
+    assert!(
+        errors[0].contains("usv-9") && errors[0].contains("line"),
+        "{stderr}"
+    );
+    assert!(!dir.path().join("run").exists(), "nothing was created");
+}
