@@ -122,8 +122,8 @@ pub struct Federation {
     stop: CancellationToken,
     tasks: Vec<JoinHandle<()>>,
     // Held for their lifetime: dropping one undeclares it.
-    _token: LivelinessToken,
-    _subscribers: Vec<Subscriber<()>>,
+    token: Option<LivelinessToken>,
+    subscribers: Vec<Subscriber<()>>,
 }
 
 impl Federation {
@@ -229,8 +229,8 @@ impl Federation {
             session,
             stop,
             tasks,
-            _token: token,
-            _subscribers: subscribers,
+            token: Some(token),
+            subscribers,
         })
     }
 
@@ -294,17 +294,25 @@ impl Federation {
     }
 
     /// Stops the tasks, undeclares everything and closes the session.
-    pub async fn shutdown(self) -> Result<(), ShutdownError> {
+    pub async fn shutdown(mut self) -> Result<(), ShutdownError> {
         self.stop.cancel();
-        for task in self.tasks {
+        for task in std::mem::take(&mut self.tasks) {
             // A task that panicked has nothing left to clean up.
             let _ = task.await;
         }
-        drop(self._subscribers);
-        drop(self._token);
+        self.subscribers.clear();
+        self.token = None;
         self.session.close().await.map_err(ShutdownError::Close)?;
         info!(site = %self.site, "federation stopped");
         Ok(())
+    }
+}
+
+impl Drop for Federation {
+    /// Dropped without `shutdown`: the tasks stop, and with them the last handles on the
+    /// session, which Zenoh then closes.
+    fn drop(&mut self) {
+        self.stop.cancel();
     }
 }
 
