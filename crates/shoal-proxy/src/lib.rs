@@ -122,16 +122,27 @@ pub async fn run_sim_on(
         Some(warp) => SimAdapter::warped(&spec, &settings, warp),
         None => SimAdapter::new(&spec, &settings),
     };
+    run_sim_adapter(adapter, options, dds, shutdown).await
+}
+
+/// Runs an already built simulated vehicle (on a warped clock, taking faults, restarted
+/// where it was) on DDS until `shutdown` is cancelled; `options.state_rate_hz` is its
+/// reporting rate.
+pub async fn run_sim_adapter(
+    adapter: SimAdapter,
+    options: ProxyOptions,
+    dds: Arc<PubSub>,
+    shutdown: CancellationToken,
+) -> Result<(), CreateError> {
+    let id = adapter.vehicle().announcement.vehicle_id.clone();
     match run_proxy(adapter, dds, options, shutdown).await {
         Ok(()) => Ok(()),
         Err(ProxyError::Dds(e)) => Err(e),
         Err(ProxyError::Announcement(e)) => Err(CreateError::Config(format!(
-            "simulated vehicle {:?} cannot be announced: {e}",
-            spec.id
+            "simulated vehicle {id:?} cannot be announced: {e}"
         ))),
         Err(ProxyError::Ledger(e)) => Err(CreateError::Config(format!(
-            "simulated vehicle {:?}: {e}",
-            spec.id
+            "simulated vehicle {id:?}: {e}"
         ))),
         Err(ProxyError::Adapter(never)) => match never {},
     }

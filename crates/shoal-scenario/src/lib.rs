@@ -66,6 +66,60 @@ pub struct Scenario {
     pub vehicles: Vec<ScenarioVehicle>,
     /// The missions, in file order (not necessarily time order).
     pub missions: Vec<ScenarioMission>,
+    /// Faults injected on the timeline, in file order; only `shoal scenario run` injects
+    /// them.
+    pub faults: Vec<ScenarioFault>,
+}
+
+/// A fault on a scenario's timeline.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScenarioFault {
+    /// When it happens, seconds after the scenario starts.
+    pub at_s: f64,
+    /// What happens.
+    pub fault: Fault,
+}
+
+/// What a fault does.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Fault {
+    /// The vehicle's computer stops (its proxy with it); with `restart_after_s`, it starts
+    /// again that much later where it was, with the same task ledger.
+    VehicleFailure {
+        /// The vehicle.
+        vehicle: String,
+        /// Seconds until it starts again; `None`: it stays down.
+        restart_after_s: Option<f64>,
+    },
+    /// The vehicle's battery falls at once to `battery_pct` (a failed cell).
+    BatteryDrop {
+        /// The vehicle.
+        vehicle: String,
+        /// What is left, %.
+        battery_pct: f64,
+    },
+    /// Someone else publishes a state vector for the vehicle, 50 km from where it is.
+    RogueSample {
+        /// The vehicle impersonated.
+        vehicle: String,
+    },
+    /// The station stops and starts again over the same history `down_s` later.
+    StationRestart {
+        /// Seconds it is down.
+        down_s: f64,
+    },
+}
+
+impl Fault {
+    /// The fault's `kind` as the file writes it.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::VehicleFailure { .. } => "vehicle_failure",
+            Self::BatteryDrop { .. } => "battery_drop",
+            Self::RogueSample { .. } => "rogue_sample",
+            Self::StationRestart { .. } => "station_restart",
+        }
+    }
 }
 
 /// A simulated vehicle of a scenario's fleet.
@@ -205,6 +259,28 @@ struct RawFile {
     vehicles: Vec<RawVehicle>,
     #[serde(default)]
     missions: Vec<RawMission>,
+    #[serde(default)]
+    faults: Vec<RawFault>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum FaultName {
+    VehicleFailure,
+    BatteryDrop,
+    RogueSample,
+    StationRestart,
+}
+
+/// One fault as written: like a task, a flat table whose `kind` says which keys it takes.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFault {
+    at_s: Spanned<f64>,
+    kind: Spanned<FaultName>,
+    vehicle: Option<Spanned<String>>,
+    duration_s: Option<Spanned<f64>>,
+    battery_pct: Option<Spanned<f64>>,
 }
 
 #[derive(Deserialize)]
@@ -482,6 +558,12 @@ impl Checker<'_> {
                 });
             }
         }
+        let faults = raw
+            .faults
+            .iter()
+            .enumerate()
+            .map(|(i, f)| self.fault(&format!("faults[{i}]"), f, &vehicles, duration_s))
+            .collect::<Result<Vec<_>, _>>()?;
         Ok(Scenario {
             name: name.to_owned(),
             description: h.description.clone(),
@@ -489,7 +571,94 @@ impl Checker<'_> {
             time_scale,
             vehicles,
             missions,
+            faults,
         })
+    }
+
+    fn fault(
+        &self,
+        at: &str,
+        f: &RawFault,
+        fleet: &[ScenarioVehicle],
+        duration_s: f64,
+    ) -> Result<ScenarioFault, ScenarioError> {
+        let key = |k: &str| format!("{at}.{k}");
+        let kind = *f.kind.get_ref();
+        let kind_line = self.line(&f.kind);
+        let name = match kind {
+            FaultName::VehicleFailure => "vehicle_failure",
+            FaultName::BatteryDrop => "battery_drop",
+            FaultName::RogueSample => "rogue_sample",
+            FaultName::StationRestart => "station_restart",
+        };
+        let used: &[&str] = match kind {
+            FaultName::VehicleFailure => &["vehicle", "duration_s"],
+            FaultName::BatteryDrop => &["vehicle", "battery_pct"],
+            FaultName::RogueSample => &["vehicle"],
+            FaultName::StationRestart => &["duration_s"],
+        };
+        let given: [(&str, Option<Range<usize>>); 3] = [
+            ("vehicle", f.vehicle.as_ref().map(Spanned::span)),
+            ("duration_s", f.duration_s.as_ref().map(Spanned::span)),
+            ("battery_pct", f.battery_pct.as_ref().map(Spanned::span)),
+        ];
+        for (k, span) in &given {
+            if let Some(span) = span
+                && !used.contains(k)
+            {
+                return Err(ScenarioError::Invalid {
+                    line: self.lines.of(span),
+                    key: key(k),
+                    reason: format!("not a key of a {name:?} fault"),
+                });
+            }
+        }
+        let missing = |k: &str| ScenarioError::Invalid {
+            line: kind_line,
+            key: key(k),
+            reason: format!("a {name:?} fault needs it"),
+        };
+        let at_s = self.range(&key("at_s"), &f.at_s, 0.0, duration_s, false)?;
+        let vehicle = || -> Result<String, ScenarioError> {
+            let v = f.vehicle.as_ref().ok_or_else(|| missing("vehicle"))?;
+            if fleet.iter().any(|x| &x.id == v.get_ref()) {
+                Ok(v.get_ref().clone())
+            } else {
+                Err(ScenarioError::UnknownVehicle {
+                    line: self.line(v),
+                    key: key("vehicle"),
+                    vehicle: v.get_ref().clone(),
+                })
+            }
+        };
+        let duration = |default: Option<f64>| -> Result<Option<f64>, ScenarioError> {
+            match f.duration_s.as_ref() {
+                Some(d) => self
+                    .range(&key("duration_s"), d, 0.0, MAX_DURATION_S, true)
+                    .map(Some),
+                None => Ok(default),
+            }
+        };
+        let fault = match kind {
+            FaultName::VehicleFailure => Fault::VehicleFailure {
+                vehicle: vehicle()?,
+                restart_after_s: duration(None)?,
+            },
+            FaultName::BatteryDrop => Fault::BatteryDrop {
+                vehicle: vehicle()?,
+                battery_pct: match f.battery_pct.as_ref() {
+                    Some(b) => self.range(&key("battery_pct"), b, 0.0, 100.0, false)?,
+                    None => return Err(missing("battery_pct")),
+                },
+            },
+            FaultName::RogueSample => Fault::RogueSample {
+                vehicle: vehicle()?,
+            },
+            FaultName::StationRestart => Fault::StationRestart {
+                down_s: duration(Some(5.0))?.unwrap_or(5.0),
+            },
+        };
+        Ok(ScenarioFault { at_s, fault })
     }
 
     fn task(

@@ -217,3 +217,68 @@ mod prop {
         }
     }
 }
+
+#[test]
+fn faults_are_read_with_their_defaults() {
+    let s = parse(&format!(
+        "{HEAD}\n[[faults]]\nat_s = 10\nkind = \"vehicle_failure\"\nvehicle = \"auv-1\"\nduration_s = 30\n\
+         [[faults]]\nat_s = 20\nkind = \"battery_drop\"\nvehicle = \"auv-1\"\nbattery_pct = 12\n\
+         [[faults]]\nat_s = 30\nkind = \"rogue_sample\"\nvehicle = \"auv-1\"\n\
+         [[faults]]\nat_s = 40\nkind = \"station_restart\"\n\
+         [[faults]]\nat_s = 50\nkind = \"vehicle_failure\"\nvehicle = \"auv-1\"\n"
+    ))
+    .unwrap();
+    let kinds: Vec<&str> = s.faults.iter().map(|f| f.fault.kind()).collect();
+    assert_eq!(
+        kinds,
+        [
+            "vehicle_failure",
+            "battery_drop",
+            "rogue_sample",
+            "station_restart",
+            "vehicle_failure"
+        ]
+    );
+    assert_eq!(
+        s.faults[0].fault,
+        Fault::VehicleFailure {
+            vehicle: "auv-1".into(),
+            restart_after_s: Some(30.0)
+        }
+    );
+    assert_eq!(s.faults[3].fault, Fault::StationRestart { down_s: 5.0 });
+    assert_eq!(
+        s.faults[4].fault,
+        Fault::VehicleFailure {
+            vehicle: "auv-1".into(),
+            restart_after_s: None
+        }
+    );
+    assert_eq!(s.faults[1].at_s, 20.0);
+}
+
+#[test]
+fn a_bad_fault_is_named_with_its_key_and_line() {
+    let e = err(&format!(
+        "{HEAD}\n[[faults]]\nat_s = 10\nkind = \"rogue_sample\"\nvehicle = \"auv-9\"\n"
+    ));
+    assert!(matches!(e, ScenarioError::UnknownVehicle { .. }), "{e}");
+    assert_names(&e, 13, "faults[0].vehicle");
+    let e = err(&format!(
+        "{HEAD}\n[[faults]]\nat_s = 10\nkind = \"battery_drop\"\nvehicle = \"auv-1\"\n"
+    ));
+    assert_names(&e, 12, "faults[0].battery_pct");
+    let e = err(&format!(
+        "{HEAD}\n[[faults]]\nat_s = 10\nkind = \"station_restart\"\nvehicle = \"auv-1\"\n"
+    ));
+    assert_names(&e, 13, "faults[0].vehicle");
+    let e = err(&format!(
+        "{HEAD}\n[[faults]]\nat_s = 10\nkind = \"meteor\"\n"
+    ));
+    assert_names(&e, 12, "faults[0].kind");
+    let e = err(&format!(
+        "{}\n[[faults]]\nat_s = 100\nkind = \"station_restart\"\n",
+        HEAD.replace("name = \"t\"", "name = \"t\"\nduration_s = 60")
+    ));
+    assert_names(&e, 12, "faults[0].at_s");
+}

@@ -196,6 +196,12 @@ pub async fn station(cfg: ShoalConfig, scenario: &str, exit_on_stdin_close: bool
         let _ = station.handle().attach_traffic(picture);
     }
     if let Some(scenario) = scenario {
+        if !scenario.faults.is_empty() {
+            warn!(
+                faults = scenario.faults.len(),
+                "the scenario's faults are injected only by `shoal scenario run`; this station runs its missions alone"
+            );
+        }
         let handle = station.handle();
         let stop = shutdown.clone();
         tokio::spawn(async move { handle.run_scenario(scenario, stop).await });

@@ -12,6 +12,13 @@ use crate::adapter::{Acceptance, Refusal, TaskOrder, VehicleAdapter, VehicleOutp
 /// How often the simulation advances when nothing asks for it sooner.
 pub const TICK: Duration = Duration::from_millis(100);
 
+/// A fault injected into a running simulated vehicle (`shoal scenario run`'s timeline).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SimFault {
+    /// The battery falls at once to this percentage.
+    BatteryDrop(f64),
+}
+
 /// Shortest real time between two advances of a warped vehicle: finer steps only cost CPU.
 const MIN_WARPED_TICK: Duration = Duration::from_millis(10);
 
@@ -27,6 +34,7 @@ pub struct SimAdapter {
     ticker: Option<Interval>,
     last: Option<Instant>,
     warp: Option<Warp>,
+    faults: Option<tokio::sync::mpsc::UnboundedReceiver<SimFault>>,
 }
 
 impl SimAdapter {
@@ -42,6 +50,21 @@ impl SimAdapter {
             ticker: None,
             last: None,
             warp: None,
+            faults: None,
+        }
+    }
+
+    /// Takes faults from `faults` while it runs (a closed channel injects no more).
+    #[must_use]
+    pub fn with_faults(mut self, faults: tokio::sync::mpsc::UnboundedReceiver<SimFault>) -> Self {
+        self.faults = Some(faults);
+        self
+    }
+
+    fn inject(&mut self, fault: SimFault) {
+        self.catch_up();
+        match fault {
+            SimFault::BatteryDrop(pct) => self.vehicle.drop_battery(pct),
         }
     }
 
@@ -103,8 +126,25 @@ impl VehicleAdapter for SimAdapter {
                 t
             });
             // Cancel-safe: a dropped tick loses nothing, the next catch-up covers the time.
-            ticker.tick().await;
-            self.catch_up();
+            let fault = match self.faults.as_mut() {
+                Some(rx) => tokio::select! {
+                    _ = ticker.tick() => None,
+                    f = rx.recv() => {
+                        if f.is_none() {
+                            self.faults = None;
+                        }
+                        f
+                    }
+                },
+                None => {
+                    ticker.tick().await;
+                    None
+                }
+            };
+            match fault {
+                Some(f) => self.inject(f),
+                None => self.catch_up(),
+            }
         }
     }
 

@@ -42,7 +42,7 @@ use shoal_model::{
     VehicleAnnouncement, VehicleKind,
 };
 
-pub use adapter::SimAdapter;
+pub use adapter::{SimAdapter, SimFault};
 pub use environment::{
     CURRENT_DIRECTION, CURRENT_SPEED, SALINITY, TEMPERATURE, UNITS, Water, water_at,
 };
@@ -549,6 +549,14 @@ impl SimVehicle {
     /// Remaining battery, percent.
     pub fn battery_pct(&self) -> f64 {
         self.battery
+    }
+
+    /// A failed cell: the battery falls at once to `to_pct` (never rises); the warning and
+    /// the reserve policy react at the next step as to any drain.
+    pub fn drop_battery(&mut self, to_pct: f64) {
+        if to_pct.is_finite() {
+            self.battery = self.battery.min(to_pct.clamp(0.0, 100.0));
+        }
     }
 
     /// The task being executed, if any.

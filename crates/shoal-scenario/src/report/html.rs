@@ -386,6 +386,17 @@ fn task_timeline(out: &mut String, r: &RunRecord) {
             }
         }
     }
+    #[allow(clippy::cast_precision_loss)]
+    let bottom = r.vehicles.len() as f64 * row + 8.0;
+    for f in &r.faults {
+        let fx = label_w + (f.at_s / span).clamp(0.0, 1.0) * pw;
+        let _ = write!(
+            out,
+            "<line x1=\"{fx:.1}\" x2=\"{fx:.1}\" y1=\"4\" y2=\"{bottom:.1}\" class=\"fault\"><title>{}: {}</title></line>",
+            fmt_time(f.at_s),
+            esc(&f.what)
+        );
+    }
     let step = time_step(span, 6.0);
     let mut t = 0.0;
     #[allow(clippy::cast_precision_loss)]
@@ -407,6 +418,7 @@ fn task_timeline(out: &mut String, r: &RunRecord) {
             ("failed or expired", state_colour(TaskState::Failed)),
             ("aborted", state_colour(TaskState::Aborted)),
             ("under way at the end", state_colour(TaskState::Running)),
+            ("fault (dashed line)", "#b00020"),
         ]
         .into_iter(),
     );
@@ -421,7 +433,8 @@ td.n{text-align:right;font-variant-numeric:tabular-nums}.plot,.map{width:100%;he
 .tick{font-size:11px;fill:#556}.label{font-size:12px;fill:#1b2733}.bar{font-size:11px;fill:#fff}\
 .scale{stroke:#1b2733;stroke-width:2}.legend span{margin-right:14px;font-size:12px}\
 .legend i{display:inline-block;width:10px;height:10px;margin-right:4px;border-radius:2px}\
-.note,.none{color:#556;font-size:12px}.alarm{color:#b00020}";
+.note,.none{color:#556;font-size:12px}.alarm{color:#b00020}\
+.fault{stroke:#b00020;stroke-width:1.5;stroke-dasharray:4 3}";
 
 /// The report page of a run.
 pub fn render_html(r: &RunRecord, s: &Summary) -> String {
@@ -522,7 +535,20 @@ pub fn render_html(r: &RunRecord, s: &Summary) -> String {
             took.map_or_else(|| "–".to_owned(), fmt_time),
         );
     }
-    out.push_str("</table><h2>Events</h2>");
+    out.push_str("</table>");
+    if !r.faults.is_empty() {
+        out.push_str("<h2>Faults injected</h2><table><tr><th>At</th><th>What</th></tr>");
+        for f in &r.faults {
+            let _ = write!(
+                out,
+                "<tr><td class=\"n\">{}</td><td>{}</td></tr>",
+                fmt_time(f.at_s),
+                esc(&f.what)
+            );
+        }
+        out.push_str("</table>");
+    }
+    out.push_str("<h2>Events</h2>");
     let notable: Vec<_> = r
         .events
         .iter()

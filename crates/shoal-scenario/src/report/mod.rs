@@ -38,8 +38,19 @@ pub struct RunRecord {
     pub tasks: Vec<TaskRecord>,
     /// Events and alarms, oldest first.
     pub events: Vec<Event>,
-    /// The station's own counters at the end.
+    /// The station's own counters at the end (every station, across restarts).
     pub station: StationFigures,
+    /// The faults injected, in the order they happened.
+    pub faults: Vec<FaultRecord>,
+}
+
+/// A fault injected during a run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FaultRecord {
+    /// Simulated seconds from the start (0.1 s).
+    pub at_s: f64,
+    /// What happened, for people.
+    pub what: String,
 }
 
 /// One vehicle of a run.
@@ -124,6 +135,8 @@ pub struct Summary {
     pub events: BTreeMap<String, usize>,
     /// The station's counters.
     pub station: StationFigures,
+    /// The faults injected.
+    pub faults: Vec<FaultRecord>,
 }
 
 /// What one vehicle did.
@@ -299,6 +312,7 @@ pub fn summarise(r: &RunRecord) -> Summary {
         task_outcomes,
         events,
         station: r.station,
+        faults: r.faults.clone(),
     }
 }
 

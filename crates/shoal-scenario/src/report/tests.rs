@@ -97,6 +97,10 @@ fn record() -> RunRecord {
             rejected: 1,
             history_committed: 9,
         },
+        faults: vec![FaultRecord {
+            at_s: 100.0,
+            what: "auv-1 fails <for good>".into(),
+        }],
     }
 }
 
@@ -135,6 +139,7 @@ fn the_summary_has_each_vehicles_figures_and_each_tasks_outcome() {
     assert_eq!(s.events["alarm"], 1);
     assert_eq!(s.simulated_s, 180.0);
     assert_eq!(s.wall_s, 3.0);
+    assert_eq!(s.faults.len(), 1);
 }
 
 #[test]
@@ -153,6 +158,8 @@ fn the_page_is_self_contained_escaped_and_plots_every_vehicle() {
     // Tracks, depth, battery, speed: one line each for the vehicle with data.
     assert_eq!(html.matches("<polyline").count(), 4);
     assert!(html.contains("aria-label=\"Task timeline\""));
+    assert!(html.contains("auv-1 fails &lt;for good&gt;"));
+    assert!(html.contains("class=\"fault\""));
     assert!(html.matches("<rect x=").count() >= 2);
 }
 

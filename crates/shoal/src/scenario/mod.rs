@@ -4,6 +4,8 @@
 
 #[cfg(feature = "console")]
 pub mod run;
+#[cfg(feature = "console")]
+mod world;
 
 use std::path::Path;
 use std::process::ExitCode;

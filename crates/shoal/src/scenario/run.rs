@@ -8,17 +8,20 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
+use std::collections::HashMap;
+
 use shoal_dds::PubSub;
 use shoal_history::{Backend, History};
-use shoal_model::{TaskState, Warp};
-use shoal_proxy::ProxyOptions;
-use shoal_proxy::sim::{SimSettings, SimSpec};
-use shoal_scenario::report::{self, RunRecord, StationFigures, TaskRecord, VehicleRecord};
-use shoal_scenario::{MAX_DURATION_S, Scenario};
-use shoal_station::{Clock, Station};
+use shoal_model::{StateVector, TaskState, Warp};
+use shoal_proxy::sim::{SimFault, SimSpec};
+use shoal_scenario::report::{
+    self, FaultRecord, RunRecord, StationFigures, TaskRecord, VehicleRecord,
+};
+use shoal_scenario::{Fault, MAX_DURATION_S, Scenario};
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
+use super::world::{Fleet, StationRun, missions_after};
 use crate::config::ShoalConfig;
 
 /// Fastest run: a vehicle reports at most 100 times a real second, so beyond this a 1 Hz
@@ -141,12 +144,24 @@ fn create_dir(dir: &Path) -> Result<()> {
 
 /// A vehicle's seed: the run's seed and its id, so vehicles draw differently and a
 /// vehicle draws the same in every run with the same seed.
-fn vehicle_seed(seed: u64, id: &str) -> u64 {
+pub(super) fn vehicle_seed(seed: u64, id: &str) -> u64 {
     // FNV-1a over the id, from the seed.
     id.bytes().fold(
         0xcbf2_9ce4_8422_2325 ^ seed.wrapping_mul(0x9e37_79b9_7f4a_7c15),
         |h, b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3),
     )
+}
+
+/// What happens next on the run's timeline.
+#[derive(Debug, Clone)]
+enum Action {
+    /// A fault of the scenario.
+    Fault(Fault),
+    /// A failed vehicle's computer starts again.
+    RestartVehicle(String),
+    /// The station starts again after a restart fault; it went down this many simulated
+    /// seconds into the run.
+    StartStation(f64),
 }
 
 /// Runs a scenario headless and writes its report; Ctrl-C ends it early with a report of
@@ -161,89 +176,105 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
     } = plan(cfg, args)?;
     create_dir(&dir)?;
     eprintln!(
-        "shoal: running scenario {:?} for {} simulated at {speed}x (about {:.0} s), seed {}, into {}",
+        "shoal: running scenario {:?} for {} simulated at {speed}x (about {:.0} s), seed {}, {} faults, into {}",
         scenario.name,
         format_s(duration_s),
         duration_s / speed,
         args.seed,
+        scenario.faults.len(),
         dir.display()
     );
     info!(
         domain = cfg.dds.domain_id,
         "simulated fleet on loopback only, DDS security off (a closed simulation)"
     );
-    let history = History::open(&cfg.history).context("cannot create the run's history store")?;
-    let station_dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?);
-    let fleet_dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?);
-    let recorder = shoal_recorder::Recorder::start(&station_dds, &cfg.recorder)
+    // The recorder has a participant of its own, so a station restart does not cut it.
+    let recorder_dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS")?);
+    let recorder = shoal_recorder::Recorder::start(&recorder_dds, &cfg.recorder)
         .context("cannot start the run's recording")?;
     let warp = Warp::start(speed)?;
-    let station = Station::with_clock(
-        cfg.station.clone(),
-        Arc::clone(&station_dds),
-        history,
-        Clock::warped(warp),
-    )
-    .context("cannot start the station")?;
-    let handle = station.handle();
-    let station_stop = CancellationToken::new();
-    let station_task = tokio::spawn(station.run(station_stop.clone()));
-    let fleet_stop = CancellationToken::new();
-    let mut vehicles = Vec::new();
-    for v in &scenario.vehicles {
-        let spec = SimSpec {
+    let mut station = StationRun::new(cfg.clone(), warp);
+    station.start(scenario.clone())?;
+    let specs = scenario
+        .vehicles
+        .iter()
+        .map(|v| SimSpec {
             id: v.id.clone(),
             kind: v.kind,
             latitude_deg: v.latitude_deg,
             longitude_deg: v.longitude_deg,
             rate_hz: v.rate_hz,
             battery_pct: v.battery_pct,
-        };
-        let settings = SimSettings {
-            seed: Some(vehicle_seed(args.seed, &v.id)),
-            ..cfg.fleet.sim.clone()
-        };
-        let options = ProxyOptions {
-            clock: Some(warp),
-            // A real ledger, as on a vehicle: a task runs once even across a restart.
-            ledger_dir: Some(dir.join("vehicles")),
-            ..ProxyOptions::default()
-        };
-        let id = v.id.clone();
-        let run = shoal_proxy::run_sim_on(
-            spec,
-            settings,
-            options,
-            Arc::clone(&fleet_dds),
-            fleet_stop.clone(),
-        );
-        vehicles.push(tokio::spawn(async move {
-            if let Err(e) = run.await {
-                warn!(vehicle = %id, error = %e, "simulated vehicle stopped");
-            }
-        }));
-    }
-    let missions = tokio::spawn({
-        let handle = handle.clone();
-        let scenario = scenario.clone();
-        let stop = station_stop.clone();
-        async move { handle.run_scenario(scenario, stop).await }
-    });
+        })
+        .collect();
+    let rogue = scenario
+        .faults
+        .iter()
+        .any(|f| matches!(f.fault, Fault::RogueSample { .. }));
+    let mut fleet = Fleet::new(&cfg, warp, args.seed, dir.join("vehicles"), specs, rogue)?;
+    fleet.start_all();
+
     let started = Instant::now();
     let start_ms = warp.origin_ms();
-    let end_ms = start_ms + (duration_s * 1000.0) as i64;
+    let at = |s: f64| start_ms.saturating_add((s * 1000.0) as i64);
+    let end_ms = at(duration_s);
+    let mut timeline: Vec<(i64, Action)> = scenario
+        .faults
+        .iter()
+        .map(|f| (at(f.at_s), Action::Fault(f.fault.clone())))
+        .collect();
+    let mut faults = Vec::new();
+    let mut last_states: HashMap<String, StateVector> = HashMap::new();
     let mut progress = tokio::time::interval(Duration::from_secs(2));
     progress.tick().await;
     let stopped_early = loop {
-        let left_ms = end_ms - warp.now_ms();
-        if left_ms <= 0 {
+        let now = warp.now_ms();
+        timeline.sort_by_key(|(due, _)| *due);
+        while timeline.first().is_some_and(|(due, _)| *due <= now) {
+            let (_, action) = timeline.remove(0);
+            #[allow(clippy::cast_precision_loss)]
+            let at_s = (now - start_ms) as f64 / 1000.0;
+            if let Some(h) = station.handle() {
+                for v in h.fleet() {
+                    if let Some(s) = v.latest {
+                        last_states.insert(s.vehicle_id.clone(), s);
+                    }
+                }
+            }
+            let what = apply(
+                action,
+                &mut station,
+                &mut fleet,
+                &scenario,
+                &last_states,
+                at_s,
+                now,
+                &mut timeline,
+            )
+            .await?;
+            if let Some(what) = what {
+                eprintln!("  {} fault: {what}", format_s(at_s));
+                faults.push(FaultRecord {
+                    at_s: round_s(at_s),
+                    what,
+                });
+            }
+        }
+        if now >= end_ms {
             break false;
         }
-        let wait = warp.real(Duration::from_millis(u64::try_from(left_ms).unwrap_or(0)));
+        // A fault may have put a restart on the timeline, before what was first.
+        timeline.sort_by_key(|(due, _)| *due);
+        let next = timeline
+            .first()
+            .map_or(end_ms, |(due, _)| (*due).min(end_ms));
+        let wait = warp.real(Duration::from_millis(
+            u64::try_from(next - now).unwrap_or(0),
+        ));
         tokio::select! {
             () = stop.cancelled() => break true,
             () = tokio::time::sleep(wait) => {}
-            _ = progress.tick() => eprintln!("{}", progress_line(&handle, warp.now_ms() - start_ms, duration_s)),
+            _ = progress.tick() => eprintln!("{}", progress_line(station.handle(), warp.now_ms() - start_ms, duration_s)),
         }
     };
     if stopped_early {
@@ -251,17 +282,9 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
     }
     let end_ms = warp.now_ms().min(end_ms);
     // Vehicles first, then the station a moment later, so what they sent last is stored.
-    fleet_stop.cancel();
-    for v in vehicles {
-        let _ = tokio::time::timeout(Duration::from_secs(5), v).await;
-    }
+    fleet.stop_all().await;
     tokio::time::sleep(Duration::from_millis(300)).await;
-    station_stop.cancel();
-    missions.abort();
-    let station_report = station_task
-        .await
-        .context("the station task failed")?
-        .context("the station failed")?;
+    station.stop().await?;
     match recorder.stop().await {
         Ok(s) => info!(
             files = s.files,
@@ -274,19 +297,16 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
         }
     }
     let wall_s = started.elapsed().as_secs_f64();
-    let record = read_back(
+    let mut record = read_back(
         &cfg,
         &scenario,
         args.seed,
         speed,
         (start_ms, end_ms),
         wall_s,
-        StationFigures {
-            states_accepted: station_report.stats.states_accepted,
-            rejected: station_report.stats.total_rejected(),
-            history_committed: station_report.history_committed,
-        },
+        station.figures(),
     )?;
+    record.faults = faults;
     let summary = report::summarise(&record);
     let json = serde_json::to_string_pretty(&summary).context("cannot write the summary")?;
     std::fs::write(dir.join("summary.json"), json + "\n")
@@ -298,6 +318,71 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
     .with_context(|| format!("cannot write {}", dir.join("report.html").display()))?;
     eprintln!("{}", closing_line(&summary, &dir));
     Ok(())
+}
+
+fn round_s(s: f64) -> f64 {
+    (s * 10.0).round() / 10.0
+}
+
+/// Carries out one action of the timeline; returns what to tell about it.
+#[allow(clippy::too_many_arguments)]
+async fn apply(
+    action: Action,
+    station: &mut StationRun,
+    fleet: &mut Fleet,
+    scenario: &Scenario,
+    last: &HashMap<String, StateVector>,
+    at_s: f64,
+    now_ms: i64,
+    timeline: &mut Vec<(i64, Action)>,
+) -> Result<Option<String>> {
+    let later = |s: f64| now_ms.saturating_add((s * 1000.0) as i64);
+    Ok(Some(match action {
+        Action::Fault(Fault::VehicleFailure {
+            vehicle,
+            restart_after_s,
+        }) => {
+            fleet.stop(&vehicle);
+            match restart_after_s {
+                Some(r) => {
+                    timeline.push((later(r), Action::RestartVehicle(vehicle.clone())));
+                    format!("{vehicle} fails; it starts again in {r} s")
+                }
+                None => format!("{vehicle} fails for good"),
+            }
+        }
+        Action::RestartVehicle(vehicle) => {
+            fleet.start(&vehicle, last.get(&vehicle));
+            format!("{vehicle} starts again where it was")
+        }
+        Action::Fault(Fault::BatteryDrop {
+            vehicle,
+            battery_pct,
+        }) => {
+            if fleet.inject(&vehicle, SimFault::BatteryDrop(battery_pct)) {
+                format!("{vehicle}'s battery drops to {battery_pct} %")
+            } else {
+                format!("{vehicle}'s battery drop not injected: the vehicle is down")
+            }
+        }
+        Action::Fault(Fault::RogueSample { vehicle }) => match last.get(&vehicle) {
+            Some(s) => {
+                fleet.rogue_sample(s).await?;
+                format!("another participant publishes {vehicle} 55 km from where it is")
+            }
+            None => format!("no rogue sample for {vehicle}: the station has no position of it yet"),
+        },
+        Action::Fault(Fault::StationRestart { down_s }) => {
+            station.stop().await?;
+            timeline.push((later(down_s), Action::StartStation(at_s)));
+            format!("the station stops; it starts again in {down_s} s")
+        }
+        Action::StartStation(went_down_s) => {
+            // Missions due while it was down start now; those it ran are in the register.
+            station.start(missions_after(scenario, went_down_s))?;
+            "the station starts again over the same history".to_owned()
+        }
+    }))
 }
 
 /// Reads what the station stored during the run back from its history store.
@@ -350,6 +435,7 @@ fn read_back(
         tasks,
         events,
         station,
+        faults: Vec::new(),
     })
 }
 
@@ -361,12 +447,20 @@ fn format_s(s: f64) -> String {
 
 /// One line of progress: simulated time, vehicles heard, tasks by state, alarms.
 fn progress_line(
-    handle: &shoal_station::StationHandle,
+    handle: Option<&shoal_station::StationHandle>,
     elapsed_ms: i64,
     duration_s: f64,
 ) -> String {
     #[allow(clippy::cast_precision_loss)]
     let elapsed_s = elapsed_ms as f64 / 1000.0;
+    let Some(handle) = handle else {
+        return format!(
+            "  {} / {} simulated ({:>3.0} %)  the station is down",
+            format_s(elapsed_s),
+            format_s(duration_s),
+            (elapsed_s / duration_s * 100.0).min(100.0),
+        );
+    };
     let fleet = handle.fleet();
     let heard = fleet.iter().filter(|v| v.latest.is_some()).count();
     let tasks = handle.tasks();

@@ -4,7 +4,7 @@
 use std::process::Command;
 use std::time::Instant;
 
-/// Two vehicles, three tasks; ten simulated minutes.
+/// Two vehicles, three tasks and four faults; ten simulated minutes.
 const SCENARIO: &str = r#"
 [scenario]
 name = "two-boats"
@@ -52,6 +52,29 @@ kind = "goto"
 latitude_deg = 63.441
 longitude_deg = 10.372
 speed_mps = 2.0
+
+# auv-7's computer stops during its goto and starts again 30 s later.
+[[faults]]
+at_s = 20.0
+kind = "vehicle_failure"
+vehicle = "auv-7"
+duration_s = 30.0
+
+[[faults]]
+at_s = 100.0
+kind = "rogue_sample"
+vehicle = "usv-7"
+
+[[faults]]
+at_s = 200.0
+kind = "battery_drop"
+vehicle = "usv-7"
+battery_pct = 15.0
+
+[[faults]]
+at_s = 300.0
+kind = "station_restart"
+duration_s = 10.0
 "#;
 
 fn shoal(dir: &std::path::Path) -> Command {
@@ -61,7 +84,7 @@ fn shoal(dir: &std::path::Path) -> Command {
 }
 
 #[test]
-fn a_scenario_runs_at_60x_and_leaves_a_report_with_its_figures() {
+fn a_scenario_with_faults_runs_at_60x_and_leaves_a_report_with_its_figures() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("two-boats.toml"), SCENARIO).unwrap();
     let started = Instant::now();
@@ -110,7 +133,30 @@ fn a_scenario_runs_at_60x_and_leaves_a_report_with_its_figures() {
         .as_f64()
         .unwrap();
     assert!((30.0..90.0).contains(&usv_moved), "{usv_moved}");
-    // Every task ran to done; each is keyed by its mission and place, whatever the run.
+    // Every fault happened, on time; a restart comes its delay after the failure.
+    let faults = summary["faults"].as_array().unwrap();
+    let when: Vec<f64> = faults.iter().map(|f| f["at_s"].as_f64().unwrap()).collect();
+    assert_eq!(faults.len(), 6, "{faults:?}");
+    for (got, want) in when.iter().zip([20.0, 50.0, 100.0, 200.0, 300.0, 310.0]) {
+        assert!((want..want + 5.0).contains(got), "{when:?}");
+    }
+    // The rogue sample was refused and counted; the battery drop is in the track.
+    assert!(
+        summary["station"]["rejected"].as_u64().unwrap() >= 1,
+        "{summary}"
+    );
+    assert!(
+        summary["vehicles"]["usv-7"]["battery_end_pct"]
+            .as_f64()
+            .unwrap()
+            < 15.1
+    );
+    assert!(
+        summary["events"]["warning"].as_u64().unwrap() >= 2,
+        "{summary}"
+    );
+    // Every task ran to done, once, across the vehicle's failure and the station's
+    // restart; each is keyed by its mission and place, whatever the run.
     assert_eq!(summary["tasks"]["total"], 3, "{summary}");
     assert_eq!(summary["tasks"]["done"], 3, "{summary}");
     for key in ["out/1", "out/2", "cross/1"] {
@@ -126,6 +172,7 @@ fn a_scenario_runs_at_60x_and_leaves_a_report_with_its_figures() {
 
     let html = std::fs::read_to_string(run.join("report.html")).unwrap();
     assert!(html.contains("auv-7") && html.contains("usv-7") && html.contains("<svg"));
+    assert!(html.contains("Faults injected") && html.contains("class=\"fault\""));
     assert!(run.join("history.sqlite").exists());
     let mcap: Vec<_> = std::fs::read_dir(run.join("recording"))
         .unwrap()
