@@ -5,8 +5,8 @@
 //! Sequenced streams (alarms, task transitions) are tracked per site and stream by a
 //! [`SeqWindow`]: everything up to `contiguous` has been delivered, and a bounded set of
 //! numbers above it. A number seen twice is a duplicate; a number past a gap asks for a
-//! catch-up query (the transport sends it). A later epoch means the sender restarted
-//! and numbers from 1 again; an earlier one is stale.
+//! catch-up query (the transport sends it). A new epoch means the sender restarted and
+//! numbers from 1 again; one of the few epochs heard before it is stale.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
@@ -41,7 +41,7 @@ pub enum Refusal {
     /// The payload does not decode.
     #[error("malformed payload: {0}")]
     Malformed(#[from] DecodeError),
-    /// From an earlier run of the sending site than one already heard.
+    /// From an earlier run of the sending site than the one heard now.
     #[error("from an earlier epoch of its site")]
     StaleEpoch,
     /// Already delivered.
@@ -122,12 +122,17 @@ impl InboundCounters {
     }
 }
 
+/// Earlier epochs of a stream remembered, to refuse their frames as stale.
+const EPOCHS_REMEMBERED: usize = 4;
+
 /// One remote stream's delivered sequence numbers.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SeqWindow {
     epoch: u64,
     contiguous: u64,
     above: BTreeSet<u64>,
+    /// The epochs this stream had before, most recent last.
+    earlier: Vec<u64>,
 }
 
 /// What a window says of a sequence number.
@@ -140,7 +145,7 @@ pub enum Admit {
     },
     /// Already delivered.
     Duplicate,
-    /// From an earlier epoch.
+    /// From an epoch the stream had before its current one.
     Stale,
 }
 
@@ -151,17 +156,28 @@ impl SeqWindow {
             epoch,
             contiguous: 0,
             above: BTreeSet::new(),
+            earlier: Vec::new(),
         }
     }
 
     /// Records `seq` of `epoch` if new. Holds at most `capacity` numbers above a gap;
     /// past that the oldest gap is given up, and the numbers given up are added to `lost`.
     pub fn admit(&mut self, epoch: u64, seq: u64, capacity: usize, lost: &mut u64) -> Admit {
-        if epoch < self.epoch {
-            return Admit::Stale;
-        }
-        if epoch > self.epoch {
-            *self = Self::new(epoch);
+        if epoch != self.epoch {
+            // Epochs are told apart, not ordered: a sender whose clock went back across a
+            // restart starts a lower epoch, and must still be heard.
+            if self.earlier.contains(&epoch) {
+                return Admit::Stale;
+            }
+            let mut earlier = std::mem::take(&mut self.earlier);
+            earlier.push(self.epoch);
+            if earlier.len() > EPOCHS_REMEMBERED {
+                earlier.remove(0);
+            }
+            *self = Self {
+                earlier,
+                ..Self::new(epoch)
+            };
         }
         if seq <= self.contiguous || self.above.contains(&seq) {
             return Admit::Duplicate;

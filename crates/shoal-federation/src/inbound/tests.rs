@@ -34,10 +34,27 @@ fn a_window_delivers_each_number_once_and_reports_gaps() {
     assert_eq!(w.admit(1, 2, 8, &mut lost), Admit::New { gap: false });
     assert_eq!(w.position(), (1, 3));
     assert_eq!(w.admit(1, 1, 8, &mut lost), Admit::Duplicate);
-    assert_eq!(w.admit(0, 9, 8, &mut lost), Admit::Stale);
-    // A restarted sender numbers from 1 under a later epoch.
+    // A restarted sender numbers from 1 under a new epoch; the old one is then stale.
     assert_eq!(w.admit(2, 1, 8, &mut lost), Admit::New { gap: false });
+    assert_eq!(w.admit(1, 4, 8, &mut lost), Admit::Stale);
     assert_eq!(lost, 0);
+}
+
+#[test]
+fn a_sender_whose_clock_went_back_across_a_restart_is_heard() {
+    let mut lost = 0;
+    let mut w = SeqWindow::new(1_000);
+    w.admit(1_000, 1, 8, &mut lost);
+    // Its new epoch is lower than the old one, but it was never heard: a new run.
+    assert_eq!(w.admit(900, 1, 8, &mut lost), Admit::New { gap: false });
+    assert_eq!(w.admit(1_000, 2, 8, &mut lost), Admit::Stale);
+    // Only a few earlier epochs are remembered.
+    for epoch in 1..=5 {
+        w.admit(epoch, 1, 8, &mut lost);
+    }
+    assert_eq!(w.admit(5, 1, 8, &mut lost), Admit::Duplicate);
+    assert_eq!(w.admit(4, 1, 8, &mut lost), Admit::Stale);
+    assert_eq!(w.admit(900, 1, 8, &mut lost), Admit::New { gap: false });
 }
 
 #[test]
