@@ -5,7 +5,8 @@
 //! - `common`: ports, configurations, a router to cut the link with, waiting helpers.
 //! - `two_sites`: positions at the configured rate, coalesced; an alarm crosses once.
 //! - `outage`: the link goes down and comes back; both sides catch up exactly.
-//! - `three_sites`: two ships and a shore; unknown sites and bad payloads are refused.
+//! - `three_sites`: two ships and a shore (also as their router); unknown sites and bad
+//!   payloads are refused.
 //! - `python_client`: an independent PyPI `eclipse-zenoh` client decodes from the doc.
 //! - `encoding_size`: the WAN encoding measured against CDR (+ zstd) on a realistic fleet.
 

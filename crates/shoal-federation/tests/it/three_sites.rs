@@ -102,3 +102,40 @@ async fn a_forged_site_and_malformed_payloads_are_refused_and_counted() {
     raw.close().await.unwrap();
     shore.shutdown().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_shore_router_relays_between_two_ship_clients() {
+    let port = free_port();
+    let mut shore = site("shore", Some(port), &[], &["ship1", "ship2"]);
+    shore.mode = shoal_federation::config::Mode::Router;
+    let shore = Federation::start(shore).await.unwrap();
+    let ship1 = Federation::start(client("ship1", port, &["shore", "ship2"]))
+        .await
+        .unwrap();
+    let ship2 = Federation::start(client("ship2", port, &["shore", "ship1"]))
+        .await
+        .unwrap();
+    eventually("the ships to see each other through the shore", || {
+        sees(&ship1, "ship2") && sees(&ship2, "ship1") && sees(&shore, "ship1")
+    })
+    .await;
+
+    ship1.push_alarm(&alarm("from-ship1")).unwrap();
+    shore
+        .push_transition(&transition("t-shore", TaskState::Sent))
+        .unwrap();
+    eventually(
+        "ship1's alarm at ship2 and the shore, the shore's task at both ships",
+        || {
+            alarm_ids(&ship2, "ship1") == ["from-ship1"]
+                && alarm_ids(&shore, "ship1") == ["from-ship1"]
+                && transitions(&ship1, "shore").len() == 1
+                && transitions(&ship2, "shore").len() == 1
+        },
+    )
+    .await;
+
+    for fed in [ship2, ship1, shore] {
+        fed.shutdown().await.unwrap();
+    }
+}
