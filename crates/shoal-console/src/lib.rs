@@ -53,6 +53,7 @@ pub mod auth;
 mod capable;
 pub mod export;
 mod extract;
+mod federation;
 mod foxglove;
 mod gate;
 mod health;
@@ -391,6 +392,7 @@ fn build(
         .route("/api/openapi.json", get(openapi))
         .route("/api/rejected", get(rejected))
         .route("/api/traffic", get(traffic::traffic))
+        .route("/api/federation", get(federation::federation))
         .route("/api/rules", get(rules).post(create_rule))
         .route(
             "/api/rules/{id}",

@@ -35,6 +35,9 @@ fn invalid(key: impl Into<String>, problem: impl Into<String>) -> ConfigError {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FederationConfig {
+    /// Join the federation: `shoal station` starts the Zenoh transport and feeds it only
+    /// when this is true.
+    pub enabled: bool,
     /// This site's name, the `<site>` of every key it publishes.
     pub site: String,
     /// How this site joins the Zenoh network.
@@ -65,6 +68,7 @@ pub struct FederationConfig {
 impl Default for FederationConfig {
     fn default() -> Self {
         Self {
+            enabled: false,
             site: "local".into(),
             mode: Mode::Peer,
             listen: vec!["tcp/127.0.0.1:7447".into()],

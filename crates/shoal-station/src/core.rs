@@ -54,6 +54,8 @@ pub(crate) struct Core {
     pub(crate) rules_over_budget_seen: AtomicU64,
     /// The traffic picture (AIS), when one is attached.
     pub(crate) traffic: std::sync::OnceLock<crate::traffic::TrafficLink>,
+    /// The federation with other sites, when one is attached.
+    pub(crate) federation: std::sync::OnceLock<Arc<dyn crate::federation::FederationView>>,
 }
 
 /// Locks a mutex, recovering the data if a panicking thread poisoned it: the station's
@@ -172,6 +174,7 @@ impl StationHandle {
             reported_skew_ms: std::sync::atomic::AtomicI64::new(0),
             rules_over_budget_seen: AtomicU64::new(0),
             traffic: std::sync::OnceLock::new(),
+            federation: std::sync::OnceLock::new(),
             rejection_log: Mutex::new(crate::ingest::LogBudget::new(
                 crate::ingest::REJECTION_LOG_LINES_PER_S,
             )),

@@ -26,6 +26,7 @@ mod clock;
 mod config;
 mod core;
 mod error;
+mod federation;
 mod health;
 mod ingest;
 mod missions;
@@ -44,6 +45,10 @@ pub use config::StationConfig;
 pub use core::StationHandle;
 pub use error::{
     ConfigError, DispatchError, Rejection, RuleChangeError, StationError, SubscriptionError,
+};
+pub use federation::{
+    FederationSnapshot, FederationView, RemoteAlarmView, RemoteTransitionView, RemoteVehicleView,
+    SiteView,
 };
 pub use health::{
     DdsHealth, HealthThresholds, HealthVerdict, HistoryHealth, SemanticHealth, StationHealth,

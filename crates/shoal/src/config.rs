@@ -12,6 +12,8 @@ use serde::{Deserialize, Serialize};
 use shoal_console::ConsoleConfig;
 use shoal_dds::DdsConfig;
 #[cfg(feature = "console")]
+use shoal_federation::FederationConfig;
+#[cfg(feature = "console")]
 use shoal_foxglove::BridgeConfig;
 #[cfg(feature = "console")]
 use shoal_history::HistoryConfig;
@@ -37,6 +39,8 @@ type ConsoleConfig = StationSide;
 type TrafficConfig = StationSide;
 #[cfg(not(feature = "console"))]
 type BridgeConfig = StationSide;
+#[cfg(not(feature = "console"))]
+type FederationConfig = StationSide;
 
 /// The commented default configuration, kept in the repository; a test parses it so it
 /// cannot drift from the code.
@@ -66,6 +70,8 @@ pub struct ShoalConfig {
     pub foxglove: BridgeConfig,
     /// The station's own MCAP recorder (`shoal record` is the same, as a process).
     pub recorder: RecorderConfig,
+    /// Ship ↔ shore federation with other stations over Zenoh.
+    pub federation: FederationConfig,
 }
 
 /// The `[vehicle]` section.
@@ -507,6 +513,12 @@ fn check(config: &ShoalConfig) -> Result<()> {
             .foxglove
             .validate()
             .map_err(|e| anyhow::anyhow!("invalid configuration in [foxglove]: {e}"))?;
+        if config.federation.enabled {
+            config
+                .federation
+                .validate()
+                .map_err(|e| anyhow::anyhow!("invalid configuration in [federation]: {e}"))?;
+        }
     }
     config
         .security
@@ -566,6 +578,7 @@ mod tests {
             parsed.console.clear();
             parsed.traffic.clear();
             parsed.foxglove.clear();
+            parsed.federation.clear();
         }
         assert_eq!(parsed, ShoalConfig::default());
         assert_eq!(env(&[]).unwrap(), ShoalConfig::default());
@@ -631,10 +644,67 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 15]>([
+        rows.extend::<[(&str, &str, &str, Check); 24]>([
             ("foxglove", "SHOAL_FOXGLOVE__ENABLED", "true", |c| {
                 c.foxglove.enabled && c.foxglove.max_clients == 8
             }),
+            ("federation", "SHOAL_FEDERATION__SITE", "ship-1", |c| {
+                c.federation.site == "ship-1" && !c.federation.enabled
+            }),
+            (
+                "federation.positions",
+                "SHOAL_FEDERATION__POSITIONS__MAX_RATE_HZ",
+                "0.5",
+                |c| c.federation.positions.max_rate_hz == 0.5,
+            ),
+            (
+                "federation.positions.qos",
+                "SHOAL_FEDERATION__POSITIONS__QOS",
+                // A QoS is set whole: one key alone is refused, naming the missing ones.
+                "{ priority = \"data\", congestion = \"drop\", express = true }",
+                |c| c.federation.positions.qos.express,
+            ),
+            (
+                "federation.alarms.qos",
+                "SHOAL_FEDERATION__ALARMS__QOS",
+                // A QoS is set whole: one key alone is refused, naming the missing ones.
+                "{ priority = \"real_time\", congestion = \"block\", express = false }",
+                |c| !c.federation.alarms.qos.express,
+            ),
+            (
+                "federation.tasks.qos",
+                "SHOAL_FEDERATION__TASKS__QOS",
+                // A QoS is set whole: one key alone is refused, naming the missing ones.
+                "{ priority = \"interactive_high\", congestion = \"block\", express = true }",
+                |c| c.federation.tasks.qos.express,
+            ),
+            (
+                "federation.alarms",
+                "SHOAL_FEDERATION__ALARMS__CATCHUP",
+                "77",
+                |c| c.federation.alarms.catchup == 77,
+            ),
+            (
+                "federation.tasks",
+                "SHOAL_FEDERATION__TASKS__CATCHUP",
+                "78",
+                |c| c.federation.tasks.catchup == 78,
+            ),
+            (
+                "federation.environment",
+                "SHOAL_FEDERATION__ENVIRONMENT__MODE",
+                "aggregated",
+                |c| {
+                    c.federation.environment.mode
+                        == shoal_federation::config::EnvironmentMode::Aggregated
+                },
+            ),
+            (
+                "federation.limits",
+                "SHOAL_FEDERATION__LIMITS__REMOTE_VEHICLES",
+                "99",
+                |c| c.federation.limits.remote_vehicles == 99,
+            ),
             ("station", "SHOAL_STATION__LOST_AFTER_S", "45", |c| {
                 c.station.lost_after_s == 45.0
             }),
@@ -736,9 +806,16 @@ mod tests {
         collect_sections(&parse_table(DEFAULT_CONFIG).unwrap(), "", &mut sections);
         #[cfg(not(feature = "console"))]
         sections.retain(|s| {
-            !["station", "history", "console", "traffic", "foxglove"]
-                .iter()
-                .any(|p| s.starts_with(p))
+            ![
+                "station",
+                "history",
+                "console",
+                "traffic",
+                "foxglove",
+                "federation",
+            ]
+            .iter()
+            .any(|p| s.starts_with(p))
         });
         for section in sections {
             assert!(

@@ -206,6 +206,14 @@ pub async fn station(cfg: ShoalConfig, scenario: &str, exit_on_stdin_close: bool
         let stop = shutdown.clone();
         tokio::spawn(async move { handle.run_scenario(scenario, stop).await });
     }
+    let federation = if cfg.federation.enabled {
+        Some(
+            crate::federation::start(cfg.federation.clone(), station.handle(), shutdown.clone())
+                .await?,
+        )
+    } else {
+        None
+    };
     let api = tokio::spawn(shoal_console::serve_with_bridge(
         listener,
         station.handle(),
@@ -220,6 +228,9 @@ pub async fn station(cfg: ShoalConfig, scenario: &str, exit_on_stdin_close: bool
     shutdown.cancel();
     if let Ok(Err(e)) = api.await {
         warn!(error = %e, "HTTP API stopped with an error");
+    }
+    if let Some(f) = federation {
+        let _ = f.await;
     }
     if let Some(recorder) = recorder {
         match recorder.stop().await {

@@ -7,6 +7,8 @@ mod acoustic;
 mod bench;
 mod config;
 mod daemons;
+#[cfg(feature = "console")]
+mod federation;
 mod keys;
 #[cfg(feature = "console")]
 mod query;

@@ -537,7 +537,7 @@ mod tests {
         for (flags, says) in [
             (vec!["sea-trial", "--speed", "0"], "--speed"),
             (vec!["sea-trial", "--speed", "1000"], "--speed"),
-            (vec!["sea-trial", "--duration", "-5"], "--duration"),
+            (vec!["sea-trial", "--duration=-5"], "--duration"),
             (vec!["none"], "not a scenario"),
         ] {
             let e = plan(&cfg, &args(&flags)).err().unwrap().to_string();

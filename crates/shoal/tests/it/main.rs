@@ -10,6 +10,7 @@
 //!   HTTP clients) while a real fleet's ingest rate is measured.
 //! - `demo`: `shoal up`'s default scenario seen through the API (vehicles move, tasks run).
 //! - `faults`: the station killed with SIGKILL and restarted.
+//! - `federation`: two stations (ship and shore) federated over Zenoh on loopback.
 //! - `cli`: the `shoal` binary itself (`up`, configuration errors).
 //! - `console`: the console's logins through the binary (on by default, the first admin
 //!   shown once, `shoal query --token`).
@@ -31,6 +32,7 @@ mod console;
 mod converter;
 mod demo;
 mod faults;
+mod federation;
 mod interop;
 mod proxies;
 mod recorder;

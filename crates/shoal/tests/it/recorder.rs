@@ -18,7 +18,7 @@ use shoal_recorder::{McapMessages, ReadError, Sample, Topic};
 use crate::common::{dds, free_port, http_get};
 
 /// A child process, killed if the test ends before it does.
-struct Proc {
+pub(crate) struct Proc {
     child: Child,
     name: &'static str,
     log: PathBuf,
@@ -29,7 +29,7 @@ impl Proc {
         Self::start_with(name, dir, domain, args, &[])
     }
 
-    fn start_with(
+    pub(crate) fn start_with(
         name: &'static str,
         dir: &Path,
         domain: u16,
@@ -79,7 +79,7 @@ impl Proc {
         }
     }
 
-    fn log(&self) -> String {
+    pub(crate) fn log(&self) -> String {
         std::fs::read_to_string(&self.log).unwrap_or_default()
     }
 }
@@ -175,7 +175,7 @@ fn fleet_states(port: u16, vehicle: &str) -> u64 {
         .unwrap_or(0)
 }
 
-fn wait_until(secs: u64, what: &str, mut check: impl FnMut() -> bool) {
+pub(crate) fn wait_until(secs: u64, what: &str, mut check: impl FnMut() -> bool) {
     let deadline = Instant::now() + Duration::from_secs(secs);
     while !check() {
         assert!(

@@ -1,0 +1,216 @@
+//! The station's side of the federation (`[federation]`): its live feed goes out over
+//! Zenoh (positions, alarms, task transitions, as the section's policies say), and the
+//! remote sites' picture comes back for `GET /api/federation`.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use shoal_federation::{Federation, FederationConfig, TaskTransition, VehiclePosition};
+use shoal_station::{
+    FederationSnapshot, FederationView, LiveUpdate, RemoteAlarmView, RemoteTransitionView,
+    RemoteVehicleView, SiteView, StationHandle,
+};
+use tokio::sync::broadcast::error::RecvError;
+use tokio_util::sync::CancellationToken;
+use tracing::{info, warn};
+
+/// Alarm ids remembered so that an acknowledgement (the same event again on the live
+/// feed) is not sent a second time.
+const ALARMS_REMEMBERED: usize = 10_000;
+/// Tasks whose last state is remembered, so that progress reports are not transitions.
+const TASKS_REMEMBERED: usize = 100_000;
+
+/// A running federation, as the station reads it.
+struct View(Arc<Federation>);
+
+impl FederationView for View {
+    fn snapshot(&self, now_ms: i64) -> FederationSnapshot {
+        let fed = &self.0;
+        let mut snap = fed.picture(|p| FederationSnapshot {
+            site: fed.site().to_owned(),
+            sites: p
+                .sites()
+                .map(|(site, st)| SiteView {
+                    site: site.to_owned(),
+                    online: st.online,
+                    since_ms: st.since_ms,
+                })
+                .collect(),
+            vehicles: p
+                .vehicles()
+                .map(|v| RemoteVehicleView {
+                    site: v.site.clone(),
+                    vehicle_id: v.position.vehicle_id.clone(),
+                    kind: v.position.kind,
+                    timestamp_ms: v.position.timestamp_ms,
+                    latitude_deg: v.position.latitude_deg,
+                    longitude_deg: v.position.longitude_deg,
+                    depth_m: v.position.depth_m,
+                    heading_deg: v.position.heading_deg,
+                    speed_mps: v.position.speed_mps,
+                    battery_pct: v.position.battery_pct,
+                    age_ms: v.age_ms(now_ms),
+                })
+                .collect(),
+            alarms: p
+                .alarms_after(0)
+                .map(|a| RemoteAlarmView {
+                    site: a.site.clone(),
+                    alarm: a.alarm.clone(),
+                })
+                .collect(),
+            transitions: p
+                .transitions_after(0)
+                .map(|t| RemoteTransitionView {
+                    site: t.site.clone(),
+                    task_id: t.transition.task_id.clone(),
+                    mission_id: t.transition.mission_id.clone(),
+                    vehicle_id: t.transition.vehicle_id.clone(),
+                    state: t.transition.state,
+                    timestamp_ms: t.transition.timestamp_ms,
+                })
+                .collect(),
+            counters: Default::default(),
+        });
+        let c = fed.counters();
+        let (i, o) = (&c.inbound, &c.outbound);
+        for (k, v) in [
+            ("received_positions", i.positions),
+            ("received_alarms", i.alarms),
+            ("received_transitions", i.transitions),
+            ("duplicates", i.duplicates),
+            ("lost", i.lost),
+            ("catchup_queries", i.catchup_queries),
+            ("catchup_replies", i.catchup_replies),
+            ("sent_positions", o.positions_sent),
+            ("coalesced_positions", o.positions_coalesced),
+            ("sent_alarms", o.alarms_sent),
+            ("alarms_below_severity", o.alarms_below_severity),
+            ("sent_transitions", o.transitions_sent),
+            ("catchup_served", o.catchup_served),
+            ("queue_full", o.queue_full),
+        ] {
+            snap.counters.insert(k.to_owned(), v);
+        }
+        for (reason, n) in &i.refused {
+            snap.counters.insert(format!("refused_{reason}"), *n);
+        }
+        snap
+    }
+}
+
+/// What the bridge has already sent, so the live feed's repeats are not sent again.
+#[derive(Default)]
+struct Sent {
+    alarms: HashSet<String>,
+    alarm_order: VecDeque<String>,
+    task_states: HashMap<String, shoal_model::TaskState>,
+}
+
+impl Sent {
+    fn new_alarm(&mut self, id: &str) -> bool {
+        if self.alarms.contains(id) {
+            return false;
+        }
+        if self.alarm_order.len() >= ALARMS_REMEMBERED
+            && let Some(old) = self.alarm_order.pop_front()
+        {
+            self.alarms.remove(&old);
+        }
+        self.alarms.insert(id.to_owned());
+        self.alarm_order.push_back(id.to_owned());
+        true
+    }
+
+    fn new_state(&mut self, task: &str, state: shoal_model::TaskState) -> bool {
+        if self.task_states.get(task) == Some(&state) {
+            return false;
+        }
+        if state.is_final() {
+            self.task_states.remove(task);
+        } else {
+            if self.task_states.len() >= TASKS_REMEMBERED {
+                self.task_states.clear();
+            }
+            self.task_states.insert(task.to_owned(), state);
+        }
+        true
+    }
+}
+
+/// Starts the federation, attaches its picture to the station and feeds it the station's
+/// live updates until `shutdown`; returns the task that shuts it down at the end.
+pub async fn start(
+    config: FederationConfig,
+    station: StationHandle,
+    shutdown: CancellationToken,
+) -> Result<tokio::task::JoinHandle<()>> {
+    let fed = Arc::new(
+        Federation::start(config)
+            .await
+            .context("cannot start the federation ([federation])")?,
+    );
+    info!(site = fed.site(), "federated over Zenoh ([federation])");
+    if station
+        .attach_federation(Arc::new(View(Arc::clone(&fed))))
+        .is_err()
+    {
+        warn!("a federation was already attached; this one only sends");
+    }
+    let mut live = station.live();
+    Ok(tokio::spawn(async move {
+        let mut sent = Sent::default();
+        let mut lagged = 0u64;
+        loop {
+            let update = tokio::select! {
+                () = shutdown.cancelled() => break,
+                u = live.recv() => u,
+            };
+            let result = match update {
+                Ok(LiveUpdate::Vehicle(v)) => match &v.latest {
+                    Some(s) => {
+                        fed.push_position(VehiclePosition::from_state(v.announcement.kind, s))
+                    }
+                    None => Ok(()),
+                },
+                Ok(LiveUpdate::Event(e)) if sent.new_alarm(&e.event.event_id) => {
+                    fed.push_alarm(&e.event)
+                }
+                Ok(LiveUpdate::Task(t)) if sent.new_state(&t.assignment.task_id, t.state) => fed
+                    .push_transition(&TaskTransition {
+                        task_id: t.assignment.task_id.clone(),
+                        mission_id: t.assignment.mission_id.clone(),
+                        vehicle_id: t.assignment.vehicle_id.clone(),
+                        state: t.state,
+                        timestamp_ms: t.updated_ms,
+                    }),
+                Ok(_) => Ok(()),
+                Err(RecvError::Lagged(n)) => {
+                    // Positions come again within a second; a missed alarm or transition
+                    // is in the history, and says so here.
+                    lagged += n;
+                    warn!(
+                        missed = n,
+                        total = lagged,
+                        "federation fell behind the station's live feed"
+                    );
+                    Ok(())
+                }
+                Err(RecvError::Closed) => break,
+            };
+            if let Err(e) = result {
+                warn!(error = %e, "not sent over the federation");
+            }
+        }
+        match Arc::try_unwrap(fed) {
+            Ok(fed) => {
+                if let Err(e) = fed.shutdown().await {
+                    warn!(error = %e, "federation did not shut down cleanly");
+                }
+            }
+            // The station's view still holds it: dropping the last handle closes it.
+            Err(_) => info!("federation closes with the station"),
+        }
+    }))
+}
