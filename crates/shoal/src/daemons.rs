@@ -385,18 +385,7 @@ fn up_plan(
     };
     let s = crate::scenario::load(&source)?;
     info!(scenario = %source, "{}", crate::scenario::summary(&s));
-    let fleet = s
-        .vehicles
-        .iter()
-        .map(|v| SimSpec {
-            id: v.id.clone(),
-            kind: v.kind,
-            latitude_deg: v.latitude_deg,
-            longitude_deg: v.longitude_deg,
-            rate_hz: v.rate_hz,
-            battery_pct: v.battery_pct,
-        })
-        .collect();
+    let fleet = crate::scenario::fleet(&s);
     let arg = match source {
         crate::scenario::Source::Shipped(name) => name.to_owned(),
         crate::scenario::Source::File(path) => path,

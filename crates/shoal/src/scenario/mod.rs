@@ -105,6 +105,22 @@ pub fn load(source: &Source) -> Result<Scenario> {
     shoal_scenario::parse(&text).with_context(|| format!("scenario {source}"))
 }
 
+/// The simulated vehicles a scenario's fleet is made of.
+#[cfg(feature = "console")]
+pub fn fleet(s: &Scenario) -> Vec<shoal_proxy::sim::SimSpec> {
+    s.vehicles
+        .iter()
+        .map(|v| shoal_proxy::sim::SimSpec {
+            id: v.id.clone(),
+            kind: v.kind,
+            latitude_deg: v.latitude_deg,
+            longitude_deg: v.longitude_deg,
+            rate_hz: v.rate_hz,
+            battery_pct: v.battery_pct,
+        })
+        .collect()
+}
+
 /// One line about a valid scenario.
 pub fn summary(s: &Scenario) -> String {
     let tasks: usize = s.missions.iter().map(|m| m.tasks.len()).sum();

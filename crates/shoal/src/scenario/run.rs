@@ -13,7 +13,7 @@ use std::collections::HashMap;
 use shoal_dds::PubSub;
 use shoal_history::{Backend, History};
 use shoal_model::{StateVector, TaskState, Warp};
-use shoal_proxy::sim::{SimFault, SimSpec};
+use shoal_proxy::sim::SimFault;
 use shoal_scenario::report::{
     self, FaultRecord, RunRecord, StationFigures, TaskRecord, VehicleRecord,
 };
@@ -195,18 +195,7 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
     let warp = Warp::start(speed)?;
     let mut station = StationRun::new(cfg.clone(), warp);
     station.start(scenario.clone())?;
-    let specs = scenario
-        .vehicles
-        .iter()
-        .map(|v| SimSpec {
-            id: v.id.clone(),
-            kind: v.kind,
-            latitude_deg: v.latitude_deg,
-            longitude_deg: v.longitude_deg,
-            rate_hz: v.rate_hz,
-            battery_pct: v.battery_pct,
-        })
-        .collect();
+    let specs = super::fleet(&scenario);
     let rogue = scenario
         .faults
         .iter()
