@@ -241,13 +241,11 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
                 &mut timeline,
             )
             .await?;
-            if let Some(what) = what {
-                eprintln!("  {} fault: {what}", format_s(at_s));
-                faults.push(FaultRecord {
-                    at_s: round_s(at_s),
-                    what,
-                });
-            }
+            eprintln!("  {} fault: {what}", format_s(at_s));
+            faults.push(FaultRecord {
+                at_s: round_s(at_s),
+                what,
+            });
         }
         if now >= end_ms {
             break false;
@@ -313,7 +311,7 @@ fn round_s(s: f64) -> f64 {
     (s * 10.0).round() / 10.0
 }
 
-/// Carries out one action of the timeline; returns what to tell about it.
+/// Carries out one action of the timeline; returns what to tell about it (one line).
 #[allow(clippy::too_many_arguments)]
 async fn apply(
     action: Action,
@@ -324,9 +322,9 @@ async fn apply(
     at_s: f64,
     now_ms: i64,
     timeline: &mut Vec<(i64, Action)>,
-) -> Result<Option<String>> {
+) -> Result<String> {
     let later = |s: f64| now_ms.saturating_add((s * 1000.0) as i64);
-    Ok(Some(match action {
+    Ok(match action {
         Action::Fault(Fault::VehicleFailure {
             vehicle,
             restart_after_s,
@@ -371,7 +369,7 @@ async fn apply(
             station.start(missions_after(scenario, went_down_s))?;
             "the station starts again over the same history".to_owned()
         }
-    }))
+    })
 }
 
 /// Reads what the station stored during the run back from its history store.
