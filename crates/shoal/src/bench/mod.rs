@@ -16,6 +16,8 @@
 //!   vehicle-to-console latency, late-joining participants.
 //! - [`replay`]: an hour of a fleet's recording (MCAP) replayed at 100× to a subscriber
 //!   in another process: wall time against the ideal, loss, lag behind the schedule.
+//! - [`scenario`]: a scenario run headless at a speed-up, start to report, against its
+//!   target.
 //! - [`suite`]: every target in one table, each beside its peer.
 //! - [`helpers`]: what several of them share (participants, helper processes,
 //!   percentiles, memory, the machine and date of a run).
@@ -33,6 +35,7 @@ mod latency;
 mod pipeline;
 mod replay;
 mod scale;
+mod scenario;
 mod security;
 mod semantic;
 mod soak;
@@ -230,6 +233,22 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 86)]
         domain: u16,
     },
+    /// A scenario run headless (`shoal scenario run`), timed from start to report written:
+    /// by default one simulated hour of `harbour-survey` at 60x (target: 2 minutes).
+    Scenario {
+        /// The scenario: a file or a shipped name.
+        #[arg(long, default_value = "harbour-survey")]
+        name: String,
+        /// Simulated seconds per real second.
+        #[arg(long, default_value_t = 60.0)]
+        speed: f64,
+        /// Simulated seconds to run.
+        #[arg(long, default_value_t = 3600.0)]
+        seconds: f64,
+        /// DDS domain for the run.
+        #[arg(long, default_value_t = 87)]
+        domain: u16,
+    },
     /// (helper) Echo pings back as pongs.
     #[command(hide = true)]
     Pong {
@@ -316,6 +335,12 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             domain,
         } => soak::soak(cfg, domain, writes, instances).await,
         BenchCommand::Acoustic { time_scale } => acoustic::acoustic(time_scale).await,
+        BenchCommand::Scenario {
+            name,
+            speed,
+            seconds,
+            domain,
+        } => scenario::scenario(cfg, &name, speed, seconds, domain).await,
         BenchCommand::Semantic { which } => {
             tokio::task::spawn_blocking(move || semantic::semantic(which)).await?
         }

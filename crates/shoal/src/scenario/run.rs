@@ -65,6 +65,21 @@ pub struct RunArgs {
     domain: u16,
 }
 
+impl RunArgs {
+    /// A run of `file` for `duration_s` simulated seconds at `speed` into `out` on DDS
+    /// domain `domain`, seed 1 (what `shoal bench scenario` runs).
+    pub fn new(file: &str, speed: f64, duration_s: f64, out: &Path, domain: u16) -> Self {
+        Self {
+            file: file.to_owned(),
+            speed: Some(speed),
+            seed: 1,
+            duration: Some(duration_s),
+            out: Some(out.to_path_buf()),
+            domain,
+        }
+    }
+}
+
 /// The run's settings, checked before anything starts.
 struct Plan {
     scenario: Scenario,
