@@ -53,8 +53,12 @@ impl StationRun {
     }
 
     /// Starts a station (its own DDS participant, the run's history store) and has it run
-    /// `missions` on their timeline from now.
+    /// `missions` on their timeline from now; one already up is left as it is (restarts
+    /// whose down times overlap end with the first start).
     pub fn start(&mut self, missions: Scenario) -> Result<()> {
+        if self.up.is_some() {
+            return Ok(());
+        }
         let history =
             History::open(&self.cfg.history).context("cannot open the run's history store")?;
         let dds = Arc::new(PubSub::new(&self.cfg.dds).context("cannot join DDS")?);
