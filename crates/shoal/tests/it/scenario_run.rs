@@ -141,7 +141,10 @@ fn a_scenario_with_faults_runs_at_60x_and_leaves_a_report_with_its_figures() {
     for (got, want) in when.iter().zip([20.0, 50.0, 100.0, 200.0, 300.0, 310.0]) {
         assert!((want..want + 30.0).contains(got), "{when:?}");
     }
-    assert!(when[1] - when[0] >= 30.0, "restarted 30 s after failing: {when:?}");
+    assert!(
+        when[1] - when[0] >= 30.0,
+        "restarted 30 s after failing: {when:?}"
+    );
     // The rogue sample was refused and counted; the battery drop is in the track.
     assert!(
         summary["station"]["rejected"].as_u64().unwrap() >= 1,
