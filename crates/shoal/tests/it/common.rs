@@ -127,8 +127,19 @@ pub fn http_post(port: u16, path: &str, json: &str) -> std::io::Result<(u16, Str
     ))
 }
 
-/// A free TCP port on 127.0.0.1 (bound and released).
+/// A free TCP port on 127.0.0.1 (bound and released), for a child process to listen on.
+///
+/// Taken below the kernel's ephemeral range (32768 and up), so no outgoing connection of
+/// another test can take it between this check and the child's bind; a counter keeps two
+/// tests of this binary from drawing the same one.
 pub fn free_port() -> u16 {
-    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-    l.local_addr().unwrap().port()
+    use std::sync::atomic::{AtomicU16, Ordering};
+    static NEXT: AtomicU16 = AtomicU16::new(0);
+    let seed = (std::process::id() % 600) as u16 * 20;
+    loop {
+        let port = 20_000 + (seed + NEXT.fetch_add(1, Ordering::Relaxed) % 12_000) % 12_000;
+        if std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
+            return port;
+        }
+    }
 }

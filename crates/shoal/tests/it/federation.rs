@@ -3,7 +3,7 @@
 //! through `GET /api/federation` without it joining its own fleet.
 
 use crate::common::{free_port, http_get};
-use crate::recorder::{Proc, wait_until};
+use crate::recorder::Proc;
 
 fn json(port: u16, path: &str) -> serde_json::Value {
     http_get(port, path)
@@ -39,7 +39,7 @@ fn a_shore_station_sees_the_ships_vehicle_over_the_federation() {
             &all,
         )
     };
-    let ship = station(
+    let mut ship = station(
         "ship",
         116,
         ship_api,
@@ -50,7 +50,7 @@ fn a_shore_station_sees_the_ships_vehicle_over_the_federation() {
             ("SHOAL_FEDERATION__POSITIONS__MAX_RATE_HZ", "2.0"),
         ],
     );
-    let shore = station(
+    let mut shore = station(
         "shore",
         117,
         shore_api,
@@ -84,7 +84,10 @@ fn a_shore_station_sees_the_ships_vehicle_over_the_federation() {
             .as_array()
             .and_then(|vs| vs.iter().find(|v| v["vehicle_id"] == "auv-f1").cloned())
     };
-    wait_until(60, "auv-f1 at the shore through the federation", || {
+    ship.wait_for(60, "the ship's API", || {
+        http_get(ship_api, "/api/fleet").is_ok()
+    });
+    shore.wait_for(60, "auv-f1 at the shore through the federation", || {
         remote().is_some()
     });
     let v = remote().unwrap();
@@ -125,7 +128,7 @@ fn a_station_without_federation_says_so() {
     let dir = tempfile::tempdir().unwrap();
     let api = free_port();
     let listen = format!("127.0.0.1:{api}");
-    let _station = Proc::start_with(
+    let mut station = Proc::start_with(
         "alone",
         dir.path(),
         118,
@@ -141,7 +144,7 @@ fn a_station_without_federation_says_so() {
         ],
         &[],
     );
-    wait_until(30, "the station's API", || {
+    station.wait_for(60, "the station's API", || {
         http_get(api, "/api/fleet").is_ok()
     });
     let doc = json(api, "/api/federation");

@@ -79,6 +79,28 @@ impl Proc {
         }
     }
 
+    /// Polls `check` until it holds; fails at once, with this process's log, if the
+    /// process exits first, and with the log after `secs`.
+    pub(crate) fn wait_for(&mut self, secs: u64, what: &str, mut check: impl FnMut() -> bool) {
+        let deadline = Instant::now() + Duration::from_secs(secs);
+        while !check() {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                panic!(
+                    "{} exited ({status}) while waiting for {what}; its log:\n{}",
+                    self.name,
+                    self.log()
+                );
+            }
+            assert!(
+                Instant::now() < deadline,
+                "timed out after {secs} s waiting for {what}; {}'s log:\n{}",
+                self.name,
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+
     pub(crate) fn log(&self) -> String {
         std::fs::read_to_string(&self.log).unwrap_or_default()
     }
@@ -175,7 +197,7 @@ fn fleet_states(port: u16, vehicle: &str) -> u64 {
         .unwrap_or(0)
 }
 
-pub(crate) fn wait_until(secs: u64, what: &str, mut check: impl FnMut() -> bool) {
+fn wait_until(secs: u64, what: &str, mut check: impl FnMut() -> bool) {
     let deadline = Instant::now() + Duration::from_secs(secs);
     while !check() {
         assert!(
@@ -199,14 +221,14 @@ fn station_with(
     env: &[(&str, &str)],
 ) -> Proc {
     let listen = format!("127.0.0.1:{port}");
-    let p = Proc::start_with(
+    let mut p = Proc::start_with(
         name,
         dir,
         domain,
         &["station", "--listen", &listen, "--db", db],
         env,
     );
-    wait_until(30, "the station's API", || {
+    p.wait_for(30, "the station's API", || {
         http_get(port, "/api/fleet").is_ok()
     });
     p
@@ -241,8 +263,9 @@ async fn a_secure_fleet_is_recorded_and_its_replay_rebuilds_a_fresh_stations_his
     );
     let mut recorder = Proc::start("recorder", d, 171, &["record", "--output", "rec"]);
     // The recorder's readers are up once it prints its first progress line.
-    wait_until(30, "the recorder to start", || {
-        recorder.log().contains("shoal record:")
+    let log = recorder.log.clone();
+    recorder.wait_for(30, "the recorder to start", || {
+        std::fs::read_to_string(&log).is_ok_and(|l| l.contains("shoal record:"))
     });
     let mut vehicle = Proc::start(
         "vehicle",
