@@ -190,6 +190,11 @@ pub(crate) async fn metrics(State(app): State<AppState>) -> Result<Response, Api
         stats.rules_over_budget,
     );
     m.counter(
+        "shoal_states_held_for_announcement",
+        "State vectors that arrived before their vehicle's announcement and waited for it",
+        stats.states_held_for_announcement,
+    );
+    m.counter(
         "shoal_rejections_not_logged",
         "Rejected data counted but not logged (beyond the log budget)",
         stats.rejections_not_logged,

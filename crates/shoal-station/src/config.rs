@@ -19,6 +19,10 @@ pub struct StationConfig {
     pub summary_interval_s: f64,
     /// Accept state vectors only from vehicles that announced themselves first.
     pub require_announcement: bool,
+    /// Seconds a state vector from the bus may wait for its vehicle's announcement (DDS
+    /// often delivers a starting vehicle's first state vector before it); unannounced
+    /// after that, it is refused as `unknown_vehicle`. 0 refuses at once.
+    pub announcement_grace_s: f64,
     /// Most recent events kept in memory for the API (older ones are in the history).
     pub recent_events: usize,
     /// The Data Pre-Processor's plausibility checks against each vehicle's history.
@@ -56,6 +60,7 @@ impl Default for StationConfig {
             lost_after_s: 30.0,
             summary_interval_s: 10.0,
             require_announcement: true,
+            announcement_grace_s: 5.0,
             recent_events: 500,
             plausibility: PlausibilityConfig::default(),
             semantic: shoal_semantic::StoreConfig::default(),
@@ -90,6 +95,12 @@ impl StationConfig {
             return Err(ConfigError::new(
                 "summary_interval_s",
                 "station.summary_interval_s must be 0 or a positive number",
+            ));
+        }
+        if !(0.0..=60.0).contains(&self.announcement_grace_s) {
+            return Err(ConfigError::new(
+                "announcement_grace_s",
+                "station.announcement_grace_s must be within [0, 60] seconds",
             ));
         }
         if !(self.task_ack_timeout_s.is_finite() && self.task_ack_timeout_s > 0.0) {

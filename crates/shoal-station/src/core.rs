@@ -29,6 +29,8 @@ pub(crate) struct Core {
     pub(crate) tasks: Mutex<TaskRegister>,
     /// The Data Access Manager's counters.
     pub(crate) stats: Mutex<IngestStats>,
+    /// State vectors from the bus waiting for their vehicle's announcement.
+    pub(crate) early: Mutex<crate::ingest::EarlyStates>,
     /// The Event, Tasks and Environment Reporters, and the live feed.
     pub(crate) reporters: Reporters,
     /// The semantic model (ontology + a mirror of the live swarm); rules fire on insert.
@@ -162,6 +164,7 @@ impl StationHandle {
             fleet: Mutex::new(fleet),
             tasks: Mutex::new(tasks),
             stats: Mutex::new(IngestStats::default()),
+            early: Mutex::default(),
             reporters: Reporters::default(),
             semantic: Mutex::new(semantic),
             history: history.writer(),

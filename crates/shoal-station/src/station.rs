@@ -85,10 +85,7 @@ impl Station {
         let h = self.handle();
         let own = self.dds.participant_id();
         let mut tasks = tokio::task::JoinSet::new();
-        let on_state: Deliver<StateVector> = |h, s, _, _| {
-            // Rejections are counted, quarantined and reported inside.
-            let _ = h.ingest_validated_state(s);
-        };
+        let on_state: Deliver<StateVector> = |h, s, _, _| h.ingest_bus_state(s);
         let on_announcement: Deliver<VehicleAnnouncement> =
             |h, a, meta, _| h.ingest_announcement(a, &meta.writer, &meta.participant);
         let on_status: Deliver<TaskStatus> = |h, s, _, _| {
@@ -191,6 +188,7 @@ impl StationHandle {
     /// (faults age out).
     pub(crate) fn tick(&self, now: i64) {
         self.watch_clock();
+        self.expire_early_states(now);
         self.refresh_contact(now);
         self.expire_tasks(now);
         self.prune_tasks(now);

@@ -7,8 +7,11 @@
 //! Data from the bus arrive [`Validated`] (the Publish/Subscribe Manager checks types and
 //! ranges on receipt); data from elsewhere (an operator, a tool) are validated here.
 
+mod early;
 pub(crate) mod preprocess;
 mod semantic;
+
+pub(crate) use early::EarlyStates;
 
 pub(crate) use shoal_dds::LogBudget;
 
@@ -37,6 +40,9 @@ use preprocess::Verdict;
 pub struct IngestStats {
     /// State vectors accepted and stored.
     pub states_accepted: u64,
+    /// State vectors from the bus that arrived before their vehicle's announcement and
+    /// waited for it (accepted when it came, refused as `unknown_vehicle` when not).
+    pub states_held_for_announcement: u64,
     /// Vehicle announcements accepted.
     pub announcements: u64,
     /// Task status reports accepted.
@@ -99,6 +105,48 @@ impl StationHandle {
                 self.reject(StateVector::TOPIC, &id, &why, payload(&s));
                 Err(why)
             }
+        }
+    }
+
+    /// A state vector from the bus. One naming a vehicle that has not announced itself
+    /// yet waits up to `station.announcement_grace_s` for the announcement (see
+    /// [`EarlyStates`]); everything else goes through [`Self::ingest_validated_state`].
+    pub fn ingest_bus_state(&self, s: Validated<StateVector>) {
+        let grace = self.core.config.announcement_grace_s;
+        if self.core.config.require_announcement && grace > 0.0 {
+            // Checked under the hold's lock: an announcement registers the vehicle before
+            // it takes that lock to release what waits, so no sample is left behind.
+            let mut early = lock(&self.core.early);
+            if !lock(&self.core.fleet).vehicles.contains_key(&s.vehicle_id) {
+                let refused = early.hold(s, self.now());
+                drop(early);
+                lock(&self.core.stats).states_held_for_announcement += 1;
+                if let Some(refused) = refused {
+                    // Rejections are counted, quarantined and reported inside.
+                    let _ = self.ingest_validated_state(refused);
+                }
+                return;
+            }
+        }
+        // Rejections are counted, quarantined and reported inside.
+        let _ = self.ingest_validated_state(s);
+    }
+
+    /// The state vectors that waited for `vehicle_id`'s announcement, now that it came.
+    pub(crate) fn release_early_states(&self, vehicle_id: &str) {
+        let held = lock(&self.core.early).release(vehicle_id);
+        for s in held {
+            let _ = self.ingest_validated_state(s);
+        }
+    }
+
+    /// Ends the wait of state vectors held longer than the grace: each goes through the
+    /// Data Access Manager again, which refuses it unless its vehicle is known by now.
+    pub(crate) fn expire_early_states(&self, now: i64) {
+        let grace = crate::config::ms(self.core.config.announcement_grace_s);
+        let expired = lock(&self.core.early).expire(now, grace);
+        for s in expired {
+            let _ = self.ingest_validated_state(s);
         }
     }
 

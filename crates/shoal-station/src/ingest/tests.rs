@@ -82,6 +82,60 @@ fn a_state_from_a_vehicle_that_never_announced_itself_is_rejected() {
 }
 
 #[test]
+fn a_bus_state_that_beats_its_announcement_waits_for_it_and_is_accepted() {
+    let (f, time) = Fixture::manual_clock();
+    let t = f.h.now();
+    f.h.ingest_bus_state(valid(state("auv-1", t, 80.0)));
+    f.h.ingest_bus_state(valid(state("auv-1", t + 100, 79.9)));
+    assert_eq!(f.h.stats().states_accepted, 0);
+    time.advance(1_000);
+    f.h.tick(f.h.now());
+    f.announce("auv-1");
+    let stats = f.h.stats();
+    assert_eq!(stats.states_accepted, 2);
+    assert_eq!(stats.states_held_for_announcement, 2);
+    assert!(stats.rejected.is_empty(), "{:?}", stats.rejected);
+    assert_eq!(
+        f.h.vehicle("auv-1").unwrap().latest.unwrap().timestamp_ms,
+        t + 100
+    );
+    // Once known, a vehicle's samples are not held.
+    f.h.ingest_bus_state(valid(state("auv-1", t + 200, 79.8)));
+    assert_eq!(f.h.stats().states_accepted, 3);
+    assert_eq!(f.h.stats().states_held_for_announcement, 2);
+}
+
+#[test]
+fn a_bus_state_whose_vehicle_never_announces_is_refused_after_the_grace() {
+    let (f, time) = Fixture::manual_clock();
+    f.h.ingest_bus_state(valid(state("ghost", f.h.now(), 80.0)));
+    time.advance(4_000);
+    f.h.tick(f.h.now());
+    assert!(f.h.stats().rejected.is_empty());
+    time.advance(1_000);
+    f.h.tick(f.h.now());
+    assert_eq!(f.h.stats().rejected["unknown_vehicle"], 1);
+    assert_eq!(
+        rejected_reasons(&f),
+        vec![(
+            StateVector::TOPIC.to_string(),
+            "unknown_vehicle".to_string()
+        )]
+    );
+    // A late announcement finds nothing left to take.
+    f.announce("ghost");
+    assert_eq!(f.h.stats().states_accepted, 0);
+}
+
+#[test]
+fn with_no_grace_a_bus_state_of_an_unknown_vehicle_is_refused_at_once() {
+    let f = Fixture::with(|c| c.announcement_grace_s = 0.0);
+    f.h.ingest_bus_state(valid(state("ghost", now_ms(), 80.0)));
+    assert_eq!(f.h.stats().rejected["unknown_vehicle"], 1);
+    assert_eq!(f.h.stats().states_held_for_announcement, 0);
+}
+
+#[test]
 fn without_required_announcements_an_unknown_vehicle_is_heard() {
     let f = Fixture::with(|c| c.require_announcement = false);
     f.h.ingest_state(state("free", now_ms(), 80.0)).unwrap();

@@ -67,6 +67,8 @@ impl StationHandle {
         lock(&self.core.stats).announcements += 1;
         let fired = lock(&self.core.semantic).upsert_vehicle(&a);
         self.emit_fired(fired);
+        // After the fleet knows the vehicle: what waited for this announcement goes in now.
+        self.release_early_states(&id);
         if new {
             match self.fleet_line() {
                 Some(0) => {
