@@ -436,6 +436,27 @@ td.n{text-align:right;font-variant-numeric:tabular-nums}.plot,.map{width:100%;he
 .note,.none{color:#556;font-size:12px}.alarm{color:#b00020}\
 .fault{stroke:#b00020;stroke-width:1.5;stroke-dasharray:4 3}";
 
+/// Which rules fired, how often, first when and about which vehicles.
+fn rule_table(out: &mut String, s: &Summary) {
+    out.push_str("<h2>Rule firings</h2>");
+    if s.rule_firings.is_empty() {
+        out.push_str("<p>No rule fired.</p>");
+        return;
+    }
+    out.push_str("<table><tr><th>Rule</th><th>Firings</th><th>First at</th><th>Vehicles</th></tr>");
+    for (rule, f) in &s.rule_firings {
+        let _ = write!(
+            out,
+            "<tr><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td>{}</td></tr>",
+            esc(rule),
+            f.count,
+            fmt_time(f.first_s),
+            esc(&f.vehicles.join(", "))
+        );
+    }
+    out.push_str("</table>");
+}
+
 /// The report page of a run.
 pub fn render_html(r: &RunRecord, s: &Summary) -> String {
     let mut out = String::with_capacity(64 * 1024);
@@ -548,6 +569,7 @@ pub fn render_html(r: &RunRecord, s: &Summary) -> String {
         }
         out.push_str("</table>");
     }
+    rule_table(&mut out, s);
     out.push_str("<h2>Events</h2>");
     let notable: Vec<_> = r
         .events
@@ -585,9 +607,12 @@ pub fn render_html(r: &RunRecord, s: &Summary) -> String {
     }
     let _ = write!(
         out,
-        "<h2>Station</h2><p>{} state vectors accepted, {} samples refused, {} records committed to the history store.</p>",
-        s.station.states_accepted, s.station.rejected, s.station.history_committed
+        "<h2>Station</h2><p>{} state vectors accepted, {} samples refused, {} rule firings, {} records committed to the history store.</p>",
+        s.station.states_accepted,
+        s.station.rejected,
+        s.station.rule_firings,
+        s.station.history_committed
     );
-    out.push_str("<p class=\"note\">Not measured in this run: the acoustic network (delivery, link quality, channel use) and rule firings; the run's data is in <code>history.sqlite</code> and <code>recording/</code> beside this page.</p></body></html>");
+    out.push_str("<p class=\"note\">Not measured in this run: the acoustic network (delivery, link quality, channel use); the run's data is in <code>history.sqlite</code> and <code>recording/</code> beside this page.</p></body></html>");
     out
 }

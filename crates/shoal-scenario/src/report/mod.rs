@@ -42,6 +42,9 @@ pub struct RunRecord {
     pub station: StationFigures,
     /// The faults injected, in the order they happened.
     pub faults: Vec<FaultRecord>,
+    /// The ids of the station's rules (built-in and user), to tell their firings among
+    /// the events.
+    pub rule_ids: Vec<String>,
 }
 
 /// A fault injected during a run.
@@ -108,6 +111,8 @@ pub struct StationFigures {
     pub rejected: u64,
     /// Records the history store committed.
     pub history_committed: u64,
+    /// Events rules raised as data arrived.
+    pub rule_firings: u64,
 }
 
 /// The figures of a run, written as `summary.json`.
@@ -133,6 +138,8 @@ pub struct Summary {
     pub task_outcomes: BTreeMap<String, TaskOutcome>,
     /// Events by severity (`info`, `warning`, `alarm`, `critical`).
     pub events: BTreeMap<String, usize>,
+    /// The rules that fired, by rule id.
+    pub rule_firings: BTreeMap<String, RuleFiring>,
     /// The station's counters.
     pub station: StationFigures,
     /// The faults injected.
@@ -158,6 +165,29 @@ pub struct VehicleFigures {
     pub battery_min_pct: f64,
     /// Simulated seconds from the start to the first state with speed over 0.2 m/s.
     pub first_motion_s: Option<f64>,
+}
+
+/// How often one rule fired, and about what.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RuleFiring {
+    /// Events it raised.
+    pub count: usize,
+    /// Simulated seconds from the start to its first firing (0.1 s).
+    pub first_s: f64,
+    /// The vehicles its events named, sorted.
+    pub vehicles: Vec<String>,
+}
+
+/// The rule that raised an event, when its id is a rule firing's
+/// (`<rule id>-<timestamp>-<sequence>`, the rule among `rule_ids`).
+pub fn rule_of<'a>(event_id: &str, rule_ids: &'a [String]) -> Option<&'a str> {
+    let mut parts = event_id.rsplitn(3, '-');
+    let (seq, ts, rule) = (parts.next()?, parts.next()?, parts.next()?);
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    if !(digits(seq) && digits(ts)) {
+        return None;
+    }
+    rule_ids.iter().find(|r| *r == rule).map(String::as_str)
 }
 
 /// How one task ended.
@@ -300,6 +330,24 @@ pub fn summarise(r: &RunRecord) -> Summary {
             .entry(severity_name(e.severity).to_owned())
             .or_default() += 1;
     }
+    let mut rule_firings: BTreeMap<String, RuleFiring> = BTreeMap::new();
+    for e in &r.events {
+        let Some(rule) = rule_of(&e.event_id, &r.rule_ids) else {
+            continue;
+        };
+        let f = rule_firings
+            .entry(rule.to_owned())
+            .or_insert_with(|| RuleFiring {
+                count: 0,
+                first_s: round_dp(seconds(e.timestamp_ms), 1),
+                vehicles: Vec::new(),
+            });
+        f.count += 1;
+        if !e.vehicle_id.is_empty() && !f.vehicles.contains(&e.vehicle_id) {
+            f.vehicles.push(e.vehicle_id.clone());
+            f.vehicles.sort();
+        }
+    }
     Summary {
         format: SUMMARY_FORMAT,
         scenario: r.scenario.clone(),
@@ -311,6 +359,7 @@ pub fn summarise(r: &RunRecord) -> Summary {
         tasks,
         task_outcomes,
         events,
+        rule_firings,
         station: r.station,
         faults: r.faults.clone(),
     }

@@ -83,25 +83,77 @@ fn record() -> RunRecord {
                 statuses: vec![status("survey-1-2", 34, TaskState::Failed)],
             },
         ],
-        events: vec![Event {
-            event_id: "e1".into(),
-            timestamp_ms: T0 + 90_000,
-            severity: Severity::Alarm,
-            kind: EventKind::Fault,
-            vehicle_id: "auv-1".into(),
-            task_id: String::new(),
-            text: "battery <low> & falling".into(),
-        }],
+        events: vec![
+            Event {
+                event_id: "e1".into(),
+                timestamp_ms: T0 + 90_000,
+                severity: Severity::Alarm,
+                kind: EventKind::Fault,
+                vehicle_id: "auv-1".into(),
+                task_id: String::new(),
+                text: "battery <low> & falling".into(),
+            },
+            rule_event("builtin.low_battery", 95, "auv-1"),
+            rule_event("deep-dive", 100, "usv-1"),
+            rule_event("builtin.low_battery", 110, "auv-1"),
+            // The station's own event has a rule firing's shape; no rule is called so.
+            rule_event("station", 120, "auv-1"),
+        ],
         station: StationFigures {
             states_accepted: 3,
             rejected: 1,
             history_committed: 9,
+            rule_firings: 3,
         },
         faults: vec![FaultRecord {
             at_s: 100.0,
             what: "auv-1 fails <for good>".into(),
         }],
+        rule_ids: vec![
+            "builtin.low_battery".into(),
+            "deep-dive".into(),
+            "never-fires".into(),
+        ],
     }
+}
+
+/// An event as rule `rule` raises it, `at_s` into the run.
+fn rule_event(rule: &str, at_s: i64, vehicle: &str) -> Event {
+    let ts = T0 + at_s * 1000;
+    Event {
+        event_id: format!("{rule}-{ts}-{at_s}"),
+        timestamp_ms: ts,
+        severity: Severity::Warning,
+        kind: EventKind::Rule,
+        vehicle_id: vehicle.into(),
+        task_id: String::new(),
+        text: format!("{rule} fired"),
+    }
+}
+
+#[test]
+fn rule_firings_are_counted_by_rule_from_their_event_ids() {
+    let s = summarise(&record());
+    assert_eq!(s.rule_firings.len(), 2, "{:?}", s.rule_firings);
+    let low = &s.rule_firings["builtin.low_battery"];
+    assert_eq!((low.count, low.first_s), (2, 95.0));
+    assert_eq!(low.vehicles, ["auv-1"]);
+    assert_eq!(s.rule_firings["deep-dive"].count, 1);
+    let ids = record().rule_ids;
+    assert_eq!(
+        rule_of("deep-dive-1800000000000-4", &ids),
+        Some("deep-dive")
+    );
+    assert_eq!(rule_of("deep-dive-x-4", &ids), None);
+    assert_eq!(rule_of("station-1-2", &ids), None);
+    assert_eq!(rule_of("nothing", &ids), None);
+    let r = record();
+    let html = render_html(&r, &s);
+    assert!(html.contains("<h2>Rule firings</h2>"));
+    assert!(
+        html.contains("<td>builtin.low_battery</td><td class=\"n\">2</td>"),
+        "{html}"
+    );
 }
 
 #[test]
@@ -137,6 +189,7 @@ fn the_summary_has_each_vehicles_figures_and_each_tasks_outcome() {
     assert_eq!(s.task_outcomes["survey/2"].duration_s, None);
     assert_eq!(s.task_outcomes["survey/2"].task_id, "survey-1-2");
     assert_eq!(s.events["alarm"], 1);
+    assert_eq!(s.events["warning"], 4);
     assert_eq!(s.simulated_s, 180.0);
     assert_eq!(s.wall_s, 3.0);
     assert_eq!(s.faults.len(), 1);
@@ -174,6 +227,7 @@ fn an_empty_run_still_renders() {
     let html = render_html(&r, &summarise(&r));
     assert!(html.contains("No positions were stored."));
     assert!(html.contains("No task was issued."));
+    assert!(html.contains("No rule fired."));
 }
 
 #[test]

@@ -309,6 +309,7 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
         station.figures(),
     )?;
     record.faults = faults;
+    record.rule_ids = station.rule_ids();
     let summary = report::summarise(&record);
     let json = serde_json::to_string_pretty(&summary).context("cannot write the summary")?;
     std::fs::write(dir.join("summary.json"), json + "\n")
@@ -438,6 +439,7 @@ fn read_back(
         events,
         station,
         faults: Vec::new(),
+        rule_ids: Vec::new(),
     })
 }
 

@@ -32,6 +32,8 @@ pub struct StationRun {
     up: Option<Running>,
     /// Counters of the stations that ran and stopped, added up.
     done: StationFigures,
+    /// The rules of every station that ran, by id.
+    rule_ids: std::collections::BTreeSet<String>,
 }
 
 struct Running {
@@ -49,6 +51,7 @@ impl StationRun {
             warp,
             up: None,
             done: StationFigures::default(),
+            rule_ids: std::collections::BTreeSet::new(),
         }
     }
 
@@ -95,6 +98,8 @@ impl StationRun {
         let Some(r) = self.up.take() else {
             return Ok(());
         };
+        self.rule_ids
+            .extend(r.handle.rules().into_iter().map(|rule| rule.id));
         r.stop.cancel();
         r.missions.abort();
         let report = r
@@ -105,12 +110,18 @@ impl StationRun {
         self.done.states_accepted += report.stats.states_accepted;
         self.done.rejected += report.stats.total_rejected();
         self.done.history_committed += report.history_committed;
+        self.done.rule_firings += report.stats.rule_firings;
         Ok(())
     }
 
     /// The counters of every station of the run (call after [`Self::stop`]).
     pub fn figures(&self) -> StationFigures {
         self.done
+    }
+
+    /// The ids of every rule the run's stations had (call after [`Self::stop`]).
+    pub fn rule_ids(&self) -> Vec<String> {
+        self.rule_ids.iter().cloned().collect()
     }
 }
 

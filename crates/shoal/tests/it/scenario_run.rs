@@ -160,6 +160,18 @@ fn a_scenario_with_faults_runs_at_60x_and_leaves_a_report_with_its_figures() {
         summary["events"]["warning"].as_u64().unwrap() >= 2,
         "{summary}"
     );
+    // The drop below the low-battery level fired the built-in rule, about that vehicle.
+    let low = &summary["rule_firings"]["builtin.low_battery"];
+    assert!(low["count"].as_u64().unwrap() >= 1, "{summary}");
+    assert!(
+        low["vehicles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|v| v == "usv-7"),
+        "{summary}"
+    );
+    assert!(summary["station"]["rule_firings"].as_u64().unwrap() >= 1);
     // Every task ran to done, once, across the vehicle's failure and the station's
     // restart; each is keyed by its mission and place, whatever the run.
     assert_eq!(summary["tasks"]["total"], 3, "{summary}");
@@ -178,6 +190,10 @@ fn a_scenario_with_faults_runs_at_60x_and_leaves_a_report_with_its_figures() {
     let html = std::fs::read_to_string(run.join("report.html")).unwrap();
     assert!(html.contains("auv-7") && html.contains("usv-7") && html.contains("<svg"));
     assert!(html.contains("Faults injected") && html.contains("class=\"fault\""));
+    assert!(
+        html.contains("<td>builtin.low_battery</td>"),
+        "the rule firings table"
+    );
     assert!(run.join("history.sqlite").exists());
     let mcap: Vec<_> = std::fs::read_dir(run.join("recording"))
         .unwrap()
