@@ -29,7 +29,7 @@ use shoal_acoustic::pdu::{
 use shoal_dds::{Priority, PubSub, Writer, WriterOptions};
 use shoal_model::{
     EnvironmentObservation, Event, EventKind, LinkKind, Severity, StateVector, TaskAssignment,
-    TaskKind, TaskState, TaskStatus, VehicleAnnouncement, now_ms,
+    TaskKind, TaskState, TaskStatus, VehicleAnnouncement,
 };
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
@@ -252,7 +252,7 @@ impl Cdt {
         let s = TaskStatus {
             task_id: task_id.to_owned(),
             vehicle_id: vehicle_id.to_owned(),
-            timestamp_ms: now_ms(),
+            timestamp_ms: self.cfg.now_ms(),
             state,
             progress_pct: 0.0,
             message: msg.to_owned(),
@@ -274,7 +274,7 @@ impl Cdt {
             return Ok(());
         }
         let ttl_ms = wall(self.cfg.link.ttl.control_s, self.cfg.time_scale).as_millis();
-        let age_ms = u128::try_from(now_ms().saturating_sub(t.issued_ms)).unwrap_or(0);
+        let age_ms = u128::try_from(self.cfg.now_ms().saturating_sub(t.issued_ms)).unwrap_or(0);
         if age_ms > ttl_ms {
             // Transient-local history from before this CDT started: long past its TTL.
             debug!(task = %t.task_id, "stale task not forwarded");
@@ -393,7 +393,7 @@ impl Cdt {
                 return Ok(());
             }
         };
-        let now = now_ms();
+        let now = self.cfg.now_ms();
         let peer = self.peers.entry(src).or_default();
         peer.rssi = rssi;
         peer.integrity = integrity;
@@ -574,7 +574,7 @@ impl Cdt {
         }
         imp.alarmed.insert(src, now);
         self.event_no += 1;
-        let ts = now_ms();
+        let ts = self.cfg.now_ms();
         let alarm = Event {
             event_id: format!("{sender}-ac-imp-{ts}-{}", self.event_no),
             timestamp_ms: ts,

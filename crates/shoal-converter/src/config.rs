@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use shoal_acoustic::link::{LinkConfig, Mac};
 use shoal_acoustic::pdu::AddressBook;
 use shoal_acoustic::pdu::convert::MAX_ADDRESS;
+use shoal_model::Warp;
 
 use crate::error::ConverterError;
 
@@ -212,6 +213,10 @@ pub struct VdtConfig {
     pub link: LinkSettings,
     /// Wall-clock seconds per simulated second (match the emulator's `time_scale`).
     pub time_scale: f64,
+    /// The simulated clock of a scenario run, for every timestamp this converter makes
+    /// (`None`: the system clock). Its speed-up must be `1 / time_scale`.
+    #[serde(skip)]
+    pub clock: Option<Warp>,
 }
 
 impl Default for VdtConfig {
@@ -229,6 +234,7 @@ impl Default for VdtConfig {
             environment_interval_s: 30.0,
             link: LinkSettings::default(),
             time_scale: 1.0,
+            clock: None,
         }
     }
 }
@@ -253,6 +259,10 @@ pub struct CdtConfig {
     pub link: LinkSettings,
     /// Wall-clock seconds per simulated second (match the emulator's `time_scale`).
     pub time_scale: f64,
+    /// The simulated clock of a scenario run, for every timestamp this converter makes
+    /// (`None`: the system clock). Its speed-up must be `1 / time_scale`.
+    #[serde(skip)]
+    pub clock: Option<Warp>,
 }
 
 impl Default for CdtConfig {
@@ -265,7 +275,22 @@ impl Default for CdtConfig {
             link_status_interval_s: 30.0,
             link: LinkSettings::default(),
             time_scale: 1.0,
+            clock: None,
         }
+    }
+}
+
+impl VdtConfig {
+    /// This converter's time now, ms since the Unix epoch (see [`Self::clock`]).
+    pub fn now_ms(&self) -> i64 {
+        self.clock.map_or_else(shoal_model::now_ms, |w| w.now_ms())
+    }
+}
+
+impl CdtConfig {
+    /// This converter's time now, ms since the Unix epoch (see [`Self::clock`]).
+    pub fn now_ms(&self) -> i64 {
+        self.clock.map_or_else(shoal_model::now_ms, |w| w.now_ms())
     }
 }
 

@@ -52,7 +52,7 @@ use futures::StreamExt;
 use shoal_acoustic::emulator::{Emulator, EmulatorConfig, EmulatorHandle, ModemConfig};
 use shoal_acoustic::secure::TaggedDriver;
 use shoal_dds::{DdsConfig, PubSub};
-use shoal_model::StateVector;
+use shoal_model::{StateVector, Warp};
 use tokio::task::JoinSet;
 use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
@@ -153,6 +153,9 @@ pub struct EmulatedRelayConfig {
     pub link: LinkSettings,
     /// Move each vehicle's emulated modem to its live position.
     pub follow_vehicles: bool,
+    /// A scenario run's simulated clock for the converters' timestamps (`None`: the
+    /// system clock); set with [`Self::warped`], which matches `time_scale` to it.
+    pub clock: Option<Warp>,
 }
 
 impl EmulatedRelayConfig {
@@ -180,7 +183,17 @@ impl EmulatedRelayConfig {
             state_interval_s: 2.0,
             link: LinkSettings::default(),
             follow_vehicles: true,
+            clock: None,
         }
+    }
+
+    /// The relay on a scenario run's simulated clock: the sea's physics, the converters'
+    /// timers and their timestamps all run at `clock`'s speed.
+    #[must_use]
+    pub fn warped(mut self, clock: Warp) -> Self {
+        self.time_scale = 1.0 / clock.scale();
+        self.clock = Some(clock);
+        self
     }
 
     /// Checks the relay against the station's DDS configuration.
@@ -234,6 +247,7 @@ impl EmulatedRelayConfig {
             vehicles: self.book(),
             link: self.link.clone(),
             time_scale: self.time_scale,
+            clock: self.clock,
             ..CdtConfig::default()
         }
     }
@@ -282,7 +296,25 @@ pub async fn run_emulated_relay<F, Fut>(
     cfg: EmulatedRelayConfig,
     cdt_dds: Arc<PubSub>,
     keys: Option<AcousticKeys>,
+    start_vehicle: F,
+    shutdown: CancellationToken,
+) -> Result<(), ConverterError>
+where
+    F: FnMut(&RelayedVehicle, Arc<PubSub>, CancellationToken) -> Fut,
+    Fut: Future<Output = Result<(), ConverterError>> + Send + 'static,
+{
+    run_emulated_relay_with(cfg, cdt_dds, keys, start_vehicle, |_| {}, shutdown).await
+}
+
+/// [`run_emulated_relay`], handing `on_sea` the running emulator once it is up: a
+/// scenario run reads its per-link counters and fails modems through it. The caller
+/// should drop its clone when the relay stops.
+pub async fn run_emulated_relay_with<F, Fut>(
+    cfg: EmulatedRelayConfig,
+    cdt_dds: Arc<PubSub>,
+    keys: Option<AcousticKeys>,
     mut start_vehicle: F,
+    on_sea: impl FnOnce(&Arc<EmulatorHandle>),
     shutdown: CancellationToken,
 ) -> Result<(), ConverterError>
 where
@@ -294,6 +326,7 @@ where
     let stop = shutdown.child_token();
     let emu =
         Arc::new(Emulator::start(cfg.emulator_config(), stop.clone().cancelled_owned()).await?);
+    on_sea(&emu);
     let endpoint = |addr: u8| emu.modems().iter().find(|m| m.address == addr).cloned();
     let mut tasks: JoinSet<Result<(), ConverterError>> = JoinSet::new();
 
@@ -335,6 +368,7 @@ where
             state_interval_s: cfg.state_interval_s,
             link: cfg.link.clone(),
             time_scale: cfg.time_scale,
+            clock: cfg.clock,
             ..VdtConfig::default()
         };
         if cfg.follow_vehicles {

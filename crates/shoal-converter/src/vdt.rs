@@ -36,7 +36,7 @@ use shoal_acoustic::pdu::{
 use shoal_dds::{Priority, PubSub, ReadError, SampleMeta, Writer, WriterOptions};
 use shoal_model::{
     EnvironmentObservation, Event, Severity, StateVector, TaskAssignment, TaskKind, TaskState,
-    TaskStatus, VehicleAnnouncement, now_ms,
+    TaskStatus, VehicleAnnouncement,
 };
 use tokio::time::{Instant, MissedTickBehavior};
 use tokio_util::sync::CancellationToken;
@@ -295,7 +295,7 @@ impl Vdt {
     ) -> Result<(), ConverterError> {
         // Re-stamp so each repetition is a distinct PDU (not a duplicate at the CDT).
         let mut a = a.clone();
-        a.timestamp_ms = now_ms();
+        a.timestamp_ms = self.cfg.now_ms();
         match CompactAnnouncement::from_model(&a, &self.book) {
             Ok(c) => {
                 let key = supersede_key(key::ANNOUNCEMENT, addr, 0);
@@ -487,7 +487,7 @@ impl Vdt {
             task_no,
             state: task_state_code(TaskState::Failed),
             progress_pct: 0.0,
-            seconds_of_day: seconds_of_day(now_ms()),
+            seconds_of_day: seconds_of_day(self.cfg.now_ms()),
         });
         self.send(Class::Control, &failed, None).await
     }
@@ -500,7 +500,7 @@ impl Vdt {
             );
             return Ok(());
         };
-        let now = now_ms();
+        let now = self.cfg.now_ms();
         // The station's own task id, issue sequence and expiry, as over IP: the vehicle's
         // ledger knows a re-delivery whoever delivers it. The 8-bit task number only
         // routes status back; the CDT maps it to the same task id.

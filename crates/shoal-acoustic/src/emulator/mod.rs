@@ -142,6 +142,8 @@ pub struct LinkStats {
     pub collisions: u64,
     /// Lost because the receiver was transmitting (half duplex).
     pub half_duplex: u64,
+    /// Lost because the sender or the receiver was silent (a failed modem, an outage).
+    pub outage: u64,
 }
 
 /// Why the emulator could not start or an operation failed.
@@ -220,6 +222,19 @@ impl EmulatorHandle {
                 longitude_deg,
                 depth_m,
             };
+        }
+        Ok(())
+    }
+
+    /// Fails a modem (`silent`), or brings it back: a silent modem puts nothing on air
+    /// and hears nothing, as in a modem failure or a link outage.
+    pub fn set_silent(&self, address: u8, silent: bool) -> Result<(), EmulatorError> {
+        let mut sea = lock(&self.sea);
+        let i = sea
+            .index_of(address)
+            .ok_or(EmulatorError::UnknownAddress(address))?;
+        if let Some(n) = sea.nodes.get_mut(i) {
+            n.silent = silent;
         }
         Ok(())
     }

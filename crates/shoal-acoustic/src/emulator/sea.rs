@@ -92,6 +92,9 @@ struct Pending {
 pub(super) struct Node {
     pub(super) address: u8,
     pub(super) pos: Position,
+    /// Failed or cut off (a scenario's modem failure or link outage): it neither puts
+    /// anything on air nor hears anything.
+    pub(super) silent: bool,
     remote: u8,
     retries: u8,
     source_level: u8,
@@ -164,6 +167,7 @@ impl Sea {
                     longitude_deg: m.longitude_deg,
                     depth_m: m.depth_m,
                 },
+                silent: false,
                 remote: 0,
                 retries: cfg.im_retries,
                 source_level: 0,
@@ -192,6 +196,15 @@ impl Sea {
             stats: BTreeMap::new(),
             next_id: 1,
         }
+    }
+
+    /// The counters of the link from `src` to `dst`.
+    fn link(&mut self, src: u8, dst: u8) -> &mut LinkStats {
+        self.stats.entry((src, dst)).or_insert_with(|| LinkStats {
+            src,
+            dst,
+            ..LinkStats::default()
+        })
     }
 
     /// Simulated seconds → wall-clock duration.
@@ -261,6 +274,16 @@ impl Sea {
         let Some(sender) = self.nodes.get_mut(src) else {
             return Vec::new();
         };
+        if sender.silent {
+            // Nothing reaches the water; the addressee's link counts it as an outage.
+            let from = sender.address;
+            if packet.dst != BROADCAST && self.index_of(packet.dst).is_some() {
+                let st = self.link(from, packet.dst);
+                st.frames += 1;
+                st.outage += 1;
+            }
+            return Vec::new();
+        }
         sender.on_air_until = now + air;
         sender.tx_log.push((now, now + air));
         let attenuation = 6.0 * f64::from(sender.source_level);
@@ -335,6 +358,7 @@ impl Sea {
             .iter()
             .any(|&(s, e)| s < a.end && a.start < e);
         let rx_addr = rx_node.address;
+        let rx_silent = rx_node.silent;
         // Forget what can no longer overlap anything.
         self.arrivals.retain(|b| b.end + keep > now);
         for n in &mut self.nodes {
@@ -345,15 +369,17 @@ impl Sea {
         if !intended {
             return Vec::new();
         }
-        let st = self
-            .stats
-            .entry((p.src, rx_addr))
-            .or_insert_with(|| LinkStats {
-                src: p.src,
-                dst: rx_addr,
-                ..LinkStats::default()
-            });
+        let st = self.link(p.src, rx_addr);
         st.frames += 1;
+        if rx_silent {
+            st.outage += 1;
+            debug!(
+                src = p.src,
+                dst = rx_addr,
+                "packet lost: the receiver is silent"
+            );
+            return Vec::new();
+        }
         if collided {
             st.collisions += 1;
         } else if deaf {

@@ -287,3 +287,37 @@ async fn nl_send_is_received_and_reported_delivered() {
         );
     }
 }
+
+#[tokio::test]
+async fn a_silent_modem_neither_hears_nor_is_heard_until_it_is_back() {
+    let emu = emulator(vec![modem(1, 0.0), modem(2, 1000.0)], |_| {}).await;
+    let mut a = AtClient::connect(emu.modems()[0].at).await;
+    let mut b = AtClient::connect(emu.modems()[1].at).await;
+    let send = |dst: u8| {
+        AtCommand::SendIm {
+            dst,
+            ack: true,
+            data: vec![7; 8],
+        }
+        .to_bytes()
+    };
+    emu.set_silent(2, true).unwrap();
+    assert_eq!(a.command(&send(2)).await, "AT*SENDIM:OK");
+    assert_eq!(a.text().await, "AT:FAILEDIM,2");
+    // Nor does anything it sends reach the water.
+    assert_eq!(b.command(&send(1)).await, "AT*SENDIM:OK");
+    assert_eq!(b.text().await, "AT:FAILEDIM,1");
+    let outage = |s: &[shoal_acoustic::emulator::LinkStats], src, dst| {
+        s.iter()
+            .find(|l| (l.src, l.dst) == (src, dst))
+            .map_or(0, |l| l.outage)
+    };
+    let s = emu.stats();
+    assert!(outage(&s, 1, 2) >= 1 && outage(&s, 2, 1) >= 1, "{s:?}");
+    assert!(s.iter().all(|l| l.delivered == 0), "{s:?}");
+
+    emu.set_silent(2, false).unwrap();
+    assert_eq!(a.command(&send(2)).await, "AT*SENDIM:OK");
+    assert_eq!(a.text().await, "AT:DELIVEREDIM,2");
+    assert!(emu.set_silent(77, true).is_err());
+}
