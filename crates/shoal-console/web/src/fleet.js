@@ -1,6 +1,8 @@
 // The fleet list: every vehicle with its link, contact, availability, state and current task,
-// live from the WebSocket; stale and lost vehicles stand out.
+// live from the WebSocket; stale and lost vehicles stand out. Other sites' vehicles follow
+// in a section of their own (federation.js), never in this table.
 
+import { remoteSection } from './federation.js';
 import { centerOn } from './map.js';
 import { currentTask, emit, on, state } from './store.js';
 import { ago, fmt, h } from './util.js';
@@ -92,8 +94,10 @@ function render() {
   root.replaceChildren(
     h('p', { class: 'summary' }, `${rows.length} vehicles: ${counts.alive} alive, ${counts.stale} stale, ${counts.lost} lost, ${counts.silent} silent`),
     rows.length ? tableEl : h('p', { class: 'muted' }, 'No vehicle has announced itself yet.'),
+    remoteSection(),
   );
-  document.getElementById('counts').textContent = `${counts.alive}/${rows.length} vehicles alive`;
+  const remote = state.federation.enabled ? state.federation.vehicles.length : 0;
+  document.getElementById('counts').textContent = `${counts.alive}/${rows.length} vehicles alive${remote ? ` · ${remote} at other sites` : ''}`;
 }
 
 export function initFleet() {
@@ -101,6 +105,7 @@ export function initFleet() {
   on('vehicles', render);
   on('tasks', render);
   on('select', render);
+  on('federation', render);
   // "time since last contact" keeps moving between updates.
   setInterval(render, 1000);
   render();

@@ -14,6 +14,7 @@ import { initEnvironment } from './environment.js';
 import { initVehicles, showVehicles } from './vehicles.js';
 import { initReplay, showReplay } from './replay.js';
 import { startTraffic } from './traffic.js';
+import { initFederation, startFederation, stopFederation } from './federation.js';
 import { emit, may, on, state } from './store.js';
 import { confirmDialog, toast } from './util.js';
 
@@ -42,6 +43,7 @@ function applyRole() {
 
 function showLogin(message) {
   stopLive();
+  stopFederation();
   const overlay = document.getElementById('login');
   overlay.hidden = false;
   document.getElementById('login-error').textContent = message || '';
@@ -60,6 +62,7 @@ async function loadSession() {
   emit('session', state.session);
   startLive();
   startTraffic();
+  startFederation();
   return true;
 }
 
@@ -101,6 +104,7 @@ async function abortAll() {
 
 function init() {
   createMap();
+  initFederation();
   initFleet();
   initMissions();
   initEvents();

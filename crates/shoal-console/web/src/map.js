@@ -35,6 +35,7 @@ export const sources = {
   draft: new VectorSource(),
   replay: new VectorSource(),
   traffic: new VectorSource(),
+  remote: new VectorSource(),
 };
 
 const CONTACT_COLOUR = { alive: '#0b6e4f', stale: '#d98200', lost: '#c0262d', silent: '#777' };
@@ -201,6 +202,83 @@ export function renderTraffic(targets) {
   for (const f of sources.traffic.getFeatures()) if (!seen.has(f.getId())) sources.traffic.removeFeature(f);
 }
 
+/** A vehicle of another site: the kind's outline, hollow, in a dashed ring, so it can
+ *  never be mistaken for one of this station's own (filled, coloured by contact). */
+function remoteGlyph(kind, colour, selected) {
+  const shapes = {
+    auv: '<path d="M16 2 C20 8 20 24 18 28 L14 28 C12 24 12 8 16 2 Z"/>',
+    glider: '<path d="M16 2 C19 8 19 24 17 29 L15 29 C13 24 13 8 16 2 Z"/><path d="M4 16 L28 16"/>',
+    usv: '<path d="M16 2 L23 12 L23 29 L9 29 L9 12 Z"/>',
+    asv: '<path d="M16 2 L23 12 L23 29 L9 29 L9 12 Z"/>',
+    rov: '<path d="M16 3 L25 11 L25 28 L7 28 L7 11 Z"/>',
+  };
+  // A dashed ring makes even a slender hull (an AUV's) stand out as "not ours" at a glance.
+  const ring = `<circle cx="16" cy="16" r="14" fill="#ffffff" fill-opacity="0.45" stroke="${selected ? '#ffd400' : colour}" stroke-width="${selected ? 3 : 1.5}" stroke-dasharray="4 3"/>`;
+  const svg = `<svg xmlns="http://www.w3.org/2000/svg" width="32" height="32" viewBox="0 0 32 32">${ring}<g fill="none" stroke="${colour}" stroke-width="1.8" stroke-linejoin="round">${shapes[kind] || shapes.usv}</g></svg>`;
+  return `data:image/svg+xml;charset=utf-8,${encodeURIComponent(svg)}`;
+}
+
+const REMOTE_COLOUR = '#4a5868';
+
+/** Remote positions cross at a low rate (0.2 Hz by default): only a fix missing for several
+ *  periods is worth fading, and one minutes old is a guess at where the vehicle is. */
+export const REMOTE_OLD_MS = 30_000;
+export const REMOTE_VERY_OLD_MS = 300_000;
+
+function remoteStyle(feature, resolution) {
+  const v = feature.get('remote');
+  const age = feature.get('age_ms');
+  const selected = feature.get('selected');
+  const opacity = age > REMOTE_VERY_OLD_MS ? 0.35 : age > REMOTE_OLD_MS ? 0.6 : 1;
+  const old = age > REMOTE_OLD_MS ? ` (${Math.round(age / 60000) || '<1'} min old)` : '';
+  return new Style({
+    image: new Icon({
+      src: remoteGlyph(v.kind, REMOTE_COLOUR, selected),
+      rotation: (v.heading_deg * Math.PI) / 180,
+      rotateWithView: true,
+      opacity,
+    }),
+    text: new Text({
+      text: `${feature.get('label')}${old}`,
+      offsetY: 22,
+      font: `italic ${selected ? 'bold ' : ''}12px system-ui, sans-serif`,
+      fill: new Fill({ color: `rgba(74,88,104,${opacity})` }),
+      stroke: new Stroke({ color: 'rgba(255,255,255,0.85)', width: 3 }),
+      overflow: resolution < 20,
+    }),
+    zIndex: selected ? 9 : 4,
+  });
+}
+
+/** The feature id of a remote vehicle: ids are unique only within their site. */
+export const remoteKey = (v) => `${v.site}/${v.vehicle_id}`;
+
+/** Draws the remote sites' vehicles (`GET /api/federation`), removing those gone; `ageOf`
+ *  gives each one's age now, `selectedKey` the one the operator picked. */
+export function renderRemoteVehicles(vehicles, ageOf, selectedKey) {
+  const seen = new Set();
+  for (const v of vehicles) {
+    const id = remoteKey(v);
+    seen.add(id);
+    let f = sources.remote.getFeatureById(id);
+    const xy = fromLonLat([v.longitude_deg, v.latitude_deg]);
+    if (!f) {
+      f = new Feature(new Point(xy));
+      f.setId(id);
+      sources.remote.addFeature(f);
+    } else {
+      f.getGeometry().setCoordinates(xy);
+    }
+    f.setProperties({ remote: v, label: `${v.vehicle_id} · ${v.site}`, age_ms: ageOf(v), selected: id === selectedKey });
+  }
+  for (const f of sources.remote.getFeatures()) if (!seen.has(f.getId())) sources.remote.removeFeature(f);
+}
+
+/** The remote vehicle drawn at a pixel, or null. */
+export function remoteAtPixel(pixel) {
+  return map.forEachFeatureAtPixel(pixel, (f) => f, { layerFilter: (l) => l === layers.remote, hitTolerance: 6 }) || null;
+}
+
 const layers = {
   land: new VectorLayer({
     source: sources.land,
@@ -224,6 +302,8 @@ const layers = {
   tasks: new VectorLayer({ source: sources.tasks, style: taskStyle }),
   trails: new VectorLayer({ source: sources.trails, style: trailStyle }),
   traffic: new VectorLayer({ source: sources.traffic, style: vesselStyle }),
+  // Under the own fleet: where a remote and an own vehicle overlap, the own one is clicked.
+  remote: new VectorLayer({ source: sources.remote, style: remoteStyle }),
   vehicles: new VectorLayer({ source: sources.vehicles, style: vehicleStyle }),
   draft: new VectorLayer({ source: sources.draft, style: draftStyle }),
   replay: new VectorLayer({ source: sources.replay, style: replayStyle, zIndex: 20 }),
@@ -410,6 +490,7 @@ export function setDraft(type, points) {
 /** Shows or hides the live vehicles and trails (the replay dims them). */
 export function setLiveVisible(visible) {
   layers.vehicles.setOpacity(visible ? 1 : 0.25);
+  layers.remote.setOpacity(visible ? 1 : 0.25);
   layers.trails.setVisible(visible);
 }
 

@@ -15,6 +15,12 @@ export const state = {
   /** { enabled, user, role } from /api/auth/session */
   session: { enabled: false, user: null, role: 'admin' },
   selected: null,
+  /** Other sites' picture from GET /api/federation (federation.js); `enabled` is null
+   *  until the station first answered, `error` set while the last poll failed. */
+  federation: { enabled: null, site: '', sites: [], vehicles: [], alarms: [], receivedMs: 0, error: null },
+  /** `site/vehicle_id` of the remote vehicle picked on the map or in the list: kept apart
+   *  from `selected`, which the command views act on. */
+  remoteSelected: null,
 };
 
 /** Longest trail kept per vehicle (points, about ten minutes at 1 Hz). */
@@ -22,7 +28,8 @@ export const TRAIL_POINTS = 600;
 
 const bus = new EventTarget();
 
-/** Subscribes to a change: 'vehicles', 'tasks', 'missions', 'events', 'select', 'session'. */
+/** Subscribes to a change: 'vehicles', 'tasks', 'missions', 'events', 'select', 'session',
+ *  'federation'. */
 export function on(kind, fn) {
   bus.addEventListener(kind, (e) => fn(e.detail));
 }

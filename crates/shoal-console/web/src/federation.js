@@ -1,0 +1,285 @@
+// Other sites' vehicles and alarms, as the federation brings them (docs/federation.md):
+// polled from GET /api/federation, drawn on the map apart from the own fleet and listed
+// under "Other sites" in the fleet panel. They are read-only here: this station cannot
+// command another site's vehicles, so nothing offers them for a task.
+
+import Overlay from 'ol/Overlay.js';
+import { api, describe } from './api.js';
+import { centerOn, map, remoteAtPixel, remoteKey, renderRemoteVehicles, REMOTE_OLD_MS, REMOTE_VERY_OLD_MS, sources } from './map.js';
+import { emit, state } from './store.js';
+import { ago, fmt, h, time, toast } from './util.js';
+
+/** Seconds between polls while federated; a station answering `enabled: false` is asked
+ *  again rarely, in case it is restarted federated. */
+const POLL_S = 2;
+const IDLE_POLL_S = 60;
+/** The picture is marked stale once no answer came for this long. */
+const STALE_MS = 3 * POLL_S * 1000;
+
+let timer = null;
+let running = false;
+/** Bumped on every start and stop, so a poll still in flight from before a logout does
+ *  not schedule a second loop beside the new one. */
+let generation = 0;
+/** Remote alarms already seen (`site/event_id`); null until the first answer, so that
+ *  what a site raised before the console opened is listed without a toast each. */
+let seenAlarms = null;
+let popup = null;
+/** `site/vehicle_id` of the vehicle the popup shows, and whether a click pinned it. */
+let shown = null;
+let pinned = false;
+
+const fed = () => state.federation;
+
+/** How old a remote vehicle's fix is now: the station's age plus the time since it answered. */
+export function ageNow(v, now = Date.now()) {
+  return v.age_ms + Math.max(0, now - fed().receivedMs);
+}
+
+/** True when the last answer is too old to trust (polls failing, or none for a while). */
+function stale(now = Date.now()) {
+  return fed().error !== null || now - fed().receivedMs > STALE_MS;
+}
+
+function ageText(ms) {
+  const s = Math.round(ms / 1000);
+  if (s < 90) return `${s} s`;
+  if (s < 5400) return `${Math.round(s / 60)} min`;
+  return `${Math.round(s / 3600)} h`;
+}
+
+function ageClass(ms) {
+  return ms > REMOTE_VERY_OLD_MS ? 'age-very-old' : ms > REMOTE_OLD_MS ? 'age-old' : 'age-fresh';
+}
+
+function noteNewAlarms(alarms) {
+  const keys = alarms.map((a) => `${a.site}/${a.alarm.event_id}`);
+  if (seenAlarms !== null) {
+    alarms.forEach((a, i) => {
+      const e = a.alarm;
+      if (seenAlarms.has(keys[i]) || !['alarm', 'critical'].includes(e.severity)) return;
+      // Another site's alarm is acknowledged there; here it is news, not a task.
+      toast(`${e.severity.toUpperCase()} at ${a.site}: ${e.vehicle_id ? `${e.vehicle_id}: ` : ''}${e.text}`, 'warn');
+    });
+  }
+  seenAlarms = new Set(keys);
+}
+
+function redraw() {
+  const now = Date.now();
+  renderRemoteVehicles(fed().vehicles, (v) => ageNow(v, now), state.remoteSelected);
+  refreshPopup();
+}
+
+async function poll(gen) {
+  let next = POLL_S;
+  try {
+    const doc = await api('GET', '/api/federation');
+    if (gen !== generation) return;
+    if (!doc.enabled) next = IDLE_POLL_S;
+    Object.assign(state.federation, {
+      enabled: doc.enabled,
+      site: doc.site,
+      sites: doc.sites,
+      vehicles: doc.vehicles,
+      alarms: doc.alarms,
+      receivedMs: Date.now(),
+      error: null,
+    });
+    noteNewAlarms(doc.alarms);
+  } catch (e) {
+    // The last picture stays, marked stale, with its ages still growing.
+    if (gen !== generation) return;
+    fed().error = describe(e);
+    if (e.status === 401) {
+      // Logged out: polling would only keep asking the login form to show again; the
+      // next login starts it anew (main.js).
+      running = false;
+      timer = null;
+      emit('federation', fed());
+      return;
+    }
+    if (fed().enabled === false) next = IDLE_POLL_S;
+  }
+  redraw();
+  emit('federation', fed());
+  if (running && gen === generation) timer = setTimeout(() => poll(gen), next * 1000);
+}
+
+/** Starts polling (again after a logout; while running, does nothing). */
+export function startFederation() {
+  if (running) return;
+  running = true;
+  generation += 1;
+  poll(generation);
+}
+
+export function stopFederation() {
+  running = false;
+  generation += 1;
+  clearTimeout(timer);
+  timer = null;
+}
+
+function find(key) {
+  return fed().vehicles.find((v) => remoteKey(v) === key) || null;
+}
+
+function popupBody(v) {
+  const age = ageNow(v);
+  const facts = [
+    ['site', v.site],
+    ['kind', v.kind.toUpperCase()],
+    ['depth', `${fmt(v.depth_m)} m`],
+    ['battery', `${fmt(v.battery_pct, 0)} %`],
+    ['speed', `${fmt(v.speed_mps)} m/s`],
+    ['heading', `${fmt(v.heading_deg, 0)}°`],
+    ['position', `${v.latitude_deg.toFixed(5)}, ${v.longitude_deg.toFixed(5)}`],
+    ['age', `${ageText(age)} (fix at ${time(v.timestamp_ms)})`],
+  ];
+  return [
+    pinned ? h('button', { type: 'button', class: 'close', title: 'Close', onclick: unpin }, '×') : null,
+    h('strong', {}, `${v.vehicle_id} · ${v.site}`),
+    h('small', { class: 'muted' }, `another site's vehicle: read-only${stale() ? '; picture not updating' : ''}`),
+    h('dl', { class: 'facts' }, facts.flatMap(([k, val]) => [h('dt', {}, k), h('dd', { dataset: { fact: k } }, val)])),
+  ];
+}
+
+function refreshPopup() {
+  if (!popup) return;
+  const v = shown && find(shown);
+  const f = v && sources.remote.getFeatureById(shown);
+  if (!f) {
+    // Gone from the picture (or nothing hovered): a pinned one comes back if it reappears.
+    popup.setPosition(undefined);
+    return;
+  }
+  const el = popup.getElement();
+  el.classList.toggle('pinned', pinned);
+  el.classList.toggle('stale', stale());
+  el.replaceChildren(...popupBody(v).filter(Boolean));
+  el.dataset.remote = shown;
+  popup.setPosition(f.getGeometry().getCoordinates());
+}
+
+/** Shows the popup of a remote vehicle; `pin` keeps it up (and the vehicle highlighted). */
+function showRemote(key, pin) {
+  shown = key;
+  pinned = pin;
+  if (pin) state.remoteSelected = key;
+  redraw();
+  if (pin) emit('federation', fed());
+}
+
+function unpin() {
+  if (!pinned && state.remoteSelected === null) return;
+  pinned = false;
+  shown = null;
+  state.remoteSelected = null;
+  redraw();
+  emit('federation', fed());
+}
+
+/** Hover and click on the map's remote vehicles; call once the map exists. */
+export function initFederation() {
+  const el = h('div', { id: 'remote-info', class: 'remote-info', role: 'tooltip' });
+  popup = new Overlay({ element: el, offset: [14, -10], positioning: 'bottom-left', stopEvent: false });
+  map.addOverlay(popup);
+  let pointer = false;
+  map.on('pointermove', (evt) => {
+    if (evt.dragging) return;
+    const f = remoteAtPixel(evt.pixel);
+    if (Boolean(f) !== pointer) {
+      pointer = Boolean(f);
+      map.getTargetElement().style.cursor = pointer ? 'pointer' : '';
+    }
+    if (pinned) return;
+    const key = f ? f.getId() : null;
+    if (key !== shown) {
+      shown = key;
+      refreshPopup();
+    }
+  });
+  map.on('singleclick', (evt) => {
+    const f = remoteAtPixel(evt.pixel);
+    // Never `select`: that is the own vehicle the command views act on.
+    if (f) showRemote(f.getId(), true);
+    else unpin();
+  });
+  // Ages keep growing between answers, and faster when polls fail.
+  setInterval(() => {
+    if (fed().vehicles.length) redraw();
+  }, 5000);
+}
+
+function siteRows(site, vehicles, now) {
+  return vehicles.map((v) => {
+    const key = remoteKey(v);
+    const age = ageNow(v, now);
+    return h(
+      'tr',
+      {
+        class: `remote-vehicle ${ageClass(age)}${state.remoteSelected === key ? ' selected' : ''}`,
+        title: `${v.vehicle_id} at ${site}: fix ${ageText(age)} old; read-only (commanded by ${site})`,
+        dataset: { remote: key, site },
+        onclick: () => {
+          centerOn(v.longitude_deg, v.latitude_deg);
+          showRemote(key, true);
+        },
+      },
+      h('td', {}, h('strong', {}, v.vehicle_id), h('small', {}, `· ${site}`)),
+      h('td', {}, v.kind.toUpperCase()),
+      h('td', { class: 'num' }, fmt(v.depth_m)),
+      h('td', { class: 'num' }, fmt(v.speed_mps)),
+      h('td', { class: 'num' }, `${fmt(v.battery_pct, 0)}%`),
+      h('td', { class: 'num age' }, ageText(age)),
+    );
+  });
+}
+
+/** The fleet panel's "Other sites" section, or null when this station is not federated. */
+export function remoteSection() {
+  const f = fed();
+  if (!f.enabled) return null;
+  const now = Date.now();
+  const bySite = new Map(f.sites.map((s) => [s.site, { info: s, vehicles: [] }]));
+  for (const v of f.vehicles) {
+    if (!bySite.has(v.site)) bySite.set(v.site, { info: null, vehicles: [] });
+    bySite.get(v.site).vehicles.push(v);
+  }
+  const sites = [...bySite.entries()].sort((a, b) => a[0].localeCompare(b[0]));
+  const since = now - f.receivedMs;
+  const note = stale(now)
+    ? h('span', { class: 'pill remote-stale', title: f.error || '' }, `not updated for ${ageText(since)}${f.error ? `: ${f.error}` : ''}`)
+    : null;
+  return h(
+    'section',
+    { id: 'remote-fleet', class: `remote-fleet${stale(now) ? ' stale' : ''}` },
+    h('h3', {}, 'Other sites ', h('small', { class: 'muted' }, `read-only, via the federation (this site: ${f.site})`), ' ', note),
+    sites.length === 0 ? h('p', { class: 'muted' }, 'No remote site configured.') : null,
+    sites.map(([site, { info, vehicles }]) => {
+      vehicles.sort((a, b) => a.vehicle_id.localeCompare(b.vehicle_id));
+      const online = info ? info.online : null;
+      const status = online === null ? 'unknown' : online ? 'online' : 'offline';
+      return h(
+        'div',
+        { class: 'remote-site', dataset: { site, online: status } },
+        h('h4', {},
+          site, ' ',
+          h('span', { class: `pill site-${status}`, title: info ? `${status} since ${time(info.since_ms)}` : 'not a configured remote site' }, status),
+          info ? h('small', { class: 'muted' }, ` since ${ago(info.since_ms, now)}`) : null,
+          h('small', { class: 'muted' }, ` · ${vehicles.length} vehicle(s)`)),
+        vehicles.length
+          ? h('table', { class: 'grid compact remote' },
+            h('thead', {}, h('tr', {}, ['vehicle', 'kind', 'depth m', 'speed m/s', 'battery', 'age'].map((t) => h('th', {}, t)))),
+            h('tbody', {}, siteRows(site, vehicles, now)))
+          : h('p', { class: 'muted' }, online === false ? 'Offline: nothing heard.' : 'No vehicle position received yet.'),
+      );
+    }),
+  );
+}
+
+/** Remote alarms for the events list: [{site, alarm}], oldest first. */
+export function remoteAlarms() {
+  return fed().enabled ? fed().alarms : [];
+}
