@@ -5,13 +5,18 @@
 # in the same namespace (one test also starts a `shoal vehicle --sim` of its own on the
 # same DDS domain, to watch it go stale and lost). It also runs a short `shoal scenario
 # run` and opens its HTML report from the file, offline
-# (web/tests/scenario-report.e2e.test.js). Screenshots and the browser's request log go
+# (web/tests/scenario-report.e2e.test.js). A second station, site "ship" (DDS domain 147,
+# its own simulated AUV), is federated over Zenoh on 127.0.0.1 to the `shoal up` station,
+# site "shore", whose console shows the ship's vehicle as another site's
+# (web/tests/federation.e2e.test.js). Screenshots and the browser's request log go
 # to target/console-e2e/.
 #
 # Usage: scripts/console-e2e.sh [<netns>]        (default: shoal-test)
 #   SHOAL_BIN   the shoal binary (default: target/release/shoal; build it first with
 #               cargo build --release -p shoal)
-#   SHOAL_E2E_PORT  console port inside the namespace (default 18640)
+#   SHOAL_E2E_PORT  console port inside the namespace (default 18640); the AIS input is
+#               on the next port, the federation's Zenoh endpoint on the one after, the
+#               ship station's console on the one after that
 #
 # Needs root (network namespace; installs chromium with apt-get if /usr/bin/chromium is
 # missing), node and npm (web/node_modules is installed with npm ci if missing).
@@ -47,12 +52,21 @@ rm -rf "$out"
 mkdir -p "$out"
 work="$(mktemp -d /tmp/shoal-console-e2e.XXXXXX)"
 up_pid=""
-cleanup() {
-    if [[ -n "$up_pid" ]] && kill -0 "$up_pid" 2>/dev/null; then
-        kill -INT "$up_pid" 2>/dev/null || true
-        for _ in $(seq 1 100); do kill -0 "$up_pid" 2>/dev/null || break; sleep 0.2; done
-        kill -KILL "$up_pid" 2>/dev/null || true
+ship_pid=""
+ship_vehicle_pid=""
+# Stops one process of ours by its id: SIGINT (a clean stop), SIGKILL after 20 s.
+stop() {
+    local pid="$1"
+    if [[ -n "$pid" ]] && kill -0 "$pid" 2>/dev/null; then
+        kill -INT "$pid" 2>/dev/null || true
+        for _ in $(seq 1 100); do kill -0 "$pid" 2>/dev/null || break; sleep 0.2; done
+        kill -KILL "$pid" 2>/dev/null || true
     fi
+}
+cleanup() {
+    stop "$up_pid"
+    stop "$ship_vehicle_pid"
+    stop "$ship_pid"
     rm -rf "$work"
 }
 trap cleanup EXIT
@@ -66,7 +80,13 @@ unset SHOAL_CONSOLE__AUTH__ENABLED SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_PASSWORD \
 # credential, handed to the station as [console.auth] initial_admin_token).
 token="shoal_test_$(od -An -tx1 -N24 /dev/urandom | tr -d ' \n')"
 
+zenoh_port=$((port + 2))
+ship_port=$((port + 3))
+
 # DDS domain 145: the console's tests use 140-149, so they never meet other tests' DDS.
+# [federation]: this station is site "shore" and connects to the ship's station started
+# below. Of the commands given this file, only the station that `shoal up` starts joins
+# the federation (`shoal scenario run` and `shoal record` do not read the section).
 cat > "$work/shoal.toml" <<EOF
 [dds]
 domain_id = 145
@@ -94,7 +114,34 @@ users_path = "$work/console-users.json"
 # The first admin token is set here rather than printed, so this script knows it; the
 # station must then show it nowhere (checked below).
 initial_admin_token = "$token"
+
+[federation]
+enabled = true
+site = "shore"
+listen = []
+connect = ["tcp/127.0.0.1:$zenoh_port"]
+remote_sites = ["ship"]
 EOF
+
+# Site "ship": a station of its own (DDS domain 147, no DDS Security, no console logins:
+# only the shore's federation talks to it, on loopback in the namespace) and one
+# simulated AUV on its domain, in water off the shore's fleet. Started first, so the
+# shore finds its Zenoh endpoint (a peer retries its connect endpoints anyway). Its
+# default paths (rules, the vehicle's task ledger) land in a directory of its own.
+mkdir -p "$work/ship"
+ship_env=(SHOAL_DDS__DOMAIN_ID=147 SHOAL_CONSOLE__AUTH__ENABLED=false)
+(cd "$work/ship" && exec ip netns exec "$ns" env "${ship_env[@]}" \
+    SHOAL_FEDERATION__ENABLED=true SHOAL_FEDERATION__SITE=ship \
+    SHOAL_FEDERATION__LISTEN="[\"tcp/127.0.0.1:$zenoh_port\"]" \
+    SHOAL_FEDERATION__CONNECT='[]' SHOAL_FEDERATION__REMOTE_SITES='["shore"]' \
+    SHOAL_FEDERATION__POSITIONS__MAX_RATE_HZ=1.0 \
+    "$bin" --insecure station --scenario none --listen "127.0.0.1:$ship_port" --db :memory: \
+    >"$out/ship-station.log" 2>&1) &
+ship_pid=$!
+(cd "$work/ship" && exec ip netns exec "$ns" env "${ship_env[@]}" \
+    "$bin" --insecure vehicle --sim auv --id ship-auv-1 --lat 63.455 --lon 10.35 \
+    >"$out/ship-vehicle.log" 2>&1) &
+ship_vehicle_pid=$!
 
 # --scenario none: the tests dispatch their own tasks and expect idle vehicles; the
 # default scenario (scenarios/sea-trial.toml) would keep them busy.
@@ -137,7 +184,8 @@ ip netns exec "$ns" env \
     SHOAL_BIN="$bin" \
     SHOAL_E2E_CONFIG="$work/shoal.toml" \
     node --test --test-reporter=spec --test-reporter-destination=stdout \
-    "$web/tests/console.e2e.test.js" "$web/tests/scenario-report.e2e.test.js" 2>&1 | tee "$out/results.txt"
+    "$web/tests/console.e2e.test.js" "$web/tests/scenario-report.e2e.test.js" \
+    "$web/tests/federation.e2e.test.js" 2>&1 | tee "$out/results.txt"
 status=${PIPESTATUS[0]}
 set -e
 

@@ -1,0 +1,164 @@
+// Another site's vehicle in the console (Debian's Chromium driven by playwright-core):
+// scripts/console-e2e.sh federates the `shoal up` station (site "shore") over Zenoh with a
+// second station (site "ship", DDS domain 147) that has one simulated AUV, ship-auv-1.
+// The shore's console must show it on the map and under "Other sites", as the ship's,
+// and never offer it for a task.
+
+import { after, before, describe, test } from 'node:test';
+import assert from 'node:assert/strict';
+import { mkdirSync, mkdtempSync, rmSync } from 'node:fs';
+import { tmpdir } from 'node:os';
+import { join } from 'node:path';
+import { chromium } from 'playwright-core';
+
+const BASE = process.env.SHOAL_URL || 'http://127.0.0.1:8640';
+const TOKEN = process.env.SHOAL_ADMIN_TOKEN;
+const OUT = process.env.SHOAL_E2E_OUT || 'target/console-e2e';
+const CHROMIUM = process.env.CHROMIUM || '/usr/bin/chromium';
+const ARGS = ['--headless', '--no-sandbox', '--disable-gpu', '--no-first-run', '--disable-background-networking', '--disable-component-update', '--disable-sync'];
+const REMOTE = 'ship/ship-auv-1';
+const operator = { user: 'fed-operator', password: `fed-op-${Date.now()}-pw` };
+
+async function admin(method, path, body) {
+  const res = await fetch(BASE + path, {
+    method,
+    headers: { Authorization: `Bearer ${TOKEN}`, 'Content-Type': 'application/json' },
+    body: body === undefined ? undefined : JSON.stringify(body),
+  });
+  const text = await res.text();
+  return { status: res.status, body: text ? JSON.parse(text) : null };
+}
+
+describe('Another site in the console', { concurrency: false }, () => {
+  let ctx;
+  let page;
+  let profile;
+  const requests = [];
+
+  before(async () => {
+    assert.ok(TOKEN, 'SHOAL_ADMIN_TOKEN is not set (scripts/console-e2e.sh sets it)');
+    mkdirSync(OUT, { recursive: true });
+    const made = await admin('POST', '/api/auth/users', { name: operator.user, password: operator.password, role: 'operator' });
+    assert.ok(made.status < 300, JSON.stringify(made));
+    profile = mkdtempSync(join(tmpdir(), 'shoal-fed-profile-'));
+    ctx = await chromium.launchPersistentContext(profile, { executablePath: CHROMIUM, headless: true, args: ARGS, viewport: { width: 1600, height: 950 } });
+    ctx.on('request', (r) => requests.push(r.url()));
+    page = ctx.pages()[0] || (await ctx.newPage());
+    page.on('pageerror', (e) => console.error('page error:', e.message));
+  });
+
+  after(async () => {
+    await ctx?.close();
+    if (profile) rmSync(profile, { recursive: true, force: true });
+  });
+
+  test("the shore station serves the ship's vehicle as the ship's, not its own", async () => {
+    let doc;
+    for (let i = 0; i < 120; i++) {
+      doc = (await admin('GET', '/api/federation')).body;
+      if (doc.vehicles.some((v) => v.vehicle_id === 'ship-auv-1')) break;
+      await new Promise((resolve) => setTimeout(resolve, 1000));
+    }
+    assert.equal(doc.enabled, true);
+    assert.equal(doc.site, 'shore');
+    const v = doc.vehicles.find((x) => x.vehicle_id === 'ship-auv-1');
+    assert.ok(v, `no ship-auv-1 at the shore within 2 min: ${JSON.stringify(doc)}`);
+    assert.equal(v.site, 'ship');
+    assert.equal(v.kind, 'auv');
+    assert.deepEqual(doc.sites.map((s) => [s.site, s.online]), [['ship', true]]);
+    const fleet = (await admin('GET', '/api/fleet')).body;
+    assert.ok(!JSON.stringify(fleet).includes('ship-auv-1'), 'the ship\'s vehicle is in the shore\'s own fleet');
+  });
+
+  test('an operator sees it on the map and under Other sites, read-only', async () => {
+    await page.goto(BASE + '/');
+    await page.locator('#login').waitFor({ state: 'visible' });
+    await page.fill('#login-form input[name=user]', operator.user);
+    await page.fill('#login-form input[name=password]', operator.password);
+    await page.click('#login-form button[type=submit]');
+    await page.locator('#login').waitFor({ state: 'hidden' });
+
+    // The fleet panel: the site, online, and its vehicle with kind and age; not in the own list.
+    const row = page.locator(`#remote-fleet tr[data-remote="${REMOTE}"]`);
+    await row.waitFor({ timeout: 30000 });
+    await page.locator('#remote-fleet .remote-site[data-site="ship"][data-online="online"]').waitFor();
+    const text = await row.textContent();
+    assert.match(text, /ship-auv-1/);
+    assert.match(text, /· ship/);
+    assert.match(text, /AUV/);
+    assert.match(text, /\d+ (s|min)$/);
+    await page.locator('#fleet-table tr[data-vehicle="auv-1"]').waitFor({ timeout: 60000 });
+    assert.equal(await page.locator('#fleet-table tr[data-vehicle="ship-auv-1"]').count(), 0);
+
+    // The map: labelled with its site, in its own layer (never among the own fleet), in view.
+    const drawn = await page.waitForFunction((key) => {
+      const { map, sources } = window.shoalConsole;
+      const f = sources.remote.getFeatureById(key);
+      if (!f) return null;
+      const extent = map.getView().calculateExtent(map.getSize());
+      const [x, y] = f.getGeometry().getCoordinates();
+      const inView = x >= extent[0] && x <= extent[2] && y >= extent[1] && y <= extent[3];
+      return {
+        label: f.get('label'),
+        site: f.get('remote').site,
+        own: sources.vehicles.getFeatures().some((o) => o.getId() === 'ship-auv-1'),
+        inView,
+        pixel: map.getPixelFromCoordinate(f.getGeometry().getCoordinates()),
+      };
+    }, REMOTE, { timeout: 30000 }).then((h) => h.jsonValue());
+    assert.equal(drawn.label, 'ship-auv-1 · ship');
+    assert.equal(drawn.site, 'ship');
+    assert.equal(drawn.own, false);
+    assert.ok(drawn.inView, 'the ship\'s vehicle is outside the map\'s view');
+
+    // Hovering shows what is known of it.
+    const box = await page.locator('#map').boundingBox();
+    await page.mouse.move(box.x + drawn.pixel[0], box.y + drawn.pixel[1]);
+    const info = page.locator(`#remote-info[data-remote="${REMOTE}"]`);
+    await info.waitFor({ state: 'visible', timeout: 10000 });
+    assert.equal(await info.locator('dd[data-fact=site]').textContent(), 'ship');
+    assert.equal(await info.locator('dd[data-fact=kind]').textContent(), 'AUV');
+    for (const fact of ['depth', 'battery', 'speed', 'age']) {
+      assert.notEqual(await info.locator(`dd[data-fact=${fact}]`).count(), 0, fact);
+    }
+
+    // Clicking it pins that information; it does not become the vehicle the command views act on.
+    await page.mouse.click(box.x + drawn.pixel[0], box.y + drawn.pixel[1]);
+    await page.locator('#remote-info.pinned').waitFor({ timeout: 5000 });
+    await page.locator(`#remote-fleet tr.selected[data-remote="${REMOTE}"]`).waitFor({ timeout: 5000 });
+    assert.equal(await page.locator('#fleet-table tr.selected').count(), 0);
+    await page.click('#tabs button[data-tab=fleet]');
+    await page.locator('#remote-fleet').scrollIntoViewIfNeeded();
+    await page.screenshot({ path: join(OUT, '21-federation-other-site.png') });
+    await page.click('#tabs button[data-tab=vehicles]');
+    assert.ok(!(await page.locator('#tab-vehicles').textContent()).includes('ship-auv-1'), 'the vehicle view shows the ship\'s vehicle');
+
+    // Not offered for a task: neither in the waypoint nor in the survey vehicle list, nor
+    // among the vehicles "not offered" (it is not this station's to dispatch at all).
+    await page.click('#tabs button[data-tab=missions]');
+    const form = page.locator('#mission-form');
+    // Wait for the station's answer on who can do the task (an own vehicle offered).
+    await page.waitForFunction(() => document.querySelectorAll('#mission-form select[name=vehicle] option[value]:not([value=""])').length > 0, null, { timeout: 30000 });
+    const offered = await form.locator('select[name=vehicle] option').evaluateAll((os) => os.map((o) => o.value));
+    assert.ok(!offered.includes('ship-auv-1'), `offered: ${offered}`);
+    assert.equal(await form.locator('#vehicle-why li[data-vehicle="ship-auv-1"]').count(), 0);
+    assert.ok(!(await page.locator('#tab-missions').textContent()).includes('ship-auv-1'));
+    // And the station refuses a task for it, whoever asks.
+    const refused = await admin('POST', '/api/missions?start=true', {
+      mission_id: `fed-${Date.now()}`,
+      name: 'a remote vehicle',
+      tasks: [{ vehicle_id: 'ship-auv-1', task: { kind: 'goto_waypoint', target: { latitude_deg: 63.456, longitude_deg: 10.35 }, depth_m: 5, speed_mps: 1 } }],
+    });
+    assert.ok(refused.status >= 400 && refused.status < 500, `planning a mission for ship-auv-1 answered ${refused.status}`);
+  });
+
+  test('no request left this host', async () => {
+    assert.ok(requests.some((u) => u.includes('/api/federation')), 'the console never asked for /api/federation');
+    const outside = requests.filter((u) => {
+      const url = new URL(u);
+      if (url.protocol === 'data:' || url.protocol === 'blob:') return false;
+      return !['127.0.0.1', 'localhost', '[::1]'].includes(url.hostname);
+    });
+    assert.deepEqual(outside, []);
+  });
+});
