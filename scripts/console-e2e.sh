@@ -159,6 +159,9 @@ for _ in $(seq 1 300); do
     sleep 0.2
 done
 [[ -n "$ready" ]] || die "the console did not answer within 60 s; see $out/shoal-up.log"
+# The ship's side must still run, or the federation test would only time out.
+kill -0 "$ship_pid" 2>/dev/null || die "the ship's station exited early; see $out/ship-station.log"
+kill -0 "$ship_vehicle_pid" 2>/dev/null || die "the ship's vehicle exited early; see $out/ship-vehicle.log"
 if grep -aqF "$token" "$out/shoal-up.log"; then
     die "the admin token appears in $out/shoal-up.log: credentials must never be logged"
 fi
