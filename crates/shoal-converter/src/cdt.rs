@@ -262,6 +262,24 @@ impl Cdt {
         }
     }
 
+    /// A task the station no longer wants delivered: past the start window it gave it
+    /// (`expires_ms`), or, without one, issued longer ago than the control TTL. A mission's
+    /// later task is issued with the mission and sent when its turn comes, so only its
+    /// window says whether it is still wanted.
+    fn stale(&self, t: &TaskAssignment) -> bool {
+        let now = self.cfg.now_ms();
+        if t.expires_ms > 0 {
+            return now > t.expires_ms;
+        }
+        // The TTL is simulated time on a scenario's clock, wall time otherwise.
+        let ttl = if self.cfg.clock.is_some() {
+            std::time::Duration::from_secs_f64(self.cfg.link.ttl.control_s.max(0.0))
+        } else {
+            wall(self.cfg.link.ttl.control_s, self.cfg.time_scale)
+        };
+        u128::try_from(now.saturating_sub(t.issued_ms)).unwrap_or(0) > ttl.as_millis()
+    }
+
     async fn on_task(&mut self, t: TaskAssignment) -> Result<(), ConverterError> {
         let Ok(addr) = self.book.addr(&t.vehicle_id) else {
             return Ok(()); // Not an acoustic vehicle of this CDT: IP carries it.
@@ -273,10 +291,8 @@ impl Cdt {
         {
             return Ok(());
         }
-        let ttl_ms = wall(self.cfg.link.ttl.control_s, self.cfg.time_scale).as_millis();
-        let age_ms = u128::try_from(self.cfg.now_ms().saturating_sub(t.issued_ms)).unwrap_or(0);
-        if age_ms > ttl_ms {
-            // Transient-local history from before this CDT started: long past its TTL.
+        if self.stale(&t) {
+            // Transient-local history from before this CDT started, long past its time.
             debug!(task = %t.task_id, "stale task not forwarded");
             return Ok(());
         }

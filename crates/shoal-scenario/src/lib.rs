@@ -33,6 +33,10 @@ pub const SHIPPED: &[(&str, &str)] = &[
         "harbour-survey",
         include_str!("../../../scenarios/harbour-survey.toml"),
     ),
+    (
+        "acoustic-relay",
+        include_str!("../../../scenarios/acoustic-relay.toml"),
+    ),
 ];
 
 /// The scenario `shoal up` runs when none is named.
@@ -69,6 +73,37 @@ pub struct Scenario {
     /// Faults injected on the timeline, in file order; only `shoal scenario run` injects
     /// them.
     pub faults: Vec<ScenarioFault>,
+    /// The acoustic network, when vehicles are heard through one.
+    pub acoustic: Option<AcousticNetwork>,
+}
+
+/// Highest acoustic address a vehicle or the relay may have (the compact PDUs carry 4 bits).
+pub const MAX_ACOUSTIC_ADDRESS: u8 = 15;
+/// Farthest a vehicle may start from the relay, m: the channel model loses everything by
+/// about 8 km.
+pub const MAX_ACOUSTIC_RANGE_M: f64 = 8_000.0;
+
+/// The acoustic network of a scenario: one relay (the gateway's modem, on a USV or a
+/// buoy) that hears every acoustic vehicle and republishes it to the station.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AcousticNetwork {
+    /// The relay modem's acoustic address.
+    pub relay_address: u8,
+    /// Where the relay is, degrees.
+    pub relay_latitude_deg: f64,
+    /// Where the relay is, degrees.
+    pub relay_longitude_deg: f64,
+    /// A fixed packet error rate for every frame instead of the channel's physics.
+    pub fixed_per: Option<f64>,
+}
+
+impl Scenario {
+    /// The vehicles heard through the acoustic network, in file order.
+    pub fn acoustic_vehicles(&self) -> impl Iterator<Item = &ScenarioVehicle> {
+        self.vehicles
+            .iter()
+            .filter(|v| v.acoustic_address.is_some())
+    }
 }
 
 /// A fault on a scenario's timeline.
@@ -108,6 +143,21 @@ pub enum Fault {
         /// Seconds it is down.
         down_s: f64,
     },
+    /// An acoustic vehicle's link to the relay is cut for `duration_s` (both ways).
+    LinkOutage {
+        /// The acoustic vehicle.
+        vehicle: String,
+        /// Seconds it lasts.
+        duration_s: f64,
+    },
+    /// A modem fails: the relay's (`vehicle` `None`) or an acoustic vehicle's; with
+    /// `repaired_after_s` it works again that much later.
+    ModemFailure {
+        /// The acoustic vehicle whose modem fails; `None`: the relay's.
+        vehicle: Option<String>,
+        /// Seconds until it works again; `None`: for good.
+        repaired_after_s: Option<f64>,
+    },
 }
 
 impl Fault {
@@ -118,6 +168,8 @@ impl Fault {
             Self::BatteryDrop { .. } => "battery_drop",
             Self::RogueSample { .. } => "rogue_sample",
             Self::StationRestart { .. } => "station_restart",
+            Self::LinkOutage { .. } => "link_outage",
+            Self::ModemFailure { .. } => "modem_failure",
         }
     }
 }
@@ -137,6 +189,9 @@ pub struct ScenarioVehicle {
     pub battery_pct: f64,
     /// State vectors per second.
     pub rate_hz: f64,
+    /// Its acoustic address when it is heard through the acoustic network only
+    /// (`link = "acoustic"`); `None` for a vehicle on IP.
+    pub acoustic_address: Option<u8>,
 }
 
 /// A mission on the scenario's timeline.
@@ -261,6 +316,23 @@ struct RawFile {
     missions: Vec<RawMission>,
     #[serde(default)]
     faults: Vec<RawFault>,
+    acoustic: Option<RawAcoustic>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawAcoustic {
+    relay_latitude_deg: Spanned<f64>,
+    relay_longitude_deg: Spanned<f64>,
+    relay_address: Option<Spanned<i64>>,
+    per: Option<Spanned<f64>>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum LinkName {
+    Ip,
+    Acoustic,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
@@ -270,6 +342,8 @@ enum FaultName {
     BatteryDrop,
     RogueSample,
     StationRestart,
+    LinkOutage,
+    ModemFailure,
 }
 
 /// One fault as written: like a task, a flat table whose `kind` says which keys it takes.
@@ -302,6 +376,8 @@ struct RawVehicle {
     longitude_deg: Spanned<f64>,
     battery_pct: Option<Spanned<f64>>,
     rate_hz: Option<Spanned<f64>>,
+    link: Option<Spanned<LinkName>>,
+    acoustic_address: Option<Spanned<i64>>,
 }
 
 #[derive(Deserialize)]
@@ -495,8 +571,10 @@ impl Checker<'_> {
                     1.0,
                     (0.0, 100.0, true),
                 )?,
+                acoustic_address: None,
             });
         }
+        let acoustic = self.acoustic(raw, &mut vehicles)?;
 
         let mut missions = Vec::with_capacity(raw.missions.len());
         let mut mission_ids: HashMap<String, usize> = HashMap::new();
@@ -562,7 +640,15 @@ impl Checker<'_> {
             .faults
             .iter()
             .enumerate()
-            .map(|(i, f)| self.fault(&format!("faults[{i}]"), f, &vehicles, duration_s))
+            .map(|(i, f)| {
+                self.fault(
+                    &format!("faults[{i}]"),
+                    f,
+                    &vehicles,
+                    acoustic.as_ref(),
+                    duration_s,
+                )
+            })
             .collect::<Result<Vec<_>, _>>()?;
         Ok(Scenario {
             name: name.to_owned(),
@@ -572,7 +658,151 @@ impl Checker<'_> {
             vehicles,
             missions,
             faults,
+            acoustic,
         })
+    }
+
+    /// The `[acoustic]` section and each vehicle's `link` and `acoustic_address`: every
+    /// address distinct (the relay's too) and every acoustic vehicle within range.
+    fn acoustic(
+        &self,
+        raw: &RawFile,
+        vehicles: &mut [ScenarioVehicle],
+    ) -> Result<Option<AcousticNetwork>, ScenarioError> {
+        let net = match &raw.acoustic {
+            None => None,
+            Some(a) => {
+                let (lat, lon) = (StateVector::LATITUDE, StateVector::LONGITUDE);
+                Some(AcousticNetwork {
+                    relay_address: match &a.relay_address {
+                        Some(r) => self.address("acoustic.relay_address", r)?,
+                        None => 1,
+                    },
+                    relay_latitude_deg: self.range(
+                        "acoustic.relay_latitude_deg",
+                        &a.relay_latitude_deg,
+                        lat.0,
+                        lat.1,
+                        false,
+                    )?,
+                    relay_longitude_deg: self.range(
+                        "acoustic.relay_longitude_deg",
+                        &a.relay_longitude_deg,
+                        lon.0,
+                        lon.1,
+                        false,
+                    )?,
+                    fixed_per: a
+                        .per
+                        .as_ref()
+                        .map(|p| self.range("acoustic.per", p, 0.0, 1.0, false))
+                        .transpose()?,
+                })
+            }
+        };
+        // Addresses given first, then the lowest free one for each acoustic vehicle
+        // without, in file order.
+        let mut used: HashMap<u8, (usize, String)> = HashMap::new();
+        if let (Some(n), Some(a)) = (&net, &raw.acoustic) {
+            let line = a
+                .relay_address
+                .as_ref()
+                .map_or_else(|| self.line(&a.relay_latitude_deg), |r| self.line(r));
+            used.insert(n.relay_address, (line, "acoustic.relay_address".into()));
+        }
+        for (i, (v, rv)) in vehicles.iter_mut().zip(&raw.vehicles).enumerate() {
+            let key = |k: &str| format!("vehicles[{i}].{k}");
+            let acoustic = rv
+                .link
+                .as_ref()
+                .is_some_and(|l| *l.get_ref() == LinkName::Acoustic);
+            if !acoustic {
+                if let Some(a) = &rv.acoustic_address {
+                    return Err(ScenarioError::Invalid {
+                        line: self.line(a),
+                        key: key("acoustic_address"),
+                        reason: "only a vehicle with link = \"acoustic\" has one".into(),
+                    });
+                }
+                continue;
+            }
+            let Some(n) = &net else {
+                let line = rv.link.as_ref().map_or(1, |l| self.line(l));
+                return Err(ScenarioError::Invalid {
+                    line,
+                    key: key("link"),
+                    reason:
+                        "an acoustic vehicle needs an [acoustic] section (the relay that hears it)"
+                            .into(),
+                });
+            };
+            let d = shoal_model::geo::distance_m(
+                n.relay_latitude_deg,
+                n.relay_longitude_deg,
+                v.latitude_deg,
+                v.longitude_deg,
+            );
+            if d > MAX_ACOUSTIC_RANGE_M {
+                return Err(ScenarioError::Invalid {
+                    line: self.line(&rv.latitude_deg),
+                    key: key("latitude_deg"),
+                    reason: format!(
+                        "{} starts {:.1} km from the relay ([acoustic]): out of acoustic range (about {} km)",
+                        v.id,
+                        d / 1000.0,
+                        MAX_ACOUSTIC_RANGE_M / 1000.0
+                    ),
+                });
+            }
+            if let Some(a) = &rv.acoustic_address {
+                let addr = self.address(&key("acoustic_address"), a)?;
+                if let Some((first_line, _)) = used.get(&addr) {
+                    return Err(ScenarioError::Duplicate {
+                        line: self.line(a),
+                        key: key("acoustic_address"),
+                        id: addr.to_string(),
+                        first_line: *first_line,
+                    });
+                }
+                used.insert(addr, (self.line(a), key("acoustic_address")));
+                v.acoustic_address = Some(addr);
+            }
+        }
+        for (i, (v, rv)) in vehicles.iter_mut().zip(&raw.vehicles).enumerate() {
+            let acoustic = rv
+                .link
+                .as_ref()
+                .is_some_and(|l| *l.get_ref() == LinkName::Acoustic);
+            if !acoustic || v.acoustic_address.is_some() {
+                continue;
+            }
+            let Some(free) = (1..=MAX_ACOUSTIC_ADDRESS).find(|a| !used.contains_key(a)) else {
+                return Err(ScenarioError::Invalid {
+                    line: self.line(&rv.id),
+                    key: format!("vehicles[{i}].link"),
+                    reason: format!(
+                        "no acoustic address left: the network has {MAX_ACOUSTIC_ADDRESS} (the relay's included)"
+                    ),
+                });
+            };
+            used.insert(free, (self.line(&rv.id), format!("vehicles[{i}]")));
+            v.acoustic_address = Some(free);
+        }
+        Ok(net)
+    }
+
+    fn address(&self, key: &str, v: &Spanned<i64>) -> Result<u8, ScenarioError> {
+        let x = *v.get_ref();
+        u8::try_from(x)
+            .ok()
+            .filter(|a| (1..=MAX_ACOUSTIC_ADDRESS).contains(a))
+            .ok_or_else(|| ScenarioError::OutOfRange {
+                line: self.line(v),
+                key: key.to_owned(),
+                #[allow(clippy::cast_precision_loss)]
+                value: x as f64,
+                bounds: format!("[1, {MAX_ACOUSTIC_ADDRESS}]"),
+            })
     }
 
     fn fault(
@@ -580,6 +810,7 @@ impl Checker<'_> {
         at: &str,
         f: &RawFault,
         fleet: &[ScenarioVehicle],
+        acoustic: Option<&AcousticNetwork>,
         duration_s: f64,
     ) -> Result<ScenarioFault, ScenarioError> {
         let key = |k: &str| format!("{at}.{k}");
@@ -590,12 +821,15 @@ impl Checker<'_> {
             FaultName::BatteryDrop => "battery_drop",
             FaultName::RogueSample => "rogue_sample",
             FaultName::StationRestart => "station_restart",
+            FaultName::LinkOutage => "link_outage",
+            FaultName::ModemFailure => "modem_failure",
         };
         let used: &[&str] = match kind {
             FaultName::VehicleFailure => &["vehicle", "duration_s"],
             FaultName::BatteryDrop => &["vehicle", "battery_pct"],
             FaultName::RogueSample => &["vehicle"],
             FaultName::StationRestart => &["duration_s"],
+            FaultName::LinkOutage | FaultName::ModemFailure => &["vehicle", "duration_s"],
         };
         let given: [(&str, Option<Range<usize>>); 3] = [
             ("vehicle", f.vehicle.as_ref().map(Spanned::span)),
@@ -639,10 +873,49 @@ impl Checker<'_> {
                 None => Ok(default),
             }
         };
+        // The acoustic faults name an acoustic vehicle; a vehicle failure is not one of
+        // theirs yet (its relay would have to be restarted with it).
+        let acoustic_vehicle = |want: bool| -> Result<String, ScenarioError> {
+            let id = vehicle()?;
+            let is = fleet
+                .iter()
+                .any(|v| v.id == id && v.acoustic_address.is_some());
+            if is == want {
+                return Ok(id);
+            }
+            let line = f.vehicle.as_ref().map_or(kind_line, |v| self.line(v));
+            Err(ScenarioError::Invalid {
+                line,
+                key: key("vehicle"),
+                reason: if want {
+                    format!("{id} is not heard through the acoustic network (link = \"acoustic\")")
+                } else {
+                    format!("a {name:?} fault is not supported for an acoustic vehicle yet")
+                },
+            })
+        };
+        if matches!(kind, FaultName::LinkOutage | FaultName::ModemFailure) && acoustic.is_none() {
+            return Err(ScenarioError::Invalid {
+                line: kind_line,
+                key: key("kind"),
+                reason: format!("a {name:?} fault needs an [acoustic] section"),
+            });
+        }
         let fault = match kind {
             FaultName::VehicleFailure => Fault::VehicleFailure {
-                vehicle: vehicle()?,
+                vehicle: acoustic_vehicle(false)?,
                 restart_after_s: duration(None)?,
+            },
+            FaultName::LinkOutage => Fault::LinkOutage {
+                vehicle: acoustic_vehicle(true)?,
+                duration_s: duration(None)?.ok_or_else(|| missing("duration_s"))?,
+            },
+            FaultName::ModemFailure => Fault::ModemFailure {
+                vehicle: match f.vehicle {
+                    Some(_) => Some(acoustic_vehicle(true)?),
+                    None => None,
+                },
+                repaired_after_s: duration(None)?,
             },
             FaultName::BatteryDrop => Fault::BatteryDrop {
                 vehicle: vehicle()?,

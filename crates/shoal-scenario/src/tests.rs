@@ -282,3 +282,109 @@ fn a_bad_fault_is_named_with_its_key_and_line() {
     ));
     assert_names(&e, 12, "faults[0].at_s");
 }
+
+/// HEAD (auv-1 on IP at 63.0, 10.0) and a relay 1.1 km north of it.
+const NET: &str = "\n[acoustic]\nrelay_latitude_deg = 63.01\nrelay_longitude_deg = 10.0\n";
+
+fn acoustic_vehicle(id: &str, extra: &str) -> String {
+    format!(
+        "\n[[vehicles]]\nid = \"{id}\"\nkind = \"auv\"\nlatitude_deg = 63.005\nlongitude_deg = 10.0\nlink = \"acoustic\"\n{extra}"
+    )
+}
+
+#[test]
+fn acoustic_vehicles_get_addresses_and_their_faults_are_read() {
+    let text = format!(
+        "{HEAD}{NET}per = 0.2\n{}{}{}\n[[faults]]\nat_s = 10\nkind = \"link_outage\"\nvehicle = \"ac-1\"\nduration_s = 60\n\
+         [[faults]]\nat_s = 20\nkind = \"modem_failure\"\n\
+         [[faults]]\nat_s = 30\nkind = \"modem_failure\"\nvehicle = \"ac-2\"\nduration_s = 5\n\
+         [[faults]]\nat_s = 40\nkind = \"battery_drop\"\nvehicle = \"ac-2\"\nbattery_pct = 10\n",
+        acoustic_vehicle("ac-1", ""),
+        acoustic_vehicle("ac-2", "acoustic_address = 2\n"),
+        acoustic_vehicle("ac-3", ""),
+    );
+    let s = parse(&text).unwrap();
+    let net = s.acoustic.clone().unwrap();
+    assert_eq!((net.relay_address, net.fixed_per), (1, Some(0.2)));
+    let addr: Vec<_> = s.vehicles.iter().map(|v| v.acoustic_address).collect();
+    // The relay has 1, ac-2 asked for 2: the others take the lowest free ones.
+    assert_eq!(addr, [None, Some(3), Some(2), Some(4)]);
+    assert_eq!(s.acoustic_vehicles().count(), 3);
+    assert_eq!(
+        s.faults[0].fault,
+        Fault::LinkOutage {
+            vehicle: "ac-1".into(),
+            duration_s: 60.0
+        }
+    );
+    assert_eq!(
+        s.faults[1].fault,
+        Fault::ModemFailure {
+            vehicle: None,
+            repaired_after_s: None
+        }
+    );
+    assert_eq!(
+        s.faults[2].fault,
+        Fault::ModemFailure {
+            vehicle: Some("ac-2".into()),
+            repaired_after_s: Some(5.0)
+        }
+    );
+    assert_eq!(s.faults[3].fault.kind(), "battery_drop");
+}
+
+#[test]
+fn bad_acoustic_networks_are_one_line_naming_the_key() {
+    // An acoustic vehicle with no relay.
+    let e = err(&format!("{HEAD}{}", acoustic_vehicle("ac-1", "")));
+    assert_names(&e, 15, "vehicles[1].link");
+    assert!(e.to_string().contains("[acoustic]"), "{e}");
+    // Out of range of the relay: 9.5 km.
+    let e = err(&format!(
+        "{HEAD}\n[acoustic]\nrelay_latitude_deg = 63.09\nrelay_longitude_deg = 10.0\n{}",
+        acoustic_vehicle("ac-1", "")
+    ));
+    assert_names(&e, 17, "vehicles[1].latitude_deg");
+    assert!(e.to_string().contains("out of acoustic range"), "{e}");
+    // The relay's address taken, an address out of range, an address on an IP vehicle.
+    let e = err(&format!(
+        "{HEAD}{NET}{}",
+        acoustic_vehicle("ac-1", "acoustic_address = 1\n")
+    ));
+    assert_names(&e, 20, "vehicles[1].acoustic_address");
+    let e = err(&format!(
+        "{HEAD}{NET}{}",
+        acoustic_vehicle("ac-1", "acoustic_address = 16\n")
+    ));
+    assert_names(&e, 20, "vehicles[1].acoustic_address");
+    let e = err(&format!("{HEAD}acoustic_address = 3\n"));
+    assert_names(&e, 9, "vehicles[0].acoustic_address");
+    let e = err(&format!("{HEAD}{NET}per = 1.5\n"));
+    assert_names(&e, 13, "acoustic.per");
+    let e = err(&format!("{HEAD}{NET}range_m = 5\n"));
+    assert_names(&e, 13, "range_m");
+    // Acoustic faults: on an IP vehicle, without a network, with a key missing; and a
+    // vehicle failure of an acoustic vehicle, not supported yet.
+    let fault = |body: &str| format!("\n[[faults]]\nat_s = 5\n{body}");
+    let e = err(&format!(
+        "{HEAD}{NET}{}",
+        fault("kind = \"link_outage\"\nvehicle = \"auv-1\"\nduration_s = 5\n")
+    ));
+    assert_names(&e, 17, "faults[0].vehicle");
+    let e = err(&format!("{HEAD}{}", fault("kind = \"modem_failure\"\n")));
+    assert_names(&e, 12, "faults[0].kind");
+    let e = err(&format!(
+        "{HEAD}{NET}{}{}",
+        acoustic_vehicle("ac-1", ""),
+        fault("kind = \"link_outage\"\nvehicle = \"ac-1\"\n")
+    ));
+    assert_names(&e, 23, "faults[0].duration_s");
+    let e = err(&format!(
+        "{HEAD}{NET}{}{}",
+        acoustic_vehicle("ac-1", ""),
+        fault("kind = \"vehicle_failure\"\nvehicle = \"ac-1\"\n")
+    ));
+    assert_names(&e, 24, "faults[0].vehicle");
+    assert!(e.to_string().contains("not supported"), "{e}");
+}

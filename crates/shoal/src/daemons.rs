@@ -386,6 +386,13 @@ fn up_plan(
     let s = crate::scenario::load(&source)?;
     info!(scenario = %source, "{}", crate::scenario::summary(&s));
     let fleet = crate::scenario::fleet(&s);
+    let acoustic: Vec<&str> = s.acoustic_vehicles().map(|v| v.id.as_str()).collect();
+    if !acoustic.is_empty() {
+        warn!(
+            vehicles = %acoustic.join(","),
+            "the scenario's acoustic vehicles are left out here: `shoal scenario run` carries them over the emulated acoustic network"
+        );
+    }
     let arg = match source {
         crate::scenario::Source::Shipped(name) => name.to_owned(),
         crate::scenario::Source::File(path) => path,

@@ -436,6 +436,32 @@ td.n{text-align:right;font-variant-numeric:tabular-nums}.plot,.map{width:100%;he
 .note,.none{color:#556;font-size:12px}.alarm{color:#b00020}\
 .fault{stroke:#b00020;stroke-width:1.5;stroke-dasharray:4 3}";
 
+/// What each acoustic link carried and lost, and why.
+fn acoustic_table(out: &mut String, r: &RunRecord) {
+    if r.links.is_empty() {
+        return;
+    }
+    out.push_str("<h2>Acoustic network</h2><table><tr><th>Link</th><th>Frames</th><th>Delivered</th><th>Lost (channel)</th><th>Collisions</th><th>Half duplex</th><th>Outage</th></tr>");
+    for l in &r.links {
+        let pct = l
+            .delivery_pct()
+            .map_or_else(String::new, |p| format!(" ({p} %)"));
+        let _ = write!(
+            out,
+            "<tr><td>{} → {}</td><td class=\"n\">{}</td><td class=\"n\">{}{pct}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td></tr>",
+            esc(&l.from),
+            esc(&l.to),
+            l.frames,
+            l.delivered,
+            l.lost,
+            l.collisions,
+            l.half_duplex,
+            l.outage
+        );
+    }
+    out.push_str("</table><p class=\"note\">Counted by the emulated sea, per frame addressed over each link. Not measured yet: link quality over time, channel occupancy, delivery latency.</p>");
+}
+
 /// Which rules fired, how often, first when and about which vehicles.
 fn rule_table(out: &mut String, s: &Summary) {
     out.push_str("<h2>Rule firings</h2>");
@@ -569,6 +595,7 @@ pub fn render_html(r: &RunRecord, s: &Summary) -> String {
         }
         out.push_str("</table>");
     }
+    acoustic_table(&mut out, r);
     rule_table(&mut out, s);
     out.push_str("<h2>Events</h2>");
     let notable: Vec<_> = r
@@ -613,6 +640,6 @@ pub fn render_html(r: &RunRecord, s: &Summary) -> String {
         s.station.rule_firings,
         s.station.history_committed
     );
-    out.push_str("<p class=\"note\">Not measured in this run: the acoustic network (delivery, link quality, channel use); the run's data is in <code>history.sqlite</code> and <code>recording/</code> beside this page.</p></body></html>");
+    out.push_str("<p class=\"note\">The run's data is in <code>history.sqlite</code> and <code>recording/</code> beside this page.</p></body></html>");
     out
 }

@@ -45,6 +45,37 @@ pub struct RunRecord {
     /// The ids of the station's rules (built-in and user), to tell their firings among
     /// the events.
     pub rule_ids: Vec<String>,
+    /// The acoustic network's links (empty when the scenario has none).
+    pub links: Vec<LinkFigures>,
+}
+
+/// What one directed acoustic link carried in a run, as the emulated sea counted it.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize)]
+pub struct LinkFigures {
+    /// The sending modem: a vehicle id, or `relay`.
+    pub from: String,
+    /// The receiving modem.
+    pub to: String,
+    /// Frames addressed over it.
+    pub frames: u64,
+    /// Received intact.
+    pub delivered: u64,
+    /// Lost to the channel (range, noise).
+    pub lost: u64,
+    /// Lost to a collision with another arrival.
+    pub collisions: u64,
+    /// Lost because the receiver was transmitting.
+    pub half_duplex: u64,
+    /// Lost because a modem was failed or cut off (a fault).
+    pub outage: u64,
+}
+
+impl LinkFigures {
+    /// Delivered frames, % of those sent (0.1); `None` when none were sent.
+    pub fn delivery_pct(&self) -> Option<f64> {
+        #[allow(clippy::cast_precision_loss)]
+        (self.frames > 0).then(|| round_dp(self.delivered as f64 * 100.0 / self.frames as f64, 1))
+    }
 }
 
 /// A fault injected during a run.
@@ -144,6 +175,18 @@ pub struct Summary {
     pub station: StationFigures,
     /// The faults injected.
     pub faults: Vec<FaultRecord>,
+    /// The acoustic network's links, keyed `from>to`, each with its `delivery_pct`.
+    pub acoustic_links: BTreeMap<String, AcousticLink>,
+}
+
+/// One acoustic link in the summary.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct AcousticLink {
+    /// Its counters.
+    #[serde(flatten)]
+    pub figures: LinkFigures,
+    /// Delivered, % of frames sent.
+    pub delivery_pct: Option<f64>,
 }
 
 /// What one vehicle did.
@@ -362,6 +405,19 @@ pub fn summarise(r: &RunRecord) -> Summary {
         rule_firings,
         station: r.station,
         faults: r.faults.clone(),
+        acoustic_links: r
+            .links
+            .iter()
+            .map(|l| {
+                (
+                    format!("{}>{}", l.from, l.to),
+                    AcousticLink {
+                        figures: l.clone(),
+                        delivery_pct: l.delivery_pct(),
+                    },
+                )
+            })
+            .collect(),
     }
 }
 

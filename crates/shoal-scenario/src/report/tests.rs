@@ -114,7 +114,44 @@ fn record() -> RunRecord {
             "deep-dive".into(),
             "never-fires".into(),
         ],
+        links: vec![
+            LinkFigures {
+                from: "auv-1".into(),
+                to: "relay".into(),
+                frames: 8,
+                delivered: 6,
+                lost: 1,
+                outage: 1,
+                ..LinkFigures::default()
+            },
+            LinkFigures {
+                from: "relay".into(),
+                to: "auv-<1>".into(),
+                ..LinkFigures::default()
+            },
+        ],
     }
+}
+
+#[test]
+fn acoustic_links_are_in_the_summary_and_the_page() {
+    let r = record();
+    let s = summarise(&r);
+    let up = &s.acoustic_links["auv-1>relay"];
+    assert_eq!((up.figures.delivered, up.delivery_pct), (6, Some(75.0)));
+    assert_eq!(s.acoustic_links["relay>auv-<1>"].delivery_pct, None);
+    let json = serde_json::to_value(&s).unwrap();
+    assert_eq!(json["acoustic_links"]["auv-1>relay"]["outage"], 1);
+    let html = render_html(&r, &s);
+    assert!(html.contains("<h2>Acoustic network</h2>"));
+    assert!(html.contains("auv-1 → relay"));
+    assert!(html.contains("6 (75 %)"), "{html}");
+    assert!(html.contains("relay → auv-&lt;1&gt;"));
+    let none = RunRecord {
+        links: Vec::new(),
+        ..record()
+    };
+    assert!(!render_html(&none, &summarise(&none)).contains("Acoustic network"));
 }
 
 /// An event as rule `rule` raises it, `at_s` into the run.

@@ -5,6 +5,8 @@
 #[cfg(feature = "console")]
 pub mod run;
 #[cfg(feature = "console")]
+mod sea;
+#[cfg(feature = "console")]
 mod world;
 
 use std::path::Path;
@@ -105,20 +107,28 @@ pub fn load(source: &Source) -> Result<Scenario> {
     shoal_scenario::parse(&text).with_context(|| format!("scenario {source}"))
 }
 
-/// The simulated vehicles a scenario's fleet is made of.
+/// The simulated vehicles of a scenario's fleet that are on IP (its acoustic vehicles are
+/// heard through the acoustic network only: `shoal scenario run` runs that).
 #[cfg(feature = "console")]
 pub fn fleet(s: &Scenario) -> Vec<shoal_proxy::sim::SimSpec> {
     s.vehicles
         .iter()
-        .map(|v| shoal_proxy::sim::SimSpec {
-            id: v.id.clone(),
-            kind: v.kind,
-            latitude_deg: v.latitude_deg,
-            longitude_deg: v.longitude_deg,
-            rate_hz: v.rate_hz,
-            battery_pct: v.battery_pct,
-        })
+        .filter(|v| v.acoustic_address.is_none())
+        .map(sim_spec)
         .collect()
+}
+
+/// The simulator's description of a scenario vehicle.
+#[cfg(feature = "console")]
+fn sim_spec(v: &shoal_scenario::ScenarioVehicle) -> shoal_proxy::sim::SimSpec {
+    shoal_proxy::sim::SimSpec {
+        id: v.id.clone(),
+        kind: v.kind,
+        latitude_deg: v.latitude_deg,
+        longitude_deg: v.longitude_deg,
+        rate_hz: v.rate_hz,
+        battery_pct: v.battery_pct,
+    }
 }
 
 /// One line about a valid scenario.

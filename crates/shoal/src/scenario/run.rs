@@ -21,6 +21,7 @@ use shoal_scenario::{Fault, MAX_DURATION_S, Scenario};
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
+use super::sea::AcousticNet;
 use super::world::{Fleet, StationRun, missions_after};
 use crate::config::ShoalConfig;
 
@@ -177,6 +178,8 @@ enum Action {
     /// The station starts again after a restart fault; it went down this many simulated
     /// seconds into the run.
     StartStation(f64),
+    /// A silenced modem works again: an acoustic vehicle's, or the relay's (`None`).
+    ModemBack(Option<String>),
 }
 
 /// Runs a scenario headless and writes its report; Ctrl-C ends it early with a report of
@@ -217,6 +220,7 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
         .any(|f| matches!(f.fault, Fault::RogueSample { .. }));
     let mut fleet = Fleet::new(&cfg, warp, args.seed, dir.join("vehicles"), specs, rogue)?;
     fleet.start_all();
+    let acoustic = AcousticNet::start(&cfg, &scenario, warp, args.seed, dir.join("vehicles"))?;
 
     let started = Instant::now();
     let start_ms = warp.origin_ms();
@@ -249,6 +253,7 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
                 action,
                 &mut station,
                 &mut fleet,
+                acoustic.as_ref(),
                 &scenario,
                 &last_states,
                 at_s,
@@ -285,6 +290,13 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
     let end_ms = warp.now_ms().min(end_ms);
     // Vehicles first, then the station a moment later, so what they sent last is stored.
     fleet.stop_all().await;
+    let links = acoustic
+        .as_ref()
+        .map(AcousticNet::links)
+        .unwrap_or_default();
+    if let Some(a) = acoustic {
+        a.stop().await;
+    }
     tokio::time::sleep(Duration::from_millis(300)).await;
     station.stop().await?;
     match recorder.stop().await {
@@ -309,6 +321,7 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
         station.figures(),
     )?;
     record.faults = faults;
+    record.links = links;
     record.rule_ids = station.rule_ids();
     let summary = report::summarise(&record);
     let json = serde_json::to_string_pretty(&summary).context("cannot write the summary")?;
@@ -333,6 +346,7 @@ async fn apply(
     action: Action,
     station: &mut StationRun,
     fleet: &mut Fleet,
+    acoustic: Option<&AcousticNet>,
     scenario: &Scenario,
     last: &HashMap<String, StateVector>,
     at_s: f64,
@@ -362,7 +376,9 @@ async fn apply(
             vehicle,
             battery_pct,
         }) => {
-            if fleet.inject(&vehicle, SimFault::BatteryDrop(battery_pct)) {
+            let fault = SimFault::BatteryDrop(battery_pct);
+            if fleet.inject(&vehicle, fault) || acoustic.is_some_and(|a| a.inject(&vehicle, fault))
+            {
                 format!("{vehicle}'s battery drops to {battery_pct} %")
             } else {
                 format!("{vehicle}'s battery drop not injected: the vehicle is down")
@@ -379,6 +395,43 @@ async fn apply(
             station.stop().await?;
             timeline.push((later(down_s), Action::StartStation(at_s)));
             format!("the station stops; it starts again in {down_s} s")
+        }
+        Action::Fault(Fault::LinkOutage {
+            vehicle,
+            duration_s,
+        }) => {
+            if acoustic.is_some_and(|a| a.set_silent(Some(&vehicle), true)) {
+                timeline.push((later(duration_s), Action::ModemBack(Some(vehicle.clone()))));
+                format!("{vehicle}'s acoustic link is cut for {duration_s} s")
+            } else {
+                format!("{vehicle}'s link outage not injected: the acoustic network is not up")
+            }
+        }
+        Action::Fault(Fault::ModemFailure {
+            vehicle,
+            repaired_after_s,
+        }) => {
+            let whose = vehicle
+                .as_deref()
+                .map_or_else(|| "the relay's".to_owned(), |v| format!("{v}'s"));
+            if !acoustic.is_some_and(|a| a.set_silent(vehicle.as_deref(), true)) {
+                format!("{whose} modem failure not injected: the acoustic network is not up")
+            } else if let Some(r) = repaired_after_s {
+                timeline.push((later(r), Action::ModemBack(vehicle)));
+                format!("{whose} modem fails; it works again in {r} s")
+            } else {
+                format!("{whose} modem fails for good")
+            }
+        }
+        Action::ModemBack(vehicle) => {
+            let whose = vehicle
+                .as_deref()
+                .map_or_else(|| "the relay's".to_owned(), |v| format!("{v}'s"));
+            if acoustic.is_some_and(|a| a.set_silent(vehicle.as_deref(), false)) {
+                format!("{whose} modem works again")
+            } else {
+                format!("{whose} modem not brought back: the acoustic network is not up")
+            }
         }
         Action::StartStation(went_down_s) => {
             // Missions due while it was down start now; those it ran are in the register.
@@ -440,6 +493,7 @@ fn read_back(
         station,
         faults: Vec::new(),
         rule_ids: Vec::new(),
+        links: Vec::new(),
     })
 }
 

@@ -1,5 +1,6 @@
 //! `shoal scenario run`: a scenario headless, faster than real time, and its report
-//! directory, through the binary. Domain 113.
+//! directory, through the binary. Domains 113 and 114 (the acoustic vehicles of a run take
+//! private domains down from 232).
 
 use std::process::Command;
 use std::time::Instant;
@@ -240,4 +241,64 @@ fn a_bad_scenario_is_one_line_and_nothing_starts() {
         "{stderr}"
     );
     assert!(!dir.path().join("run").exists(), "nothing was created");
+}
+
+/// The shipped acoustic scenario: an AUV heard only through the emulated acoustic relay,
+/// its link cut for two minutes and the relay's modem failed for one, all at 60x.
+#[test]
+fn an_acoustic_vehicle_runs_its_tasks_through_the_relay_across_outages() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = shoal(dir.path())
+        .args([
+            "scenario",
+            "run",
+            "acoustic-relay",
+            "--speed",
+            "60",
+            "--duration",
+            "1200",
+        ])
+        .args(["--domain", "114", "--out", "run"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let run = dir.path().join("run");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
+    // The station heard the AUV only through the relay, and it moved.
+    let auv = &summary["vehicles"]["auv-ac1"];
+    assert!(auv["states"].as_u64().unwrap() > 100, "{summary}");
+    assert!(auv["distance_m"].as_f64().unwrap() > 200.0, "{summary}");
+    // Its first two waypoints went over the acoustic link and were done, the second
+    // one sent after the first ended, across the link outage.
+    for key in ["acoustic-transect/1", "acoustic-transect/2"] {
+        assert_eq!(summary["task_outcomes"][key]["state"], "done", "{summary}");
+    }
+    // Both faults happened, and the sea counted what the outage cost.
+    let faults = summary["faults"].as_array().unwrap();
+    let said: Vec<&str> = faults.iter().map(|f| f["what"].as_str().unwrap()).collect();
+    assert!(
+        said.iter()
+            .any(|w| w.contains("auv-ac1's acoustic link is cut")),
+        "{said:?}"
+    );
+    assert!(
+        said.iter().any(|w| w.contains("the relay's modem fails")),
+        "{said:?}"
+    );
+    let up = &summary["acoustic_links"]["auv-ac1>relay"];
+    assert!(up["delivered"].as_u64().unwrap() > 100, "{summary}");
+    assert!(up["outage"].as_u64().unwrap() > 10, "{summary}");
+    let pct = up["delivery_pct"].as_f64().unwrap();
+    assert!((50.0..100.0).contains(&pct), "{summary}");
+    assert!(
+        summary["acoustic_links"]["relay>auv-ac1"]["delivered"]
+            .as_u64()
+            .unwrap()
+            >= 2,
+        "the tasks went down the link: {summary}"
+    );
+    let html = std::fs::read_to_string(run.join("report.html")).unwrap();
+    assert!(html.contains("<h2>Acoustic network</h2>") && html.contains("auv-ac1 → relay"));
 }

@@ -1,0 +1,211 @@
+//! The acoustic network of a scenario run: the scenario's acoustic vehicles, each on a
+//! private DDS domain of its own, heard by the station only through an emulated sea, their
+//! VDTs and the relay's CDT (`shoal_converter::emulated_relay`), all on the run's
+//! simulated clock. Link outages and modem failures silence modems in the emulated sea;
+//! its per-link counters go into the report.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+use anyhow::{Context, Result};
+use shoal_acoustic::emulator::EmulatorHandle;
+use shoal_converter::ConverterError;
+use shoal_converter::emulated_relay::{
+    EmulatedRelayConfig, RelayedVehicle, run_emulated_relay_with,
+};
+use shoal_dds::PubSub;
+use shoal_model::Warp;
+use shoal_proxy::ProxyOptions;
+use shoal_proxy::sim::{SimAdapter, SimFault, SimSettings, SimSpec};
+use shoal_scenario::Scenario;
+use shoal_scenario::report::LinkFigures;
+use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+use tracing::warn;
+
+use crate::config::ShoalConfig;
+
+/// The highest DDS domain id; acoustic vehicles' private domains count down from it.
+const TOP_DOMAIN: u16 = 232;
+
+/// A running acoustic network.
+pub struct AcousticNet {
+    sea: Arc<Mutex<Option<Arc<EmulatorHandle>>>>,
+    /// The relay's address and each acoustic vehicle's, by vehicle id.
+    relay: u8,
+    addresses: HashMap<String, u8>,
+    faults: Arc<Mutex<HashMap<String, mpsc::UnboundedSender<SimFault>>>>,
+    stop: CancellationToken,
+    task: JoinHandle<()>,
+}
+
+impl AcousticNet {
+    /// Starts the network of `scenario` (none when it has no acoustic vehicles): the
+    /// emulated sea, a CDT on the run's domain, and per vehicle a VDT and the simulated
+    /// vehicle on its private domain, with a task ledger in `ledgers`.
+    pub fn start(
+        cfg: &ShoalConfig,
+        scenario: &Scenario,
+        warp: Warp,
+        seed: u64,
+        ledgers: PathBuf,
+    ) -> Result<Option<Self>> {
+        let Some(net) = &scenario.acoustic else {
+            return Ok(None);
+        };
+        let station_domain = cfg.dds.domain_id;
+        let mut domains = (0..=TOP_DOMAIN).rev().filter(|d| *d != station_domain);
+        let mut specs: HashMap<String, SimSpec> = HashMap::new();
+        let mut vehicles = Vec::new();
+        for v in scenario.acoustic_vehicles() {
+            let (Some(address), Some(domain_id)) = (v.acoustic_address, domains.next()) else {
+                continue;
+            };
+            vehicles.push(RelayedVehicle {
+                id: v.id.clone(),
+                address,
+                domain_id,
+                latitude_deg: v.latitude_deg,
+                longitude_deg: v.longitude_deg,
+            });
+            specs.insert(v.id.clone(), super::sim_spec(v));
+        }
+        if vehicles.is_empty() {
+            return Ok(None);
+        }
+        let addresses = vehicles.iter().map(|v| (v.id.clone(), v.address)).collect();
+        let mut relay = EmulatedRelayConfig::new(
+            net.relay_address,
+            net.relay_latitude_deg,
+            net.relay_longitude_deg,
+            vehicles,
+        )
+        .warped(warp);
+        relay.seed = seed;
+        relay.fixed_per = net.fixed_per;
+        let cdt_dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS for the relay")?);
+
+        let faults: Arc<Mutex<HashMap<String, mpsc::UnboundedSender<SimFault>>>> = Arc::default();
+        let settings = cfg.fleet.sim.clone();
+        let start_vehicle = {
+            let faults = Arc::clone(&faults);
+            move |v: &RelayedVehicle, dds: Arc<PubSub>, stop: CancellationToken| {
+                let spec = specs.get(&v.id).cloned();
+                let settings = SimSettings {
+                    seed: Some(super::run::vehicle_seed(seed, &v.id)),
+                    ..settings.clone()
+                };
+                let (tx, rx) = mpsc::unbounded_channel();
+                if let Ok(mut f) = faults.lock() {
+                    f.insert(v.id.clone(), tx);
+                }
+                let ledger_dir = ledgers.clone();
+                async move {
+                    let spec = spec.ok_or_else(|| {
+                        ConverterError::Config("relayed vehicle missing from the scenario".into())
+                    })?;
+                    let options = ProxyOptions {
+                        state_rate_hz: spec.rate_hz,
+                        clock: Some(warp),
+                        ledger_dir: Some(ledger_dir),
+                        ..ProxyOptions::default()
+                    };
+                    let adapter = SimAdapter::warped(&spec, &settings, warp).with_faults(rx);
+                    shoal_proxy::run_sim_adapter(adapter, options, dds, stop)
+                        .await
+                        .map_err(ConverterError::from)
+                }
+            }
+        };
+        let sea: Arc<Mutex<Option<Arc<EmulatorHandle>>>> = Arc::default();
+        let stop = CancellationToken::new();
+        let task = tokio::spawn({
+            let (sea, stop) = (Arc::clone(&sea), stop.clone());
+            async move {
+                let keep = |emu: &Arc<EmulatorHandle>| {
+                    if let Ok(mut s) = sea.lock() {
+                        *s = Some(Arc::clone(emu));
+                    }
+                };
+                if let Err(e) =
+                    run_emulated_relay_with(relay, cdt_dds, None, start_vehicle, keep, stop).await
+                {
+                    warn!(error = %e, "the acoustic network stopped");
+                }
+            }
+        });
+        Ok(Some(Self {
+            sea,
+            relay: net.relay_address,
+            addresses,
+            faults,
+            stop,
+            task,
+        }))
+    }
+
+    fn sea(&self) -> Option<Arc<EmulatorHandle>> {
+        self.sea.lock().ok().and_then(|s| s.clone())
+    }
+
+    /// Silences (or brings back) the modem of `vehicle`, or the relay's with `None`;
+    /// false when there is no such modem or the sea is not up.
+    pub fn set_silent(&self, vehicle: Option<&str>, silent: bool) -> bool {
+        let address = match vehicle {
+            None => Some(self.relay),
+            Some(id) => self.addresses.get(id).copied(),
+        };
+        match (address, self.sea()) {
+            (Some(a), Some(sea)) => sea.set_silent(a, silent).is_ok(),
+            _ => false,
+        }
+    }
+
+    /// Injects a fault into an acoustic vehicle's simulator; false if it is not one.
+    pub fn inject(&self, vehicle: &str, fault: SimFault) -> bool {
+        self.faults
+            .lock()
+            .ok()
+            .and_then(|f| f.get(vehicle).map(|tx| tx.send(fault).is_ok()))
+            .unwrap_or(false)
+    }
+
+    /// The counters of every link that carried a frame, named by vehicle (`relay` for the
+    /// relay's modem).
+    pub fn links(&self) -> Vec<LinkFigures> {
+        let Some(sea) = self.sea() else {
+            return Vec::new();
+        };
+        let name = |a: u8| {
+            if a == self.relay {
+                return "relay".to_owned();
+            }
+            self.addresses
+                .iter()
+                .find(|(_, x)| **x == a)
+                .map_or_else(|| format!("modem {a}"), |(id, _)| id.clone())
+        };
+        sea.stats()
+            .into_iter()
+            .map(|l| LinkFigures {
+                from: name(l.src),
+                to: name(l.dst),
+                frames: l.frames,
+                delivered: l.delivered,
+                lost: l.lost,
+                collisions: l.collisions,
+                half_duplex: l.half_duplex,
+                outage: l.outage,
+            })
+            .collect()
+    }
+
+    /// Stops the network and waits for it (a few seconds at most).
+    pub async fn stop(self) {
+        self.stop.cancel();
+        drop(self.sea.lock().ok().and_then(|mut s| s.take()));
+        let _ = tokio::time::timeout(std::time::Duration::from_secs(10), self.task).await;
+    }
+}
