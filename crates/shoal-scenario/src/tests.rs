@@ -46,7 +46,10 @@ fn every_shipped_scenario_parses_and_every_file_in_scenarios_is_shipped() {
 fn the_default_scenario_moves_every_vehicle_within_ten_seconds() {
     let s = parse(shipped(DEFAULT).unwrap()).unwrap();
     let ids: Vec<_> = s.vehicles.iter().map(|v| v.id.as_str()).collect();
-    assert_eq!(ids, ["auv-1", "auv-2", "usv-1", "rov-1"]);
+    assert_eq!(ids, ["auv-1", "auv-2", "usv-1", "rov-1", "auv-ac1"]);
+    // The acoustic AUV is the one shoal up's acoustic demo ran before scenarios had one.
+    let ac: Vec<_> = s.acoustic_vehicles().map(|v| v.id.as_str()).collect();
+    assert_eq!(ac, ["auv-ac1"]);
     for v in &s.vehicles {
         assert!(
             s.missions

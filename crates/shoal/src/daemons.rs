@@ -313,9 +313,13 @@ fn spawn(
 }
 
 /// `shoal acoustic-demo` (started by `shoal up`).
-pub async fn acoustic_demo(cfg: &ShoalConfig, exit_on_stdin_close: bool) -> Result<()> {
+pub async fn acoustic_demo(
+    cfg: &ShoalConfig,
+    scenario: Option<&str>,
+    exit_on_stdin_close: bool,
+) -> Result<()> {
     let shutdown = shutdown_signal(exit_on_stdin_close);
-    let demo = crate::relay::AcousticDemoConfig::default();
+    let demo = acoustic_demo_config(scenario)?;
     info!(
         vehicles = demo.vehicles.len(),
         "acoustic demo: submerged AUV -> emulated modem -> CDT on the relay -> station"
@@ -330,6 +334,20 @@ pub async fn acoustic_demo(cfg: &ShoalConfig, exit_on_stdin_close: bool) -> Resu
     crate::relay::run_acoustic_demo(demo, cdt_dds, keys, shutdown)
         .await
         .context("acoustic demo failed")
+}
+
+/// What the acoustic demo runs: the acoustic vehicles and relay of `scenario` (a file or a
+/// shipped name) when it has any, the demo's own AUV otherwise.
+fn acoustic_demo_config(scenario: Option<&str>) -> Result<crate::relay::AcousticDemoConfig> {
+    let Some(source) = scenario
+        .map(crate::scenario::resolve)
+        .transpose()?
+        .flatten()
+    else {
+        return Ok(crate::relay::AcousticDemoConfig::default());
+    };
+    let s = crate::scenario::load(&source)?;
+    Ok(crate::relay::AcousticDemoConfig::from_scenario(&s).unwrap_or_default())
 }
 
 /// Waits for a child asked to stop; kills it after 10 s.
@@ -387,10 +405,10 @@ fn up_plan(
     info!(scenario = %source, "{}", crate::scenario::summary(&s));
     let fleet = crate::scenario::fleet(&s);
     let acoustic: Vec<&str> = s.acoustic_vehicles().map(|v| v.id.as_str()).collect();
-    if !acoustic.is_empty() {
+    if !acoustic.is_empty() && (no_fleet || !cfg.fleet.acoustic_demo) {
         warn!(
             vehicles = %acoustic.join(","),
-            "the scenario's acoustic vehicles are left out here: `shoal scenario run` carries them over the emulated acoustic network"
+            "the scenario's acoustic vehicles are not started: [fleet] acoustic_demo is off (or --no-fleet); `shoal scenario run` carries them over the emulated acoustic network"
         );
     }
     let arg = match source {
@@ -444,8 +462,9 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Re
         station_env.push(("SHOAL_SECURITY__ENABLED".to_string(), "false".to_string()));
     }
     let mut bundles = std::collections::HashMap::new();
+    // The acoustic demo runs the scenario's acoustic vehicles when it has any.
+    let demo = acoustic_demo_config(scenario.as_deref())?;
     if secure {
-        let demo = crate::relay::AcousticDemoConfig::default();
         let mut ids: Vec<&str> = Vec::new();
         if !no_fleet {
             ids.extend(fleet.iter().map(|v| v.id.as_str()));
@@ -516,13 +535,11 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Re
         }
     }
     if cfg.fleet.acoustic_demo && !no_fleet {
-        children.push(spawn(
-            &exe,
-            config,
-            &station_env,
-            "acoustic demo",
-            &["acoustic-demo".to_string()],
-        )?);
+        let mut args = vec!["acoustic-demo".to_string()];
+        if let Some(s) = &scenario {
+            args.extend(["--scenario".to_string(), s.clone()]);
+        }
+        children.push(spawn(&exe, config, &station_env, "acoustic demo", &args)?);
     }
     if sim_vehicles > 0 {
         children.push(spawn(

@@ -174,6 +174,10 @@ enum Command {
     /// with its VDT on a private DDS domain, and a CDT relaying it to the station's domain.
     #[command(hide = true)]
     AcousticDemo {
+        /// The scenario whose acoustic vehicles and relay to run (a file or a shipped
+        /// name); without one, or when it has none, the demo's own AUV auv-ac1.
+        #[arg(long, value_name = "FILE")]
+        scenario: Option<String>,
         /// Stop when standard input closes.
         #[arg(long)]
         exit_on_stdin_close: bool,
@@ -500,8 +504,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         #[cfg(feature = "console")]
         Command::Bench { which } => rt.block_on(bench::run(which, &cfg)),
         Command::AcousticDemo {
+            scenario,
             exit_on_stdin_close,
-        } => rt.block_on(daemons::acoustic_demo(&cfg, exit_on_stdin_close)),
+        } => rt.block_on(daemons::acoustic_demo(
+            &cfg,
+            scenario.as_deref(),
+            exit_on_stdin_close,
+        )),
         Command::Pdu { which } => acoustic::pdu(which),
         #[cfg(feature = "console")]
         Command::Query {

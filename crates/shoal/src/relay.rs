@@ -41,6 +41,8 @@ pub struct AcousticDemoConfig {
     pub relay_latitude_deg: f64,
     /// Relay position, degrees.
     pub relay_longitude_deg: f64,
+    /// A fixed packet error rate instead of the channel's physics.
+    pub fixed_per: Option<f64>,
 }
 
 impl Default for AcousticDemoConfig {
@@ -63,11 +65,43 @@ impl Default for AcousticDemoConfig {
             relay_address: 1,
             relay_latitude_deg: 63.4640,
             relay_longitude_deg: 10.3800,
+            fixed_per: None,
         }
     }
 }
 
 impl AcousticDemoConfig {
+    /// The acoustic vehicles and relay of a scenario, each vehicle on private DDS domain
+    /// 100, 101, ...; `None` when it has none.
+    pub fn from_scenario(s: &shoal_scenario::Scenario) -> Option<Self> {
+        let net = s.acoustic.as_ref()?;
+        let vehicles: Vec<DemoVehicle> = s
+            .acoustic_vehicles()
+            .zip(100u16..)
+            .filter_map(|(v, domain_id)| {
+                Some(DemoVehicle {
+                    sim: SimSpec {
+                        id: v.id.clone(),
+                        kind: v.kind,
+                        latitude_deg: v.latitude_deg,
+                        longitude_deg: v.longitude_deg,
+                        rate_hz: v.rate_hz,
+                        battery_pct: v.battery_pct,
+                    },
+                    address: v.acoustic_address?,
+                    domain_id,
+                })
+            })
+            .collect();
+        (!vehicles.is_empty()).then_some(Self {
+            vehicles,
+            relay_address: net.relay_address,
+            relay_latitude_deg: net.relay_latitude_deg,
+            relay_longitude_deg: net.relay_longitude_deg,
+            fixed_per: net.fixed_per,
+        })
+    }
+
     /// The relay that carries the demo's vehicles (real time, channel physics).
     fn relay(&self) -> EmulatedRelayConfig {
         let vehicles = self
@@ -81,12 +115,14 @@ impl AcousticDemoConfig {
                 longitude_deg: v.sim.longitude_deg,
             })
             .collect();
-        EmulatedRelayConfig::new(
+        let mut relay = EmulatedRelayConfig::new(
             self.relay_address,
             self.relay_latitude_deg,
             self.relay_longitude_deg,
             vehicles,
-        )
+        );
+        relay.fixed_per = self.fixed_per;
+        relay
     }
 }
 
@@ -121,4 +157,32 @@ pub async fn run_acoustic_demo(
         }
     };
     Ok(run_emulated_relay(relay, cdt_dds, keys, start_sim, shutdown).await?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_scenarios_acoustic_vehicle_is_the_demos_own_auv() {
+        let s = shoal_scenario::parse(shoal_scenario::shipped("sea-trial").unwrap()).unwrap();
+        let demo = AcousticDemoConfig::from_scenario(&s).unwrap();
+        let own = AcousticDemoConfig::default();
+        assert_eq!(demo.vehicles, own.vehicles);
+        assert_eq!(
+            (
+                demo.relay_address,
+                demo.relay_latitude_deg,
+                demo.relay_longitude_deg
+            ),
+            (
+                own.relay_address,
+                own.relay_latitude_deg,
+                own.relay_longitude_deg
+            )
+        );
+        let ip_only =
+            shoal_scenario::parse(shoal_scenario::shipped("harbour-survey").unwrap()).unwrap();
+        assert!(AcousticDemoConfig::from_scenario(&ip_only).is_none());
+    }
 }

@@ -142,8 +142,14 @@ pub fn summary(s: &Scenario) -> String {
     } else {
         format!(" starting {first} s to {last} s in")
     };
+    let acoustic = s.acoustic_vehicles().count();
+    let acoustic = if acoustic > 0 {
+        format!(" ({acoustic} acoustic)")
+    } else {
+        String::new()
+    };
     format!(
-        "scenario {:?}: {} vehicles, {} missions ({tasks} tasks){timeline}, {} s at time scale {}",
+        "scenario {:?}: {} vehicles{acoustic}, {} missions ({tasks} tasks){timeline}, {} s at time scale {}",
         s.name,
         s.vehicles.len(),
         s.missions.len(),

@@ -336,7 +336,7 @@ fn scenario_check_summarises_or_names_the_line_and_key() {
     assert_eq!(out.status.code(), Some(0), "{out:?}");
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert_eq!(stdout.lines().count(), 1, "{stdout}");
-    assert!(stdout.contains("4 vehicles"), "{stdout}");
+    assert!(stdout.contains("5 vehicles (1 acoustic)"), "{stdout}");
 
     let bad = dir.path().join("bad.toml");
     std::fs::write(
