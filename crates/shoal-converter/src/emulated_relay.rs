@@ -153,6 +153,9 @@ pub struct EmulatedRelayConfig {
     pub link: LinkSettings,
     /// Move each vehicle's emulated modem to its live position.
     pub follow_vehicles: bool,
+    /// A vehicle on the station's domain that carries the relay (a USV): the relay's modem
+    /// moves to its live position. `None`: the relay stays where it is put.
+    pub relay_vehicle: Option<String>,
     /// A scenario run's simulated clock for the converters' timestamps (`None`: the
     /// system clock); set with [`Self::warped`], which matches `time_scale` to it.
     pub clock: Option<Warp>,
@@ -183,6 +186,7 @@ impl EmulatedRelayConfig {
             state_interval_s: 2.0,
             link: LinkSettings::default(),
             follow_vehicles: true,
+            relay_vehicle: None,
             clock: None,
         }
     }
@@ -332,6 +336,17 @@ where
 
     let relay = endpoint(cfg.relay_address)
         .ok_or_else(|| ConverterError::Config("relay modem missing".into()))?;
+    if let Some(carrier) = &cfg.relay_vehicle {
+        // The relay rides on a vehicle of the station's domain: follow it there.
+        let states = cdt_dds.subscribe::<StateVector>()?;
+        tasks.spawn(follow(
+            emu.clone(),
+            cfg.relay_address,
+            states,
+            Some(carrier.clone()),
+            stop.clone(),
+        ));
+    }
     let mut cdt_cfg = cfg.cdt_config(cfg.modem(relay.at, relay.nl).address);
     let driver = Modem::start(&cdt_cfg.modem, cfg.time_scale);
     if let Some(keys) = &keys {
@@ -373,7 +388,7 @@ where
         };
         if cfg.follow_vehicles {
             let states = vdt_dds.subscribe::<StateVector>()?;
-            tasks.spawn(follow(emu.clone(), v.address, states, stop.clone()));
+            tasks.spawn(follow(emu.clone(), v.address, states, None, stop.clone()));
         }
         tasks.spawn(start_vehicle(v, vehicle_dds, stop.clone()));
         let driver = Modem::start(&vdt_cfg.modem, cfg.time_scale);
@@ -411,17 +426,20 @@ where
     result
 }
 
-/// Keeps a vehicle's emulated modem at the vehicle's reported position.
+/// Keeps a vehicle's emulated modem at the vehicle's reported position: every state on
+/// `states`, or only `vehicle`'s on a domain that carries others too.
 async fn follow(
     emu: Arc<EmulatorHandle>,
     address: u8,
     mut states: shoal_dds::Subscription<StateVector>,
+    vehicle: Option<String>,
     stop: CancellationToken,
 ) -> Result<(), ConverterError> {
     loop {
         tokio::select! {
             () = stop.cancelled() => return Ok(()),
             item = states.next() => match item {
+                Some(Ok((s, _))) if vehicle.as_ref().is_some_and(|v| *v != s.vehicle_id) => {}
                 Some(Ok((s, _))) => {
                     // The transducer is never above the surface.
                     let depth = s.depth_m.max(0.5);

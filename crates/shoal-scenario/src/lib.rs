@@ -95,6 +95,9 @@ pub struct AcousticNetwork {
     pub relay_longitude_deg: f64,
     /// A fixed packet error rate for every frame instead of the channel's physics.
     pub fixed_per: Option<f64>,
+    /// The IP vehicle that carries the relay (a USV), whose position the relay follows;
+    /// `None`: the relay stays where it is put.
+    pub relay_vehicle: Option<String>,
 }
 
 impl Scenario {
@@ -322,8 +325,9 @@ struct RawFile {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawAcoustic {
-    relay_latitude_deg: Spanned<f64>,
-    relay_longitude_deg: Spanned<f64>,
+    relay_vehicle: Option<Spanned<String>>,
+    relay_latitude_deg: Option<Spanned<f64>>,
+    relay_longitude_deg: Option<Spanned<f64>>,
     relay_address: Option<Spanned<i64>>,
     per: Option<Spanned<f64>>,
 }
@@ -673,25 +677,46 @@ impl Checker<'_> {
             None => None,
             Some(a) => {
                 let (lat, lon) = (StateVector::LATITUDE, StateVector::LONGITUDE);
+                let carrier = self.relay_vehicle(a, raw, vehicles)?;
+                let position = |key: &str,
+                                v: Option<&Spanned<f64>>,
+                                (lo, hi): (f64, f64),
+                                start: Option<f64>|
+                 -> Result<f64, ScenarioError> {
+                    match (v, start) {
+                        (Some(v), None) => self.range(key, v, lo, hi, false),
+                        (None, Some(start)) => Ok(start),
+                        (Some(v), Some(_)) => Err(ScenarioError::Invalid {
+                            line: self.line(v),
+                            key: key.to_owned(),
+                            reason: "not with relay_vehicle: the relay is where its vehicle is"
+                                .into(),
+                        }),
+                        (None, None) => Err(ScenarioError::Invalid {
+                            line: self.line(&raw.scenario.name),
+                            key: key.to_owned(),
+                            reason: "the relay needs a position, or a relay_vehicle".into(),
+                        }),
+                    }
+                };
                 Some(AcousticNetwork {
                     relay_address: match &a.relay_address {
                         Some(r) => self.address("acoustic.relay_address", r)?,
                         None => 1,
                     },
-                    relay_latitude_deg: self.range(
+                    relay_latitude_deg: position(
                         "acoustic.relay_latitude_deg",
-                        &a.relay_latitude_deg,
-                        lat.0,
-                        lat.1,
-                        false,
+                        a.relay_latitude_deg.as_ref(),
+                        lat,
+                        carrier.map(|v| v.latitude_deg),
                     )?,
-                    relay_longitude_deg: self.range(
+                    relay_longitude_deg: position(
                         "acoustic.relay_longitude_deg",
-                        &a.relay_longitude_deg,
-                        lon.0,
-                        lon.1,
-                        false,
+                        a.relay_longitude_deg.as_ref(),
+                        lon,
+                        carrier.map(|v| v.longitude_deg),
                     )?,
+                    relay_vehicle: carrier.map(|v| v.id.clone()),
                     fixed_per: a
                         .per
                         .as_ref()
@@ -704,10 +729,14 @@ impl Checker<'_> {
         // without, in file order.
         let mut used: HashMap<u8, (usize, String)> = HashMap::new();
         if let (Some(n), Some(a)) = (&net, &raw.acoustic) {
+            // The relay's own address is named where [acoustic] says most about it.
             let line = a
                 .relay_address
                 .as_ref()
-                .map_or_else(|| self.line(&a.relay_latitude_deg), |r| self.line(r));
+                .map(|r| self.line(r))
+                .or_else(|| a.relay_latitude_deg.as_ref().map(|r| self.line(r)))
+                .or_else(|| a.relay_vehicle.as_ref().map(|r| self.line(r)))
+                .unwrap_or(1);
             used.insert(n.relay_address, (line, "acoustic.relay_address".into()));
         }
         for (i, (v, rv)) in vehicles.iter_mut().zip(&raw.vehicles).enumerate() {
@@ -789,6 +818,41 @@ impl Checker<'_> {
             v.acoustic_address = Some(free);
         }
         Ok(net)
+    }
+
+    /// The vehicle `relay_vehicle` names: one of the fleet, on IP.
+    fn relay_vehicle<'v>(
+        &self,
+        a: &RawAcoustic,
+        raw: &RawFile,
+        vehicles: &'v [ScenarioVehicle],
+    ) -> Result<Option<&'v ScenarioVehicle>, ScenarioError> {
+        let Some(name) = &a.relay_vehicle else {
+            return Ok(None);
+        };
+        let key = "acoustic.relay_vehicle";
+        let Some(i) = vehicles.iter().position(|v| &v.id == name.get_ref()) else {
+            return Err(ScenarioError::UnknownVehicle {
+                line: self.line(name),
+                key: key.into(),
+                vehicle: name.get_ref().clone(),
+            });
+        };
+        let acoustic = raw.vehicles[i]
+            .link
+            .as_ref()
+            .is_some_and(|l| *l.get_ref() == LinkName::Acoustic);
+        if acoustic {
+            return Err(ScenarioError::Invalid {
+                line: self.line(name),
+                key: key.into(),
+                reason: format!(
+                    "{} is heard acoustically itself: the relay rides on a vehicle on IP",
+                    name.get_ref()
+                ),
+            });
+        }
+        Ok(vehicles.get(i))
     }
 
     fn address(&self, key: &str, v: &Spanned<i64>) -> Result<u8, ScenarioError> {

@@ -391,3 +391,32 @@ fn bad_acoustic_networks_are_one_line_naming_the_key() {
     assert_names(&e, 24, "faults[0].vehicle");
     assert!(e.to_string().contains("not supported"), "{e}");
 }
+
+#[test]
+fn a_relay_can_ride_on_an_ip_vehicle() {
+    let text = format!(
+        "{HEAD}\n[acoustic]\nrelay_vehicle = \"auv-1\"\n{}",
+        acoustic_vehicle("ac-1", "")
+    );
+    let net = parse(&text).unwrap().acoustic.unwrap();
+    assert_eq!(net.relay_vehicle.as_deref(), Some("auv-1"));
+    assert_eq!(
+        (net.relay_latitude_deg, net.relay_longitude_deg),
+        (63.0, 10.0)
+    );
+    // Not an acoustic vehicle, not one outside the fleet, not with a position too, and
+    // not no position at all.
+    let e = err(&format!(
+        "{HEAD}\n[acoustic]\nrelay_vehicle = \"ac-1\"\n{}",
+        acoustic_vehicle("ac-1", "")
+    ));
+    assert_names(&e, 11, "acoustic.relay_vehicle");
+    let e = err(&format!("{HEAD}\n[acoustic]\nrelay_vehicle = \"nobody\"\n"));
+    assert_names(&e, 11, "acoustic.relay_vehicle");
+    let e = err(&format!(
+        "{HEAD}\n[acoustic]\nrelay_vehicle = \"auv-1\"\nrelay_latitude_deg = 63.0\n"
+    ));
+    assert_names(&e, 12, "acoustic.relay_latitude_deg");
+    let e = err(&format!("{HEAD}\n[acoustic]\nper = 0.1\n"));
+    assert!(e.to_string().contains("relay_latitude_deg"), "{e}");
+}

@@ -43,6 +43,8 @@ pub struct AcousticDemoConfig {
     pub relay_longitude_deg: f64,
     /// A fixed packet error rate instead of the channel's physics.
     pub fixed_per: Option<f64>,
+    /// The vehicle on the station's domain carrying the relay, which the relay follows.
+    pub relay_vehicle: Option<String>,
 }
 
 impl Default for AcousticDemoConfig {
@@ -66,6 +68,7 @@ impl Default for AcousticDemoConfig {
             relay_latitude_deg: 63.4640,
             relay_longitude_deg: 10.3800,
             fixed_per: None,
+            relay_vehicle: None,
         }
     }
 }
@@ -99,6 +102,7 @@ impl AcousticDemoConfig {
             relay_latitude_deg: net.relay_latitude_deg,
             relay_longitude_deg: net.relay_longitude_deg,
             fixed_per: net.fixed_per,
+            relay_vehicle: net.relay_vehicle.clone(),
         })
     }
 
@@ -122,6 +126,7 @@ impl AcousticDemoConfig {
             vehicles,
         );
         relay.fixed_per = self.fixed_per;
+        relay.relay_vehicle.clone_from(&self.relay_vehicle);
         relay
     }
 }
@@ -169,6 +174,7 @@ mod tests {
         let demo = AcousticDemoConfig::from_scenario(&s).unwrap();
         let own = AcousticDemoConfig::default();
         assert_eq!(demo.vehicles, own.vehicles);
+        assert_eq!(demo.relay_vehicle.as_deref(), Some("usv-1"));
         assert_eq!(
             (
                 demo.relay_address,

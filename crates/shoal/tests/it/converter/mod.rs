@@ -14,7 +14,7 @@
 //! - `outage`: ten simulated minutes out of acoustic range; queued tasks all arrive
 //!   afterwards (domains 107, 108).
 //! - `relay`: the `run_emulated_relay` topology of `shoal up`'s acoustic demo (domains
-//!   105, 106).
+//!   105, 106), and a relay riding on a USV (domains 121, 122).
 //! - `impersonation`: a vehicle's acoustic key speaks only for its vehicle, a relay only
 //!   for the vehicles it carries (domain 111).
 //! - `keyframes`: a CDT lacking the keyframe a delta names asks the VDT for one (domain
