@@ -239,6 +239,16 @@ impl EmulatorHandle {
         Ok(())
     }
 
+    /// Simulated seconds each modem has spent transmitting, by address: what it took of
+    /// the one shared channel.
+    pub fn airtime(&self) -> Vec<(u8, f64)> {
+        lock(&self.sea)
+            .nodes
+            .iter()
+            .map(|n| (n.address, n.air_s))
+            .collect()
+    }
+
     /// A modem's current position.
     pub fn position(&self, address: u8) -> Option<Position> {
         let sea = lock(&self.sea);

@@ -95,6 +95,8 @@ pub(super) struct Node {
     /// Failed or cut off (a scenario's modem failure or link outage): it neither puts
     /// anything on air nor hears anything.
     pub(super) silent: bool,
+    /// Simulated seconds it has spent transmitting.
+    pub(super) air_s: f64,
     remote: u8,
     retries: u8,
     source_level: u8,
@@ -168,6 +170,7 @@ impl Sea {
                     depth_m: m.depth_m,
                 },
                 silent: false,
+                air_s: 0.0,
                 remote: 0,
                 retries: cfg.im_retries,
                 source_level: 0,
@@ -285,6 +288,7 @@ impl Sea {
             return Vec::new();
         }
         sender.on_air_until = now + air;
+        sender.air_s += air_s;
         sender.tx_log.push((now, now + air));
         let attenuation = 6.0 * f64::from(sender.source_level);
         let from = sender.pos;

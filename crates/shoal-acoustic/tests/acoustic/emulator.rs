@@ -316,8 +316,19 @@ async fn a_silent_modem_neither_hears_nor_is_heard_until_it_is_back() {
     assert!(outage(&s, 1, 2) >= 1 && outage(&s, 2, 1) >= 1, "{s:?}");
     assert!(s.iter().all(|l| l.delivered == 0), "{s:?}");
 
+    // The silent modem put nothing on the water; the other tried (with its retries).
+    let air: std::collections::HashMap<u8, f64> = emu.airtime().into_iter().collect();
+    assert!(air[&2] == 0.0 && air[&1] > 0.3, "{air:?}");
+
     emu.set_silent(2, false).unwrap();
     assert_eq!(a.command(&send(2)).await, "AT*SENDIM:OK");
     assert_eq!(a.text().await, "AT:DELIVEREDIM,2");
+    // An 8-byte IM at 976 bit/s takes about 0.17 s on air; its acknowledgement is modem 2's.
+    let after: std::collections::HashMap<u8, f64> = emu.airtime().into_iter().collect();
+    assert!(
+        (0.1..0.3).contains(&(after[&1] - air[&1])),
+        "{air:?} then {after:?}"
+    );
+    assert!(after[&2] > 0.0, "{after:?}");
     assert!(emu.set_silent(77, true).is_err());
 }

@@ -437,8 +437,8 @@ td.n{text-align:right;font-variant-numeric:tabular-nums}.plot,.map{width:100%;he
 .fault{stroke:#b00020;stroke-width:1.5;stroke-dasharray:4 3}";
 
 /// What each acoustic link carried and lost, and why.
-fn acoustic_table(out: &mut String, r: &RunRecord) {
-    if r.links.is_empty() {
+fn acoustic_table(out: &mut String, r: &RunRecord, s: &Summary) {
+    if r.links.is_empty() && s.acoustic_channel_use_pct.is_none() {
         return;
     }
     out.push_str("<h2>Acoustic network</h2><table><tr><th>Link</th><th>Frames</th><th>Delivered</th><th>Lost (channel)</th><th>Collisions</th><th>Half duplex</th><th>Outage</th></tr>");
@@ -459,7 +459,58 @@ fn acoustic_table(out: &mut String, r: &RunRecord) {
             l.outage
         );
     }
-    out.push_str("</table><p class=\"note\">Counted by the emulated sea, per frame addressed over each link. Not measured yet: link quality over time, channel occupancy, delivery latency.</p>");
+    out.push_str("</table><p class=\"note\">Counted by the emulated sea, per frame addressed over each link.</p>");
+    if let Some(pct) = s.acoustic_channel_use_pct {
+        let _ = write!(
+            out,
+            "<p>The channel carried a transmission {pct} % of the run: {}.</p>",
+            s.acoustic_airtime_s
+                .iter()
+                .map(|(m, a)| format!("{} {a} s", esc(m)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    if !s.acoustic_latency.is_empty() {
+        out.push_str("<h3>State vector age on reaching the station</h3><table><tr><th>Vehicle</th><th>State vectors</th><th>Median</th><th>95th percentile</th><th>Largest</th></tr>");
+        for (v, l) in &s.acoustic_latency {
+            let _ = write!(
+                out,
+                "<tr><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{} s</td><td class=\"n\">{} s</td><td class=\"n\">{} s</td></tr>",
+                esc(v),
+                l.samples,
+                l.p50_s,
+                l.p95_s,
+                l.max_s
+            );
+        }
+        out.push_str("</table><p class=\"note\">From the vehicle's timestamp to the relayed sample's arrival on the station's domain, in simulated time: the VDT's queue (the freshest state goes, one every few seconds), time on air, propagation and retransmissions.</p>");
+    }
+    #[allow(clippy::cast_precision_loss)]
+    let at = |ms: i64| (ms - r.start_ms) as f64 / 1000.0;
+    let series: Vec<Series<'_>> = r
+        .link_quality
+        .iter()
+        .enumerate()
+        .map(|(i, (v, samples))| Series {
+            name: v,
+            colour: colour(i),
+            points: samples
+                .iter()
+                .filter_map(|p| Some((at(p.at_ms), f64::from(p.rssi_db?))))
+                .collect(),
+        })
+        .collect();
+    if series.iter().any(|s| !s.points.is_empty()) {
+        line_chart(
+            out,
+            "Acoustic link quality (RSSI at the relay)",
+            "dB",
+            s.simulated_s,
+            &series,
+            false,
+        );
+    }
 }
 
 /// Which rules fired, how often, first when and about which vehicles.
@@ -595,7 +646,7 @@ pub fn render_html(r: &RunRecord, s: &Summary) -> String {
         }
         out.push_str("</table>");
     }
-    acoustic_table(&mut out, r);
+    acoustic_table(&mut out, r, s);
     rule_table(&mut out, s);
     out.push_str("<h2>Events</h2>");
     let notable: Vec<_> = r

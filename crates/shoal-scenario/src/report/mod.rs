@@ -47,6 +47,64 @@ pub struct RunRecord {
     pub rule_ids: Vec<String>,
     /// The acoustic network's links (empty when the scenario has none).
     pub links: Vec<LinkFigures>,
+    /// Per acoustic vehicle, how old each of its state vectors was when it reached the
+    /// station's domain through the relay, simulated ms, in arrival order.
+    pub acoustic_latency_ms: BTreeMap<String, Vec<i64>>,
+    /// Per acoustic vehicle, the relay's link-status reports of it, oldest first.
+    pub link_quality: BTreeMap<String, Vec<LinkSample>>,
+    /// Simulated seconds each modem spent transmitting, by modem (a vehicle id or `relay`).
+    pub airtime_s: BTreeMap<String, f64>,
+}
+
+/// One link-status report: how well the relay heard a vehicle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct LinkSample {
+    /// When, ms since the Unix epoch (simulated).
+    pub at_ms: i64,
+    /// Received signal strength, dB.
+    pub rssi_db: Option<i32>,
+    /// The modem's signal integrity figure (0..=255).
+    pub integrity: Option<u32>,
+}
+
+/// How old an acoustic vehicle's state vectors were on arrival.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct LatencyFigures {
+    /// State vectors measured.
+    pub samples: usize,
+    /// Median, simulated seconds (0.01 s).
+    pub p50_s: f64,
+    /// 95th percentile, simulated seconds.
+    pub p95_s: f64,
+    /// Largest, simulated seconds.
+    pub max_s: f64,
+}
+
+impl LatencyFigures {
+    /// The figures of `ms` (any order); `None` when empty.
+    pub fn of(ms: &[i64]) -> Option<Self> {
+        let mut v: Vec<i64> = ms.to_vec();
+        v.sort_unstable();
+        let last = *v.last()?;
+        #[allow(clippy::cast_precision_loss)]
+        let s = |x: i64| round_dp(x as f64 / 1000.0, 2);
+        // Nearest rank: the smallest value with at least q of the samples at or below it.
+        let rank = |q: f64| {
+            #[allow(
+                clippy::cast_precision_loss,
+                clippy::cast_possible_truncation,
+                clippy::cast_sign_loss
+            )]
+            let k = ((q * v.len() as f64).ceil() as usize).clamp(1, v.len());
+            v[k - 1]
+        };
+        Some(Self {
+            samples: v.len(),
+            p50_s: s(rank(0.5)),
+            p95_s: s(rank(0.95)),
+            max_s: s(last),
+        })
+    }
 }
 
 /// What one directed acoustic link carried in a run, as the emulated sea counted it.
@@ -177,6 +235,13 @@ pub struct Summary {
     pub faults: Vec<FaultRecord>,
     /// The acoustic network's links, keyed `from>to`, each with its `delivery_pct`.
     pub acoustic_links: BTreeMap<String, AcousticLink>,
+    /// Per acoustic vehicle, how old its state vectors were on reaching the station.
+    pub acoustic_latency: BTreeMap<String, LatencyFigures>,
+    /// Simulated seconds each modem spent transmitting (0.1 s).
+    pub acoustic_airtime_s: BTreeMap<String, f64>,
+    /// The share of the run the one acoustic channel carried a transmission, % (0.1;
+    /// overlapping transmissions count twice); `None` without an acoustic network.
+    pub acoustic_channel_use_pct: Option<f64>,
 }
 
 /// One acoustic link in the summary.
@@ -418,7 +483,29 @@ pub fn summarise(r: &RunRecord) -> Summary {
                 )
             })
             .collect(),
+        acoustic_latency: r
+            .acoustic_latency_ms
+            .iter()
+            .filter_map(|(v, ms)| Some((v.clone(), LatencyFigures::of(ms)?)))
+            .collect(),
+        acoustic_airtime_s: r
+            .airtime_s
+            .iter()
+            .map(|(m, s)| (m.clone(), round_dp(*s, 1)))
+            .collect(),
+        acoustic_channel_use_pct: channel_use_pct(r),
     }
+}
+
+/// The share of the run the acoustic channel was busy, %.
+fn channel_use_pct(r: &RunRecord) -> Option<f64> {
+    if r.airtime_s.is_empty() {
+        return None;
+    }
+    #[allow(clippy::cast_precision_loss)]
+    let span_s = (r.end_ms - r.start_ms) as f64 / 1000.0;
+    let air: f64 = r.airtime_s.values().sum();
+    (span_s > 0.0).then(|| round_dp(air / span_s * 100.0, 1))
 }
 
 #[cfg(test)]

@@ -130,7 +130,51 @@ fn record() -> RunRecord {
                 ..LinkFigures::default()
             },
         ],
+        acoustic_latency_ms: [("auv-1".to_owned(), vec![3_000, 1_000, 30_000, 2_000, 4_000])]
+            .into(),
+        link_quality: [(
+            "auv-1".to_owned(),
+            vec![
+                LinkSample {
+                    at_ms: T0 + 30_000,
+                    rssi_db: Some(-58),
+                    integrity: Some(255),
+                },
+                LinkSample {
+                    at_ms: T0 + 60_000,
+                    rssi_db: Some(-70),
+                    integrity: Some(120),
+                },
+            ],
+        )]
+        .into(),
+        airtime_s: [("relay".to_owned(), 9.0), ("auv-1".to_owned(), 9.04)].into(),
     }
+}
+
+#[test]
+fn acoustic_latency_channel_use_and_link_quality_are_reported() {
+    let r = record();
+    let s = summarise(&r);
+    let l = s.acoustic_latency["auv-1"];
+    assert_eq!((l.samples, l.p50_s, l.p95_s, l.max_s), (5, 3.0, 30.0, 30.0));
+    assert_eq!(LatencyFigures::of(&[]), None);
+    assert_eq!(LatencyFigures::of(&[1_234]).unwrap().p50_s, 1.23);
+    // 18.04 s on air over 180 s.
+    assert_eq!(s.acoustic_channel_use_pct, Some(10.0));
+    assert_eq!(s.acoustic_airtime_s["auv-1"], 9.0);
+    let html = render_html(&r, &s);
+    assert!(
+        html.contains("carried a transmission 10 % of the run"),
+        "{html}"
+    );
+    assert!(html.contains("<td class=\"n\">3 s</td>"), "{html}");
+    assert!(html.contains("aria-label=\"Acoustic link quality (RSSI at the relay)\""));
+    let none = RunRecord {
+        airtime_s: BTreeMap::new(),
+        ..RunRecord::default()
+    };
+    assert_eq!(summarise(&none).acoustic_channel_use_pct, None);
 }
 
 #[test]
@@ -149,6 +193,7 @@ fn acoustic_links_are_in_the_summary_and_the_page() {
     assert!(html.contains("relay → auv-&lt;1&gt;"));
     let none = RunRecord {
         links: Vec::new(),
+        airtime_s: BTreeMap::new(),
         ..record()
     };
     assert!(!render_html(&none, &summarise(&none)).contains("Acoustic network"));
@@ -245,8 +290,9 @@ fn the_page_is_self_contained_escaped_and_plots_every_vehicle() {
     assert!(html.contains("box &lt;survey&gt;"));
     assert!(html.contains("battery &lt;low&gt; &amp; falling"));
     assert!(!html.contains("<low>"));
-    // Tracks, depth, battery, speed: one line each for the vehicle with data.
-    assert_eq!(html.matches("<polyline").count(), 4);
+    // Tracks, depth, battery, speed: one line each for the vehicle with data; and the
+    // acoustic link's quality.
+    assert_eq!(html.matches("<polyline").count(), 5);
     assert!(html.contains("aria-label=\"Task timeline\""));
     assert!(html.contains("auv-1 fails &lt;for good&gt;"));
     assert!(html.contains("class=\"fault\""));

@@ -290,11 +290,9 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
     let end_ms = warp.now_ms().min(end_ms);
     // Vehicles first, then the station a moment later, so what they sent last is stored.
     fleet.stop_all().await;
-    let links = acoustic
-        .as_ref()
-        .map(AcousticNet::links)
-        .unwrap_or_default();
+    let mut acoustic_figures = RunRecord::default();
     if let Some(a) = acoustic {
+        a.report(&mut acoustic_figures);
         a.stop().await;
     }
     tokio::time::sleep(Duration::from_millis(300)).await;
@@ -321,7 +319,10 @@ pub async fn run(cfg: &ShoalConfig, args: &RunArgs, stop: CancellationToken) -> 
         station.figures(),
     )?;
     record.faults = faults;
-    record.links = links;
+    record.links = acoustic_figures.links;
+    record.acoustic_latency_ms = acoustic_figures.acoustic_latency_ms;
+    record.link_quality = acoustic_figures.link_quality;
+    record.airtime_s = acoustic_figures.airtime_s;
     record.rule_ids = station.rule_ids();
     let summary = report::summarise(&record);
     let json = serde_json::to_string_pretty(&summary).context("cannot write the summary")?;
@@ -493,7 +494,7 @@ fn read_back(
         station,
         faults: Vec::new(),
         rule_ids: Vec::new(),
-        links: Vec::new(),
+        ..RunRecord::default()
     })
 }
 

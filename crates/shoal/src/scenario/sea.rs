@@ -4,22 +4,23 @@
 //! simulated clock. Link outages and modem failures silence modems in the emulated sea;
 //! its per-link counters go into the report.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
 use anyhow::{Context, Result};
+use futures::StreamExt;
 use shoal_acoustic::emulator::EmulatorHandle;
 use shoal_converter::ConverterError;
 use shoal_converter::emulated_relay::{
     EmulatedRelayConfig, RelayedVehicle, run_emulated_relay_with,
 };
 use shoal_dds::PubSub;
-use shoal_model::Warp;
+use shoal_model::{Event, LinkStatus, StateVector, Warp};
 use shoal_proxy::ProxyOptions;
 use shoal_proxy::sim::{SimAdapter, SimFault, SimSettings, SimSpec};
 use shoal_scenario::Scenario;
-use shoal_scenario::report::LinkFigures;
+use shoal_scenario::report::{LinkFigures, LinkSample, RunRecord};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
@@ -29,6 +30,15 @@ use crate::config::ShoalConfig;
 
 /// The highest DDS domain id; acoustic vehicles' private domains count down from it.
 const TOP_DOMAIN: u16 = 232;
+/// Most latencies and link-status reports kept per vehicle (a week at one a second).
+const MAX_SAMPLES: usize = 604_800;
+
+/// What the observer on the station's domain saw of the acoustic vehicles.
+#[derive(Default)]
+struct Watched {
+    latency_ms: BTreeMap<String, Vec<i64>>,
+    quality: BTreeMap<String, Vec<LinkSample>>,
+}
 
 /// A running acoustic network.
 pub struct AcousticNet {
@@ -37,8 +47,10 @@ pub struct AcousticNet {
     relay: u8,
     addresses: HashMap<String, u8>,
     faults: Arc<Mutex<HashMap<String, mpsc::UnboundedSender<SimFault>>>>,
+    watched: Arc<Mutex<Watched>>,
     stop: CancellationToken,
     task: JoinHandle<()>,
+    observer: JoinHandle<()>,
 }
 
 impl AcousticNet {
@@ -122,6 +134,14 @@ impl AcousticNet {
         };
         let sea: Arc<Mutex<Option<Arc<EmulatorHandle>>>> = Arc::default();
         let stop = CancellationToken::new();
+        let watched: Arc<Mutex<Watched>> = Arc::default();
+        let observer = tokio::spawn(observe(
+            Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS for the acoustic figures")?),
+            warp,
+            addresses_of(&addresses),
+            Arc::clone(&watched),
+            stop.clone(),
+        ));
         let task = tokio::spawn({
             let (sea, stop) = (Arc::clone(&sea), stop.clone());
             async move {
@@ -142,8 +162,10 @@ impl AcousticNet {
             relay: net.relay_address,
             addresses,
             faults,
+            watched,
             stop,
             task,
+            observer,
         }))
     }
 
@@ -175,19 +197,11 @@ impl AcousticNet {
 
     /// The counters of every link that carried a frame, named by vehicle (`relay` for the
     /// relay's modem).
-    pub fn links(&self) -> Vec<LinkFigures> {
+    fn links(&self) -> Vec<LinkFigures> {
         let Some(sea) = self.sea() else {
             return Vec::new();
         };
-        let name = |a: u8| {
-            if a == self.relay {
-                return "relay".to_owned();
-            }
-            self.addresses
-                .iter()
-                .find(|(_, x)| **x == a)
-                .map_or_else(|| format!("modem {a}"), |(id, _)| id.clone())
-        };
+        let name = |a: u8| self.name(a);
         sea.stats()
             .into_iter()
             .map(|l| LinkFigures {
@@ -203,10 +217,101 @@ impl AcousticNet {
             .collect()
     }
 
+    /// Simulated seconds each modem spent transmitting, by vehicle id (`relay`).
+    pub fn airtime(&self) -> BTreeMap<String, f64> {
+        let Some(sea) = self.sea() else {
+            return BTreeMap::new();
+        };
+        sea.airtime()
+            .into_iter()
+            .map(|(a, s)| (self.name(a), s))
+            .collect()
+    }
+
+    fn name(&self, address: u8) -> String {
+        if address == self.relay {
+            return "relay".to_owned();
+        }
+        self.addresses
+            .iter()
+            .find(|(_, x)| **x == address)
+            .map_or_else(|| format!("modem {address}"), |(id, _)| id.clone())
+    }
+
+    /// Writes what the network measured into `record`.
+    pub fn report(&self, record: &mut RunRecord) {
+        record.links = self.links();
+        record.airtime_s = self.airtime();
+        if let Ok(w) = self.watched.lock() {
+            record.acoustic_latency_ms.clone_from(&w.latency_ms);
+            record.link_quality.clone_from(&w.quality);
+        }
+    }
+
     /// Stops the network and waits for it (a few seconds at most).
     pub async fn stop(self) {
         self.stop.cancel();
         drop(self.sea.lock().ok().and_then(|mut s| s.take()));
-        let _ = tokio::time::timeout(std::time::Duration::from_secs(10), self.task).await;
+        let wait = std::time::Duration::from_secs(10);
+        let _ = tokio::time::timeout(wait, self.task).await;
+        let _ = tokio::time::timeout(wait, self.observer).await;
+    }
+}
+
+fn addresses_of(addresses: &HashMap<String, u8>) -> Vec<String> {
+    addresses.keys().cloned().collect()
+}
+
+/// Watches the station's domain as the station would hear it: each relayed state vector's
+/// age on arrival (simulated time), and the relay's link-status reports.
+async fn observe(
+    dds: Arc<PubSub>,
+    warp: Warp,
+    vehicles: Vec<String>,
+    watched: Arc<Mutex<Watched>>,
+    stop: CancellationToken,
+) {
+    let (Ok(mut states), Ok(mut events)) =
+        (dds.subscribe::<StateVector>(), dds.subscribe::<Event>())
+    else {
+        warn!("no acoustic latency or link quality figures: cannot subscribe");
+        return;
+    };
+    let ours = |id: &str| vehicles.iter().any(|v| v == id);
+    loop {
+        tokio::select! {
+            () = stop.cancelled() => return,
+            item = states.next() => match item {
+                Some(Ok((s, _))) if ours(&s.vehicle_id) => {
+                    let age = warp.now_ms() - s.timestamp_ms;
+                    if let Ok(mut w) = watched.lock() {
+                        let v = w.latency_ms.entry(s.vehicle_id.clone()).or_default();
+                        if v.len() < MAX_SAMPLES && age >= 0 {
+                            v.push(age);
+                        }
+                    }
+                }
+                Some(_) => {}
+                None => return,
+            },
+            item = events.next() => match item {
+                Some(Ok((e, _))) => {
+                    if let Some(l) = LinkStatus::from_event(&e).filter(|l| ours(&l.vehicle_id))
+                        && let Ok(mut w) = watched.lock()
+                    {
+                        let v = w.quality.entry(l.vehicle_id).or_default();
+                        if v.len() < MAX_SAMPLES {
+                            v.push(LinkSample {
+                                at_ms: e.timestamp_ms,
+                                rssi_db: l.rssi_db,
+                                integrity: l.integrity,
+                            });
+                        }
+                    }
+                }
+                Some(Err(_)) => {}
+                None => return,
+            },
+        }
     }
 }

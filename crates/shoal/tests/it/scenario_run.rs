@@ -299,6 +299,17 @@ fn an_acoustic_vehicle_runs_its_tasks_through_the_relay_across_outages() {
             >= 2,
         "the tasks went down the link: {summary}"
     );
+    // The relayed states' age on arrival: the VDT sends the freshest every 2 s, so about
+    // a second or two, never near the station's 30 s contact timeout.
+    let age = &summary["acoustic_latency"]["auv-ac1"];
+    assert!(age["samples"].as_u64().unwrap() > 100, "{summary}");
+    let p50 = age["p50_s"].as_f64().unwrap();
+    assert!((0.1..10.0).contains(&p50), "{summary}");
+    let used = summary["acoustic_channel_use_pct"].as_f64().unwrap();
+    assert!((0.5..60.0).contains(&used), "{summary}");
+    assert!(summary["acoustic_airtime_s"]["relay"].as_f64().unwrap() > 0.0);
     let html = std::fs::read_to_string(run.join("report.html")).unwrap();
     assert!(html.contains("<h2>Acoustic network</h2>") && html.contains("auv-ac1 → relay"));
+    assert!(html.contains("State vector age on reaching the station"));
+    assert!(html.contains("aria-label=\"Acoustic link quality (RSSI at the relay)\""));
 }
