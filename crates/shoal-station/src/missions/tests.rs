@@ -186,6 +186,54 @@ fn a_mission_runs_each_vehicles_tasks_in_order_and_ends_done() {
     assert!((m.progress_pct - 100.0).abs() < 1e-9);
 }
 
+/// Over an acoustic link the report of a finished task can be the first thing through
+/// after an outage: it proves the vehicle is heard, so its next task goes out.
+#[test]
+fn a_lost_vehicles_report_of_a_done_task_brings_it_back_and_its_next_task_goes_out() {
+    let (f, time) = Fixture::manual_clock();
+    f.announce("auv-1");
+    f.h.ingest_state(state("auv-1", f.h.now(), 80.0)).unwrap();
+    f.h.tick(f.h.now());
+    f.h.plan_mission(spec("m-1", &[("auv-1", goto()), ("auv-1", goto())]))
+        .unwrap();
+    f.h.start_mission("m-1").unwrap();
+    let report = |state: TaskState| {
+        let mut s = crate::testing::status("m-1-1", "auv-1", state);
+        s.timestamp_ms = f.h.now();
+        f.h.ingest_task_status(crate::testing::valid(s)).unwrap();
+    };
+    report(TaskState::Accepted);
+    report(TaskState::Running);
+    // An outage longer than lost_after_s: nothing from the vehicle.
+    time.advance(crate::config::ms(f.h.config().lost_after_s) + 1_000);
+    f.h.tick(f.h.now());
+    assert_eq!(
+        f.h.vehicle("auv-1").unwrap().contact,
+        crate::register::Contact::Lost
+    );
+    report(TaskState::Done);
+    assert_eq!(
+        f.h.vehicle("auv-1").unwrap().contact,
+        crate::register::Contact::Alive
+    );
+    assert_eq!(task_state(&f, "m-1-2"), TaskState::Sent);
+    assert!(
+        f.h.recent_events()
+            .iter()
+            .any(|e| e.text == "contact with auv-1 regained")
+    );
+    // A relay's word about a task is not the vehicle's: it brings nothing back.
+    time.advance(crate::config::ms(f.h.config().lost_after_s) + 1_000);
+    f.h.tick(f.h.now());
+    let mut sent = crate::testing::status("m-1-2", "auv-1", TaskState::Sent);
+    sent.timestamp_ms = f.h.now();
+    let _ = f.h.ingest_task_status(crate::testing::valid(sent));
+    assert_eq!(
+        f.h.vehicle("auv-1").unwrap().contact,
+        crate::register::Contact::Lost
+    );
+}
+
 #[test]
 fn a_failed_task_skips_the_rest_of_its_vehicle_and_fails_the_mission() {
     let f = Fixture::new();

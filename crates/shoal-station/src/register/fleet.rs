@@ -152,6 +152,20 @@ impl Fleet {
         changed
     }
 
+    /// `id` was heard at `now_ms` by something other than a state vector; the change of
+    /// its contact to alive, if it was not.
+    pub(crate) fn heard(&mut self, id: &str, now_ms: i64) -> Option<(Contact, Contact)> {
+        let e = self.vehicles.get_mut(id)?;
+        e.last_contact_ms = Some(e.last_contact_ms.map_or(now_ms, |t| t.max(now_ms)));
+        let from = e.contact;
+        if from == Contact::Alive || from == Contact::Silent {
+            // Silent: never sent a state; hearing a report does not make up a position.
+            return None;
+        }
+        e.contact = Contact::Alive;
+        Some((from, Contact::Alive))
+    }
+
     /// Marks the vehicles heard through `participant` as gone; returns their ids.
     pub(crate) fn participant_left(&mut self, participant: &str, now_ms: i64) -> Vec<String> {
         let mut gone = Vec::new();

@@ -202,47 +202,66 @@ impl StationHandle {
         let (stale, lost) = (ms(cfg.stale_after_s), ms(cfg.lost_after_s));
         let changed = lock(&self.core.fleet).refresh_contact(now, stale, lost);
         for (id, from, to) in changed {
-            match to {
-                Contact::Lost => {
-                    let left = lock(&self.core.fleet).vehicles.get(&id).is_some_and(|e| {
-                        e.left_ms
-                            .is_some_and(|l| e.last_contact_ms.is_some_and(|t| l >= t))
-                    });
-                    let text = if left {
-                        format!("lost contact with {id}: its DDS participant left")
-                    } else {
-                        format!("no state vector from {id} for {:.0} s", cfg.lost_after_s)
-                    };
-                    self.raise(Severity::Alarm, EventKind::CommLost, &id, "", &text);
-                }
-                Contact::Alive if from == Contact::Lost => {
-                    self.raise(
-                        Severity::Info,
-                        EventKind::Other,
-                        &id,
-                        "",
-                        &format!("contact with {id} regained"),
-                    );
-                }
-                _ => {}
+            self.contact_changed(&id, from, to, now);
+        }
+    }
+
+    /// A vehicle's own report on its task (accepted, running, done) reached the station:
+    /// it is heard, whatever its state vectors do. Over a slow acoustic link the report of
+    /// a finished task can be the first thing through after an outage, and the mission's
+    /// next task must not be refused because the vehicle still counts as lost.
+    pub(crate) fn heard_from(&self, vehicle_id: &str, now: i64) {
+        let changed = lock(&self.core.fleet).heard(vehicle_id, now);
+        if let Some((from, to)) = changed {
+            self.contact_changed(vehicle_id, from, to, now);
+        }
+    }
+
+    /// Tells of a contact change: an alarm on loss, an event on regaining, a log line, the
+    /// availability it implies and the live feed.
+    fn contact_changed(&self, id: &str, from: Contact, to: Contact, now: i64) {
+        let cfg = &self.core.config;
+        let id = id.to_owned();
+        match to {
+            Contact::Lost => {
+                let left = lock(&self.core.fleet).vehicles.get(&id).is_some_and(|e| {
+                    e.left_ms
+                        .is_some_and(|l| e.last_contact_ms.is_some_and(|t| l >= t))
+                });
+                let text = if left {
+                    format!("lost contact with {id}: its DDS participant left")
+                } else {
+                    format!("no state vector from {id} for {:.0} s", cfg.lost_after_s)
+                };
+                self.raise(Severity::Alarm, EventKind::CommLost, &id, "", &text);
             }
-            match self.fleet_line() {
-                Some(0) => info!(vehicle = %id, from = ?from, to = ?to, "contact changed"),
-                Some(left_out) => info!(
-                    vehicle = %id,
-                    from = ?from,
-                    to = ?to,
-                    left_out,
-                    "contact changed (and {left_out} more registrations or contact changes not logged one by one; the fleet summary counts them)"
-                ),
-                None => debug!(vehicle = %id, from = ?from, to = ?to, "contact changed"),
+            Contact::Alive if from == Contact::Lost => {
+                self.raise(
+                    Severity::Info,
+                    EventKind::Other,
+                    &id,
+                    "",
+                    &format!("contact with {id} regained"),
+                );
             }
-            self.refresh_heard_availability(&id, now);
-            // Stale and lost happen exactly when the vehicle sends nothing, so no state
-            // carries the change to live clients: push the vehicle's view now.
-            if let Some(v) = self.vehicle(&id) {
-                self.publish_live(LiveUpdate::Vehicle(Box::new(v)));
-            }
+            _ => {}
+        }
+        match self.fleet_line() {
+            Some(0) => info!(vehicle = %id, from = ?from, to = ?to, "contact changed"),
+            Some(left_out) => info!(
+                vehicle = %id,
+                from = ?from,
+                to = ?to,
+                left_out,
+                "contact changed (and {left_out} more registrations or contact changes not logged one by one; the fleet summary counts them)"
+            ),
+            None => debug!(vehicle = %id, from = ?from, to = ?to, "contact changed"),
+        }
+        self.refresh_heard_availability(&id, now);
+        // Stale and lost happen exactly when the vehicle sends nothing, so no state
+        // carries the change to live clients: push the vehicle's view now.
+        if let Some(v) = self.vehicle(&id) {
+            self.publish_live(LiveUpdate::Vehicle(Box::new(v)));
         }
     }
 

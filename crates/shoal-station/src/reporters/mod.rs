@@ -325,6 +325,14 @@ impl StationHandle {
             return Err(why);
         };
         lock(&self.core.stats).task_status += 1;
+        // The vehicle's own word on its task proves it is heard (a relay's word, sent or
+        // expired, does not).
+        if matches!(
+            s.state,
+            TaskState::Accepted | TaskState::Running | TaskState::Done
+        ) {
+            self.heard_from(&s.vehicle_id, now);
+        }
         let fired = lock(&self.core.semantic).task_status(&s);
         self.emit_fired(fired);
         info!(task = %s.task_id, vehicle = %s.vehicle_id, state = ?s.state, progress = s.progress_pct, "task status");
