@@ -40,10 +40,13 @@ test('the scenario report opens offline with its plots, tables and every vehicle
   const url = pathToFileURL(REPORT).href;
   await page.goto(url);
 
-  // Tracks, depth, battery, speed and the task timeline: five drawn figures.
+  // Tracks, depth, battery, speed and the task timeline: five drawn figures; a run with
+  // an acoustic network adds the link quality at the relay.
+  const acoustic = Object.keys(summary.acoustic_links || {}).length > 0;
   const svgs = page.locator('svg');
-  assert.equal(await svgs.count(), 5);
-  for (let i = 0; i < 5; i++) {
+  const figures = acoustic ? 6 : 5;
+  assert.equal(await svgs.count(), figures);
+  for (let i = 0; i < figures; i++) {
     const box = await svgs.nth(i).boundingBox();
     assert.ok(box && box.width > 300 && box.height > 100, `figure ${i} is drawn: ${JSON.stringify(box)}`);
   }
@@ -61,6 +64,16 @@ test('the scenario report opens offline with its plots, tables and every vehicle
   const bars = await page.locator('svg[aria-label="Task timeline"] rect[rx]').count();
   assert.ok(bars >= 1 && bars <= tasks, `${bars} timeline bars for ${tasks} tasks`);
   assert.equal(await page.locator('table').nth(1).locator('tr').count(), tasks + 1);
+  // The acoustic network's links (the default scenario relays auv-ac1), and the rules.
+  if (acoustic) {
+    assert.equal(await page.locator('h2:text-is("Acoustic network")').count(), 1);
+    for (const key of Object.keys(summary.acoustic_links)) {
+      const [from, to] = key.split('>');
+      assert.equal(await page.locator(`td:text-is("${from} → ${to}")`).count(), 1, `link ${key}`);
+    }
+    assert.equal(await page.locator('svg[aria-label="Acoustic link quality (RSSI at the relay)"] polyline').count() >= 1, true);
+  }
+  assert.equal(await page.locator('h2:text-is("Rule firings")').count(), 1);
 
   await page.screenshot({ path: join(OUT, 'scenario-report.png'), fullPage: true });
   assert.deepEqual(errors, []);
