@@ -83,14 +83,7 @@ impl AcousticDemoConfig {
             .zip(100u16..)
             .filter_map(|(v, domain_id)| {
                 Some(DemoVehicle {
-                    sim: SimSpec {
-                        id: v.id.clone(),
-                        kind: v.kind,
-                        latitude_deg: v.latitude_deg,
-                        longitude_deg: v.longitude_deg,
-                        rate_hz: v.rate_hz,
-                        battery_pct: v.battery_pct,
-                    },
+                    sim: crate::scenario::sim_spec(v),
                     address: v.acoustic_address?,
                     domain_id,
                 })

@@ -119,8 +119,7 @@ pub fn fleet(s: &Scenario) -> Vec<shoal_proxy::sim::SimSpec> {
 }
 
 /// The simulator's description of a scenario vehicle.
-#[cfg(feature = "console")]
-fn sim_spec(v: &shoal_scenario::ScenarioVehicle) -> shoal_proxy::sim::SimSpec {
+pub(crate) fn sim_spec(v: &shoal_scenario::ScenarioVehicle) -> shoal_proxy::sim::SimSpec {
     shoal_proxy::sim::SimSpec {
         id: v.id.clone(),
         kind: v.kind,
