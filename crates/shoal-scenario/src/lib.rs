@@ -11,7 +11,10 @@
 //! run stored into its summary and HTML page. This crate does no I/O.
 #![forbid(unsafe_code)]
 
+mod chart;
 pub mod report;
+
+pub use chart::on_land;
 
 use std::collections::HashMap;
 use std::ops::Range;
@@ -577,6 +580,14 @@ impl Checker<'_> {
                 )?,
                 acoustic_address: None,
             });
+            let v_new = &vehicles[vehicles.len() - 1];
+            self.at_sea(
+                &key("latitude_deg"),
+                &v.latitude_deg,
+                v_new.latitude_deg,
+                v_new.longitude_deg,
+                &format!("{id} starts"),
+            )?;
         }
         let acoustic = self.acoustic(raw, &mut vehicles)?;
 
@@ -725,6 +736,17 @@ impl Checker<'_> {
                 })
             }
         };
+        if let (Some(n), Some(a)) = (&net, &raw.acoustic)
+            && let Some(la) = &a.relay_latitude_deg
+        {
+            self.at_sea(
+                "acoustic.relay_latitude_deg",
+                la,
+                n.relay_latitude_deg,
+                n.relay_longitude_deg,
+                "the relay",
+            )?;
+        }
         // Addresses given first, then the lowest free one for each acoustic vehicle
         // without, in file order.
         let mut used: HashMap<u8, (usize, String)> = HashMap::new();
@@ -818,6 +840,27 @@ impl Checker<'_> {
             v.acoustic_address = Some(free);
         }
         Ok(net)
+    }
+
+    /// Refuses a position on land (on the shipped chart; elsewhere there is no land data).
+    fn at_sea(
+        &self,
+        key: &str,
+        at: &Spanned<f64>,
+        latitude_deg: f64,
+        longitude_deg: f64,
+        what: &str,
+    ) -> Result<(), ScenarioError> {
+        if on_land(latitude_deg, longitude_deg) == Some(true) {
+            return Err(ScenarioError::Invalid {
+                line: self.line(at),
+                key: key.to_owned(),
+                reason: format!(
+                    "{what} ({latitude_deg}, {longitude_deg}) is on land on the shipped chart"
+                ),
+            });
+        }
+        Ok(())
     }
 
     /// The vehicle `relay_vehicle` names: one of the fleet, on IP.
@@ -1118,17 +1161,19 @@ impl Checker<'_> {
                     .as_ref()
                     .ok_or_else(|| missing("longitude_deg"))?;
                 let (depth_m, altitude_m) = depth(self)?;
+                let target = GeoPoint {
+                    latitude_deg: self.range(&key("latitude_deg"), la, lat.0, lat.1, false)?,
+                    longitude_deg: self.range(&key("longitude_deg"), lo, lon.0, lon.1, false)?,
+                };
+                self.at_sea(
+                    &key("latitude_deg"),
+                    la,
+                    target.latitude_deg,
+                    target.longitude_deg,
+                    "the waypoint",
+                )?;
                 Task::GotoWaypoint {
-                    target: GeoPoint {
-                        latitude_deg: self.range(&key("latitude_deg"), la, lat.0, lat.1, false)?,
-                        longitude_deg: self.range(
-                            &key("longitude_deg"),
-                            lo,
-                            lon.0,
-                            lon.1,
-                            false,
-                        )?,
-                    },
+                    target,
                     depth_m,
                     altitude_m,
                     speed_mps: speed(self)?,

@@ -420,3 +420,34 @@ fn a_relay_can_ride_on_an_ip_vehicle() {
     let e = err(&format!("{HEAD}\n[acoustic]\nper = 0.1\n"));
     assert!(e.to_string().contains("relay_latitude_deg"), "{e}");
 }
+
+#[test]
+fn a_vehicle_waypoint_or_relay_on_land_is_refused_by_line_and_key() {
+    // Trondheim's centre, on the shipped chart.
+    let land = HEAD.replace(
+        "latitude_deg = 63.0\nlongitude_deg = 10.0",
+        "latitude_deg = 63.43\nlongitude_deg = 10.395",
+    );
+    let e = err(&land);
+    assert_names(&e, 7, "vehicles[0].latitude_deg");
+    assert!(
+        e.to_string()
+            .contains("auv-1 starts (63.43, 10.395) is on land"),
+        "{e}"
+    );
+    let e = err(&format!(
+        "{HEAD}\n[[missions]]\nname = \"m\"\nat_s = 1\n[[missions.tasks]]\nvehicle = \"auv-1\"\nkind = \"goto\"\nlatitude_deg = 63.43\nlongitude_deg = 10.395\ndepth_m = 5\n"
+    ));
+    assert_names(&e, 16, "missions[0].tasks[0].latitude_deg");
+    let e = err(&format!(
+        "{HEAD}\n[acoustic]\nrelay_latitude_deg = 63.43\nrelay_longitude_deg = 10.395\n"
+    ));
+    assert_names(&e, 11, "acoustic.relay_latitude_deg");
+    // At sea in the fjord, and anywhere off the chart, is fine.
+    let sea = HEAD.replace(
+        "latitude_deg = 63.0\nlongitude_deg = 10.0",
+        "latitude_deg = 63.465\nlongitude_deg = 10.37",
+    );
+    assert!(parse(&sea).is_ok());
+    assert!(parse(HEAD).is_ok());
+}

@@ -159,13 +159,13 @@ duration_s = 60
 [[vehicles]]
 id = "auv-1"
 kind = "auv"
-latitude_deg = 63.44
+latitude_deg = 63.465
 longitude_deg = 10.36
 
 [[vehicles]]
 id = "auv-2"
 kind = "auv"
-latitude_deg = 63.44
+latitude_deg = 63.465
 longitude_deg = 10.36
 
 [[missions]]
@@ -176,7 +176,7 @@ at_s = 1
 [[missions.tasks]]
 vehicle = "auv-1"
 kind = "goto"
-latitude_deg = 63.45
+latitude_deg = 63.467
 longitude_deg = 10.37
 depth_m = 2
 

@@ -15,13 +15,13 @@ duration_s = 600.0
 [[vehicles]]
 id = "auv-7"
 kind = "auv"
-latitude_deg = 63.44
+latitude_deg = 63.465
 longitude_deg = 10.36
 
 [[vehicles]]
 id = "usv-7"
 kind = "usv"
-latitude_deg = 63.441
+latitude_deg = 63.466
 longitude_deg = 10.362
 
 [[missions]]
@@ -32,7 +32,7 @@ at_s = 5.0
 [[missions.tasks]]
 vehicle = "auv-7"
 kind = "goto"
-latitude_deg = 63.442
+latitude_deg = 63.467
 longitude_deg = 10.36
 depth_m = 4.0
 speed_mps = 1.5
@@ -50,7 +50,7 @@ at_s = 30.0
 [[missions.tasks]]
 vehicle = "usv-7"
 kind = "goto"
-latitude_deg = 63.441
+latitude_deg = 63.466
 longitude_deg = 10.372
 speed_mps = 2.0
 
