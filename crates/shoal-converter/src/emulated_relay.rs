@@ -328,8 +328,13 @@ where
     cfg.check(cdt_dds.config())?;
     // A child token: a failing part stops the others without cancelling the caller.
     let stop = shutdown.child_token();
+    // The sea stops last, once every converter has: a converter that saw its modem vanish
+    // first would log a reconnection attempt on every orderly stop. The guard stops it on
+    // every way out of here.
+    let sea_stop = CancellationToken::new();
+    let _sea_guard = sea_stop.clone().drop_guard();
     let emu =
-        Arc::new(Emulator::start(cfg.emulator_config(), stop.clone().cancelled_owned()).await?);
+        Arc::new(Emulator::start(cfg.emulator_config(), sea_stop.clone().cancelled_owned()).await?);
     on_sea(&emu);
     let endpoint = |addr: u8| emu.modems().iter().find(|m| m.address == addr).cloned();
     let mut tasks: JoinSet<Result<(), ConverterError>> = JoinSet::new();
@@ -420,6 +425,7 @@ where
         }
     }
     stop.cancel();
+    sea_stop.cancel();
     if let Ok(emu) = Arc::try_unwrap(emu) {
         emu.stopped().await;
     }
