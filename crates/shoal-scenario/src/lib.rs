@@ -980,25 +980,22 @@ impl Checker<'_> {
                 None => Ok(default),
             }
         };
-        // The acoustic faults name an acoustic vehicle; a vehicle failure is not one of
-        // theirs yet (its relay would have to be restarted with it).
-        let acoustic_vehicle = |want: bool| -> Result<String, ScenarioError> {
+        // The acoustic faults name an acoustic vehicle.
+        let acoustic_vehicle = || -> Result<String, ScenarioError> {
             let id = vehicle()?;
-            let is = fleet
+            if fleet
                 .iter()
-                .any(|v| v.id == id && v.acoustic_address.is_some());
-            if is == want {
+                .any(|v| v.id == id && v.acoustic_address.is_some())
+            {
                 return Ok(id);
             }
             let line = f.vehicle.as_ref().map_or(kind_line, |v| self.line(v));
             Err(ScenarioError::Invalid {
                 line,
                 key: key("vehicle"),
-                reason: if want {
-                    format!("{id} is not heard through the acoustic network (link = \"acoustic\")")
-                } else {
-                    format!("a {name:?} fault is not supported for an acoustic vehicle yet")
-                },
+                reason: format!(
+                    "{id} is not heard through the acoustic network (link = \"acoustic\")"
+                ),
             })
         };
         if matches!(kind, FaultName::LinkOutage | FaultName::ModemFailure) && acoustic.is_none() {
@@ -1010,16 +1007,16 @@ impl Checker<'_> {
         }
         let fault = match kind {
             FaultName::VehicleFailure => Fault::VehicleFailure {
-                vehicle: acoustic_vehicle(false)?,
+                vehicle: vehicle()?,
                 restart_after_s: duration(None)?,
             },
             FaultName::LinkOutage => Fault::LinkOutage {
-                vehicle: acoustic_vehicle(true)?,
+                vehicle: acoustic_vehicle()?,
                 duration_s: duration(None)?.ok_or_else(|| missing("duration_s"))?,
             },
             FaultName::ModemFailure => Fault::ModemFailure {
                 vehicle: match f.vehicle {
-                    Some(_) => Some(acoustic_vehicle(true)?),
+                    Some(_) => Some(acoustic_vehicle()?),
                     None => None,
                 },
                 repaired_after_s: duration(None)?,

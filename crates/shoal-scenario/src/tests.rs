@@ -367,8 +367,7 @@ fn bad_acoustic_networks_are_one_line_naming_the_key() {
     assert_names(&e, 13, "acoustic.per");
     let e = err(&format!("{HEAD}{NET}range_m = 5\n"));
     assert_names(&e, 13, "range_m");
-    // Acoustic faults: on an IP vehicle, without a network, with a key missing; and a
-    // vehicle failure of an acoustic vehicle, not supported yet.
+    // Acoustic faults: on an IP vehicle, without a network, with a key missing.
     let fault = |body: &str| format!("\n[[faults]]\nat_s = 5\n{body}");
     let e = err(&format!(
         "{HEAD}{NET}{}",
@@ -383,13 +382,6 @@ fn bad_acoustic_networks_are_one_line_naming_the_key() {
         fault("kind = \"link_outage\"\nvehicle = \"ac-1\"\n")
     ));
     assert_names(&e, 23, "faults[0].duration_s");
-    let e = err(&format!(
-        "{HEAD}{NET}{}{}",
-        acoustic_vehicle("ac-1", ""),
-        fault("kind = \"vehicle_failure\"\nvehicle = \"ac-1\"\n")
-    ));
-    assert_names(&e, 24, "faults[0].vehicle");
-    assert!(e.to_string().contains("not supported"), "{e}");
 }
 
 #[test]

@@ -361,6 +361,9 @@ async fn apply(
             restart_after_s,
         }) => {
             fleet.stop(&vehicle);
+            if let Some(a) = acoustic {
+                a.fail(&vehicle);
+            }
             match restart_after_s {
                 Some(r) => {
                     timeline.push((later(r), Action::RestartVehicle(vehicle.clone())));
@@ -371,6 +374,9 @@ async fn apply(
         }
         Action::RestartVehicle(vehicle) => {
             fleet.start(&vehicle, last.get(&vehicle));
+            if let Some(a) = acoustic {
+                a.restart(&vehicle, last.get(&vehicle));
+            }
             format!("{vehicle} starts again where it was")
         }
         Action::Fault(Fault::BatteryDrop {

@@ -46,7 +46,7 @@ pub struct AcousticNet {
     /// The relay's address and each acoustic vehicle's, by vehicle id.
     relay: u8,
     addresses: HashMap<String, u8>,
-    faults: Arc<Mutex<HashMap<String, mpsc::UnboundedSender<SimFault>>>>,
+    controls: Controls,
     watched: Arc<Mutex<Watched>>,
     stop: CancellationToken,
     task: JoinHandle<()>,
@@ -100,35 +100,38 @@ impl AcousticNet {
         relay.relay_vehicle.clone_from(&net.relay_vehicle);
         let cdt_dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS for the relay")?);
 
-        let faults: Arc<Mutex<HashMap<String, mpsc::UnboundedSender<SimFault>>>> = Arc::default();
+        let controls: Controls = Arc::default();
         let settings = cfg.fleet.sim.clone();
         let start_vehicle = {
-            let faults = Arc::clone(&faults);
+            let controls = Arc::clone(&controls);
             move |v: &RelayedVehicle, dds: Arc<PubSub>, stop: CancellationToken| {
                 let spec = specs.get(&v.id).cloned();
                 let settings = SimSettings {
                     seed: Some(super::run::vehicle_seed(seed, &v.id)),
                     ..settings.clone()
                 };
-                let (tx, rx) = mpsc::unbounded_channel();
-                if let Ok(mut f) = faults.lock() {
-                    f.insert(v.id.clone(), tx);
+                let (power, power_rx) = mpsc::unbounded_channel();
+                if let Ok(mut c) = controls.lock() {
+                    c.insert(
+                        v.id.clone(),
+                        Control {
+                            power,
+                            faults: None,
+                        },
+                    );
                 }
-                let ledger_dir = ledgers.clone();
+                let vehicle = Computer {
+                    id: v.id.clone(),
+                    settings,
+                    warp,
+                    ledgers: ledgers.clone(),
+                    controls: Arc::clone(&controls),
+                };
                 async move {
                     let spec = spec.ok_or_else(|| {
                         ConverterError::Config("relayed vehicle missing from the scenario".into())
                     })?;
-                    let options = ProxyOptions {
-                        state_rate_hz: spec.rate_hz,
-                        clock: Some(warp),
-                        ledger_dir: Some(ledger_dir),
-                        ..ProxyOptions::default()
-                    };
-                    let adapter = SimAdapter::warped(&spec, &settings, warp).with_faults(rx);
-                    shoal_proxy::run_sim_adapter(adapter, options, dds, stop)
-                        .await
-                        .map_err(ConverterError::from)
+                    vehicle.run(spec, dds, power_rx, stop).await
                 }
             }
         };
@@ -161,7 +164,7 @@ impl AcousticNet {
             sea,
             relay: net.relay_address,
             addresses,
-            faults,
+            controls,
             watched,
             stop,
             task,
@@ -186,12 +189,37 @@ impl AcousticNet {
         }
     }
 
-    /// Injects a fault into an acoustic vehicle's simulator; false if it is not one.
+    /// Injects a fault into an acoustic vehicle's simulator; false if it is not one or
+    /// it is down.
     pub fn inject(&self, vehicle: &str, fault: SimFault) -> bool {
-        self.faults
+        self.controls
             .lock()
             .ok()
-            .and_then(|f| f.get(vehicle).map(|tx| tx.send(fault).is_ok()))
+            .and_then(|c| {
+                c.get(vehicle)
+                    .and_then(|c| c.faults.as_ref())
+                    .map(|tx| tx.send(fault).is_ok())
+            })
+            .unwrap_or(false)
+    }
+
+    /// Stops an acoustic vehicle's computer (its proxy with it) as a failure would; its
+    /// modem and VDT stay; false if it is not one.
+    pub fn fail(&self, vehicle: &str) -> bool {
+        self.power(vehicle, Power::Fail)
+    }
+
+    /// Starts a failed acoustic vehicle's computer again, where `from` says (else where
+    /// it started), with the same task ledger; false if it is not one.
+    pub fn restart(&self, vehicle: &str, from: Option<&StateVector>) -> bool {
+        self.power(vehicle, Power::Restart(from.cloned()))
+    }
+
+    fn power(&self, vehicle: &str, p: Power) -> bool {
+        self.controls
+            .lock()
+            .ok()
+            .and_then(|c| c.get(vehicle).map(|c| c.power.send(p).is_ok()))
             .unwrap_or(false)
     }
 
@@ -255,6 +283,105 @@ impl AcousticNet {
         let wait = std::time::Duration::from_secs(10);
         let _ = tokio::time::timeout(wait, self.task).await;
         let _ = tokio::time::timeout(wait, self.observer).await;
+    }
+}
+
+/// Each acoustic vehicle's controls, by id.
+type Controls = Arc<Mutex<HashMap<String, Control>>>;
+
+/// How the run reaches one acoustic vehicle's computer.
+struct Control {
+    power: mpsc::UnboundedSender<Power>,
+    /// Its simulator's fault channel while it runs.
+    faults: Option<mpsc::UnboundedSender<SimFault>>,
+}
+
+/// What a `vehicle_failure` fault does to an acoustic vehicle's computer.
+enum Power {
+    Fail,
+    Restart(Option<StateVector>),
+}
+
+/// An acoustic vehicle's computer: its simulator behind its DDS Proxy, on its private
+/// domain. The relay sees one part that runs until the run stops; inside, a failure stops
+/// the proxy and a restart starts it again on the same participant and ledger.
+struct Computer {
+    id: String,
+    settings: SimSettings,
+    warp: Warp,
+    ledgers: PathBuf,
+    controls: Controls,
+}
+
+impl Computer {
+    async fn run(
+        self,
+        mut spec: SimSpec,
+        dds: Arc<PubSub>,
+        mut power: mpsc::UnboundedReceiver<Power>,
+        stop: CancellationToken,
+    ) -> Result<(), ConverterError> {
+        loop {
+            let life = stop.child_token();
+            let (tx, rx) = mpsc::unbounded_channel();
+            self.set_faults(Some(tx));
+            let options = ProxyOptions {
+                state_rate_hz: spec.rate_hz,
+                clock: Some(self.warp),
+                ledger_dir: Some(self.ledgers.clone()),
+                ..ProxyOptions::default()
+            };
+            let adapter = SimAdapter::warped(&spec, &self.settings, self.warp).with_faults(rx);
+            let run =
+                shoal_proxy::run_sim_adapter(adapter, options, Arc::clone(&dds), life.clone());
+            tokio::pin!(run);
+            // Up until it fails or the run stops.
+            loop {
+                tokio::select! {
+                    r = &mut run => {
+                        r.map_err(ConverterError::from)?;
+                        // Stopped without a failure: the run is ending.
+                        return Ok(());
+                    }
+                    p = power.recv() => match p {
+                        Some(Power::Fail) => {
+                            life.cancel();
+                            (&mut run).await.map_err(ConverterError::from)?;
+                            break;
+                        }
+                        Some(Power::Restart(_)) => {}
+                        None => return Ok(()),
+                    },
+                }
+            }
+            self.set_faults(None);
+            // Down until it is restarted or the run stops.
+            loop {
+                tokio::select! {
+                    () = stop.cancelled() => return Ok(()),
+                    p = power.recv() => match p {
+                        Some(Power::Restart(from)) => {
+                            if let Some(s) = from {
+                                spec.latitude_deg = s.latitude_deg;
+                                spec.longitude_deg = s.longitude_deg;
+                                spec.battery_pct = s.battery_pct;
+                            }
+                            break;
+                        }
+                        Some(Power::Fail) => {}
+                        None => return Ok(()),
+                    },
+                }
+            }
+        }
+    }
+
+    fn set_faults(&self, tx: Option<mpsc::UnboundedSender<SimFault>>) {
+        if let Ok(mut c) = self.controls.lock()
+            && let Some(c) = c.get_mut(&self.id)
+        {
+            c.faults = tx;
+        }
     }
 }
 

@@ -244,7 +244,8 @@ fn a_bad_scenario_is_one_line_and_nothing_starts() {
 }
 
 /// The shipped acoustic scenario: an AUV heard only through the emulated acoustic relay,
-/// its link cut for two minutes and the relay's modem failed for one, all at 60x.
+/// its link cut for two minutes, its computer failed and restarted, and the relay's modem
+/// failed for one minute, all at 60x.
 #[test]
 fn an_acoustic_vehicle_runs_its_tasks_through_the_relay_across_outages() {
     let dir = tempfile::tempdir().unwrap();
@@ -287,6 +288,12 @@ fn an_acoustic_vehicle_runs_its_tasks_through_the_relay_across_outages() {
         said.iter().any(|w| w.contains("the relay's modem fails")),
         "{said:?}"
     );
+    // Its computer failed and started again behind the same modem: nothing failed.
+    assert!(
+        said.iter().any(|w| w.contains("auv-ac1 starts again")),
+        "{said:?}"
+    );
+    assert!(summary["tasks"].get("failed").is_none(), "{summary}");
     let up = &summary["acoustic_links"]["auv-ac1>relay"];
     assert!(up["delivered"].as_u64().unwrap() > 100, "{summary}");
     assert!(up["outage"].as_u64().unwrap() > 10, "{summary}");
