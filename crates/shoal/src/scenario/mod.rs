@@ -220,7 +220,7 @@ mod tests {
         let s = load(&Source::Shipped("sea-trial")).unwrap();
         let line = summary(&s);
         assert!(
-            line.contains("4 vehicles") && line.contains("4 missions"),
+            line.contains("5 vehicles (1 acoustic)") && line.contains("5 missions"),
             "{line}"
         );
         assert!(!line.contains('\n'));

@@ -1,8 +1,10 @@
 //! The acoustic network of a scenario run: the scenario's acoustic vehicles, each on a
 //! private DDS domain of its own, heard by the station only through an emulated sea, their
 //! VDTs and the relay's CDT (`shoal_converter::emulated_relay`), all on the run's
-//! simulated clock. Link outages and modem failures silence modems in the emulated sea;
-//! its per-link counters go into the report.
+//! simulated clock. Link outages and modem failures silence modems in the emulated sea,
+//! a vehicle failure stops the vehicle's computer behind its modem; the sea's per-link
+//! counters and time on air, and what an observer on the station's domain sees (relayed
+//! states' age, link-status reports), go into the report.
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
@@ -42,9 +44,11 @@ struct Watched {
 
 /// A running acoustic network.
 pub struct AcousticNet {
+    /// The emulated sea, once the relay has started it.
     sea: Arc<Mutex<Option<Arc<EmulatorHandle>>>>,
-    /// The relay's address and each acoustic vehicle's, by vehicle id.
+    /// The relay's acoustic address.
     relay: u8,
+    /// Each acoustic vehicle's acoustic address, by vehicle id.
     addresses: HashMap<String, u8>,
     controls: Controls,
     watched: Arc<Mutex<Watched>>,
