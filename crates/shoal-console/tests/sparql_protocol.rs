@@ -106,6 +106,25 @@ async fn an_rdflib_client_gets_every_format_labelled_as_what_it_is() {
         handle.register_vehicle(announcement(id)).unwrap();
         handle.ingest_state(state(id, battery)).unwrap();
     }
+    // The RDF mirror of a state is written coalesced, a moment after ingest: the client
+    // compares every answer with its first, so the model must hold both batteries first.
+    let both = "ASK { ?a shoal:batteryLevel ?x . ?b shoal:batteryLevel ?y . FILTER(?x = 81.5 && ?y = 47.0) }";
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    loop {
+        let limits = shoal_semantic::QueryLimits::default();
+        if matches!(
+            handle.sparql(both, &limits),
+            Ok(shoal_semantic::QueryResult::Boolean(true))
+        ) {
+            break;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the model never mirrored both states: {:?}",
+            handle.sparql(both, &limits)
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
 
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let url = format!("http://{}", listener.local_addr().unwrap());
