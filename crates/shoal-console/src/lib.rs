@@ -776,16 +776,34 @@ async fn create_rule(
 /// A change to a rule: `enabled` alone switches it (built-in rules too); any other member
 /// replaces that part of a user rule's definition, checked exactly as on creation. `id` and
 /// `built_in` may be sent back as `GET` gave them, but not changed.
+/// A member left out leaves that part as it is; `null` is refused like any other value of
+/// the wrong type, as the OpenAPI document says.
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RulePatch {
+    #[serde(default, deserialize_with = "present")]
     id: Option<String>,
+    #[serde(default, deserialize_with = "present")]
     description: Option<String>,
+    #[serde(default, deserialize_with = "present")]
     severity: Option<shoal_model::Severity>,
+    #[serde(default, deserialize_with = "present")]
     kind: Option<shoal_model::EventKind>,
+    #[serde(default, deserialize_with = "present")]
     condition: Option<shoal_station::ConditionDoc>,
+    #[serde(default, deserialize_with = "present")]
     enabled: Option<bool>,
+    #[serde(default, deserialize_with = "present")]
     built_in: Option<bool>,
+}
+
+/// A member that was sent: its value, which must not be `null`.
+fn present<'de, D, T>(d: D) -> Result<Option<T>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    T::deserialize(d).map(Some)
 }
 
 async fn patch_rule(

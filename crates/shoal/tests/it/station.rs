@@ -690,6 +690,17 @@ async fn rules_are_managed_through_the_api_and_survive_a_restart() {
     };
     assert_eq!(fired(&h), 1, "{:?}", h.recent_events());
 
+    // A member sent as null is a value of the wrong type, not "leave it" (schemathesis).
+    let (status, body) = call(
+        &router,
+        "PATCH",
+        "/api/rules/deep",
+        r#"{"enabled":false,"condition":null}"#,
+    )
+    .await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert!(h.rule("deep").unwrap().enabled);
+
     // Disabled: no more firings.
     let (status, patched) = call(&router, "PATCH", "/api/rules/deep", r#"{"enabled":false}"#).await;
     assert_eq!(status, StatusCode::OK, "{patched}");
