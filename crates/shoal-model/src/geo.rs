@@ -8,6 +8,7 @@
 //!   error, and cheap enough to run every simulation step.
 //! - [`LocalFrame`]: a local east/north tangent plane in metres around an origin.
 //! - [`angle_diff`]: the short way between two headings.
+//! - [`inside`]: whether a point lies in a polygon (operating areas, land on a chart).
 //!
 //! The vehicle proxies' WGS84 radii of curvature (IMC, ROS 2) are an ellipsoid model kept
 //! on purpose to match what those vehicles' own software computes, not a second sphere.
@@ -29,6 +30,29 @@ pub fn distance_m(lat1: f64, lon1: f64, lat2: f64, lon2: f64) -> f64 {
     let dl = (lon2 - lon1).to_radians();
     let a = (dp / 2.0).sin().powi(2) + p1.cos() * p2.cos() * (dl / 2.0).sin().powi(2);
     2.0 * EARTH_RADIUS_M * a.sqrt().min(1.0).asin()
+}
+
+/// True when `(lat, lon)` lies inside `polygon` (even-odd ray casting in the lon/lat
+/// plane; the ring closes itself). Over several rings (land with lakes), a point is inside
+/// when an odd number of them contain it.
+///
+/// Adequate for areas of a few tens of kilometres away from the poles; an area crossing
+/// the antimeridian must be split.
+pub fn inside(polygon: &[GeoPoint], lat: f64, lon: f64) -> bool {
+    let mut inside = false;
+    let n = polygon.len();
+    for i in 0..n {
+        let (a, b) = (polygon[i], polygon[(i + n - 1) % n]);
+        if (a.latitude_deg > lat) != (b.latitude_deg > lat) {
+            let x = (b.longitude_deg - a.longitude_deg) * (lat - a.latitude_deg)
+                / (b.latitude_deg - a.latitude_deg)
+                + a.longitude_deg;
+            if lon < x {
+                inside = !inside;
+            }
+        }
+    }
+    inside
 }
 
 /// Signed smallest difference `a - b` between two headings, degrees in (-180, 180].
@@ -118,6 +142,15 @@ mod tests {
             latitude_deg: lat,
             longitude_deg: lon,
         }
+    }
+
+    #[test]
+    fn a_point_is_inside_a_ring_by_the_even_odd_rule() {
+        let square = [p(0.0, 0.0), p(0.0, 1.0), p(1.0, 1.0), p(1.0, 0.0)];
+        assert!(inside(&square, 0.5, 0.5));
+        assert!(!inside(&square, 1.5, 0.5));
+        assert!(!inside(&square, 0.5, -0.1));
+        assert!(!inside(&[], 0.5, 0.5));
     }
 
     #[test]

@@ -4,15 +4,17 @@
 
 use std::sync::OnceLock;
 
+use shoal_model::GeoPoint;
+
 /// The console's shipped coastline (GeoJSON: one feature, a clipped land `MultiPolygon`
 /// with its `bbox` as a property).
 const LAND: &str = include_str!("../../shoal-console/web/src/data/coastline.geojson");
 
-/// Land polygons' rings (lon, lat) and the box they cover.
+/// Land polygons' rings and the box they cover.
 struct Chart {
     /// West, south, east, north, degrees.
     bbox: [f64; 4],
-    rings: Vec<Vec<[f64; 2]>>,
+    rings: Vec<Vec<GeoPoint>>,
 }
 
 fn chart() -> &'static Chart {
@@ -32,9 +34,22 @@ fn parse(text: &str) -> Option<Chart> {
         serde_json::from_value(feature.get("properties")?.get("bbox")?.clone()).ok()?;
     let polygons: Vec<Vec<Vec<[f64; 2]>>> =
         serde_json::from_value(feature.get("geometry")?.get("coordinates")?.clone()).ok()?;
+    // GeoJSON positions are [longitude, latitude].
+    let rings = polygons
+        .into_iter()
+        .flatten()
+        .map(|ring| {
+            ring.into_iter()
+                .map(|[lon, lat]| GeoPoint {
+                    latitude_deg: lat,
+                    longitude_deg: lon,
+                })
+                .collect()
+        })
+        .collect();
     Some(Chart {
         bbox: bbox.try_into().ok()?,
-        rings: polygons.into_iter().flatten().collect(),
+        rings,
     })
 }
 
@@ -45,21 +60,13 @@ pub fn on_land(latitude_deg: f64, longitude_deg: f64) -> Option<bool> {
     if !(west..=east).contains(&longitude_deg) || !(south..=north).contains(&latitude_deg) {
         return None;
     }
-    // Even-odd rule over every ring (outer rings and holes alike): a ray east from the
-    // point crosses land's boundary an odd number of times when it starts on land.
-    let mut inside = false;
-    for ring in &c.rings {
-        for (a, b) in ring.iter().zip(ring.iter().cycle().skip(1)) {
-            let ([x1, y1], [x2, y2]) = (*a, *b);
-            if (y1 > latitude_deg) != (y2 > latitude_deg) {
-                let x = x1 + (latitude_deg - y1) * (x2 - x1) / (y2 - y1);
-                if longitude_deg < x {
-                    inside = !inside;
-                }
-            }
-        }
-    }
-    Some(inside)
+    // Even-odd over every ring (outer rings and holes alike).
+    let containing = c
+        .rings
+        .iter()
+        .filter(|r| shoal_model::geo::inside(r, latitude_deg, longitude_deg))
+        .count();
+    Some(containing % 2 == 1)
 }
 
 #[cfg(test)]

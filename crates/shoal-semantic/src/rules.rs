@@ -560,25 +560,10 @@ impl Rules {
     }
 }
 
-/// True when `p` lies outside `polygon` (even-odd ray casting in the lon/lat plane).
-///
-/// Adequate for operating areas of a few tens of kilometres away from the poles; an area
-/// crossing the antimeridian must be split by the operator.
+/// True when `p` lies outside `polygon` ([`shoal_model::geo::inside`]); an area crossing
+/// the antimeridian must be split by the operator.
 pub fn outside(polygon: &[GeoPoint], lat: f64, lon: f64) -> bool {
-    let mut inside = false;
-    let n = polygon.len();
-    for i in 0..n {
-        let (a, b) = (polygon[i], polygon[(i + n - 1) % n]);
-        if (a.latitude_deg > lat) != (b.latitude_deg > lat) {
-            let x = (b.longitude_deg - a.longitude_deg) * (lat - a.latitude_deg)
-                / (b.latitude_deg - a.latitude_deg)
-                + a.longitude_deg;
-            if lon < x {
-                inside = !inside;
-            }
-        }
-    }
-    !inside
+    !shoal_model::geo::inside(polygon, lat, lon)
 }
 
 /// Identifiers of the built-in rules.
