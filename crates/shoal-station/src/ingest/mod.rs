@@ -112,24 +112,28 @@ impl StationHandle {
     /// yet waits up to `station.announcement_grace_s` for the announcement (see
     /// [`EarlyStates`]); everything else goes through [`Self::ingest_validated_state`].
     pub fn ingest_bus_state(&self, s: Validated<StateVector>) {
-        let grace = self.core.config.announcement_grace_s;
-        if self.core.config.require_announcement && grace > 0.0 {
-            // Checked under the hold's lock: an announcement registers the vehicle before
-            // it takes that lock to release what waits, so no sample is left behind.
-            let mut early = lock(&self.core.early);
-            if !lock(&self.core.fleet).vehicles.contains_key(&s.vehicle_id) {
-                let refused = early.hold(s, self.now());
-                drop(early);
-                lock(&self.core.stats).states_held_for_announcement += 1;
-                if let Some(refused) = refused {
-                    // Rejections are counted, quarantined and reported inside.
-                    let _ = self.ingest_validated_state(refused);
-                }
-                return;
-            }
-        }
+        let hold =
+            self.core.config.require_announcement && self.core.config.announcement_grace_s > 0.0;
         // Rejections are counted, quarantined and reported inside.
-        let _ = self.ingest_validated_state(s);
+        let _ = self.ingest_state_from(s, hold);
+    }
+
+    /// Holds `s`, whose vehicle the register did not know a moment ago; `Err(s)` when it
+    /// knows it now. Checked under the hold's lock: an announcement registers the vehicle
+    /// before it takes that lock to release what waits, so no sample is left behind.
+    fn hold_early(&self, s: Validated<StateVector>) -> Result<(), Validated<StateVector>> {
+        let mut early = lock(&self.core.early);
+        if lock(&self.core.fleet).vehicles.contains_key(&s.vehicle_id) {
+            return Err(s);
+        }
+        let refused = early.hold(s, self.now());
+        drop(early);
+        lock(&self.core.stats).states_held_for_announcement += 1;
+        if let Some(refused) = refused {
+            // Rejections are counted, quarantined and reported inside.
+            let _ = self.ingest_validated_state(refused);
+        }
+        Ok(())
     }
 
     /// The state vectors that waited for `vehicle_id`'s announcement, now that it came.
@@ -155,13 +159,31 @@ impl StationHandle {
     /// model and its rules, the history store. A refused state vector is counted by
     /// reason, quarantined with its payload and reported as an event.
     pub fn ingest_validated_state(&self, s: Validated<StateVector>) -> Result<(), Rejection> {
-        let s = s.into_inner();
+        self.ingest_state_from(s, false)
+    }
+
+    /// [`Self::ingest_validated_state`]; with `hold_unknown`, a sample of a vehicle the
+    /// register does not know yet is held for its announcement instead of refused.
+    fn ingest_state_from(
+        &self,
+        s: Validated<StateVector>,
+        hold_unknown: bool,
+    ) -> Result<(), Rejection> {
         let now = self.now();
         let Some((verdict, newer)) = self.judge_state(&s, now) else {
+            if hold_unknown {
+                return match self.hold_early(s) {
+                    Ok(()) => Ok(()),
+                    // Announced in the meantime: in as any other sample.
+                    Err(s) => self.ingest_state_from(s, false),
+                };
+            }
+            let s = s.into_inner();
             let why = Rejection::UnknownVehicle(s.vehicle_id.clone());
             self.reject(StateVector::TOPIC, &s.vehicle_id, &why, payload(&s));
             return Err(why);
         };
+        let s = s.into_inner();
         match verdict {
             Verdict::Accept => {}
             Verdict::Reject(why) => {
