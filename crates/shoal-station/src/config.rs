@@ -141,3 +141,27 @@ impl StationConfig {
 pub(crate) fn ms(seconds: f64) -> i64 {
     (seconds * 1000.0) as i64
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_announcement_grace_is_checked_and_its_error_names_the_key() {
+        assert!(StationConfig::default().check().is_ok());
+        for bad in [-1.0, 61.0, f64::NAN, f64::INFINITY] {
+            let c = StationConfig {
+                announcement_grace_s: bad,
+                ..StationConfig::default()
+            };
+            let e = c.check().unwrap_err();
+            assert_eq!(e.key, "announcement_grace_s", "{bad}");
+            assert!(e.to_string().contains("[0, 60]"), "{e}");
+        }
+        let off = StationConfig {
+            announcement_grace_s: 0.0,
+            ..StationConfig::default()
+        };
+        assert!(off.check().is_ok(), "0 refuses at once");
+    }
+}
