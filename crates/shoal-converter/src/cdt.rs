@@ -262,24 +262,6 @@ impl Cdt {
         }
     }
 
-    /// A task the station no longer wants delivered: past the start window it gave it
-    /// (`expires_ms`), or, without one, issued longer ago than the control TTL. A mission's
-    /// later task is issued with the mission and sent when its turn comes, so only its
-    /// window says whether it is still wanted.
-    fn stale(&self, t: &TaskAssignment) -> bool {
-        let now = self.cfg.now_ms();
-        if t.expires_ms > 0 {
-            return now > t.expires_ms;
-        }
-        // The TTL is simulated time on a scenario's clock, wall time otherwise.
-        let ttl = if self.cfg.clock.is_some() {
-            std::time::Duration::from_secs_f64(self.cfg.link.ttl.control_s.max(0.0))
-        } else {
-            wall(self.cfg.link.ttl.control_s, self.cfg.time_scale)
-        };
-        u128::try_from(now.saturating_sub(t.issued_ms)).unwrap_or(0) > ttl.as_millis()
-    }
-
     async fn on_task(&mut self, t: TaskAssignment) -> Result<(), ConverterError> {
         let Ok(addr) = self.book.addr(&t.vehicle_id) else {
             return Ok(()); // Not an acoustic vehicle of this CDT: IP carries it.
@@ -291,7 +273,7 @@ impl Cdt {
         {
             return Ok(());
         }
-        if self.stale(&t) {
+        if stale(&self.cfg, &t, self.cfg.now_ms()) {
             // Transient-local history from before this CDT started, long past its time.
             debug!(task = %t.task_id, "stale task not forwarded");
             return Ok(());
@@ -719,10 +701,58 @@ impl Cdt {
     }
 }
 
+/// A task the station no longer wants delivered at `now`: past the start window it gave
+/// it (`expires_ms`), or, without one, issued longer ago than the control TTL. A mission's
+/// later task is issued with the mission and sent when its turn comes, so only its window
+/// says whether it is still wanted.
+fn stale(cfg: &CdtConfig, t: &TaskAssignment, now: i64) -> bool {
+    if t.expires_ms > 0 {
+        return now > t.expires_ms;
+    }
+    // The TTL is simulated time on a scenario's clock, wall time otherwise.
+    let ttl = if cfg.clock.is_some() {
+        std::time::Duration::from_secs_f64(cfg.link.ttl.control_s.max(0.0))
+    } else {
+        wall(cfg.link.ttl.control_s, cfg.time_scale)
+    };
+    u128::try_from(now.saturating_sub(t.issued_ms)).unwrap_or(0) > ttl.as_millis()
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_task_is_stale_past_its_start_window_or_without_one_past_the_control_ttl() {
+        let cfg = CdtConfig::default();
+        let ttl_ms = (cfg.link.ttl.control_s * 1000.0) as i64;
+        let issued = 1_800_000_000_000;
+        let mut t = TaskAssignment::new("m-2", "m", "auv-1", issued, &shoal_model::Task::Surface);
+        // A mission's second task, issued with the mission long ago, sent now within the
+        // window the station gave it: still wanted.
+        t.expires_ms = issued + 10 * ttl_ms;
+        assert!(!stale(&cfg, &t, issued + 5 * ttl_ms));
+        assert!(stale(&cfg, &t, issued + 10 * ttl_ms + 1));
+        // No window: the control TTL from its issue.
+        t.expires_ms = 0;
+        assert!(!stale(&cfg, &t, issued + ttl_ms));
+        assert!(stale(&cfg, &t, issued + ttl_ms + 1));
+        // At a tenth of real time without a scenario clock the TTL is wall time (a tenth),
+        // on a scenario's clock it is simulated time.
+        let fast = CdtConfig {
+            time_scale: 0.1,
+            ..CdtConfig::default()
+        };
+        assert!(stale(&fast, &t, issued + ttl_ms / 10 + 1));
+        let warped = CdtConfig {
+            time_scale: 0.1,
+            clock: Some(shoal_model::Warp::start_at(issued, 10.0).unwrap()),
+            ..CdtConfig::default()
+        };
+        assert!(!stale(&warped, &t, issued + ttl_ms / 10 + 1));
+        assert!(stale(&warped, &t, issued + ttl_ms + 1));
+    }
 
     #[test]
     fn refusals_are_summed_up_in_the_log_not_written_one_by_one() {
