@@ -32,6 +32,8 @@ summary() { echo "api-conformance: $*"; }
 die() { summary "FAILED: $*"; exit 1; }
 
 [[ -x "$bin" ]] || die "no shoal binary at $bin (cargo build --release -p shoal, or set SHOAL_BIN)"
+# The station runs from other directories and inside `ip netns exec`: make a relative path absolute.
+bin="$(realpath "$bin")"
 [[ -x "$st" ]] || die "no schemathesis at $st (run scripts/install-test-deps.sh)"
 
 "$repo/scripts/netns-run.sh" --setup "$ns" || die "cannot set up network namespace $ns"

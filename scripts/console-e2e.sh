@@ -35,6 +35,8 @@ summary() { echo "console-e2e: $*"; }
 die() { summary "FAILED: $*"; exit 1; }
 
 [[ -x "$bin" ]] || die "no shoal binary at $bin (cargo build --release -p shoal, or set SHOAL_BIN)"
+# The station runs from other directories and inside `ip netns exec`: make a relative path absolute.
+bin="$(realpath "$bin")"
 command -v node >/dev/null || die "node is not installed (Debian: apt-get install nodejs npm)"
 if [[ ! -x /usr/bin/chromium ]]; then
     echo "console-e2e: installing Debian's chromium" >&2

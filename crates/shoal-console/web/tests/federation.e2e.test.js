@@ -128,7 +128,10 @@ describe('Another site in the console', { concurrency: false }, () => {
     await page.locator(`#remote-fleet tr.selected[data-remote="${REMOTE}"]`).waitFor({ timeout: 5000 });
     assert.equal(await page.locator('#fleet-table tr.selected').count(), 0);
     await page.click('#tabs button[data-tab=fleet]');
-    await page.locator('#remote-fleet').scrollIntoViewIfNeeded();
+    // The section is rebuilt on every update, so a locator's element can be replaced between
+    // Playwright's stability check and the scroll: scroll in one step inside the page.
+    await page.locator('#remote-fleet').waitFor();
+    await page.evaluate(() => document.getElementById('remote-fleet')?.scrollIntoView({ block: 'nearest' }));
     await page.screenshot({ path: join(OUT, '21-federation-other-site.png') });
     await page.click('#tabs button[data-tab=vehicles]');
     assert.ok(!(await page.locator('#tab-vehicles').textContent()).includes('ship-auv-1'), 'the vehicle view shows the ship\'s vehicle');
