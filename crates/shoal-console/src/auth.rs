@@ -892,8 +892,8 @@ pub fn required_role(method: &Method, path: &str) -> Option<Role> {
     }
     let reads = matches!(*method, Method::GET | Method::HEAD | Method::OPTIONS);
     // SPARQL over POST is still a read-only query, and reading the tracks of a recording
-    // the client sends changes nothing either.
-    if reads || path == "/api/sparql" || path == RECORDING_TRACKS {
+    // the client sends, or previewing a mission, changes nothing either.
+    if reads || matches!(path, "/api/sparql" | "/api/mission-preview") || path == RECORDING_TRACKS {
         return Some(Role::Viewer);
     }
     if path == "/api/rules" || path.starts_with("/api/rules/") || path == "/api/vehicles" {
@@ -936,6 +936,10 @@ mod tests {
         assert_eq!(required_role(&M::GET, "/metrics"), Some(Role::Viewer));
         assert_eq!(required_role(&M::GET, "/api/health"), None);
         assert_eq!(required_role(&M::POST, "/api/sparql"), Some(Role::Viewer));
+        assert_eq!(
+            required_role(&M::POST, "/api/mission-preview"),
+            Some(Role::Viewer)
+        );
         assert_eq!(
             required_role(&M::POST, "/api/recordings/tracks"),
             Some(Role::Viewer)

@@ -373,6 +373,7 @@ fn build(
         .route("/api/vehicles", get(fleet).post(register_vehicle))
         .route("/api/missions", get(missions).post(plan_mission))
         .route("/api/missions/{id}", get(mission))
+        .route("/api/mission-preview", post(preview_mission))
         .route("/api/missions/{id}/start", post(start_mission))
         .route("/api/missions/{id}/abort", post(abort_mission))
         .route("/api/missions/{id}/export.csv", get(export_csv))
@@ -939,6 +940,15 @@ async fn plan_mission(
         view = s.start_mission(&view.mission_id)?;
     }
     Ok((StatusCode::CREATED, Json(view)))
+}
+
+/// The plan preview of a mission: per vehicle, its duration, distance and energy, and
+/// warnings (battery); nothing is registered.
+async fn preview_mission(
+    State(s): State<StationHandle>,
+    ApiJson(spec): ApiJson<MissionSpec>,
+) -> Result<Json<shoal_station::MissionPreview>, ApiError> {
+    Ok(Json(s.preview_mission(&spec)?))
 }
 
 async fn start_mission(

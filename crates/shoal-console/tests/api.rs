@@ -482,6 +482,137 @@ async fn a_missions_log_exports_as_csv_and_geojson() {
     f.shutdown.cancel();
 }
 
+/// The plan preview: figures per vehicle from its kind's kinematics, a warning when the
+/// battery would not last, the same refusals as planning, and nothing registered; a viewer
+/// may preview (it changes nothing) but not plan.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_mission_preview_estimates_each_vehicle_and_registers_nothing() {
+    let f = start(148);
+    let r = &f.router;
+    let token = bearer(&f.admin_token);
+    let h = &f.handle;
+    expect(
+        r,
+        "POST",
+        "/api/vehicles",
+        token.clone(),
+        Some(serde_json::to_value(announcement("auv-p")).unwrap()),
+        StatusCode::CREATED,
+    )
+    .await;
+    h.ingest_state(state("auv-p", now_ms(), 63.46)).unwrap();
+    let goto = |lat: f64| {
+        json!({"kind": "goto_waypoint", "target": {"latitude_deg": lat, "longitude_deg": 10.37},
+               "depth_m": 5.0, "speed_mps": 1.5})
+    };
+    let spec = |lat: f64| {
+        json!({"mission_id": "m-pre", "tasks": [
+            {"vehicle_id": "auv-p", "task": goto(lat)},
+            {"vehicle_id": "auv-p", "task": goto(63.46)}]})
+    };
+    let body = expect(
+        r,
+        "POST",
+        "/api/mission-preview",
+        token.clone(),
+        Some(spec(63.47)),
+        StatusCode::OK,
+    )
+    .await;
+    let p = json_of(&body);
+    let v = &p["vehicles"][0];
+    assert_eq!(v["vehicle_id"], "auv-p");
+    assert_eq!(v["tasks"], 2);
+    // 0.01 degrees of latitude and back at 1.5 m/s.
+    let distance = v["distance_m"].as_f64().unwrap();
+    assert!((distance - 2.0 * 1113.0).abs() < 10.0, "{p}");
+    let duration = v["duration_s"].as_f64().unwrap();
+    assert!((duration - distance / 1.5).abs() < 1e-6, "{p}");
+    assert_eq!(p["duration_s"].as_f64(), Some(duration));
+    assert_eq!(v["battery_pct"], 90.0);
+    assert_eq!(p["warnings"], false, "{p}");
+    // 40 km at 1.5 m/s would take more battery than it has.
+    let body = expect(
+        r,
+        "POST",
+        "/api/mission-preview",
+        token.clone(),
+        Some(spec(63.82)),
+        StatusCode::OK,
+    )
+    .await;
+    let p = json_of(&body);
+    assert_eq!(p["warnings"], true, "{p}");
+    assert!(
+        p["vehicles"][0]["warnings"][0]
+            .as_str()
+            .unwrap()
+            .contains("would run out"),
+        "{p}"
+    );
+    // Refused as planning refuses: an unknown vehicle, a bad body.
+    let ghost =
+        json!({"mission_id": "m-ghost", "tasks": [{"vehicle_id": "ghost", "task": goto(63.47)}]});
+    expect(
+        r,
+        "POST",
+        "/api/mission-preview",
+        token.clone(),
+        Some(ghost),
+        StatusCode::CONFLICT,
+    )
+    .await;
+    expect(
+        r,
+        "POST",
+        "/api/mission-preview",
+        token.clone(),
+        Some(json!({"tasks": 3})),
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    // Nothing was registered.
+    expect(
+        r,
+        "GET",
+        "/api/missions/m-pre",
+        token.clone(),
+        None,
+        StatusCode::NOT_FOUND,
+    )
+    .await;
+    // A viewer may preview, not plan.
+    let (status, _, _) = call(
+        r,
+        "POST",
+        "/api/auth/users",
+        token.clone(),
+        Some(json!({"name": "vera", "password": "a long viewer password", "role": "viewer"})),
+    )
+    .await;
+    assert!(status.is_success(), "{status}");
+    let viewer = login(r, "vera", "a long viewer password").await;
+    expect(
+        r,
+        "POST",
+        "/api/mission-preview",
+        viewer.clone(),
+        Some(spec(63.47)),
+        StatusCode::OK,
+    )
+    .await;
+    expect(
+        r,
+        "POST",
+        "/api/missions",
+        viewer,
+        Some(spec(63.47)),
+        StatusCode::FORBIDDEN,
+    )
+    .await;
+    f.shutdown.cancel();
+}
+
 /// A vehicle with these sensors and announced capabilities.
 fn equipped(id: &str, kind: VehicleKind, sensors: &[&str], caps: &[&str]) -> VehicleAnnouncement {
     VehicleAnnouncement {

@@ -55,7 +55,10 @@ pub use health::{
 };
 pub use ingest::IngestStats;
 pub use ingest::preprocess::{Implausible, PlausibilityConfig};
-pub use missions::{MissionSpec, MissionState, MissionTaskSpec, MissionView, TaskView};
+pub use missions::{
+    MissionPreview, MissionSpec, MissionState, MissionTaskSpec, MissionView, TaskView,
+    VehiclePreview,
+};
 pub use register::{Contact, VehicleView};
 pub use reporters::{Ack, EnvSubscription, EnvSubscriptionSpec, EventView, LiveUpdate};
 pub use rules::{ConditionDoc, RuleDoc, RulesFileError};

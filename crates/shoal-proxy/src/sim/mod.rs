@@ -31,7 +31,6 @@
 
 mod adapter;
 mod environment;
-mod geo;
 mod rng;
 
 use std::collections::VecDeque;
@@ -46,10 +45,9 @@ pub use adapter::{SimAdapter, SimFault};
 pub use environment::{
     CURRENT_DIRECTION, CURRENT_SPEED, SALINITY, TEMPERATURE, UNITS, Water, water_at,
 };
-pub use geo::{
-    EARTH_RADIUS_M, MAX_SURVEY_LINES, SurveyError, angle_diff, distance, distance_bearing,
-    lawnmower, path_length,
-};
+pub use shoal_model::geo::{EARTH_RADIUS_M, angle_diff, distance, distance_bearing, path_length};
+pub use shoal_model::kinematics::Profile;
+pub use shoal_model::survey::{MAX_SURVEY_LINES, SurveyError, lawnmower};
 
 use crate::adapter::{
     Acceptance, Refusal, TaskOrder, TaskUpdate, VehicleEvent, VehicleOutput, capability_of,
@@ -66,81 +64,10 @@ pub const MAX_ADVANCE_S: f64 = 3600.0;
 /// Least time between two progress reports of a task, seconds: a short task need not
 /// report every tenth of its work.
 const PROGRESS_EVERY_S: f64 = 5.0;
-/// Energy estimates are raised by this factor for turns, acceleration and currents.
-const ENERGY_MARGIN: f64 = 1.1;
 /// How close to its target depth the vehicle must be for the last waypoint to count.
 const DEPTH_TOLERANCE_M: f64 = 0.5;
 /// Sensors that can make a detection while surveying, in order of preference.
 const DETECTION_SENSORS: [&str; 3] = ["sidescan_sonar", "multibeam", "camera"];
-
-/// Performance of one kind of simulated vehicle.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Profile {
-    /// Cruise speed, m/s.
-    pub cruise_mps: f64,
-    /// Maximum speed, m/s.
-    pub max_mps: f64,
-    /// Vertical speed, m/s (0 for surface craft).
-    pub vertical_mps: f64,
-    /// Turn rate, degrees/s.
-    pub turn_dps: f64,
-    /// Battery percent per hour at rest.
-    pub hotel_pct_h: f64,
-    /// Extra battery percent per hour at maximum speed.
-    pub propulsion_pct_h: f64,
-    /// Water depth under the vehicle, for altitude, metres.
-    pub seabed_m: f64,
-}
-
-impl Profile {
-    /// The profile of a kind of vehicle.
-    pub fn of(kind: VehicleKind) -> Self {
-        match kind {
-            VehicleKind::Auv => Self {
-                cruise_mps: 1.5,
-                max_mps: 2.5,
-                vertical_mps: 0.5,
-                turn_dps: 10.0,
-                hotel_pct_h: 2.0,
-                propulsion_pct_h: 20.0,
-                seabed_m: 80.0,
-            },
-            VehicleKind::Glider => Self {
-                cruise_mps: 0.3,
-                max_mps: 0.5,
-                vertical_mps: 0.2,
-                turn_dps: 3.0,
-                hotel_pct_h: 0.2,
-                propulsion_pct_h: 1.0,
-                seabed_m: 80.0,
-            },
-            VehicleKind::Rov => Self {
-                cruise_mps: 0.5,
-                max_mps: 1.0,
-                vertical_mps: 0.5,
-                turn_dps: 30.0,
-                hotel_pct_h: 5.0,
-                propulsion_pct_h: 20.0,
-                seabed_m: 80.0,
-            },
-            VehicleKind::Usv | VehicleKind::Asv => Self {
-                cruise_mps: 2.0,
-                max_mps: 4.0,
-                vertical_mps: 0.0,
-                turn_dps: 15.0,
-                hotel_pct_h: 1.0,
-                propulsion_pct_h: 25.0,
-                seabed_m: 80.0,
-            },
-        }
-    }
-
-    /// Battery drain at a speed, percent per hour.
-    pub fn drain_pct_h(&self, speed_mps: f64) -> f64 {
-        self.hotel_pct_h
-            + self.propulsion_pct_h * (speed_mps / self.max_mps).clamp(0.0, 1.0).powi(3)
-    }
-}
 
 /// Where and how a simulated vehicle starts.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -678,12 +605,8 @@ impl SimVehicle {
         let mut speed_for = |s: f64| {
             if s > p.max_mps {
                 notes.push(format!("speed limited to {:.1} m/s", p.max_mps));
-                p.max_mps
-            } else if s > 0.0 {
-                s
-            } else {
-                p.cruise_mps
             }
+            p.speed_for(s)
         };
         let route = |waypoints: Vec<GeoPoint>, depth_m: f64, speed_mps: f64| Plan::Route {
             waypoints,
@@ -732,14 +655,7 @@ impl SimVehicle {
     /// Battery (percent) a plan needs from a start point and depth, and where it ends.
     fn energy(&self, plan: &Plan, from: GeoPoint, from_depth: f64) -> (f64, GeoPoint, f64) {
         let p = self.profile;
-        let vertical_s = |dz: f64| {
-            if p.vertical_mps > 0.0 {
-                dz.abs() / p.vertical_mps
-            } else {
-                0.0
-            }
-        };
-        let (pct, end, end_depth) = match plan {
+        match plan {
             Plan::Route {
                 waypoints,
                 next,
@@ -748,23 +664,20 @@ impl SimVehicle {
                 ..
             } => {
                 let rest = waypoints.get(*next..).unwrap_or_default();
-                let horizontal_s = path_length(from, rest) / speed_mps.max(0.01);
-                // The vehicle dives while it travels: the slower of the two sets the time.
-                let seconds = horizontal_s.max(vertical_s(depth_m - from_depth));
+                let cost = p.route(from, rest, from_depth, *depth_m, *speed_mps);
                 let end = rest.last().copied().unwrap_or(from);
-                (p.drain_pct_h(*speed_mps) * seconds / 3600.0, end, *depth_m)
+                (cost.battery_pct, end, *depth_m)
             }
             Plan::Hold {
                 duration_s,
                 elapsed_s,
             } => {
-                let left = duration_s.map_or(0.0, |d| (d - elapsed_s).max(0.0));
-                (p.hotel_pct_h * left / 3600.0, from, from_depth)
+                let left = duration_s.map_or(0.0, |d| d - elapsed_s);
+                (p.hold(left).battery_pct, from, from_depth)
             }
-            Plan::Surface { .. } => (p.hotel_pct_h * vertical_s(from_depth) / 3600.0, from, 0.0),
+            Plan::Surface { .. } => (p.surface(from_depth).battery_pct, from, 0.0),
             Plan::Stop => (0.0, from, from_depth),
-        };
-        (pct * ENERGY_MARGIN, end, end_depth)
+        }
     }
 
     /// Battery the running and queued tasks still need, and where the last one ends.

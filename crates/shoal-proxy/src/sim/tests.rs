@@ -71,7 +71,7 @@ fn survey(polygon: Vec<GeoPoint>, spacing: f64, depth_m: f64) -> Task {
 
 /// A north-aligned rectangle `east_m` by `north_m` with its south-west corner at `sw`.
 fn rectangle(sw: GeoPoint, east_m: f64, north_m: f64) -> Vec<GeoPoint> {
-    let frame = geo::LocalFrame::new(sw);
+    let frame = shoal_model::geo::LocalFrame::new(sw);
     vec![
         sw,
         frame.to_geo(east_m, 0.0),
@@ -251,7 +251,7 @@ fn survey_flies_every_line_and_covers_the_polygon() {
     assert!(progress.len() >= 10, "{progress:?}");
     // Every point of the polygon passed within half a line spacing (plus the arrival
     // radius, where the vehicle turns early at the line ends).
-    let frame = geo::LocalFrame::new(poly[0]);
+    let frame = shoal_model::geo::LocalFrame::new(poly[0]);
     let track: Vec<(f64, f64)> = track.iter().map(|q| frame.to_xy(*q)).collect();
     for i in 0..=20 {
         for j in 0..=10 {

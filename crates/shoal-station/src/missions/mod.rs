@@ -5,6 +5,7 @@
 //! The register's bookkeeping ([`register`]) is pure; this module adds the I/O: the
 //! outbox, the history, the semantic model, the reporters.
 
+mod preview;
 mod register;
 mod views;
 
@@ -21,6 +22,7 @@ use crate::core::{StationHandle, blocking, lock};
 use crate::error::DispatchError;
 use crate::register::Contact;
 use crate::reporters::LiveUpdate;
+pub use preview::{MissionPreview, VehiclePreview};
 pub(crate) use register::TaskRegister;
 pub use views::{MissionSpec, MissionState, MissionTaskSpec, MissionView, TaskView};
 
@@ -230,9 +232,12 @@ impl StationHandle {
         });
     }
 
-    /// Registers a mission after checking every task (ids unique, vehicles able); it
-    /// starts with [`Self::start_mission`].
-    pub fn plan_mission(&self, spec: MissionSpec) -> Result<MissionView, DispatchError> {
+    /// A mission's tasks as they would go out, every one checked (ids unique, vehicles
+    /// able), with the time they are issued at.
+    fn mission_assignments(
+        &self,
+        spec: &MissionSpec,
+    ) -> Result<(i64, Vec<TaskAssignment>), DispatchError> {
         if !shoal_model::is_identifier(&spec.mission_id, shoal_model::MAX_ID_LEN) {
             return Err(DispatchError::BadField {
                 field: "mission_id",
@@ -246,7 +251,7 @@ impl StationHandle {
             });
         }
         if lock(&self.core.tasks).contains_mission(&spec.mission_id) {
-            return Err(DispatchError::DuplicateMission(spec.mission_id));
+            return Err(DispatchError::DuplicateMission(spec.mission_id.clone()));
         }
         let now = self.now();
         let mut assignments: Vec<TaskAssignment> = Vec::with_capacity(spec.tasks.len());
@@ -276,6 +281,13 @@ impl StationHandle {
             }
             assignments.push(a);
         }
+        Ok((now, assignments))
+    }
+
+    /// Registers a mission after checking every task (ids unique, vehicles able); it
+    /// starts with [`Self::start_mission`].
+    pub fn plan_mission(&self, spec: MissionSpec) -> Result<MissionView, DispatchError> {
+        let (now, assignments) = self.mission_assignments(&spec)?;
         {
             let mut reg = lock(&self.core.tasks);
             let ids = assignments.iter().map(|a| a.task_id.clone()).collect();

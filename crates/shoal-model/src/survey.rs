@@ -1,13 +1,11 @@
-//! Lawnmower survey patterns for the simulator (and the proxies that plan surveys the
-//! same way).
+//! Lawnmower survey patterns: the route a vehicle flies to cover a survey polygon.
 //!
-//! The geometry underneath (distances, bearings, the local east/north frame, the Earth
-//! radius) is `shoal_model::geo`'s, re-exported here for the simulator's users.
+//! One pattern for everyone who needs it: the simulator flies it, the proxies plan surveys
+//! the same way, and the station estimates a survey's length and energy from it before a
+//! mission starts.
 
-use shoal_model::GeoPoint;
-pub use shoal_model::geo::{
-    EARTH_RADIUS_M, LocalFrame, angle_diff, distance, distance_bearing, path_length,
-};
+use crate::GeoPoint;
+use crate::geo::LocalFrame;
 
 /// Most survey lines one survey may have; a bigger survey is refused, not truncated.
 pub const MAX_SURVEY_LINES: usize = 1000;
@@ -145,6 +143,7 @@ fn band_extent(corners: &[(f64, f64)], lo: f64, hi: f64) -> Option<(f64, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geo::distance;
 
     fn p(lat: f64, lon: f64) -> GeoPoint {
         GeoPoint {
