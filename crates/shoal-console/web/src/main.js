@@ -7,6 +7,7 @@ import { dropLive, startLive, stopLive } from './live.js';
 import { createMap } from './map.js';
 import { initFleet } from './fleet.js';
 import { initMissions, leaveMissions, showMissions } from './missions.js';
+import { initTimeline, showTimeline } from './timeline.js';
 import { initEvents } from './events.js';
 import { initRules, loadRules } from './rules.js';
 import { initQuery } from './query.js';
@@ -23,6 +24,7 @@ function showTab(name) {
   for (const s of document.querySelectorAll('.tab')) s.classList.toggle('active', s.id === `tab-${name}`);
   if (name !== 'missions') leaveMissions();
   if (name === 'missions') showMissions();
+  if (name === 'timeline') showTimeline();
   if (name === 'vehicles') showVehicles();
   if (name === 'replay') showReplay();
   if (name === 'rules') loadRules();
@@ -107,6 +109,7 @@ function init() {
   initFederation();
   initFleet();
   initMissions();
+  initTimeline();
   initEvents();
   initRules();
   initQuery();

@@ -6,7 +6,7 @@
 import { api, describe } from './api.js';
 import { clearDraft, draftPoints, setDraft, startDrawing, stopDrawing } from './map.js';
 import { FINAL, may, on, putMission, state } from './store.js';
-import { confirmDialog, dateTime, fieldError, fmt, h, ID_PATTERN, toast } from './util.js';
+import { confirmDialog, dateTime, fieldError, fmt, h, ID_PATTERN, table, toast } from './util.js';
 import { replayMission } from './replay.js';
 
 let root;
@@ -228,6 +228,32 @@ function addTask() {
   return true;
 }
 
+/** A duration for people: `45 s`, `12 min`, `3 h 20 min`. */
+function duration(seconds) {
+  const s = Math.round(Math.max(0, seconds));
+  if (s < 60) return `${s} s`;
+  if (s < 3600) return `${Math.floor(s / 60)} min`;
+  return `${Math.floor(s / 3600)} h ${Math.floor((s % 3600) / 60)} min`;
+}
+
+/** The plan preview: per vehicle, how long, how far and how much battery, and warnings. */
+function previewTable(p) {
+  const battery = (v) => (v.battery_pct === null ? '–' : `${fmt(v.battery_pct, 0)} % → ${fmt(v.battery_after_pct, 0)} %`);
+  return h('div', { id: 'plan-preview', class: p.warnings ? 'warn' : '' },
+    h('h4', {}, `Estimate: about ${duration(p.duration_s)} `, h('small', { class: 'muted' }, "(each vehicle's nominal speed and battery use for its kind)")),
+    table([
+      { title: 'vehicle', cell: (v) => v.vehicle_id },
+      { title: 'tasks', cell: (v) => String(v.tasks), class: 'num' },
+      { title: 'distance', cell: (v) => (v.distance_m >= 1000 ? `${fmt(v.distance_m / 1000, 1)} km` : `${fmt(v.distance_m, 0)} m`), class: 'num' },
+      { title: 'duration', cell: (v) => duration(v.duration_s), class: 'num' },
+      { title: 'energy', cell: (v) => `${fmt(v.energy_pct, 1)} %`, class: 'num' },
+      { title: 'battery now → after', cell: battery, class: 'num' },
+    ], p.vehicles, { class: 'grid compact', row: (v) => ({ dataset: { vehicle: v.vehicle_id, warn: v.warnings.length ? 'yes' : 'no' } }) }),
+    p.vehicles.some((v) => v.warnings.length)
+      ? h('ul', { class: 'preview-warnings', role: 'alert' }, p.vehicles.flatMap((v) => v.warnings.map((w) => h('li', { dataset: { vehicle: v.vehicle_id } }, h('strong', {}, v.vehicle_id), `: ${w}`))))
+      : null);
+}
+
 async function submit(start) {
   const out = form.querySelector('#mission-error');
   out.textContent = '';
@@ -242,8 +268,21 @@ async function submit(start) {
   }
   if (!ok) return;
   const spec = { mission_id: id, name: form.elements.name.value.trim(), tasks: draftTasks };
-  const body = h('div', {}, h('p', {}, `${start ? 'Start' : 'Plan'} mission ${id}${spec.name ? ` (${spec.name})` : ''} with ${spec.tasks.length} task(s):`), h('ol', {}, spec.tasks.map((t) => h('li', {}, describeTask(t)))));
-  if (!(await confirmDialog(start ? 'Start mission?' : 'Plan mission?', body, start ? 'Start mission' : 'Plan'))) return;
+  // The station checks the mission as planning would and estimates each vehicle's part;
+  // what it refuses here it would refuse on start, so the operator learns it now.
+  let preview;
+  try {
+    preview = await api('POST', '/api/mission-preview', spec);
+  } catch (e) {
+    out.textContent = describe(e);
+    return;
+  }
+  const body = h('div', {},
+    h('p', {}, `${start ? 'Start' : 'Plan'} mission ${id}${spec.name ? ` (${spec.name})` : ''} with ${spec.tasks.length} task(s):`),
+    h('ol', {}, spec.tasks.map((t) => h('li', {}, describeTask(t)))),
+    previewTable(preview));
+  const label = start ? (preview.warnings ? 'Start anyway' : 'Start mission') : 'Plan';
+  if (!(await confirmDialog(start ? 'Start mission?' : 'Plan mission?', body, label))) return;
   try {
     const view = await api('POST', `/api/missions${start ? '?start=true' : ''}`, spec);
     putMission(view);

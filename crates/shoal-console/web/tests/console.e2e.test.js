@@ -96,6 +96,8 @@ async function clickMap(page, lat, lon) {
 describe('Shoal console in Chromium', { concurrency: false }, () => {
   let page;
   let adminTab = null;
+  /** The mission the first mission test drew and saw done, for the timeline's test. */
+  let doneMissionId = null;
 
   /** One admin's browser, logged in once, for the tests that change rules. */
   async function adminBrowser() {
@@ -177,6 +179,7 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     await card.waitFor({ timeout: 10000 });
     await shot(page, '02-mission-running');
     await card.locator('.pill[data-state=done]').waitFor({ timeout: 150000 });
+    doneMissionId = missionId;
     // The waypoint shows on the map as a task.
     const tasksDrawn = await page.evaluate(() => window.shoalConsole.sources.tasks.getFeatures().length);
     assert.ok(tasksDrawn >= 1);
@@ -189,6 +192,50 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     }, missionId);
     assert.ok(exported.rows > 2, `CSV rows: ${exported.rows}`);
     assert.ok(exported.features.includes('LineString') && exported.features.includes('Point'), JSON.stringify(exported.features));
+  });
+
+  test('the mission timeline shows each vehicle\'s tasks over time, live', async () => {
+    assert.ok(doneMissionId, 'no mission reached done in the test before');
+    await page.click('#tabs button[data-tab=timeline]');
+    const tab = page.locator('#tab-timeline');
+    // The station says when each of that mission's tasks went out, started and ended.
+    const mission = await admin('GET', `/api/missions/${doneMissionId}`);
+    assert.ok(mission.tasks.length >= 1);
+    for (const t of mission.tasks) {
+      const { task_id: id } = t.assignment;
+      assert.ok(t.dispatched_ms && t.started_ms && t.ended_ms, `${id}: ${JSON.stringify(t)}`);
+      assert.ok(t.dispatched_ms <= t.started_ms && t.started_ms <= t.ended_ms, `${id}: ${t.dispatched_ms} ${t.started_ms} ${t.ended_ms}`);
+      // Its bar is done, has a width, and ended left of "now".
+      const bar = tab.locator(`.bar.state-done[data-task="${id}"]`);
+      await bar.waitFor({ timeout: 10000 });
+      assert.equal(await bar.getAttribute('data-vehicle'), t.assignment.vehicle_id);
+      assert.ok((await bar.boundingBox()).width > 0, `${id} has no width`);
+      await page.waitForFunction((task) => {
+        const r = document.querySelector(`#tab-timeline .bar[data-task="${task}"]`).getBoundingClientRect();
+        return r.right < document.querySelector('#tab-timeline .now-line').getBoundingClientRect().left;
+      }, id, { timeout: 10000 });
+    }
+    // A short task on an idle vehicle: its bar appears under way and grows with the time.
+    const taskId = `e2e-hold-${Date.now() % 100000}`;
+    await admin('POST', '/api/tasks', {
+      task_id: taskId, mission_id: '', vehicle_id: 'rov-1', issued_ms: Date.now(), kind: 'hold', area: [],
+      depth_m: -1, altitude_m: -1, speed_mps: 0, line_spacing_m: 0, duration_s: 20, rate_hz: 0, issue_seq: 0, expires_ms: 0,
+    });
+    const held = tab.locator(`.bar[data-task="${taskId}"]`);
+    await tab.locator(`.bar[data-task="${taskId}"]:is(.state-running, .state-accepted)`).waitFor({ timeout: 15000 });
+    assert.equal(await held.getAttribute('data-vehicle'), 'rov-1');
+    const before = (await held.boundingBox()).width;
+    await page.waitForTimeout(2500);
+    assert.match(await held.getAttribute('class'), /state-(running|accepted)/);
+    const grown = (await held.boundingBox()).width;
+    assert.ok(grown > before + 1, `the bar under way did not grow: ${before} -> ${grown}`);
+    // Clicked, it names its task below the chart.
+    await held.click();
+    const detail = page.locator('#timeline-detail');
+    await detail.locator('h3', { hasText: taskId }).waitFor({ timeout: 5000 });
+    assert.match(await detail.textContent(), /rov-1.*hold.*(running|accepted)/s);
+    assert.match(await held.getAttribute('class'), /selected/);
+    await shot(page, '22-timeline');
   });
 
   test('an alarm appears live and is acknowledged', async () => {
@@ -506,6 +553,12 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     await page.locator('#mission-form button', { hasText: 'Plan only' }).click();
     await page.locator('#confirm[open]').waitFor();
     assert.match(await page.locator('#confirm-body').textContent(), /auv-1: survey 3 corners/);
+    // The review carries the station's estimate for the vehicle: a small survey, no warning.
+    const estimate = page.locator('#plan-preview tr[data-vehicle="auv-1"]');
+    await estimate.waitFor();
+    assert.equal(await estimate.getAttribute('data-warn'), 'no');
+    assert.match(await estimate.textContent(), /\d+ (s|min)/);
+    assert.match(await page.locator('#plan-preview h4').textContent(), /Estimate: about \d+/);
     await shot(page, '15-survey-review');
     await page.click('#confirm-ok');
     const card = page.locator(`.mission[data-mission="${missionId}"]`);
@@ -516,6 +569,57 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     await shot(page, '16-survey-planned');
     // Planned only: it leaves the vehicles alone; abort it so nothing waits for it.
     await admin('POST', `/api/missions/${missionId}/abort`);
+  });
+
+  test('the review warns when a vehicle\'s battery would not last the mission', async () => {
+    await page.click('#tabs button[data-tab=missions]');
+    const form = page.locator('#mission-form');
+    await form.locator('input[name=kind][value=survey_area]').check();
+    await form.locator('select[name=payload]').selectOption('');
+    await page.waitForFunction(() => [...document.querySelectorAll('#mission-form select[name=vehicle] option')].some((o) => o.value === 'auv-2'), null, { timeout: 15000 });
+    await form.locator('select[name=vehicle]').selectOption('auv-2');
+    // A triangle over the middle of the map's view, surveyed with about 400 lines: far more
+    // than an AUV's battery lasts.
+    const view = await page.evaluate(() => {
+      const { map } = window.shoalConsole;
+      const [x0, y0, x1, y1] = map.getView().calculateExtent(map.getSize());
+      const R = 6378137;
+      const lon = (x) => (x / R) * (180 / Math.PI);
+      const lat = (y) => (2 * Math.atan(Math.exp(y / R)) - Math.PI / 2) * (180 / Math.PI);
+      return { s: lat(y0), n: lat(y1), w: lon(x0), e: lon(x1) };
+    });
+    const at = (fy, fx) => [view.s + (view.n - view.s) * fy, view.w + (view.e - view.w) * fx];
+    const corners = [at(0.3, 0.3), at(0.3, 0.7), at(0.7, 0.5)];
+    const heightM = (view.n - view.s) * 0.4 * 111000;
+    await form.locator('input[name=spacing]').fill(String(Math.max(1, Math.round(heightM / 400))));
+    await form.locator('input[name=speed]').fill('2');
+    await form.locator('select[name=vref]').selectOption('depth');
+    await form.locator('input[name=level]').fill('5');
+    await page.click('#draw');
+    for (const [la, lo] of corners) {
+      await clickMap(page, la, lo);
+      await page.waitForTimeout(300);
+    }
+    await clickMap(page, corners[0][0], corners[0][1]);
+    await page.locator('#points li', { hasText: 'corner 3' }).waitFor({ timeout: 10000 });
+    const missionId = `e2e-long-${Date.now() % 100000}`;
+    await form.locator('input[name=mission_id]').fill(missionId);
+    await page.click('#start-mission');
+    await page.locator('#confirm[open]').waitFor();
+    const row = page.locator('#plan-preview tr[data-vehicle="auv-2"]');
+    await row.waitFor();
+    assert.equal(await row.getAttribute('data-warn'), 'yes');
+    assert.match(await page.locator('#plan-preview .preview-warnings li[data-vehicle="auv-2"]').textContent(), /battery would (run out|end at about)/);
+    assert.equal(await page.locator('#confirm-ok').textContent(), 'Start anyway');
+    await shot(page, '24-plan-preview-warning');
+    // Cancelled: nothing was planned.
+    await page.locator('#confirm button[value=cancel]').click();
+    await page.locator('#confirm[open]').waitFor({ state: 'detached' }).catch(() => {});
+    const none = await page.evaluate(async (id) => (await fetch(`/api/missions/${id}`)).status, missionId);
+    assert.equal(none, 404);
+    // The survey stays in the mission being edited; the operator removes it.
+    await page.locator('#draft-tasks li', { hasText: 'auv-2' }).locator('button').click();
+    assert.equal(await page.locator('#draft-tasks li', { hasText: 'auv-2' }).count(), 0);
   });
 
   test('a vehicle that falls silent turns stale, then lost, live in the list', { skip: !process.env.SHOAL_BIN && 'SHOAL_BIN is not set' }, async () => {

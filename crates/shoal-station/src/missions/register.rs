@@ -115,6 +115,9 @@ impl TaskRegister {
                 progress_pct: 0.0,
                 message: String::new(),
                 updated_ms: now_ms,
+                dispatched_ms: None,
+                started_ms: None,
+                ended_ms: None,
                 link: None,
                 status: None,
                 retries: 0,
@@ -175,9 +178,20 @@ impl TaskRegister {
     /// Marks a task handed to a link.
     pub(crate) fn sent(&mut self, task_id: &str, link: LinkKind, now_ms: i64) {
         self.on_bus.insert(task_id.to_owned());
-        if let Some(t) = self.tasks.get_mut(task_id)
-            && may_move(t.state, TaskState::Sent)
-        {
+        let Some(t) = self.tasks.get_mut(task_id) else {
+            return;
+        };
+        // The dispatch time is this send, the station's own step between planning and the
+        // vehicle (a mission's task waits `pending`, possibly long, for its turn). It is noted
+        // even when the state does not move: the vehicle's acceptance can be applied before
+        // this call (the write races it), and the task was sent all the same, no later than
+        // what the vehicle then reported. A retry's send keeps the first one.
+        let at = t
+            .started_ms
+            .or(t.ended_ms)
+            .map_or(now_ms, |s| s.min(now_ms));
+        note_time(t, TaskState::Sent, at);
+        if may_move(t.state, TaskState::Sent) {
             t.state = TaskState::Sent;
             t.link = Some(link);
             t.updated_ms = now_ms;
@@ -291,6 +305,7 @@ impl TaskRegister {
                         t.progress_pct = s.progress_pct;
                         t.message.clone_from(&s.message);
                         t.updated_ms = s.timestamp_ms;
+                        note_time(t, s.state, s.timestamp_ms);
                         if s.message.contains("acoustic link") {
                             t.link = Some(LinkKind::Acoustic);
                         }
@@ -367,6 +382,7 @@ impl TaskRegister {
             t.state = state;
             t.message = message.to_owned();
             t.updated_ms = now_ms;
+            note_time(t, state, now_ms);
             let record = transition(t, now_ms);
             self.transitions.push(record);
         }
@@ -392,6 +408,9 @@ impl TaskRegister {
         };
         t.message.clone_from(&s.message);
         t.updated_ms = now_ms;
+        // Station time, like `updated_ms`: vehicles' clocks may be off, and one timeline
+        // compares them all.
+        note_time(t, s.state, now_ms);
         Some(true)
     }
 
@@ -460,6 +479,7 @@ impl TaskRegister {
                     o.state = TaskState::Aborted;
                     o.message.clone_from(&why);
                     o.updated_ms = now_ms;
+                    note_time(o, TaskState::Aborted, now_ms);
                     let record = transition(o, now_ms);
                     self.transitions.push(record);
                 }
@@ -518,6 +538,7 @@ impl TaskRegister {
                     t.state = TaskState::Aborted;
                     t.message = "mission aborted by the operator".into();
                     t.updated_ms = now_ms;
+                    note_time(t, TaskState::Aborted, now_ms);
                     let record = transition(t, now_ms);
                     self.transitions.push(record);
                 } else if !t.state.is_final() && !vehicles.contains(&t.assignment.vehicle_id) {
@@ -594,6 +615,19 @@ impl TaskRegister {
             .filter_map(|id| self.mission(id))
             .collect()
     }
+}
+
+/// Notes when a task first reached the stage of its life `state` belongs to (sent; accepted
+/// or running; final), for the console's timeline. Each time is set once: a repeated or late
+/// report, or a retry's second send, never moves it.
+fn note_time(t: &mut TaskView, state: TaskState, at_ms: i64) {
+    let slot = match state {
+        TaskState::Sent => &mut t.dispatched_ms,
+        TaskState::Accepted | TaskState::Running => &mut t.started_ms,
+        s if s.is_final() => &mut t.ended_ms,
+        _ => return,
+    };
+    slot.get_or_insert(at_ms);
 }
 
 /// A state change the station made, as a status report for the history.

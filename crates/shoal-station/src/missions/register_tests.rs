@@ -209,3 +209,129 @@ fn sent_tasks_expire_by_their_links_timeout() {
     both.sort();
     assert_eq!(both, vec!["a1", "b1"]);
 }
+
+/// The times the console's timeline draws: each is set by the first transition into its
+/// stage and never moved by a repeated or late report.
+#[test]
+fn a_tasks_dispatch_start_and_end_times_are_set_once_each() {
+    let mut r = mission();
+    r.start("m1", T);
+    let a1 = |r: &TaskRegister| {
+        let t = r.task("a1").unwrap();
+        (t.dispatched_ms, t.started_ms, t.ended_ms)
+    };
+    assert_eq!(a1(&r), (None, None, None), "pending: nothing yet");
+    r.sent("a1", LinkKind::Ip, T + 1);
+    assert_eq!(a1(&r), (Some(T + 1), None, None));
+    r.on_status(&report("a1", "a", TaskState::Accepted), T + 2);
+    assert_eq!(a1(&r), (Some(T + 1), Some(T + 2), None));
+    // Running after accepted, and running again: the start stays the acceptance.
+    r.on_status(&report("a1", "a", TaskState::Running), T + 3);
+    r.on_status(&report("a1", "a", TaskState::Running), T + 4);
+    assert_eq!(a1(&r), (Some(T + 1), Some(T + 2), None));
+    // A duplicated send does not move the dispatch time either.
+    r.sent("a1", LinkKind::Ip, T + 5);
+    assert_eq!(a1(&r), (Some(T + 1), Some(T + 2), None));
+    r.on_status(&report("a1", "a", TaskState::Done), T + 6);
+    assert_eq!(a1(&r), (Some(T + 1), Some(T + 2), Some(T + 6)));
+    // Late or repeated reports after the end move nothing.
+    for s in [TaskState::Running, TaskState::Done, TaskState::Failed] {
+        r.on_status(&report("a1", "a", s), T + 7);
+    }
+    r.finish("a1", TaskState::Expired, "late", T + 8);
+    assert_eq!(a1(&r), (Some(T + 1), Some(T + 2), Some(T + 6)));
+    // A task first reported running starts then.
+    r.sent("b1", LinkKind::Ip, T + 1);
+    r.on_status(&report("b1", "b", TaskState::Running), T + 9);
+    r.on_status(&report("b1", "b", TaskState::Running), T + 10);
+    assert_eq!(r.task("b1").unwrap().started_ms, Some(T + 9));
+}
+
+#[test]
+fn tasks_ended_by_the_station_get_an_end_time_and_no_start() {
+    let mut r = mission();
+    r.start("m1", T);
+    r.sent("a1", LinkKind::Ip, T + 1);
+    r.on_status(&report("a1", "a", TaskState::Failed), T + 2);
+    r.advance("a1", T + 2);
+    // a2 was skipped without ever going out.
+    let a2 = r.task("a2").unwrap();
+    assert_eq!(a2.state, TaskState::Aborted);
+    assert_eq!(
+        (a2.dispatched_ms, a2.started_ms, a2.ended_ms),
+        (None, None, Some(T + 2))
+    );
+    let a1 = r.task("a1").unwrap();
+    assert_eq!(
+        (a1.dispatched_ms, a1.started_ms, a1.ended_ms),
+        (Some(T + 1), None, Some(T + 2))
+    );
+    // Expired by the station, never acknowledged.
+    r.sent("b1", LinkKind::Ip, T + 3);
+    r.finish("b1", TaskState::Expired, "not acknowledged", T + 4);
+    r.finish("b1", TaskState::Aborted, "again", T + 5);
+    let b1 = r.task("b1").unwrap();
+    assert_eq!(
+        (b1.dispatched_ms, b1.started_ms, b1.ended_ms),
+        (Some(T + 3), None, Some(T + 4))
+    );
+    // Aborted by the operator while pending.
+    r.abort_mission("m1", T + 6);
+    let b2 = r.task("b2").unwrap();
+    assert_eq!(
+        (b2.dispatched_ms, b2.started_ms, b2.ended_ms),
+        (None, None, Some(T + 6))
+    );
+}
+
+#[test]
+fn a_retried_task_keeps_its_first_dispatch_time() {
+    let mut r = mission();
+    r.start("m1", T);
+    r.sent("a1", LinkKind::Acoustic, T + 1);
+    r.retry("a1", 2, T + 100).unwrap();
+    assert_eq!(r.task("a1").unwrap().dispatched_ms, Some(T + 1));
+    r.sent("a1", LinkKind::Acoustic, T + 100);
+    assert_eq!(r.task("a1").unwrap().dispatched_ms, Some(T + 1));
+}
+
+/// The vehicle's acceptance can be applied before the station marks its write sent: the
+/// task was dispatched all the same, and not after it started.
+#[test]
+fn an_acceptance_applied_before_the_send_is_noted_still_gives_a_dispatch_time() {
+    let mut r = mission();
+    r.start("m1", T);
+    r.on_status(&report("a1", "a", TaskState::Accepted), T + 2);
+    r.sent("a1", LinkKind::Ip, T + 3);
+    let t = r.task("a1").unwrap();
+    assert_eq!(t.state, TaskState::Accepted);
+    assert_eq!((t.dispatched_ms, t.started_ms), (Some(T + 2), Some(T + 2)));
+}
+
+#[test]
+fn a_restored_register_takes_the_times_from_the_history() {
+    let mut r = mission();
+    r.start("m1", T);
+    r.sent("a1", LinkKind::Ip, T + 1);
+    let mut statuses = r.take_transitions();
+    for (s, at) in [
+        (TaskState::Accepted, T + 2),
+        (TaskState::Running, T + 3),
+        (TaskState::Done, T + 4),
+    ] {
+        let mut s = report("a1", "a", s);
+        s.timestamp_ms = at;
+        statuses.push(s);
+    }
+    let history = vec![shoal_history::TaskHistory {
+        assignment: Some(r.task("a1").unwrap().assignment.clone()),
+        statuses,
+    }];
+    let mut back = TaskRegister::default();
+    back.restore(history, T + 10);
+    let t = back.task("a1").unwrap();
+    assert_eq!(
+        (t.dispatched_ms, t.started_ms, t.ended_ms),
+        (Some(T + 1), Some(T + 2), Some(T + 4))
+    );
+}

@@ -263,6 +263,64 @@ fn a_report_never_moves_a_task_backwards_or_out_of_a_final_state() {
     assert_eq!(task_state(&f, "t-1"), TaskState::Done);
 }
 
+/// What the console's timeline draws: when each task went out, started and ended, in
+/// station time, each set once; a skipped task only ends.
+#[test]
+fn a_missions_tasks_carry_when_they_were_dispatched_started_and_ended() {
+    let (f, time) = Fixture::manual_clock();
+    f.announce("auv-1");
+    f.h.ingest_state(state("auv-1", f.h.now(), 80.0)).unwrap();
+    f.h.tick(f.h.now());
+    f.h.plan_mission(spec(
+        "m-1",
+        &[("auv-1", goto()), ("auv-1", goto()), ("auv-1", goto())],
+    ))
+    .unwrap();
+    let times = |id: &str| {
+        let t = f.h.task(id).unwrap();
+        (t.dispatched_ms, t.started_ms, t.ended_ms)
+    };
+    assert_eq!(times("m-1-1"), (None, None, None));
+    time.advance(1_000);
+    let sent_at = f.h.now();
+    f.h.start_mission("m-1").unwrap();
+    assert_eq!(times("m-1-1"), (Some(sent_at), None, None));
+    let report = |id: &str, state: TaskState| {
+        let mut s = crate::testing::status(id, "auv-1", state);
+        s.timestamp_ms = f.h.now();
+        f.h.ingest_task_status(crate::testing::valid(s)).unwrap();
+    };
+    time.advance(1_000);
+    let started_at = f.h.now();
+    report("m-1-1", TaskState::Running);
+    time.advance(1_000);
+    report("m-1-1", TaskState::Running);
+    assert_eq!(times("m-1-1"), (Some(sent_at), Some(started_at), None));
+    time.advance(1_000);
+    let ended_at = f.h.now();
+    report("m-1-1", TaskState::Done);
+    assert_eq!(
+        times("m-1-1"),
+        (Some(sent_at), Some(started_at), Some(ended_at))
+    );
+    // The next task went out when the first was done.
+    assert_eq!(times("m-1-2"), (Some(ended_at), None, None));
+    time.advance(1_000);
+    report("m-1-2", TaskState::Failed);
+    let failed_at = f.h.now();
+    assert_eq!(times("m-1-2"), (Some(ended_at), None, Some(failed_at)));
+    assert_eq!(times("m-1-3"), (None, None, Some(failed_at)), "skipped");
+    // The mission's view carries them too, and a late report moves nothing.
+    time.advance(1_000);
+    report("m-1-1", TaskState::Running);
+    let m = f.h.mission("m-1").unwrap();
+    let t = &m.tasks[0];
+    assert_eq!(
+        (t.dispatched_ms, t.started_ms, t.ended_ms),
+        (Some(sent_at), Some(started_at), Some(ended_at))
+    );
+}
+
 #[test]
 fn aborting_a_mission_ends_pending_tasks_and_stops_busy_vehicles() {
     let f = Fixture::new();

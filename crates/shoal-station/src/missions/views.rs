@@ -17,6 +17,12 @@ pub struct TaskView {
     pub message: String,
     /// When the state last changed or progress was reported, ms since the Unix epoch.
     pub updated_ms: i64,
+    /// When the station first handed it to a link (`sent`), ms since the Unix epoch.
+    pub dispatched_ms: Option<i64>,
+    /// When the vehicle first reported it accepted or running, ms since the Unix epoch.
+    pub started_ms: Option<i64>,
+    /// When it reached a final state (done, failed, aborted, expired), ms since the Unix epoch.
+    pub ended_ms: Option<i64>,
     /// The link the station chose when it dispatched the task.
     pub link: Option<LinkKind>,
     /// The latest report from the vehicle, if any.
