@@ -27,6 +27,7 @@ mod event;
 pub mod geo;
 pub mod kinematics;
 mod link;
+pub mod ocean;
 mod state;
 pub mod survey;
 mod task;

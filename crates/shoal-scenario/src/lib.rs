@@ -20,6 +20,7 @@ use std::collections::HashMap;
 use std::ops::Range;
 
 use serde::Deserialize;
+use shoal_model::ocean::{OceanField, Plume};
 use shoal_model::{
     GeoPoint, MAX_NAME_LEN, MAX_VEHICLE_ID_LEN, StateVector, Task, TaskAssignment, VehicleKind,
     is_identifier,
@@ -78,7 +79,12 @@ pub struct Scenario {
     pub faults: Vec<ScenarioFault>,
     /// The acoustic network, when vehicles are heard through one.
     pub acoustic: Option<AcousticNetwork>,
+    /// The ocean the simulated vehicles sample (the default one without `[environment]`).
+    pub environment: OceanField,
 }
+
+/// Most plumes one scenario's `[environment]` may place.
+pub const MAX_PLUMES: usize = 32;
 
 /// Highest acoustic address a vehicle or the relay may have (the compact PDUs carry 4 bits).
 pub const MAX_ACOUSTIC_ADDRESS: u8 = 15;
@@ -323,6 +329,31 @@ struct RawFile {
     #[serde(default)]
     faults: Vec<RawFault>,
     acoustic: Option<RawAcoustic>,
+    environment: Option<RawEnvironment>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawEnvironment {
+    surface_temperature_c: Option<Spanned<f64>>,
+    eddy_temperature_c: Option<Spanned<f64>>,
+    thermocline_m: Option<Spanned<f64>>,
+    surface_salinity_psu: Option<Spanned<f64>>,
+    current_mps: Option<Spanned<f64>>,
+    current_to_deg: Option<Spanned<f64>>,
+    plumes: Option<Spanned<Vec<RawPlume>>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPlume {
+    latitude_deg: Spanned<f64>,
+    longitude_deg: Spanned<f64>,
+    radius_m: Spanned<f64>,
+    depth_m: Option<Spanned<f64>>,
+    thickness_m: Option<Spanned<f64>>,
+    temperature_c: Option<Spanned<f64>>,
+    salinity_psu: Option<Spanned<f64>>,
 }
 
 #[derive(Deserialize)]
@@ -674,6 +705,118 @@ impl Checker<'_> {
             missions,
             faults,
             acoustic,
+            environment: self.environment(raw.environment.as_ref())?,
+        })
+    }
+
+    /// The `[environment]` section: every value in a range real water has, at most
+    /// [`MAX_PLUMES`] plumes, each changing something.
+    fn environment(&self, raw: Option<&RawEnvironment>) -> Result<OceanField, ScenarioError> {
+        let d = OceanField::default();
+        let Some(e) = raw else {
+            return Ok(d);
+        };
+        let key = |k: &str| format!("environment.{k}");
+        let opt = |k: &str, v: &Option<Spanned<f64>>, default: f64, bounds: (f64, f64, bool)| {
+            self.optional(&key(k), v.as_ref(), default, bounds)
+        };
+        let raw_plumes = e
+            .plumes
+            .as_ref()
+            .map_or(&[][..], |p| p.get_ref().as_slice());
+        if let Some(all) = &e.plumes
+            && raw_plumes.len() > MAX_PLUMES
+        {
+            return Err(ScenarioError::Invalid {
+                line: self.line(all),
+                key: key("plumes"),
+                reason: format!("at most {MAX_PLUMES} plumes"),
+            });
+        }
+        let (lat, lon) = (StateVector::LATITUDE, StateVector::LONGITUDE);
+        let mut plumes = Vec::with_capacity(raw_plumes.len());
+        for (i, p) in raw_plumes.iter().enumerate() {
+            let key = |k: &str| format!("environment.plumes[{i}].{k}");
+            let anomaly = |k: &str, v: &Option<Spanned<f64>>, lo: f64, hi: f64| {
+                self.optional(&key(k), v.as_ref(), 0.0, (lo, hi, false))
+            };
+            let plume = Plume {
+                latitude_deg: self.range(
+                    &key("latitude_deg"),
+                    &p.latitude_deg,
+                    lat.0,
+                    lat.1,
+                    false,
+                )?,
+                longitude_deg: self.range(
+                    &key("longitude_deg"),
+                    &p.longitude_deg,
+                    lon.0,
+                    lon.1,
+                    false,
+                )?,
+                radius_m: self.range(&key("radius_m"), &p.radius_m, 0.0, 50_000.0, true)?,
+                depth_m: self.optional(
+                    &key("depth_m"),
+                    p.depth_m.as_ref(),
+                    0.0,
+                    (0.0, 1000.0, false),
+                )?,
+                thickness_m: self.optional(
+                    &key("thickness_m"),
+                    p.thickness_m.as_ref(),
+                    10.0,
+                    (0.0, 500.0, true),
+                )?,
+                temperature_c: anomaly("temperature_c", &p.temperature_c, -20.0, 20.0)?,
+                salinity_psu: anomaly("salinity_psu", &p.salinity_psu, -35.0, 10.0)?,
+            };
+            if plume.temperature_c == 0.0 && plume.salinity_psu == 0.0 {
+                return Err(ScenarioError::Invalid {
+                    line: self.line(&p.radius_m),
+                    key: key("temperature_c"),
+                    reason: "a plume needs a temperature_c or salinity_psu anomaly; without, it changes nothing".into(),
+                });
+            }
+            plumes.push(plume);
+        }
+        Ok(OceanField {
+            surface_temperature_c: e
+                .surface_temperature_c
+                .as_ref()
+                .map(|v| self.range(&key("surface_temperature_c"), v, -2.0, 35.0, false))
+                .transpose()?,
+            eddy_temperature_c: opt(
+                "eddy_temperature_c",
+                &e.eddy_temperature_c,
+                d.eddy_temperature_c,
+                (0.0, 5.0, false),
+            )?,
+            thermocline_m: opt(
+                "thermocline_m",
+                &e.thermocline_m,
+                d.thermocline_m,
+                (0.0, 500.0, true),
+            )?,
+            surface_salinity_psu: opt(
+                "surface_salinity_psu",
+                &e.surface_salinity_psu,
+                d.surface_salinity_psu,
+                (0.0, 42.0, false),
+            )?,
+            current_mps: opt(
+                "current_mps",
+                &e.current_mps,
+                d.current_mps,
+                (0.0, 3.0, false),
+            )?,
+            current_to_deg: opt(
+                "current_to_deg",
+                &e.current_to_deg,
+                d.current_to_deg,
+                (0.0, 360.0, false),
+            )?,
+            plumes,
         })
     }
 

@@ -443,3 +443,58 @@ fn a_vehicle_waypoint_or_relay_on_land_is_refused_by_line_and_key() {
     assert!(parse(&sea).is_ok());
     assert!(parse(HEAD).is_ok());
 }
+
+#[test]
+fn the_environment_section_shapes_the_ocean_and_defaults_to_the_simulators() {
+    assert_eq!(parse(HEAD).unwrap().environment, OceanField::default());
+    let s = parse(&format!(
+        "{HEAD}\n[environment]\nsurface_temperature_c = 7.5\nthermocline_m = 15\ncurrent_mps = 0.1\n\n\
+         [[environment.plumes]]\nlatitude_deg = 63.01\nlongitude_deg = 10.02\nradius_m = 400\n\
+         salinity_psu = -6\n\n[[environment.plumes]]\nlatitude_deg = 63.0\nlongitude_deg = 10.0\n\
+         radius_m = 100\ndepth_m = 30\nthickness_m = 5\ntemperature_c = 3\n"
+    ))
+    .unwrap();
+    let e = &s.environment;
+    assert_eq!(e.surface_temperature_c, Some(7.5));
+    assert_eq!((e.thermocline_m, e.current_mps), (15.0, 0.1));
+    assert_eq!(
+        e.eddy_temperature_c,
+        OceanField::default().eddy_temperature_c
+    );
+    assert_eq!(e.plumes.len(), 2);
+    assert_eq!(
+        (
+            e.plumes[0].salinity_psu,
+            e.plumes[0].depth_m,
+            e.plumes[0].thickness_m
+        ),
+        (-6.0, 0.0, 10.0)
+    );
+    assert_eq!(
+        (e.plumes[1].depth_m, e.plumes[1].temperature_c),
+        (30.0, 3.0)
+    );
+}
+
+#[test]
+fn a_bad_environment_is_one_line_naming_the_key() {
+    let base = HEAD.lines().count() + 2;
+    let e = err(&format!(
+        "{HEAD}\n[environment]\nsurface_temperature_c = 60\n"
+    ));
+    assert_names(&e, base + 1, "environment.surface_temperature_c");
+    let e = err(&format!("{HEAD}\n[environment]\nsalinity = 30\n"));
+    assert_names(&e, base + 1, "salinity");
+    let plume = "[[environment.plumes]]\nlatitude_deg = 63.0\nlongitude_deg = 10.0\n";
+    let e = err(&format!("{HEAD}\n{plume}radius_m = 0\ntemperature_c = 2\n"));
+    assert_names(&e, base + 3, "environment.plumes[0].radius_m");
+    let e = err(&format!("{HEAD}\n{plume}radius_m = 100\n"));
+    assert_names(&e, base + 3, "environment.plumes[0].temperature_c");
+    let e = err(&format!(
+        "{HEAD}\n{plume}radius_m = 100\nsalinity_psu = -50\n"
+    ));
+    assert_names(&e, base + 4, "environment.plumes[0].salinity_psu");
+    let many = plume.to_owned() + "radius_m = 10\ntemperature_c = 1\n";
+    let e = err(&format!("{HEAD}\n{}", many.repeat(MAX_PLUMES + 1)));
+    assert!(e.to_string().contains("at most 32 plumes"), "{e}");
+}

@@ -509,7 +509,7 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Re
     }
     if !no_fleet {
         for v in &fleet {
-            let args = [
+            let mut args = vec![
                 "vehicle".to_string(),
                 "--sim".into(),
                 v.kind.as_str().into(),
@@ -524,6 +524,10 @@ pub async fn up(config: Option<&Path>, cfg: &ShoalConfig, opts: UpOptions) -> Re
                 "--battery".into(),
                 v.battery_pct.to_string(),
             ];
+            // The scenario's [environment] is the ocean the vehicle samples.
+            if let Some(s) = &scenario {
+                args.extend(["--scenario".to_string(), s.clone()]);
+            }
             let mut env = station_env.clone();
             if let Some(dir) = bundles.get(&v.id) {
                 env.push((

@@ -166,6 +166,10 @@ enum Command {
         /// Simulator: battery at start, %.
         #[arg(long, default_value_t = 100.0)]
         battery: f64,
+        /// Simulator: sample the ocean of this scenario's `[environment]` (a scenario file
+        /// or a shipped scenario's name), as `shoal up --scenario` does.
+        #[arg(long, value_name = "FILE|NAME", conflicts_with = "proxy")]
+        scenario: Option<String>,
         /// Stop when standard input closes (used by `shoal up`).
         #[arg(long, hide = true)]
         exit_on_stdin_close: bool,
@@ -488,9 +492,19 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             lon,
             rate,
             battery,
+            scenario,
             exit_on_stdin_close,
             ..
         } => {
+            let mut cfg = cfg;
+            if let Some(source) = scenario
+                .as_deref()
+                .map(scenario::resolve)
+                .transpose()?
+                .flatten()
+            {
+                cfg.fleet.sim.ocean = scenario::load(&source)?.environment;
+            }
             let spec = shoal_proxy::sim::SimSpec {
                 id,
                 kind: sim.unwrap_or(SimKind::Auv).into(),
@@ -586,5 +600,36 @@ mod tests {
             panic!("not the station command");
         };
         assert_eq!(db, Some(PathBuf::from(":memory:")));
+    }
+
+    /// A simulated vehicle may take its ocean from a scenario; a proxy for a real one has
+    /// the real sea and refuses the flag.
+    #[test]
+    fn only_a_simulated_vehicle_takes_a_scenarios_ocean() {
+        let ok = [
+            "shoal",
+            "vehicle",
+            "--sim",
+            "usv",
+            "--id",
+            "a",
+            "--scenario",
+            "harbour-survey",
+        ];
+        let Command::Vehicle { scenario, .. } = Cli::try_parse_from(ok).unwrap().command else {
+            panic!("not the vehicle command");
+        };
+        assert_eq!(scenario.as_deref(), Some("harbour-survey"));
+        let proxy = [
+            "shoal",
+            "vehicle",
+            "--proxy",
+            "mavlink",
+            "--id",
+            "a",
+            "--scenario",
+            "x",
+        ];
+        assert!(Cli::try_parse_from(proxy).is_err());
     }
 }

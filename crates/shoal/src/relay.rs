@@ -16,7 +16,7 @@ use shoal_converter::emulated_relay::{
 };
 use shoal_dds::PubSub;
 use shoal_model::VehicleKind;
-use shoal_proxy::sim::SimSpec;
+use shoal_proxy::sim::{OceanField, SimSettings, SimSpec};
 use tokio_util::sync::CancellationToken;
 
 /// One submerged vehicle of the demo.
@@ -45,6 +45,8 @@ pub struct AcousticDemoConfig {
     pub fixed_per: Option<f64>,
     /// The vehicle on the station's domain carrying the relay, which the relay follows.
     pub relay_vehicle: Option<String>,
+    /// The ocean the vehicles sample.
+    pub ocean: OceanField,
 }
 
 impl Default for AcousticDemoConfig {
@@ -69,6 +71,7 @@ impl Default for AcousticDemoConfig {
             relay_longitude_deg: 10.3800,
             fixed_per: None,
             relay_vehicle: None,
+            ocean: OceanField::default(),
         }
     }
 }
@@ -96,6 +99,7 @@ impl AcousticDemoConfig {
             relay_longitude_deg: net.relay_longitude_deg,
             fixed_per: net.fixed_per,
             relay_vehicle: net.relay_vehicle.clone(),
+            ocean: s.environment.clone(),
         })
     }
 
@@ -137,6 +141,10 @@ pub async fn run_acoustic_demo(
     shutdown: CancellationToken,
 ) -> Result<()> {
     let relay = demo.relay();
+    let settings = SimSettings {
+        ocean: demo.ocean,
+        ..SimSettings::default()
+    };
     let specs: HashMap<String, SimSpec> = demo
         .vehicles
         .into_iter()
@@ -144,12 +152,13 @@ pub async fn run_acoustic_demo(
         .collect();
     let start_sim = move |v: &RelayedVehicle, dds: Arc<PubSub>, stop: CancellationToken| {
         let spec = specs.get(&v.id).cloned();
+        let settings = settings.clone();
         async move {
             // Every relayed vehicle was made from a demo vehicle, so its spec is there.
             let spec = spec.ok_or_else(|| {
                 ConverterError::Config("relayed vehicle missing from the demo".into())
             })?;
-            shoal_proxy::run_sim(spec, dds, stop)
+            shoal_proxy::run_sim_with(spec, settings, dds, stop)
                 .await
                 .map_err(ConverterError::from)
         }

@@ -30,7 +30,6 @@
 //!   configurable rate by the sensors that measure them (CTD; DVL or ADCP).
 
 mod adapter;
-mod environment;
 mod rng;
 
 use std::collections::VecDeque;
@@ -42,11 +41,12 @@ use shoal_model::{
 };
 
 pub use adapter::{SimAdapter, SimFault};
-pub use environment::{
-    CURRENT_DIRECTION, CURRENT_SPEED, SALINITY, TEMPERATURE, UNITS, Water, water_at,
-};
 pub use shoal_model::geo::{EARTH_RADIUS_M, angle_diff, distance, distance_bearing, path_length};
 pub use shoal_model::kinematics::Profile;
+pub use shoal_model::ocean::{
+    CURRENT_DIRECTION, CURRENT_SPEED, OceanField, Plume, SALINITY, TEMPERATURE, UNITS, Water,
+    water_at,
+};
 pub use shoal_model::survey::{MAX_SURVEY_LINES, SurveyError, lawnmower};
 
 use crate::adapter::{
@@ -116,6 +116,8 @@ pub struct SimSettings {
     /// Environment samples per second (each gives temperature, salinity and current); 0
     /// turns sampling off.
     pub environment_hz: f64,
+    /// The ocean the vehicle samples.
+    pub ocean: OceanField,
 }
 
 impl Default for SimSettings {
@@ -127,6 +129,7 @@ impl Default for SimSettings {
             low_battery_hysteresis_pct: 5.0,
             detection_per_s: 0.01,
             environment_hz: 0.1,
+            ocean: OceanField::default(),
         }
     }
 }
@@ -154,6 +157,7 @@ impl SimSettings {
             ),
             detection_per_s: pick(self.detection_per_s, 0.0, 0.0, 1.0),
             environment_hz: pick(self.environment_hz, 0.0, 0.0, 10.0),
+            ocean: self.ocean.clone(),
         }
     }
 }
@@ -1047,7 +1051,7 @@ impl SimVehicle {
         let ctd = self.has_sensor("ctd");
         let current = self.has_sensor("dvl") || self.has_sensor("adcp");
         let here = self.position();
-        let obs = water_at(here, self.depth).observations(
+        let obs = self.settings.ocean.water_at(here, self.depth).observations(
             &self.announcement.vehicle_id,
             self.clock_ms(),
             here,

@@ -678,6 +678,46 @@ fn environment_is_sampled_at_the_configured_rate_by_the_sensors_carried() {
 }
 
 #[test]
+fn a_plume_in_the_configured_ocean_is_what_the_ctd_measures() {
+    let start = spec(VehicleKind::Auv, 100.0);
+    let here = p(start.latitude_deg, start.longitude_deg);
+    let ocean = OceanField {
+        surface_temperature_c: Some(8.0),
+        plumes: vec![Plume {
+            latitude_deg: here.latitude_deg,
+            longitude_deg: here.longitude_deg,
+            radius_m: 500.0,
+            depth_m: 0.0,
+            thickness_m: 5.0,
+            temperature_c: 6.0,
+            salinity_psu: -8.0,
+        }],
+        ..OceanField::default()
+    };
+    let settings = SimSettings {
+        environment_hz: 1.0,
+        ocean: ocean.clone(),
+        ..quiet()
+    };
+    let mut v = SimVehicle::with_settings(&start, &settings, T0);
+    let out = run_for(&mut v, 5.0);
+    let value = |property: &str| {
+        out.iter()
+            .find_map(|o| match o {
+                VehicleOutput::Observation(o) if o.property == property => Some(o.value),
+                _ => None,
+            })
+            .unwrap()
+    };
+    let expected = ocean.water_at(here, 0.0);
+    assert!((value(TEMPERATURE) - expected.temperature_c).abs() < 0.01);
+    assert!((value(SALINITY) - expected.salinity_psu).abs() < 0.01);
+    // The plume is in it: warmer and fresher than the same ocean without.
+    let plain = OceanField::default().water_at(here, 0.0);
+    assert!(value(SALINITY) < plain.salinity_psu - 7.0);
+}
+
+#[test]
 fn settings_out_of_range_are_made_safe() {
     let s = SimSettings {
         reserve_pct: f64::NAN,

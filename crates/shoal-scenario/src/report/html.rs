@@ -534,6 +534,32 @@ fn rule_table(out: &mut String, s: &Summary) {
     out.push_str("</table>");
 }
 
+/// What the fleet measured of the environment: per property, the range and where its
+/// extremes were (a plume shows as an extreme away from the rest).
+fn environment_table(out: &mut String, s: &Summary) {
+    if s.environment.is_empty() {
+        return;
+    }
+    out.push_str("<h2>Environment</h2><table><tr><th>Property</th><th>Unit</th><th>Observations</th><th>Vehicles</th><th>Min (where)</th><th>Mean</th><th>Max (where)</th></tr>");
+    let place = |p: &[f64; 3]| format!("{:.5}, {:.5}, {:.1} m", p[0], p[1], p[2]);
+    for (property, e) in &s.environment {
+        let _ = write!(
+            out,
+            "<tr><td>{}</td><td>{}</td><td class=\"n\">{}</td><td>{}</td><td class=\"n\">{} ({})</td><td class=\"n\">{}</td><td class=\"n\">{} ({})</td></tr>",
+            esc(property),
+            esc(&e.unit),
+            e.observations,
+            esc(&e.vehicles.join(", ")),
+            trim(e.min),
+            place(&e.min_at),
+            trim(e.mean),
+            trim(e.max),
+            place(&e.max_at),
+        );
+    }
+    out.push_str("</table>");
+}
+
 /// The report page of a run.
 pub fn render_html(r: &RunRecord, s: &Summary) -> String {
     let mut out = String::with_capacity(64 * 1024);
@@ -647,6 +673,7 @@ pub fn render_html(r: &RunRecord, s: &Summary) -> String {
         out.push_str("</table>");
     }
     acoustic_table(&mut out, r, s);
+    environment_table(&mut out, s);
     rule_table(&mut out, s);
     out.push_str("<h2>Events</h2>");
     let notable: Vec<_> = r

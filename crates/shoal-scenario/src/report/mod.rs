@@ -8,7 +8,10 @@ mod html;
 use std::collections::BTreeMap;
 
 use serde::Serialize;
-use shoal_model::{Event, Severity, StateVector, TaskAssignment, TaskState, TaskStatus, geo};
+use shoal_model::{
+    EnvironmentObservation, Event, Severity, StateVector, TaskAssignment, TaskState, TaskStatus,
+    geo,
+};
 
 pub use html::render_html;
 
@@ -54,6 +57,71 @@ pub struct RunRecord {
     pub link_quality: BTreeMap<String, Vec<LinkSample>>,
     /// Simulated seconds each modem spent transmitting, by modem (a vehicle id or `relay`).
     pub airtime_s: BTreeMap<String, f64>,
+    /// The environment observations the vehicles made, in any order.
+    pub environment: Vec<EnvironmentObservation>,
+}
+
+/// What the fleet measured of one environment property.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EnvironmentFigures {
+    /// Its unit (UCUM).
+    pub unit: String,
+    /// Observations made.
+    pub observations: usize,
+    /// The vehicles that made them, sorted.
+    pub vehicles: Vec<String>,
+    /// Lowest value (0.01).
+    pub min: f64,
+    /// Mean value (0.01).
+    pub mean: f64,
+    /// Highest value (0.01).
+    pub max: f64,
+    /// Where the lowest value was measured: latitude, longitude (1e-5 degrees), depth (0.1 m).
+    pub min_at: [f64; 3],
+    /// Where the highest value was measured.
+    pub max_at: [f64; 3],
+}
+
+impl EnvironmentFigures {
+    /// The figures of observations of one property; `None` for none.
+    pub fn of(obs: &[&EnvironmentObservation]) -> Option<Self> {
+        let first = obs.first()?;
+        let place = |o: &EnvironmentObservation| {
+            [
+                round_dp(o.latitude_deg, 5),
+                round_dp(o.longitude_deg, 5),
+                round_dp(o.depth_m, 1),
+            ]
+        };
+        let (mut lo, mut hi) = (*first, *first);
+        let mut sum = 0.0;
+        let mut vehicles: Vec<String> = Vec::new();
+        for o in obs {
+            if o.value < lo.value {
+                lo = o;
+            }
+            if o.value > hi.value {
+                hi = o;
+            }
+            sum += o.value;
+            if !vehicles.contains(&o.vehicle_id) {
+                vehicles.push(o.vehicle_id.clone());
+            }
+        }
+        vehicles.sort();
+        #[allow(clippy::cast_precision_loss)]
+        let mean = sum / obs.len() as f64;
+        Some(Self {
+            unit: first.unit.clone(),
+            observations: obs.len(),
+            vehicles,
+            min: round_dp(lo.value, 2),
+            mean: round_dp(mean, 2),
+            max: round_dp(hi.value, 2),
+            min_at: place(lo),
+            max_at: place(hi),
+        })
+    }
 }
 
 /// One link-status report: how well the relay heard a vehicle.
@@ -242,6 +310,8 @@ pub struct Summary {
     /// The share of the run the one acoustic channel carried a transmission, % (0.1;
     /// overlapping transmissions count twice); `None` without an acoustic network.
     pub acoustic_channel_use_pct: Option<f64>,
+    /// What the fleet measured of the environment, by property (CF standard name).
+    pub environment: BTreeMap<String, EnvironmentFigures>,
 }
 
 /// One acoustic link in the summary.
@@ -494,7 +564,19 @@ pub fn summarise(r: &RunRecord) -> Summary {
             .map(|(m, s)| (m.clone(), round_dp(*s, 1)))
             .collect(),
         acoustic_channel_use_pct: channel_use_pct(r),
+        environment: environment_figures(r),
     }
+}
+
+/// Per property, what the fleet measured.
+fn environment_figures(r: &RunRecord) -> BTreeMap<String, EnvironmentFigures> {
+    let mut by: BTreeMap<&str, Vec<&EnvironmentObservation>> = BTreeMap::new();
+    for o in &r.environment {
+        by.entry(o.property.as_str()).or_default().push(o);
+    }
+    by.into_iter()
+        .filter_map(|(p, obs)| Some((p.to_owned(), EnvironmentFigures::of(&obs)?)))
+        .collect()
 }
 
 /// The share of the run the acoustic channel was busy, %.

@@ -149,6 +149,7 @@ fn record() -> RunRecord {
         )]
         .into(),
         airtime_s: [("relay".to_owned(), 9.0), ("auv-1".to_owned(), 9.04)].into(),
+        environment: Vec::new(),
     }
 }
 
@@ -328,4 +329,53 @@ fn time_ticks_are_whole_minutes_and_hours() {
 
 fn html_tick(span: f64) -> f64 {
     html::tick_step_for_tests(span)
+}
+
+fn observation(
+    vehicle: &str,
+    property: &str,
+    value: f64,
+    lat: f64,
+    depth: f64,
+) -> EnvironmentObservation {
+    EnvironmentObservation {
+        vehicle_id: vehicle.into(),
+        property: property.into(),
+        timestamp_ms: T0,
+        value,
+        unit: "Cel".into(),
+        latitude_deg: lat,
+        longitude_deg: 10.0,
+        depth_m: depth,
+    }
+}
+
+#[test]
+fn the_environment_figures_give_each_propertys_range_and_where_its_extremes_were() {
+    let t = "sea_water_temperature";
+    let r = RunRecord {
+        environment: vec![
+            observation("auv-2", t, 8.0, 63.0, 5.0),
+            observation("auv-1", t, 11.456, 63.0012, 2.0),
+            observation("auv-1", t, 7.5, 63.0003, 30.04),
+            observation("auv-1", "sea_water_salinity", 31.0, 63.0, 5.0),
+        ],
+        ..record()
+    };
+    let s = summarise(&r);
+    let e = &s.environment[t];
+    assert_eq!(e.observations, 3);
+    assert_eq!(e.vehicles, ["auv-1", "auv-2"]);
+    assert_eq!((e.min, e.max), (7.5, 11.46));
+    assert_eq!(e.mean, 8.99);
+    assert_eq!(e.max_at, [63.0012, 10.0, 2.0]);
+    assert_eq!(e.min_at, [63.0003, 10.0, 30.0]);
+    assert_eq!(s.environment["sea_water_salinity"].observations, 1);
+    let html = render_html(&r, &s);
+    assert!(html.contains("<h2>Environment</h2>"), "{html}");
+    assert!(html.contains("11.46 (63.00120, 10.00000, 2.0 m)"), "{html}");
+    // Without observations, no section.
+    let none = summarise(&record());
+    assert!(none.environment.is_empty());
+    assert!(!render_html(&record(), &none).contains("<h2>Environment</h2>"));
 }

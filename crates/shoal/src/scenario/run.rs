@@ -119,6 +119,8 @@ fn plan(cfg: &ShoalConfig, args: &RunArgs) -> Result<Plan> {
     cfg.history.path = dir.join("history.sqlite");
     cfg.recorder.enabled = true;
     cfg.recorder.directory = dir.join("recording");
+    // Every simulated vehicle, on IP or acoustic, samples the scenario's ocean.
+    cfg.fleet.sim.ocean = scenario.environment.clone();
     Ok(Plan {
         scenario,
         speed,
@@ -461,7 +463,15 @@ fn read_back(
     let history = History::open(&cfg.history).context("cannot read the run's history store")?;
     let reader = history.reader();
     let mut vehicles = Vec::new();
+    let mut environment = Vec::new();
     for v in &scenario.vehicles {
+        for (property, _) in shoal_proxy::sim::UNITS {
+            environment.extend(
+                reader
+                    .observations(&v.id, property, start_ms, end_ms, READ_LIMIT)
+                    .with_context(|| format!("cannot read the observations of {}", v.id))?,
+            );
+        }
         let track = reader
             .track(&v.id, start_ms, end_ms, READ_LIMIT)
             .with_context(|| format!("cannot read the track of {}", v.id))?;
@@ -500,6 +510,7 @@ fn read_back(
         station,
         faults: Vec::new(),
         rule_ids: Vec::new(),
+        environment,
         ..RunRecord::default()
     })
 }

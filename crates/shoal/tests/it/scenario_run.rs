@@ -76,6 +76,19 @@ battery_pct = 15.0
 at_s = 300.0
 kind = "station_restart"
 duration_s = 10.0
+
+# Cold water without eddies, and a warm lens where auv-7 holds.
+[environment]
+surface_temperature_c = 8.0
+eddy_temperature_c = 0.0
+
+[[environment.plumes]]
+latitude_deg = 63.467
+longitude_deg = 10.36
+radius_m = 100.0
+depth_m = 4.0
+thickness_m = 5.0
+temperature_c = 5.0
 "#;
 
 fn shoal(dir: &std::path::Path) -> Command {
@@ -188,8 +201,22 @@ fn a_scenario_with_faults_runs_at_60x_and_leaves_a_report_with_its_figures() {
         "the 60 s hold took {hold} simulated s"
     );
 
+    // The scenario's ocean is what the vehicles measured: the warm lens at the hold, the
+    // cold water elsewhere.
+    let t = &summary["environment"]["sea_water_temperature"];
+    assert!(t["observations"].as_u64().unwrap() >= 20, "{t}");
+    let (min, max) = (t["min"].as_f64().unwrap(), t["max"].as_f64().unwrap());
+    assert!(min < 8.5 && max > 11.0, "{t}");
+    let at = &t["max_at"];
+    assert!((at[0].as_f64().unwrap() - 63.467).abs() < 0.001, "{t}");
+    assert!((at[1].as_f64().unwrap() - 10.36).abs() < 0.002, "{t}");
+
     let html = std::fs::read_to_string(run.join("report.html")).unwrap();
     assert!(html.contains("auv-7") && html.contains("usv-7") && html.contains("<svg"));
+    assert!(
+        html.contains("<h2>Environment</h2>"),
+        "the environment table"
+    );
     assert!(html.contains("Faults injected") && html.contains("class=\"fault\""));
     assert!(
         html.contains("<td>builtin.low_battery</td>"),
