@@ -20,6 +20,7 @@ use std::collections::HashMap;
 use std::ops::Range;
 
 use serde::Deserialize;
+use shoal_acoustic::channel::{ChannelModel, Modulation};
 use shoal_model::ocean::{OceanField, Plume};
 use shoal_model::{
     GeoPoint, MAX_NAME_LEN, MAX_VEHICLE_ID_LEN, StateVector, Task, TaskAssignment, VehicleKind,
@@ -107,6 +108,9 @@ pub struct AcousticNetwork {
     /// The IP vehicle that carries the relay (a USV), whose position the relay follows;
     /// `None`: the relay stays where it is put.
     pub relay_vehicle: Option<String>,
+    /// The channel's physics (the emulator's defaults unless `[acoustic.channel]` changes
+    /// them); unused when `fixed_per` is set.
+    pub channel: ChannelModel,
 }
 
 impl Scenario {
@@ -364,6 +368,21 @@ struct RawAcoustic {
     relay_longitude_deg: Option<Spanned<f64>>,
     relay_address: Option<Spanned<i64>>,
     per: Option<Spanned<f64>>,
+    channel: Option<Spanned<RawChannel>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawChannel {
+    source_level_db: Option<Spanned<f64>>,
+    centre_khz: Option<Spanned<f64>>,
+    bandwidth_khz: Option<Spanned<f64>>,
+    spreading_k: Option<Spanned<f64>>,
+    shipping: Option<Spanned<f64>>,
+    wind_mps: Option<Spanned<f64>>,
+    temperature_c: Option<Spanned<f64>>,
+    salinity_ppt: Option<Spanned<f64>>,
+    modulation: Option<Modulation>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
@@ -709,6 +728,72 @@ impl Checker<'_> {
         })
     }
 
+    /// `[acoustic.channel]`: every parameter of the channel's physics in a range real
+    /// modems and seas have; not with a fixed `per`, which replaces the physics.
+    fn channel(&self, a: &RawAcoustic) -> Result<ChannelModel, ScenarioError> {
+        let d = ChannelModel::default();
+        let Some(c) = &a.channel else {
+            return Ok(d);
+        };
+        if let Some(per) = &a.per {
+            return Err(ScenarioError::Invalid {
+                line: self.line(per),
+                key: "acoustic.per".into(),
+                reason: "a fixed per replaces the channel's physics: not with [acoustic.channel]"
+                    .into(),
+            });
+        }
+        let r = c.get_ref();
+        let opt = |k: &str, v: &Option<Spanned<f64>>, default: f64, lo: f64, hi: f64| {
+            self.optional(
+                &format!("acoustic.channel.{k}"),
+                v.as_ref(),
+                default,
+                (lo, hi, false),
+            )
+        };
+        let centre_khz = opt("centre_khz", &r.centre_khz, d.centre_khz, 1.0, 200.0)?;
+        let bandwidth_khz = opt(
+            "bandwidth_khz",
+            &r.bandwidth_khz,
+            d.bandwidth_khz,
+            0.1,
+            100.0,
+        )?;
+        if bandwidth_khz > 2.0 * centre_khz
+            && let Some(b) = &r.bandwidth_khz
+        {
+            return Err(ScenarioError::Invalid {
+                line: self.line(b),
+                key: "acoustic.channel.bandwidth_khz".into(),
+                reason: format!("more than twice the centre frequency ({centre_khz} kHz)"),
+            });
+        }
+        Ok(ChannelModel {
+            source_level_db: opt(
+                "source_level_db",
+                &r.source_level_db,
+                d.source_level_db,
+                100.0,
+                220.0,
+            )?,
+            centre_khz,
+            bandwidth_khz,
+            spreading_k: opt("spreading_k", &r.spreading_k, d.spreading_k, 1.0, 2.0)?,
+            shipping: opt("shipping", &r.shipping, d.shipping, 0.0, 1.0)?,
+            wind_mps: opt("wind_mps", &r.wind_mps, d.wind_mps, 0.0, 40.0)?,
+            temperature_c: opt(
+                "temperature_c",
+                &r.temperature_c,
+                d.temperature_c,
+                -2.0,
+                35.0,
+            )?,
+            salinity_ppt: opt("salinity_ppt", &r.salinity_ppt, d.salinity_ppt, 0.0, 42.0)?,
+            modulation: r.modulation.unwrap_or(d.modulation),
+        })
+    }
+
     /// The `[environment]` section: every value in a range real water has, at most
     /// [`MAX_PLUMES`] plumes, each changing something.
     fn environment(&self, raw: Option<&RawEnvironment>) -> Result<OceanField, ScenarioError> {
@@ -876,6 +961,7 @@ impl Checker<'_> {
                         .as_ref()
                         .map(|p| self.range("acoustic.per", p, 0.0, 1.0, false))
                         .transpose()?,
+                    channel: self.channel(a)?,
                 })
             }
         };

@@ -498,3 +498,44 @@ fn a_bad_environment_is_one_line_naming_the_key() {
     let e = err(&format!("{HEAD}\n{}", many.repeat(MAX_PLUMES + 1)));
     assert!(e.to_string().contains("at most 32 plumes"), "{e}");
 }
+
+#[test]
+fn the_channels_physics_can_be_set_and_are_checked() {
+    let s = parse(&format!(
+        "{HEAD}{NET}\n[acoustic.channel]\nsource_level_db = 170\ncentre_khz = 12\nbandwidth_khz = 6\n\
+         wind_mps = 12\nmodulation = \"non_coherent_fsk\"\n{}",
+        acoustic_vehicle("ac-1", "")
+    ))
+    .unwrap();
+    let c = s.acoustic.unwrap().channel;
+    assert_eq!(
+        (c.source_level_db, c.centre_khz, c.bandwidth_khz),
+        (170.0, 12.0, 6.0)
+    );
+    assert_eq!(
+        (c.wind_mps, c.modulation),
+        (12.0, Modulation::NonCoherentFsk)
+    );
+    assert_eq!(c.spreading_k, ChannelModel::default().spreading_k);
+    // Without the section: the emulator's defaults.
+    let plain = parse(&format!("{HEAD}{NET}{}", acoustic_vehicle("ac-1", ""))).unwrap();
+    assert_eq!(plain.acoustic.unwrap().channel, ChannelModel::default());
+
+    let base = HEAD.lines().count() + NET.lines().count();
+    let e = err(&format!(
+        "{HEAD}{NET}\n[acoustic.channel]\nspreading_k = 3\n"
+    ));
+    assert_names(&e, base + 3, "acoustic.channel.spreading_k");
+    let e = err(&format!(
+        "{HEAD}{NET}\n[acoustic.channel]\ncentre_khz = 5\nbandwidth_khz = 20\n"
+    ));
+    assert_names(&e, base + 4, "acoustic.channel.bandwidth_khz");
+    let e = err(&format!(
+        "{HEAD}{NET}per = 0.1\n\n[acoustic.channel]\nwind_mps = 3\n"
+    ));
+    assert_names(&e, base + 1, "acoustic.per");
+    let e = err(&format!(
+        "{HEAD}{NET}\n[acoustic.channel]\nmodulation = \"ofdm\"\n"
+    ));
+    assert_names(&e, base + 3, "modulation");
+}
