@@ -147,8 +147,15 @@ pub fn summary(s: &Scenario) -> String {
     } else {
         String::new()
     };
+    let plumes = s.environment.plumes.len();
+    let ocean = if s.environment == shoal_model::ocean::OceanField::default() {
+        String::new()
+    } else {
+        let s = if plumes == 1 { "" } else { "s" };
+        format!(", its own ocean ({plumes} plume{s})")
+    };
     format!(
-        "scenario {:?}: {} vehicles{acoustic}, {} missions ({tasks} tasks){timeline}, {} s at time scale {}",
+        "scenario {:?}: {} vehicles{acoustic}, {} missions ({tasks} tasks){timeline}, {} s at time scale {}{ocean}",
         s.name,
         s.vehicles.len(),
         s.missions.len(),
