@@ -590,14 +590,9 @@ impl SimVehicle {
     /// How the vehicle would execute a task, or why it cannot.
     fn plan(&self, task: &Task, notes: &mut Vec<String>) -> Result<Plan, Refusal> {
         let p = self.profile;
-        let underwater = self.is_underwater();
         let depth_for = |depth: Option<f64>, altitude: Option<f64>| -> Result<f64, Refusal> {
-            let d = depth
-                .or_else(|| altitude.map(|a| (p.seabed_m - a).max(0.0)))
-                .unwrap_or(0.0);
-            if !underwater {
-                return Ok(0.0);
-            }
+            // The surface for surface craft, whatever the task says.
+            let d = p.depth_for(depth, altitude);
             if d > p.seabed_m - 1.0 {
                 return Err(Refusal::new(format!(
                     "target depth {d:.1} m is at or below the seabed at {:.1} m",
