@@ -123,7 +123,22 @@ site = "shore"
 listen = []
 connect = ["tcp/127.0.0.1:$zenoh_port"]
 remote_sites = ["ship"]
+# Site identity (the default): the shore authenticates to the ship, which listens and
+# checks it against its own dictionary (written below).
+password_file = "$work/shore.password"
+credentials_file = "$work/shore-sites.txt"
 EOF
+# Site identity for both sites: each one's password, and Zenoh's dictionary of the
+# other's (<site>:<password> a line). Fresh random passwords, readable by root only.
+shore_pw="$(head -c 18 /dev/urandom | base64 | tr -d '/+=')"
+ship_pw="$(head -c 18 /dev/urandom | base64 | tr -d '/+=')"
+(
+    umask 077
+    printf '%s\n' "$shore_pw" >"$work/shore.password"
+    printf 'ship:%s\n' "$ship_pw" >"$work/shore-sites.txt"
+    printf '%s\n' "$ship_pw" >"$work/ship.password"
+    printf 'shore:%s\n' "$shore_pw" >"$work/ship-sites.txt"
+)
 
 # Site "ship": a station of its own (DDS domain 147, no DDS Security, no console logins:
 # only the shore's federation talks to it, on loopback in the namespace) and one
@@ -136,6 +151,8 @@ ship_env=(SHOAL_DDS__DOMAIN_ID=147 SHOAL_CONSOLE__AUTH__ENABLED=false)
     SHOAL_FEDERATION__ENABLED=true SHOAL_FEDERATION__SITE=ship \
     SHOAL_FEDERATION__LISTEN="[\"tcp/127.0.0.1:$zenoh_port\"]" \
     SHOAL_FEDERATION__CONNECT='[]' SHOAL_FEDERATION__REMOTE_SITES='["shore"]' \
+    SHOAL_FEDERATION__PASSWORD_FILE="$work/ship.password" \
+    SHOAL_FEDERATION__CREDENTIALS_FILE="$work/ship-sites.txt" \
     SHOAL_FEDERATION__POSITIONS__MAX_RATE_HZ=1.0 \
     "$bin" --insecure station --scenario none --listen "127.0.0.1:$ship_port" --db :memory: \
     >"$out/ship-station.log" 2>&1) &
@@ -167,6 +184,11 @@ kill -0 "$ship_vehicle_pid" 2>/dev/null || die "the ship's vehicle exited early;
 if grep -aqF "$token" "$out/shoal-up.log"; then
     die "the admin token appears in $out/shoal-up.log: credentials must never be logged"
 fi
+for log in "$out/shoal-up.log" "$out/ship-station.log"; do
+    if grep -aqF -e "$shore_pw" -e "$ship_pw" "$log"; then
+        die "a federation password appears in $log: credentials must never be logged"
+    fi
+done
 # Logins are on: the token must be required and must work.
 code="$(ip netns exec "$ns" curl -s -o /dev/null -w '%{http_code}' "http://127.0.0.1:$port/api/fleet")"
 [[ "$code" == 401 ]] || die "GET /api/fleet without credentials answered $code, not 401"

@@ -5,6 +5,8 @@
 //! reach beyond this machine: the site listens on loopback only, connects nowhere, and
 //! Zenoh's multicast scouting (UDP 224.0.0.224:7446) and gossip are off unless turned on.
 
+use std::path::{Path, PathBuf};
+
 use serde::{Deserialize, Serialize};
 use shoal_model::Severity;
 
@@ -53,6 +55,17 @@ pub struct FederationConfig {
     /// Zenoh's gossip: peers learn and connect to each other's peers. Off, so the links
     /// are exactly those configured.
     pub gossip: bool,
+    /// Run without site identity (no Zenoh authentication or access control): any peer
+    /// that reaches this site may claim any site name. Off: identity is required.
+    pub insecure_open: bool,
+    /// File holding this site's password (its Zenoh username is `site`); empty: none.
+    pub password_file: PathBuf,
+    /// This site's password itself, for `SHOAL_FEDERATION__PASSWORD`; exclusive with
+    /// `password_file`. Never logged, never written out.
+    pub password: Secret,
+    /// Zenoh's user-password dictionary (`<site>:<password>` a line) of the remote sites
+    /// this site accepts connections from; empty: none.
+    pub credentials_file: PathBuf,
     /// Vehicle positions.
     pub positions: PositionsPolicy,
     /// Alarms.
@@ -76,12 +89,55 @@ impl Default for FederationConfig {
             remote_sites: Vec::new(),
             multicast_scouting: false,
             gossip: false,
+            insecure_open: false,
+            password_file: PathBuf::new(),
+            password: Secret::default(),
+            credentials_file: PathBuf::new(),
             positions: PositionsPolicy::default(),
             alarms: AlarmsPolicy::default(),
             tasks: TasksPolicy::default(),
             environment: EnvironmentPolicy::default(),
             limits: Limits::default(),
         }
+    }
+}
+
+/// A password: `Debug` and `Serialize` never show it (`shoal config` prints
+/// `<redacted>`).
+#[derive(Clone, Default, PartialEq, Eq, Deserialize)]
+#[serde(transparent)]
+pub struct Secret(String);
+
+impl Secret {
+    /// Wraps a password.
+    pub fn new(value: impl Into<String>) -> Self {
+        Self(value.into())
+    }
+
+    /// The password itself, for Zenoh's configuration only.
+    pub fn expose(&self) -> &str {
+        &self.0
+    }
+
+    /// Whether none is set.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+}
+
+impl std::fmt::Debug for Secret {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_empty() {
+            "\"\""
+        } else {
+            "<redacted>"
+        })
+    }
+}
+
+impl Serialize for Secret {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(if self.0.is_empty() { "" } else { "<redacted>" })
     }
 }
 
@@ -342,13 +398,166 @@ impl FederationConfig {
                 "must be in 1..=600000",
             ));
         }
+        if !self.insecure_open {
+            self.identity_topology()?;
+        }
+        if self.enabled {
+            // Read the files now, so that a station refuses to start naming the key.
+            self.identity()?;
+        }
         Ok(())
+    }
+
+    /// With identity, every link must be one whose far end Zenoh identifies or one this
+    /// site chose: Zenoh's user-password authentication identifies the side that
+    /// connects, to the side that accepts, and never the other way round.
+    fn identity_topology(&self) -> Result<(), ConfigError> {
+        const WHY: &str = "with site identity (insecure_open = false), ";
+        if !self.listen.is_empty() && !self.connect.is_empty() {
+            return Err(invalid(
+                "connect",
+                format!(
+                    "{WHY}a site either listens (and checks the sites that connect to it) or \
+                     connects (to the endpoints it trusts), not both: Zenoh identifies only \
+                     the connecting side of a link"
+                ),
+            ));
+        }
+        if self.gossip {
+            return Err(invalid(
+                "gossip",
+                format!("{WHY}links are the configured ones only: set gossip = false"),
+            ));
+        }
+        if self.multicast_scouting {
+            return Err(invalid(
+                "multicast_scouting",
+                format!("{WHY}links are the configured ones only: set multicast_scouting = false"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// This site's Zenoh identity, read from its files; `None` with `insecure_open`.
+    /// Errors name the key and the file, never a password.
+    pub fn identity(&self) -> Result<Option<Identity>, ConfigError> {
+        if self.insecure_open {
+            return Ok(None);
+        }
+        let password = match (
+            self.password_file.as_os_str().is_empty(),
+            self.password.is_empty(),
+        ) {
+            (false, false) => {
+                return Err(invalid(
+                    "password",
+                    "set either password or password_file, not both",
+                ));
+            }
+            (true, true) => {
+                return Err(invalid(
+                    "password_file",
+                    "site identity needs this site's password: set password_file (or \
+                     password, e.g. from SHOAL_FEDERATION__PASSWORD), or insecure_open = \
+                     true to federate without identity",
+                ));
+            }
+            (false, true) => {
+                let text = read(&self.password_file, "password_file")?;
+                text.trim().to_string()
+            }
+            (true, false) => self.password.expose().trim().to_string(),
+        };
+        if password.is_empty() {
+            let key = if self.password.is_empty() {
+                "password_file"
+            } else {
+                "password"
+            };
+            return Err(invalid(key, "the password is empty"));
+        }
+        if self.credentials_file.as_os_str().is_empty() {
+            return Err(invalid(
+                "credentials_file",
+                "site identity needs the dictionary of the remote sites' usernames and \
+                 passwords (<site>:<password> a line), or insecure_open = true to federate \
+                 without identity",
+            ));
+        }
+        let path = &self.credentials_file;
+        let dictionary_file = path
+            .to_str()
+            .ok_or_else(|| invalid("credentials_file", format!("{}: not UTF-8", path.display())))?;
+        let text = read(path, "credentials_file")?;
+        let users = dictionary_users(&text)
+            .map_err(|p| invalid("credentials_file", format!("{}: {p}", path.display())))?;
+        for (i, remote) in self.remote_sites.iter().enumerate() {
+            if !users.contains(remote) {
+                return Err(invalid(
+                    format!("remote_sites[{i}]"),
+                    format!(
+                        "{remote} has no entry in credentials_file {}",
+                        path.display()
+                    ),
+                ));
+            }
+        }
+        Ok(Some(Identity {
+            user: self.site.clone(),
+            password: Secret(password),
+            credentials_file: dictionary_file.to_string(),
+            users,
+        }))
     }
 
     /// Whether data from `site` is accepted.
     pub fn accepts(&self, site: &str) -> bool {
         self.remote_sites.iter().any(|s| s == site)
     }
+}
+
+/// This site's identity in the federation: its Zenoh username and password, and the
+/// dictionary of the remote sites it accepts connections from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Identity {
+    /// This site's Zenoh username: its site name.
+    pub user: String,
+    /// This site's password (trimmed, as Zenoh trims the dictionary's).
+    pub password: Secret,
+    /// Zenoh's user-password dictionary file, as configured.
+    pub credentials_file: String,
+    /// The usernames in that file, in file order.
+    pub users: Vec<String>,
+}
+
+/// Reads a file named by `key`; the error names the key and the file, not its content.
+fn read(path: &Path, key: &str) -> Result<String, ConfigError> {
+    std::fs::read_to_string(path)
+        .map_err(|e| invalid(key, format!("cannot read {}: {e}", path.display())))
+}
+
+/// The usernames of Zenoh's user-password dictionary: one `<user>:<password>` a line,
+/// each side trimmed, blank lines skipped; what Zenoh 1.10 refuses is refused here
+/// first, so that the error is Shoal's and names the line (never its content).
+pub fn dictionary_users(text: &str) -> Result<Vec<String>, String> {
+    let mut users = Vec::new();
+    for (n, line) in text.lines().enumerate().map(|(i, l)| (i + 1, l.trim())) {
+        if line.is_empty() {
+            continue;
+        }
+        let Some((user, password)) = line.split_once(':') else {
+            return Err(format!("line {n}: expected <site>:<password>"));
+        };
+        let user = user.trim();
+        if user.is_empty() {
+            return Err(format!("line {n}: empty site name"));
+        }
+        if password.trim().is_empty() {
+            return Err(format!("line {n}: empty password"));
+        }
+        users.push(user.to_string());
+    }
+    Ok(users)
 }
 
 fn bounded(key: &str, n: usize) -> Result<(), ConfigError> {
@@ -447,6 +656,176 @@ mod tests {
                 c.listen.clear();
             })
             .starts_with("federation.connect:")
+        );
+    }
+
+    /// A directory with this site's password file and a dictionary of `entries`.
+    fn files(entries: &str) -> (tempdir::Dir, FederationConfig) {
+        let dir = tempdir::Dir::new();
+        std::fs::write(dir.path("password"), "s3cret-ship\n").unwrap();
+        std::fs::write(dir.path("sites.txt"), entries).unwrap();
+        let c = FederationConfig {
+            enabled: true,
+            site: "ship".into(),
+            remote_sites: vec!["shore".into()],
+            password_file: dir.path("password"),
+            credentials_file: dir.path("sites.txt"),
+            ..FederationConfig::default()
+        };
+        (dir, c)
+    }
+
+    /// A scratch directory removed on drop (no tempfile dependency for three files).
+    mod tempdir {
+        use std::path::PathBuf;
+
+        pub struct Dir(PathBuf);
+
+        impl Dir {
+            pub fn new() -> Self {
+                static N: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+                let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let dir = std::env::temp_dir()
+                    .join(format!("shoal-fed-config-{}-{n}", std::process::id()));
+                std::fs::create_dir_all(&dir).unwrap();
+                Self(dir)
+            }
+
+            pub fn path(&self, name: &str) -> PathBuf {
+                self.0.join(name)
+            }
+        }
+
+        impl Drop for Dir {
+            fn drop(&mut self) {
+                let _ = std::fs::remove_dir_all(&self.0);
+            }
+        }
+    }
+
+    #[test]
+    fn an_enabled_site_needs_identity_unless_insecure_open() {
+        let c = FederationConfig {
+            enabled: true,
+            ..FederationConfig::default()
+        };
+        let e = c.validate().unwrap_err().to_string();
+        assert!(e.starts_with("federation.password_file:"), "{e}");
+        assert!(e.contains("insecure_open"), "{e}");
+        let open = FederationConfig {
+            insecure_open: true,
+            ..c
+        };
+        assert_eq!(open.validate(), Ok(()));
+        assert_eq!(open.identity(), Ok(None));
+        // Not enabled: the files are not read (the station does not federate).
+        assert_eq!(FederationConfig::default().validate(), Ok(()));
+    }
+
+    #[test]
+    fn the_identity_is_read_from_the_files() {
+        let (_dir, c) = files("shore:pw-shore\n\n  other : x \n");
+        assert_eq!(c.validate(), Ok(()));
+        let id = c.identity().unwrap().unwrap();
+        assert_eq!(id.user, "ship");
+        assert_eq!(id.password.expose(), "s3cret-ship");
+        assert_eq!(id.users, ["shore", "other"]);
+        assert_eq!(id.credentials_file, c.credentials_file.to_str().unwrap());
+        // From the environment's key instead of a file.
+        let c = FederationConfig {
+            password_file: PathBuf::new(),
+            password: Secret::new("from-env"),
+            ..c
+        };
+        assert_eq!(c.identity().unwrap().unwrap().password.expose(), "from-env");
+    }
+
+    #[test]
+    fn identity_errors_name_the_key_and_never_the_password() {
+        let (dir, c) = files("shore:pw-shore\n");
+        let error = |c: &FederationConfig| c.validate().unwrap_err().to_string();
+        let e = error(&FederationConfig {
+            password_file: dir.path("missing"),
+            ..c.clone()
+        });
+        assert!(
+            e.starts_with("federation.password_file: cannot read"),
+            "{e}"
+        );
+        let e = error(&FederationConfig {
+            credentials_file: dir.path("missing"),
+            ..c.clone()
+        });
+        assert!(
+            e.starts_with("federation.credentials_file: cannot read"),
+            "{e}"
+        );
+        let e = error(&FederationConfig {
+            credentials_file: PathBuf::new(),
+            ..c.clone()
+        });
+        assert!(e.starts_with("federation.credentials_file:"), "{e}");
+        let e = error(&FederationConfig {
+            password: Secret::new("s3cret-ship"),
+            ..c.clone()
+        });
+        assert!(e.starts_with("federation.password:"), "{e}");
+        assert!(!e.contains("s3cret"), "{e}");
+        // Every remote site needs an entry.
+        let e = error(&FederationConfig {
+            remote_sites: vec!["shore".into(), "ship2".into()],
+            ..c.clone()
+        });
+        assert!(
+            e.starts_with("federation.remote_sites[1]: ship2 has no entry"),
+            "{e}"
+        );
+        // A malformed dictionary names the line, not its content.
+        std::fs::write(dir.path("sites.txt"), "shore:pw-shore\nship2 pw-secret\n").unwrap();
+        let e = error(&c);
+        assert!(e.contains("line 2: expected <site>:<password>"), "{e}");
+        assert!(!e.contains("pw-"), "{e}");
+        std::fs::write(dir.path("sites.txt"), "shore:\n").unwrap();
+        assert!(error(&c).contains("line 1: empty password"));
+        std::fs::write(dir.path("password"), "  \n").unwrap();
+        std::fs::write(dir.path("sites.txt"), "shore:pw\n").unwrap();
+        assert!(error(&c).starts_with("federation.password_file: the password is empty"));
+    }
+
+    #[test]
+    fn identity_takes_only_configured_links() {
+        let (_dir, c) = files("shore:pw\n");
+        let e = refused_from(&c, |c| c.connect = vec!["tcp/127.0.0.1:1".into()]);
+        assert!(e.starts_with("federation.connect:"), "{e}");
+        assert!(refused_from(&c, |c| c.gossip = true).starts_with("federation.gossip:"));
+        assert!(
+            refused_from(&c, |c| c.multicast_scouting = true)
+                .starts_with("federation.multicast_scouting:")
+        );
+        // Without identity, a site may listen and connect as before.
+        let mut open = c;
+        open.insecure_open = true;
+        open.connect = vec!["tcp/127.0.0.1:1".into()];
+        assert_eq!(open.validate(), Ok(()));
+    }
+
+    fn refused_from(c: &FederationConfig, edit: impl FnOnce(&mut FederationConfig)) -> String {
+        let mut c = c.clone();
+        edit(&mut c);
+        c.validate().unwrap_err().to_string()
+    }
+
+    #[test]
+    fn the_password_is_never_shown() {
+        let c = FederationConfig {
+            password: Secret::new("s3cret"),
+            ..FederationConfig::default()
+        };
+        assert!(!format!("{c:?}").contains("s3cret"));
+        let text = toml::to_string(&c).unwrap();
+        assert!(
+            !text.contains("s3cret") && text.contains("<redacted>"),
+            "{text}"
         );
     }
 }

@@ -9,6 +9,11 @@
 //! - tasks: one publishing positions as their vehicles fall due, one publishing alarms
 //!   and task transitions from a bounded queue, one asking catch-up queries.
 //!
+//! With site identity (the default), the session authenticates as its site and, when
+//! it listens, Zenoh's access control lets each remote site send only under its own
+//! `shoal/<site>/**` (see `zenoh_config`); the inbound checks below still refuse what
+//! an authorised site sends that is inconsistent or from a site not configured.
+//!
 //! Zenoh calls the subscribers' callbacks on its own threads; they only lock a core for
 //! the time of one sample and hand catch-up queries to a task through a bounded channel.
 
@@ -131,7 +136,10 @@ impl Federation {
     /// for a remote site (except in client mode, where Zenoh waits for the router).
     pub async fn start(config: FederationConfig) -> Result<Self, StartError> {
         config.validate()?;
-        let zconfig = zenoh_config(&config)?;
+        // Read here too: `validate` reads the files only when `enabled`, and a program
+        // starting the transport means to federate.
+        let identity = config.identity()?;
+        let zconfig = zenoh_config(&config, identity.as_ref())?;
         let zerr = |what| move |source| StartError::Zenoh { what, source };
         let session = zenoh::open(zconfig).await.map_err(zerr("open a session"))?;
         // The epoch tells a remote site that sequence numbers restarted from 1.
@@ -220,7 +228,13 @@ impl Federation {
                 stop.clone(),
             )),
         ];
-        info!(site = %site, epoch, zid = %session.zid(), "federation started");
+        info!(
+            site = %site,
+            epoch,
+            zid = %session.zid(),
+            identity = identity.is_some(),
+            "federation started"
+        );
         Ok(Self {
             site,
             epoch,

@@ -32,7 +32,7 @@ pub mod wire;
 #[cfg(feature = "transport")]
 mod zenoh_config;
 
-pub use config::{ConfigError, FederationConfig};
+pub use config::{ConfigError, FederationConfig, Identity, Secret};
 #[cfg(feature = "transport")]
 pub use error::{ShutdownError, StartError};
 #[cfg(feature = "transport")]

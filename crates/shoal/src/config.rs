@@ -644,13 +644,20 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 24]>([
+        rows.extend::<[(&str, &str, &str, Check); 25]>([
             ("foxglove", "SHOAL_FOXGLOVE__ENABLED", "true", |c| {
                 c.foxglove.enabled && c.foxglove.max_clients == 8
             }),
             ("federation", "SHOAL_FEDERATION__SITE", "ship-1", |c| {
                 c.federation.site == "ship-1" && !c.federation.enabled
             }),
+            // Site identity: the password comes from the environment rather than a file.
+            (
+                "federation",
+                "SHOAL_FEDERATION__PASSWORD",
+                "pw from env",
+                |c| c.federation.password.expose() == "pw from env" && !c.federation.insecure_open,
+            ),
             (
                 "federation.positions",
                 "SHOAL_FEDERATION__POSITIONS__MAX_RATE_HZ",

@@ -146,6 +146,16 @@ pub async fn start(
     station: StationHandle,
     shutdown: CancellationToken,
 ) -> Result<tokio::task::JoinHandle<()>> {
+    if config.insecure_open {
+        // Once per start, on the terminal and in the log, like the other insecure modes.
+        let msg = format!(
+            "FEDERATION WITHOUT SITE IDENTITY ([federation] insecure_open = true): any Zenoh \
+             peer that reaches site {} can claim any site name. Use this only in a lab.",
+            config.site
+        );
+        eprintln!("shoal: WARNING: {msg}");
+        warn!("{msg}");
+    }
     let fed = Arc::new(
         Federation::start(config)
             .await

@@ -310,6 +310,13 @@ fn init_logging(label: &str, default_filter: &str) {
     use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter));
+    // Zenoh logs its whole configuration at debug when a session opens, the federation's
+    // password ([federation] password) with it: that one module never logs below info,
+    // whatever RUST_LOG says.
+    let filter = match "zenoh::api::session=info".parse() {
+        Ok(directive) => filter.add_directive(directive),
+        Err(_) => filter,
+    };
     let ansi = std::io::stderr().is_terminal();
     let format = tracing_subscriber::fmt::format()
         .with_target(false)
