@@ -71,10 +71,12 @@ pub struct AuthConfig {
     /// The first admin's password on the first start (at least 10 characters), instead of
     /// a random one printed on the terminal; empty: random. For test harnesses and
     /// provisioning (`SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_PASSWORD`); unused once an admin
-    /// exists.
+    /// exists. Shown as `<redacted>` by `shoal config`.
+    #[serde(serialize_with = "redacted")]
     pub initial_admin_password: String,
     /// The first admin API token on the first start (at least 32 characters), instead of a
-    /// random one printed on the terminal; empty: random.
+    /// random one printed on the terminal; empty: random. Shown as `<redacted>`.
+    #[serde(serialize_with = "redacted")]
     pub initial_admin_token: String,
     /// Failed logins allowed per client address and per user name within
     /// `failed_login_window_s`; past that, logins are answered 429 with `Retry-After`.
@@ -85,6 +87,11 @@ pub struct AuthConfig {
     pub max_concurrent_hashes: usize,
     /// How long a login waits for a hashing turn before 503, ms.
     pub hash_queue_ms: u64,
+}
+
+/// A credential as the printed configuration shows it: whether one is set, never what.
+fn redacted<S: serde::Serializer>(value: &str, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(if value.is_empty() { "" } else { "<redacted>" })
 }
 
 impl Default for AuthConfig {

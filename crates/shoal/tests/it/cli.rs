@@ -103,6 +103,25 @@ fn config_prints_the_effective_configuration() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("domain_id = 9"));
 }
 
+/// Credentials given in the configuration are shown as set, never printed.
+#[test]
+fn config_never_prints_a_credential() {
+    let token = "an-initial-admin-token-of-at-least-32-characters";
+    let out = shoal()
+        .arg("config")
+        .env("SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_TOKEN", token)
+        .env("SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_PASSWORD", "a long admin password")
+        .env("SHOAL_FEDERATION__PASSWORD", "a federation password")
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    for secret in [token, "a long admin password", "a federation password"] {
+        assert!(!text.contains(secret), "{secret:?} printed");
+    }
+    assert!(text.contains("initial_admin_token = \"<redacted>\""), "{text}");
+}
+
 /// `shoal up` on its own domain and port: the IP vehicles and the acoustic one appear on
 /// the API (the latter with an acoustic link), SIGTERM stops all without DDS errors.
 #[test]
