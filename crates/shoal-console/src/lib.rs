@@ -23,7 +23,8 @@
 //! vehicles and their tracks, events and acknowledgement, tasks, missions (plan, start,
 //! abort, abort all, CSV/GeoJSON export), the vehicles able to do a task (from the semantic
 //! model), rules, environment subscriptions, SPARQL, the tracks of an MCAP recording for
-//! the replay (`POST /api/recordings/tracks`), the live WebSocket `/api/ws`, and logins
+//! the replay (`POST /api/recordings/tracks`), the acoustic network for the map
+//! (`/api/acoustic`), the live WebSocket `/api/ws`, and logins
 //! (`/api/auth/...`, see [`auth`]).
 
 #![forbid(unsafe_code)]
@@ -49,6 +50,7 @@ use tracing::{error, info, warn};
 
 use crate::extract::ApiJson;
 
+mod acoustic;
 pub mod auth;
 mod capable;
 pub mod export;
@@ -393,6 +395,7 @@ fn build(
         .route("/api/openapi.json", get(openapi))
         .route("/api/rejected", get(rejected))
         .route("/api/traffic", get(traffic::traffic))
+        .route("/api/acoustic", get(acoustic::acoustic))
         .route("/api/federation", get(federation::federation))
         .route("/api/rules", get(rules).post(create_rule))
         .route(

@@ -1249,3 +1249,121 @@ async fn the_openapi_document_matches_what_the_router_answers() {
     assert!(checked > 100, "only {checked} answers checked");
     f.shutdown.cancel();
 }
+
+/// The acoustic network for the map: a CDT's link report for a registered vehicle shows
+/// with its relay, which rides on a USV the station hears; the channel model's range rings
+/// grow with the packet error rate.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_acoustic_network_shows_each_link_its_relay_and_the_range_rings() {
+    let f = start(149);
+    let r = &f.router;
+    let token = bearer(&f.admin_token);
+    let h = &f.handle;
+    for id in ["auv-ac9", "usv-9"] {
+        expect(
+            r,
+            "POST",
+            "/api/vehicles",
+            token.clone(),
+            Some(serde_json::to_value(announcement(id)).unwrap()),
+            StatusCode::CREATED,
+        )
+        .await;
+    }
+    let now = now_ms();
+    h.ingest_state(state("auv-ac9", now, 63.467)).unwrap();
+    h.ingest_state(state("usv-9", now, 63.464)).unwrap();
+    let before = json_of(
+        &expect(
+            r,
+            "GET",
+            "/api/acoustic",
+            token.clone(),
+            None,
+            StatusCode::OK,
+        )
+        .await,
+    );
+    assert_eq!(before["links"], json!([]), "no CDT has spoken yet");
+
+    let status = shoal_model::LinkStatus {
+        vehicle_id: "auv-ac9".into(),
+        link: LinkKind::Acoustic,
+        cdt_address: 1,
+        vehicle_address: 2,
+        rssi_db: Some(-72),
+        integrity: Some(180),
+        heard_ms: now,
+        participant: "0a0b0c".into(),
+        cdt_latitude_deg: Some(63.4),
+        cdt_longitude_deg: Some(10.3),
+        cdt_vehicle: Some("usv-9".into()),
+        frames: Some(17),
+        interval_s: Some(5.0),
+    };
+    h.ingest_event(shoal_model::Validated::new(status.to_event()).unwrap())
+        .unwrap();
+
+    let doc = json_of(
+        &expect(
+            r,
+            "GET",
+            "/api/acoustic",
+            token.clone(),
+            None,
+            StatusCode::OK,
+        )
+        .await,
+    );
+    let links = doc["links"].as_array().unwrap();
+    assert_eq!(links.len(), 1, "{doc}");
+    let l = &links[0];
+    assert_eq!(l["vehicle_id"], "auv-ac9");
+    assert_eq!(l["link"], "acoustic");
+    assert_eq!(
+        (&l["cdt_address"], &l["vehicle_address"]),
+        (&json!(1), &json!(2))
+    );
+    assert_eq!((&l["rssi_db"], &l["integrity"]), (&json!(-72), &json!(180)));
+    assert_eq!(
+        (&l["frames"], &l["cdt_vehicle"]),
+        (&json!(17), &json!("usv-9"))
+    );
+    assert_eq!(l["heard_ms"], now);
+    assert_eq!(l["position"]["latitude_deg"], 63.467);
+    // The relay rides on usv-9: its modem is where usv-9 last reported, not where the CDT
+    // was configured.
+    assert_eq!(l["relay_position"]["from"], "carrier");
+    assert_eq!(l["relay_position"]["latitude_deg"], 63.464);
+
+    assert_eq!(
+        (&doc["frame_bytes"], &doc["bit_rate_bps"]),
+        (&json!(64), &json!(976.0))
+    );
+    let rings = doc["rings"].as_array().unwrap();
+    let pers: Vec<f64> = rings.iter().map(|r| r["per"].as_f64().unwrap()).collect();
+    assert_eq!(pers, [0.1, 0.5, 0.9]);
+    let ranges: Vec<f64> = rings
+        .iter()
+        .map(|r| r["range_m"].as_f64().unwrap())
+        .collect();
+    assert!(
+        ranges[0] > 100.0 && ranges[0] < ranges[1] && ranges[1] < ranges[2],
+        "{ranges:?}"
+    );
+
+    // A viewer may read it.
+    let who = json!({"name": "vic", "password": "viewer-password-1", "role": "viewer"});
+    expect(
+        r,
+        "POST",
+        "/api/auth/users",
+        token.clone(),
+        Some(who),
+        StatusCode::CREATED,
+    )
+    .await;
+    let viewer = login(r, "vic", "viewer-password-1").await;
+    expect(r, "GET", "/api/acoustic", viewer, None, StatusCode::OK).await;
+    f.shutdown.cancel();
+}

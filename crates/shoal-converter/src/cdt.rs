@@ -97,6 +97,8 @@ struct Peer {
     rssi: Option<i32>,
     integrity: Option<u32>,
     heard_ms: i64,
+    /// Frames heard from it since the CDT started (the console animates their arrival).
+    frames: u64,
     status_published: Option<Instant>,
 }
 
@@ -396,6 +398,7 @@ impl Cdt {
         peer.rssi = rssi;
         peer.integrity = integrity;
         peer.heard_ms = now;
+        peer.frames = peer.frames.saturating_add(1);
         for mut p in pdus {
             // A frame without a vehicle speaks for its sender.
             if let Pdu::Event(e) = &mut p
@@ -694,6 +697,11 @@ impl Cdt {
             integrity: peer.integrity,
             heard_ms: peer.heard_ms,
             participant: self.participant.clone(),
+            cdt_latitude_deg: self.cfg.position.map(|p| p.latitude_deg),
+            cdt_longitude_deg: self.cfg.position.map(|p| p.longitude_deg),
+            cdt_vehicle: self.cfg.carrier.clone(),
+            frames: Some(peer.frames),
+            interval_s: Some(self.cfg.link_status_interval_s),
         };
         if let Err(e) = self.w.event.write(status.to_event()).await {
             warn!(error = %e, "link status not published");

@@ -239,6 +239,16 @@ impl Default for VdtConfig {
     }
 }
 
+/// Where a modem is, degrees (WGS84).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModemPosition {
+    /// Latitude, degrees.
+    pub latitude_deg: f64,
+    /// Longitude, degrees.
+    pub longitude_deg: f64,
+}
+
 /// Configuration of a Control Data Terminal.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -255,6 +265,12 @@ pub struct CdtConfig {
     pub relays: Vec<RelayEntry>,
     /// A per-vehicle link-status event is republished at most this often (seconds).
     pub link_status_interval_s: f64,
+    /// Where this CDT's modem is (a moored buoy, the station's own transducer), named in
+    /// the link status so the console can draw it; with `carrier`, where it starts.
+    pub position: Option<ModemPosition>,
+    /// The vehicle carrying this CDT's modem (a USV), by the id it publishes: the modem is
+    /// wherever that vehicle reports itself, named in the link status.
+    pub carrier: Option<String>,
     /// Link layer settings.
     pub link: LinkSettings,
     /// Wall-clock seconds per simulated second (match the emulator's `time_scale`).
@@ -273,6 +289,8 @@ impl Default for CdtConfig {
             vehicles: Vec::new(),
             relays: Vec::new(),
             link_status_interval_s: 30.0,
+            position: None,
+            carrier: None,
             link: LinkSettings::default(),
             time_scale: 1.0,
             clock: None,
@@ -294,6 +312,15 @@ impl CdtConfig {
     }
 }
 
+/// Whether `id` is a valid Shoal vehicle id.
+fn valid_vehicle_id(id: &str) -> bool {
+    !id.is_empty()
+        && id.len() <= shoal_model::MAX_VEHICLE_ID_LEN
+        && id
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b"_.-".contains(&b))
+}
+
 /// Builds and checks the address book: ids valid, addresses 1..=15, no duplicates.
 pub(crate) fn address_book(entries: &[AddressEntry]) -> Result<AddressBook, ConverterError> {
     if entries.is_empty() {
@@ -311,12 +338,7 @@ pub(crate) fn address_book(entries: &[AddressEntry]) -> Result<AddressBook, Conv
                 e.vehicle_id, e.address
             )));
         }
-        let id_ok = !e.vehicle_id.is_empty()
-            && e.vehicle_id.len() <= shoal_model::MAX_VEHICLE_ID_LEN
-            && e.vehicle_id
-                .bytes()
-                .all(|b| b.is_ascii_alphanumeric() || b"_.-".contains(&b));
-        if !id_ok {
+        if !valid_vehicle_id(&e.vehicle_id) {
             return Err(ConverterError::Config(format!(
                 "vehicles: {:?} is not a valid vehicle id",
                 e.vehicle_id
@@ -383,6 +405,24 @@ impl CdtConfig {
         }
         check_scale(self.time_scale)?;
         secs("link_status_interval_s", self.link_status_interval_s)?;
+        if let Some(p) = self.position {
+            let ok = p.latitude_deg.is_finite()
+                && p.longitude_deg.is_finite()
+                && p.latitude_deg.abs() <= 90.0
+                && p.longitude_deg.abs() <= 180.0;
+            if !ok {
+                return Err(ConverterError::Config(format!(
+                    "position must be latitude_deg -90..=90 and longitude_deg -180..=180, not {p:?}"
+                )));
+            }
+        }
+        if let Some(c) = &self.carrier
+            && !valid_vehicle_id(c)
+        {
+            return Err(ConverterError::Config(format!(
+                "carrier: {c:?} is not a valid vehicle id"
+            )));
+        }
         self.relay_rules()?;
         self.link.link_config().map(|_| ())
     }
@@ -522,6 +562,45 @@ mod tests {
         twice.relays.push(twice.relays[0].clone());
         let twice = twice.check().unwrap_err().to_string();
         assert!(twice.contains("auv-1 listed twice"), "{twice}");
+    }
+
+    #[test]
+    fn the_modems_position_and_carrier_are_optional_and_checked() {
+        let book = vec![AddressEntry {
+            vehicle_id: "auv-1".into(),
+            address: 2,
+        }];
+        let c: CdtConfig = toml::from_str(
+            r#"
+            vehicles = [{ vehicle_id = "auv-1", address = 2 }]
+            carrier = "usv-1"
+            position = { latitude_deg = 63.464, longitude_deg = 10.38 }
+            "#,
+        )
+        .unwrap();
+        c.check().unwrap();
+        assert_eq!(c.carrier.as_deref(), Some("usv-1"));
+        let off_earth = CdtConfig {
+            vehicles: book.clone(),
+            position: Some(ModemPosition {
+                latitude_deg: 91.0,
+                longitude_deg: 0.0,
+            }),
+            ..CdtConfig::default()
+        };
+        assert!(
+            off_earth
+                .check()
+                .unwrap_err()
+                .to_string()
+                .contains("position")
+        );
+        let spaced = CdtConfig {
+            vehicles: book,
+            carrier: Some("usv 1".into()),
+            ..CdtConfig::default()
+        };
+        assert!(spaced.check().unwrap_err().to_string().contains("carrier"));
     }
 
     #[test]

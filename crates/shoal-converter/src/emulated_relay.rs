@@ -49,6 +49,7 @@ use std::future::Future;
 use std::sync::Arc;
 
 use futures::StreamExt;
+use shoal_acoustic::channel::ChannelModel;
 use shoal_acoustic::emulator::{Emulator, EmulatorConfig, EmulatorHandle, ModemConfig};
 use shoal_acoustic::secure::TaggedDriver;
 use shoal_dds::{DdsConfig, PubSub};
@@ -57,10 +58,17 @@ use tokio::task::JoinSet;
 use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
 
-use crate::config::{AddressEntry, CdtConfig, LinkSettings, ModemKind, ModemSettings, VdtConfig};
+use crate::config::{
+    AddressEntry, CdtConfig, LinkSettings, ModemKind, ModemPosition, ModemSettings, VdtConfig,
+};
 use crate::error::ConverterError;
 use crate::modem::Modem;
 use crate::{run_cdt, run_vdt};
+
+/// The relay's link-status interval, seconds (simulated): a demo's operator watches the
+/// frames arrive on the console's map, which learns of them only from the link status, so
+/// it comes more often than a sea trial's 30 s. One small event per vehicle.
+const LINK_STATUS_INTERVAL_S: f64 = 5.0;
 
 /// Per-vehicle acoustic keys for the relay's link: every frame between a vehicle's VDT and
 /// the CDT is tagged with that vehicle's key (`shoal keys` issues them).
@@ -147,6 +155,8 @@ pub struct EmulatedRelayConfig {
     pub seed: u64,
     /// Fixed packet error rate instead of the channel model (`None`: physics).
     pub fixed_per: Option<f64>,
+    /// The channel's physics (unused with `fixed_per`).
+    pub channel: ChannelModel,
     /// VDT state interval, seconds.
     pub state_interval_s: f64,
     /// Link settings of both converters.
@@ -183,6 +193,7 @@ impl EmulatedRelayConfig {
             time_scale: 1.0,
             seed: 1,
             fixed_per: None,
+            channel: ChannelModel::default(),
             state_interval_s: 2.0,
             link: LinkSettings::default(),
             follow_vehicles: true,
@@ -249,6 +260,14 @@ impl EmulatedRelayConfig {
             },
             address: self.relay_address,
             vehicles: self.book(),
+            // The console draws the relay's modem from the link status: where it was put,
+            // or on the vehicle carrying it.
+            position: Some(ModemPosition {
+                latitude_deg: self.relay_latitude_deg,
+                longitude_deg: self.relay_longitude_deg,
+            }),
+            carrier: self.relay_vehicle.clone(),
+            link_status_interval_s: LINK_STATUS_INTERVAL_S,
             link: self.link.clone(),
             time_scale: self.time_scale,
             clock: self.clock,
@@ -278,6 +297,7 @@ impl EmulatedRelayConfig {
             seed: self.seed,
             time_scale: self.time_scale,
             fixed_per: self.fixed_per,
+            channel: self.channel,
             modems,
             ..EmulatorConfig::default()
         }
@@ -457,5 +477,44 @@ async fn follow(
                 None => return Ok(()),
             },
         }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cdt_is_told_where_the_relays_modem_is_and_what_carries_it() {
+        let auv = RelayedVehicle {
+            id: "auv-7".into(),
+            address: 2,
+            domain_id: 100,
+            latitude_deg: 63.467,
+            longitude_deg: 10.372,
+        };
+        let mut cfg = EmulatedRelayConfig::new(1, 63.464, 10.38, vec![auv]);
+        let cdt = cfg.cdt_config(std::net::SocketAddr::from(([127, 0, 0, 1], 0)));
+        assert_eq!(
+            cdt.position,
+            Some(ModemPosition {
+                latitude_deg: 63.464,
+                longitude_deg: 10.38
+            })
+        );
+        assert_eq!(cdt.carrier, None);
+        cfg.relay_vehicle = Some("usv-1".into());
+        let cdt = cfg.cdt_config(std::net::SocketAddr::from(([127, 0, 0, 1], 0)));
+        assert_eq!(cdt.carrier.as_deref(), Some("usv-1"));
+        cdt.check().unwrap();
+    }
+
+    #[test]
+    fn the_channel_reaches_the_emulated_sea() {
+        let mut cfg = EmulatedRelayConfig::new(1, 63.464, 10.38, Vec::new());
+        assert_eq!(cfg.emulator_config().channel, ChannelModel::default());
+        cfg.channel.wind_mps = 20.0;
+        assert_eq!(cfg.emulator_config().channel.wind_mps, 20.0);
     }
 }

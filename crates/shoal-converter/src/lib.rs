@@ -35,8 +35,8 @@ pub mod vdt;
 
 pub use cdt::run_cdt;
 pub use config::{
-    AcousticTopics, AddressEntry, CdtConfig, LinkSettings, ModemKind, ModemSettings, RelayEntry,
-    TtlConfig, VdtConfig,
+    AcousticTopics, AddressEntry, CdtConfig, LinkSettings, ModemKind, ModemPosition, ModemSettings,
+    RelayEntry, TtlConfig, VdtConfig,
 };
 pub use error::ConverterError;
 pub use link_status::LinkStatus;

@@ -10,6 +10,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use anyhow::Result;
+use shoal_acoustic::channel::ChannelModel;
 use shoal_converter::ConverterError;
 use shoal_converter::emulated_relay::{
     AcousticKeys, EmulatedRelayConfig, RelayedVehicle, run_emulated_relay,
@@ -47,12 +48,15 @@ pub struct AcousticDemoConfig {
     pub relay_vehicle: Option<String>,
     /// The ocean the vehicles sample.
     pub ocean: OceanField,
+    /// The channel's physics.
+    pub channel: ChannelModel,
 }
 
 impl Default for AcousticDemoConfig {
     fn default() -> Self {
-        // Off Trondheim like the default fleet; the relay sits at usv-1's start position,
-        // about 520 m from the AUV.
+        // Off Trondheim like the default fleet; the relay rides on usv-1 (the default
+        // fleet's USV), starting at its start position about 520 m from the AUV. Without a
+        // usv-1 on the station's domain it stays there.
         Self {
             vehicles: vec![DemoVehicle {
                 sim: SimSpec {
@@ -70,8 +74,9 @@ impl Default for AcousticDemoConfig {
             relay_latitude_deg: 63.4640,
             relay_longitude_deg: 10.3800,
             fixed_per: None,
-            relay_vehicle: None,
+            relay_vehicle: Some("usv-1".into()),
             ocean: OceanField::default(),
+            channel: ChannelModel::default(),
         }
     }
 }
@@ -100,6 +105,7 @@ impl AcousticDemoConfig {
             fixed_per: net.fixed_per,
             relay_vehicle: net.relay_vehicle.clone(),
             ocean: s.environment.clone(),
+            channel: net.channel,
         })
     }
 
@@ -123,6 +129,7 @@ impl AcousticDemoConfig {
             vehicles,
         );
         relay.fixed_per = self.fixed_per;
+        relay.channel = self.channel;
         relay.relay_vehicle.clone_from(&self.relay_vehicle);
         relay
     }
@@ -192,5 +199,25 @@ mod tests {
         let ip_only =
             shoal_scenario::parse(shoal_scenario::shipped("harbour-survey").unwrap()).unwrap();
         assert!(AcousticDemoConfig::from_scenario(&ip_only).is_none());
+    }
+
+    /// A scenario's `[acoustic.channel]` and `[environment]` reach the relay's emulated sea
+    /// and the demo's vehicles.
+    #[test]
+    fn the_scenarios_channel_and_ocean_reach_the_demo() {
+        let text = shoal_scenario::shipped("acoustic-relay")
+            .unwrap()
+            .to_owned()
+            + "\n[acoustic.channel]\nwind_mps = 15.0\ncentre_khz = 12.0\nbandwidth_khz = 6.0\n\n\
+               [environment]\nsurface_temperature_c = 6.0\n";
+        let s = shoal_scenario::parse(&text).unwrap();
+        let demo = AcousticDemoConfig::from_scenario(&s).unwrap();
+        assert_eq!(demo.ocean.surface_temperature_c, Some(6.0));
+        let relay = demo.relay();
+        assert_eq!(
+            (relay.channel.wind_mps, relay.channel.centre_khz),
+            (15.0, 12.0)
+        );
+        assert_eq!(relay.channel, s.acoustic.unwrap().channel);
     }
 }

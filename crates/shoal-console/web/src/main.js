@@ -15,6 +15,7 @@ import { initEnvironment } from './environment.js';
 import { initVehicles, showVehicles } from './vehicles.js';
 import { initReplay, showReplay } from './replay.js';
 import { startTraffic } from './traffic.js';
+import { initAcoustic, startAcoustic } from './acoustic.js';
 import { initFederation, startFederation, stopFederation } from './federation.js';
 import { emit, may, on, state } from './store.js';
 import { confirmDialog, toast } from './util.js';
@@ -64,6 +65,7 @@ async function loadSession() {
   emit('session', state.session);
   startLive();
   startTraffic();
+  startAcoustic();
   startFederation();
   return true;
 }
@@ -106,6 +108,7 @@ async function abortAll() {
 
 function init() {
   createMap();
+  initAcoustic();
   initFederation();
   initFleet();
   initMissions();

@@ -36,6 +36,7 @@ export const sources = {
   replay: new VectorSource(),
   traffic: new VectorSource(),
   remote: new VectorSource(),
+  acoustic: new VectorSource(),
 };
 
 const CONTACT_COLOUR = { alive: '#0b6e4f', stale: '#d98200', lost: '#c0262d', silent: '#777' };
@@ -279,6 +280,9 @@ export function remoteAtPixel(pixel) {
   return map.forEachFeatureAtPixel(pixel, (f) => f, { layerFilter: (l) => l === layers.remote, hitTolerance: 6 }) || null;
 }
 
+/** The acoustic network (acoustic.js styles it and decides when it shows). */
+export const acousticLayer = new VectorLayer({ source: sources.acoustic, visible: false });
+
 const layers = {
   land: new VectorLayer({
     source: sources.land,
@@ -301,6 +305,8 @@ const layers = {
   }),
   tasks: new VectorLayer({ source: sources.tasks, style: taskStyle }),
   trails: new VectorLayer({ source: sources.trails, style: trailStyle }),
+  // Under the vehicles: a vehicle's modem is drawn at the vehicle, which stays clickable.
+  acoustic: acousticLayer,
   traffic: new VectorLayer({ source: sources.traffic, style: vesselStyle }),
   // Under the own fleet: where a remote and an own vehicle overlap, the own one is clicked.
   remote: new VectorLayer({ source: sources.remote, style: remoteStyle }),

@@ -714,6 +714,69 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     }
   });
 
+  test('the acoustic network shows on the map: relay, links, range rings', async () => {
+    // The CDT's first link status follows auv-ac1's first frame through the relay.
+    await page.waitForFunction(() => window.shoalConsole.sources.acoustic.getFeatureById('link:auv-ac1'), null, { timeout: 60000 });
+    assert.equal(await page.locator('#acoustic-toggle input').isChecked(), true, 'the layer is on when there is an acoustic vehicle');
+    // The relay rides on usv-1: its modem is drawn where usv-1 is now (it moved in the
+    // mission test), within a few metres.
+    const offset = await page.evaluate(() => {
+      const { sources, toLonLat } = window.shoalConsole;
+      const relay = sources.acoustic.getFeatureById('relay');
+      const usv = sources.vehicles.getFeatureById('usv-1');
+      if (!relay || !usv) return null;
+      const [a, b] = [relay, usv].map((f) => toLonLat(f.getGeometry().getCoordinates()));
+      const dy = (a[1] - b[1]) * 111_320;
+      const dx = (a[0] - b[0]) * 111_320 * Math.cos((a[1] * Math.PI) / 180);
+      return { metres: Math.hypot(dx, dy), carrier: relay.get('carrier') };
+    });
+    assert.ok(offset, 'no relay or no usv-1 on the map');
+    assert.equal(offset.carrier, 'usv-1');
+    assert.ok(offset.metres < 5, `relay ${offset.metres.toFixed(1)} m from usv-1`);
+    // Three range rings (10, 50, 90 % packet error rate), each wider than the one before.
+    const rings = await page.evaluate(() => ['0.1', '0.5', '0.9'].map((per) => {
+      const f = window.shoalConsole.sources.acoustic.getFeatureById(`ring:${per}`);
+      if (!f) return null;
+      const e = f.getGeometry().getExtent();
+      return { range: f.get('range_m'), width: e[2] - e[0], label: f.get('label') };
+    }));
+    assert.ok(rings.every(Boolean), JSON.stringify(rings));
+    for (let i = 1; i < rings.length; i++) {
+      assert.ok(rings[i].range > rings[i - 1].range && rings[i].width > rings[i - 1].width, JSON.stringify(rings));
+    }
+    assert.match(rings[0].label, /PER 10 %/);
+    // Frames keep arriving: the counter rises and pulses run up the line.
+    const linkProp = (name) => page.evaluate((n) => window.shoalConsole.sources.acoustic.getFeatureById('link:auv-ac1').get(n), name);
+    const frames0 = await linkProp('frames');
+    assert.equal(typeof frames0, 'number');
+    await page.waitForFunction((f0) => window.shoalConsole.sources.acoustic.getFeatureById('link:auv-ac1').get('frames') > f0, frames0, { timeout: 30000 });
+    await page.waitForFunction(() => window.shoalConsole.sources.acoustic.getFeatureById('link:auv-ac1').get('pulses') > 0, null, { timeout: 10000 });
+    assert.notEqual(await linkProp('quality'), 'lost');
+    // Hovering the link names its RSSI and age.
+    await page.evaluate(() => {
+      const { map, sources } = window.shoalConsole;
+      const ext = sources.acoustic.getFeatureById('link:auv-ac1').getGeometry().getExtent();
+      map.getView().fit(ext, { padding: [120, 120, 120, 120], maxZoom: 16 });
+      map.renderSync();
+    });
+    const [x, y] = await page.evaluate(() => {
+      const { map, sources } = window.shoalConsole;
+      return map.getPixelFromCoordinate(sources.acoustic.getFeatureById('link:auv-ac1').getGeometry().getCoordinateAt(0.5));
+    });
+    const box = await page.locator('#map').boundingBox();
+    await page.mouse.move(box.x + x - 3, box.y + y - 3);
+    await page.mouse.move(box.x + x, box.y + y);
+    const tip = page.locator('#acoustic-tip');
+    await tip.waitFor({ state: 'visible', timeout: 5000 });
+    assert.match(await tip.textContent(), /auv-ac1 .*RSSI -?\d+ dB.*heard \d+ s ago/);
+    await shot(page, '23-acoustic-map');
+    // The layer can be switched off and on again.
+    await page.click('#acoustic-toggle input');
+    assert.equal(await page.evaluate(() => window.shoalConsole.map.getLayers().getArray().some((l) => l.getSource() === window.shoalConsole.sources.acoustic && l.getVisible())), false);
+    await page.click('#acoustic-toggle input');
+    assert.equal(await page.evaluate(() => window.shoalConsole.map.getLayers().getArray().some((l) => l.getSource() === window.shoalConsole.sources.acoustic && l.getVisible())), true);
+  });
+
   test('no request left this host', async () => {
     assert.ok(requests.length > 10, `only ${requests.length} requests recorded`);
     writeFileSync(join(OUT, 'requests.txt'), `${requests.join('\n')}\n`);

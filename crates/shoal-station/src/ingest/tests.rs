@@ -369,6 +369,11 @@ fn a_relays_link_report_sets_the_vehicles_link_and_is_not_an_operator_event() {
         integrity: None,
         heard_ms: now_ms(),
         participant: "0102".into(),
+        cdt_latitude_deg: None,
+        cdt_longitude_deg: None,
+        cdt_vehicle: None,
+        frames: None,
+        interval_s: None,
     };
     f.h.ingest_event(valid(status.to_event())).unwrap();
     let v = f.h.vehicle("auv-ac1").unwrap();

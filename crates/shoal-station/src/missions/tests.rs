@@ -401,6 +401,11 @@ fn a_task_the_acoustic_link_gave_up_on_is_sent_again_a_bounded_number_of_times()
         integrity: None,
         heard_ms: now_ms(),
         participant: "cdt".into(),
+        cdt_latitude_deg: None,
+        cdt_longitude_deg: None,
+        cdt_vehicle: None,
+        frames: None,
+        interval_s: None,
     });
     f.h.dispatch_now(assignment("t-1", "auv-ac1")).unwrap();
     assert_eq!(

@@ -101,6 +101,7 @@ impl AcousticNet {
         .warped(warp);
         relay.seed = seed;
         relay.fixed_per = net.fixed_per;
+        relay.channel = net.channel;
         relay.relay_vehicle.clone_from(&net.relay_vehicle);
         let cdt_dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS for the relay")?);
 

@@ -110,7 +110,10 @@ fn config_never_prints_a_credential() {
     let out = shoal()
         .arg("config")
         .env("SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_TOKEN", token)
-        .env("SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_PASSWORD", "a long admin password")
+        .env(
+            "SHOAL_CONSOLE__AUTH__INITIAL_ADMIN_PASSWORD",
+            "a long admin password",
+        )
         .env("SHOAL_FEDERATION__PASSWORD", "a federation password")
         .output()
         .unwrap();
@@ -119,7 +122,10 @@ fn config_never_prints_a_credential() {
     for secret in [token, "a long admin password", "a federation password"] {
         assert!(!text.contains(secret), "{secret:?} printed");
     }
-    assert!(text.contains("initial_admin_token = \"<redacted>\""), "{text}");
+    assert!(
+        text.contains("initial_admin_token = \"<redacted>\""),
+        "{text}"
+    );
 }
 
 /// `shoal up` on its own domain and port: the IP vehicles and the acoustic one appear on

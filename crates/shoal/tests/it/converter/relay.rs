@@ -17,6 +17,10 @@ async fn the_demo_auv_reports_to_the_station_only_through_the_relay() {
     };
     let (demo, sim) = demo_relay(105, SCALE);
     let id = sim.id.clone();
+    let relay_at = (
+        Some(demo.relay_latitude_deg),
+        Some(demo.relay_longitude_deg),
+    );
 
     // The station's domain must be refused as the vehicle's private one.
     let mut clash = demo.clone();
@@ -46,6 +50,9 @@ async fn the_demo_auv_reports_to_the_station_only_through_the_relay() {
         link.wrote(&meta.writer),
         "state not written by the relay's CDT"
     );
+    // What the console's map draws: the relay's modem, and frames arriving.
+    assert_eq!((link.cdt_latitude_deg, link.cdt_longitude_deg), relay_at);
+    assert!(link.frames.is_some_and(|n| n >= 1), "{link:?}");
 
     let writer = station
         .writer::<TaskAssignment>(WriterOptions::new(Priority::Control))
