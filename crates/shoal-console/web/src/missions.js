@@ -210,7 +210,7 @@ function renderDraftTasks() {
   const box = form.querySelector('#draft-tasks');
   box.replaceChildren(
     ...draftTasks.map((t, i) =>
-      h('li', {}, `${i + 1}. ${describeTask(t)} `, h('button', { type: 'button', class: 'link-button', onclick: () => { draftTasks.splice(i, 1); renderDraftTasks(); } }, '✕')),
+      h('li', {}, `${describeTask(t)} `, h('button', { type: 'button', class: 'link-button', onclick: () => { draftTasks.splice(i, 1); renderDraftTasks(); } }, '✕')),
     ),
   );
   if (!draftTasks.length) box.append(h('li', { class: 'muted' }, 'No task yet: draw, then "Add to mission" (or start the drawn task directly).'));
@@ -238,7 +238,12 @@ function duration(seconds) {
 
 /** The plan preview: per vehicle, how long, how far and how much battery, and warnings. */
 function previewTable(p) {
-  const battery = (v) => (v.battery_pct === null ? '–' : `${fmt(v.battery_pct, 0)} % → ${fmt(v.battery_after_pct, 0)} %`);
+  const battery = (v) => {
+    if (v.battery_pct === null) return '–';
+    // Below zero it has run out before the end: say so rather than print a negative level.
+    const after = v.battery_after_pct < 0 ? 'empty' : `${fmt(v.battery_after_pct, 0)} %`;
+    return `${fmt(v.battery_pct, 0)} % → ${after}`;
+  };
   return h('div', { id: 'plan-preview', class: p.warnings ? 'warn' : '' },
     h('h4', {}, `Estimate: about ${duration(p.duration_s)} `, h('small', { class: 'muted' }, "(each vehicle's nominal speed and battery use for its kind)")),
     table([
