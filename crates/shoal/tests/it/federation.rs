@@ -41,6 +41,37 @@ fn identity(
     ]
 }
 
+/// A station process with no scenario and the federation on, its API on `api`, its
+/// history in `db`; `env` configures the federation.
+fn federated_station(
+    dir: &Path,
+    name: &'static str,
+    domain: u16,
+    api: u16,
+    db: &str,
+    env: &[(&str, &str)],
+) -> Proc {
+    let listen = format!("127.0.0.1:{api}");
+    let mut all = vec![("SHOAL_FEDERATION__ENABLED", "true")];
+    all.extend_from_slice(env);
+    Proc::start_with(
+        name,
+        dir,
+        domain,
+        &[
+            "--insecure",
+            "station",
+            "--scenario",
+            "none",
+            "--listen",
+            &listen,
+            "--db",
+            db,
+        ],
+        &all,
+    )
+}
+
 fn refs(env: &[(String, String)]) -> Vec<(&str, &str)> {
     env.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect()
 }
@@ -58,26 +89,7 @@ fn a_shore_station_sees_the_ships_vehicle_over_the_federation() {
     let (ship_api, shore_api, zenoh) = (free_port(), free_port(), free_port());
     let zenoh_ep = format!("[\"tcp/127.0.0.1:{zenoh}\"]");
     let station = |name: &'static str, domain: u16, api: u16, env: &[(&str, &str)]| {
-        let listen = format!("127.0.0.1:{api}");
-        let db = format!("{name}.db");
-        let mut all = vec![("SHOAL_FEDERATION__ENABLED", "true")];
-        all.extend_from_slice(env);
-        Proc::start_with(
-            name,
-            dir.path(),
-            domain,
-            &[
-                "--insecure",
-                "station",
-                "--scenario",
-                "none",
-                "--listen",
-                &listen,
-                "--db",
-                &db,
-            ],
-            &all,
-        )
+        federated_station(dir.path(), name, domain, api, &format!("{name}.db"), env)
     };
     // The ship listens: it checks the shore's password against its dictionary. The shore
     // connects, with its password from the environment rather than a file.
@@ -200,25 +212,7 @@ fn an_impostor_and_a_forged_site_never_reach_the_shore() {
     let zenoh_ep = format!("tcp/127.0.0.1:{zenoh}");
     let connect = format!("[\"{zenoh_ep}\"]");
     let station = |name: &'static str, domain: u16, api: u16, env: &[(&str, &str)]| {
-        let listen = format!("127.0.0.1:{api}");
-        let mut all = vec![("SHOAL_FEDERATION__ENABLED", "true")];
-        all.extend_from_slice(env);
-        Proc::start_with(
-            name,
-            dir.path(),
-            domain,
-            &[
-                "--insecure",
-                "station",
-                "--scenario",
-                "none",
-                "--listen",
-                &listen,
-                "--db",
-                ":memory:",
-            ],
-            &all,
-        )
+        federated_station(dir.path(), name, domain, api, ":memory:", env)
     };
     // The shore listens and accepts two sites; the refused handshakes show in its log at
     // debug under Zenoh's target (docs/federation.md, "Site identity").
