@@ -229,6 +229,22 @@ pub(crate) fn goto() -> Task {
     }
 }
 
+/// A mission `id` of `tasks`, each a vehicle and its task, ids left to the station.
+pub(crate) fn spec(id: &str, tasks: &[(&str, Task)]) -> crate::missions::MissionSpec {
+    crate::missions::MissionSpec {
+        mission_id: id.into(),
+        name: format!("mission {id}"),
+        tasks: tasks
+            .iter()
+            .map(|(v, t)| crate::missions::MissionTaskSpec {
+                task_id: None,
+                vehicle_id: (*v).into(),
+                task: t.clone(),
+            })
+            .collect(),
+    }
+}
+
 pub(crate) fn assignment(task: &str, vehicle: &str) -> TaskAssignment {
     TaskAssignment::new(task, "", vehicle, now_ms(), &goto())
 }

@@ -221,24 +221,8 @@ fn duration_text(seconds: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::missions::MissionTaskSpec;
-    use crate::testing::{Fixture, goto, state};
+    use crate::testing::{Fixture, goto, spec, state};
     use shoal_model::{Task, now_ms};
-
-    fn spec(id: &str, tasks: &[(&str, Task)]) -> MissionSpec {
-        MissionSpec {
-            mission_id: id.into(),
-            name: String::new(),
-            tasks: tasks
-                .iter()
-                .map(|(v, t)| MissionTaskSpec {
-                    task_id: None,
-                    vehicle_id: (*v).into(),
-                    task: t.clone(),
-                })
-                .collect(),
-        }
-    }
 
     #[test]
     fn a_preview_chains_each_vehicles_tasks_and_registers_nothing() {

@@ -6,23 +6,8 @@ use std::sync::atomic::Ordering;
 use shoal_model::{EventKind, Severity, Task, TaskKind, TaskState, now_ms};
 
 use crate::error::DispatchError;
-use crate::missions::{MissionSpec, MissionState, MissionTaskSpec};
-use crate::testing::{Fixture, assignment, goto, state};
-
-fn spec(id: &str, tasks: &[(&str, Task)]) -> MissionSpec {
-    MissionSpec {
-        mission_id: id.into(),
-        name: format!("mission {id}"),
-        tasks: tasks
-            .iter()
-            .map(|(v, t)| MissionTaskSpec {
-                task_id: None,
-                vehicle_id: (*v).into(),
-                task: t.clone(),
-            })
-            .collect(),
-    }
-}
+use crate::missions::MissionState;
+use crate::testing::{Fixture, assignment, goto, spec, state};
 
 fn task_state(f: &Fixture, id: &str) -> TaskState {
     f.h.task(id).unwrap().state
