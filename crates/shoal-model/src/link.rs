@@ -249,6 +249,31 @@ mod tests {
     }
 
     #[test]
+    fn bad_values_of_the_later_keys_are_dropped_not_believed() {
+        let mut e = sample().to_event();
+        e.text = "link=acoustic cdt_address=1 vehicle_address=2 rssi_db=-61 integrity=- \
+                  participant=010f6a2b cdt_latitude_deg=999 cdt_longitude_deg=NaN \
+                  cdt_vehicle= frames=-3 interval_s=0"
+            .into();
+        let s = LinkStatus::from_event(&e).unwrap();
+        assert_eq!(
+            (
+                s.cdt_latitude_deg,
+                s.cdt_longitude_deg,
+                s.cdt_vehicle,
+                s.frames,
+                s.interval_s
+            ),
+            (None, None, None, None, None)
+        );
+        // What the status is about still holds.
+        assert_eq!(
+            (s.cdt_address, s.vehicle_address, s.rssi_db),
+            (1, 2, Some(-61))
+        );
+    }
+
+    #[test]
     fn the_longest_link_status_fits_an_event() {
         let longest = LinkStatus {
             vehicle_id: "v".repeat(crate::MAX_VEHICLE_ID_LEN),
