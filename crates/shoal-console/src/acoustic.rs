@@ -186,7 +186,9 @@ fn doc(fleet: Vec<VehicleView>, now: i64) -> AcousticDoc {
 }
 
 pub(crate) async fn acoustic(State(s): State<StationHandle>) -> Json<AcousticDoc> {
-    Json(doc(s.fleet(), shoal_model::now_ms()))
+    // The station's clock, not the host's: link status is stamped with it (a scenario run's
+    // simulated clock included).
+    Json(doc(s.fleet(), s.now()))
 }
 
 #[cfg(test)]
