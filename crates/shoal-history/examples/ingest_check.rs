@@ -46,7 +46,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let data = rows(n, vehicles);
     let dir = tempfile::tempdir()?;
 
-    let raw = raw_insert_baseline(&dir.path().join("raw.db"), &data, 2000)?;
+    // Same batch size and durability as the store below.
+    let raw = raw_insert_baseline(
+        &HistoryConfig {
+            path: dir.path().join("raw.db"),
+            ..HistoryConfig::default()
+        },
+        &data,
+    )?;
 
     let config = HistoryConfig {
         path: dir.path().join("shoal.db"),

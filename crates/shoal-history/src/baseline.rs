@@ -8,23 +8,26 @@ use shoal_model::StateVector;
 use crate::schema::{self, Location};
 use crate::{HistoryConfig, HistoryError, store};
 
-/// Inserts `rows` into a fresh database at `path` with plain prepared `INSERT`s, `batch` rows
-/// per transaction, in the calling thread: no queue, no writer thread, no acknowledgements.
+/// Inserts `rows` into a fresh SQLite database at `history.path` with plain prepared
+/// `INSERT`s, `history.batch_max` rows per transaction, in the calling thread: no queue, no
+/// writer thread, no acknowledgements.
 ///
-/// It uses the same pragmas (WAL, `synchronous = normal`), schema and statement as the
-/// store, so the difference to the store's ingest rate is the cost of Shoal's own
-/// machinery. An existing database at `path` is deleted first. Returns the time from the
-/// first insert to the last commit.
+/// It uses the same pragmas as the store with this configuration (WAL, and the
+/// configuration's own `synchronous`: the baseline is never made less durable than the
+/// store it is compared with), the same schema and statement, so the difference to the
+/// store's ingest rate is the cost of Shoal's own machinery. An existing database at the
+/// path is deleted first. Returns the time from the first insert to the last commit.
 pub fn raw_insert_baseline(
-    path: &Path,
+    history: &HistoryConfig,
     rows: &[StateVector],
-    batch: usize,
 ) -> Result<Duration, HistoryError> {
     let config = HistoryConfig {
-        path: path.to_path_buf(),
-        ..HistoryConfig::default()
+        backend: crate::Backend::Sqlite,
+        ..history.clone()
     };
     config.check()?;
+    let path: &Path = &config.path;
+    let batch = config.batch_max;
     for suffix in ["", "-wal", "-shm"] {
         let mut file = path.as_os_str().to_owned();
         file.push(suffix);

@@ -521,6 +521,7 @@ mod tests {
             let stats = h.stats();
             assert_eq!((stats.batches, stats.failed_rows), (1, 0), "{stats:?}");
             assert_eq!(stats.committed_rows, 16);
+            assert!(stats.write_busy > Duration::ZERO, "{stats:?}");
             let states = h.track("auv-1", T, T, 10).unwrap();
             assert_eq!(states.iter().map(|s| s.battery_pct).collect::<Vec<_>>(), [30.0]);
             assert_eq!(h.count_states(None).unwrap(), 2);
@@ -914,11 +915,14 @@ mod tests {
     #[test]
     fn the_raw_baseline_writes_the_same_table() {
         let f = crate::testing::Fixture::sqlite();
-        let config = f.config();
+        let config = HistoryConfig {
+            batch_max: 300,
+            ..f.config()
+        };
         let rows: Vec<StateVector> = (0..1000).map(|i| state("auv-1", T + i)).collect();
-        crate::raw_insert_baseline(&config.path, &rows, 300).unwrap();
+        crate::raw_insert_baseline(&config, &rows).unwrap();
         // Run twice: the second run starts from a fresh database again.
-        crate::raw_insert_baseline(&config.path, &rows[..10], 300).unwrap();
+        crate::raw_insert_baseline(&config, &rows[..10]).unwrap();
         let h = History::open(&config).unwrap();
         assert_eq!(h.count_states(None).unwrap(), 10);
     }

@@ -48,6 +48,9 @@ pub struct HistoryStats {
     pub retries: u64,
     /// Records given up at shutdown because the database kept failing; never acknowledged.
     pub abandoned_rows: u64,
+    /// Time the writer thread spent writing batches (successful or not), maintenance
+    /// excluded: against wall time, how busy the history keeps its thread.
+    pub write_busy: Duration,
 }
 
 /// The queue proper; guarded by `Shared::queue`.
@@ -90,6 +93,8 @@ pub(crate) struct Shared {
     batches: AtomicU64,
     retries: AtomicU64,
     abandoned_rows: AtomicU64,
+    /// Nanoseconds spent in `write_batch`; see [`HistoryStats::write_busy`].
+    write_busy_ns: AtomicU64,
     /// What maintenance did; `maintained` is signalled after each pass.
     maintenance: Mutex<MaintenanceStats>,
     maintained: Condvar,
@@ -144,6 +149,7 @@ impl Shared {
             batches: AtomicU64::new(0),
             retries: AtomicU64::new(0),
             abandoned_rows: AtomicU64::new(0),
+            write_busy_ns: AtomicU64::new(0),
             maintenance: Mutex::new(MaintenanceStats::default()),
             maintained: Condvar::new(),
             maintenance_requested: AtomicBool::new(false),
@@ -305,6 +311,7 @@ impl Shared {
             queue_len,
             retries: self.retries.load(Ordering::Relaxed),
             abandoned_rows: self.abandoned_rows.load(Ordering::Relaxed),
+            write_busy: Duration::from_nanos(self.write_busy_ns.load(Ordering::Relaxed)),
         }
     }
 }
@@ -461,7 +468,11 @@ fn commit_with_retries(
     let mut attempt: u32 = 0;
     let mut closing_attempts: u32 = 0;
     loop {
-        match store.write_batch(batch) {
+        let started = Instant::now();
+        let written = store.write_batch(batch);
+        let took = u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        shared.write_busy_ns.fetch_add(took, Ordering::Relaxed);
+        match written {
             Ok(outcome) => {
                 if outcome.failed > 0 {
                     warn!(
