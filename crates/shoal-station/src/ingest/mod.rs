@@ -441,6 +441,11 @@ impl StationHandle {
         self.core.history.committed()
     }
 
+    /// The history writer's counters: rows, batches, retries, its busy time.
+    pub fn history_stats(&self) -> shoal_history::HistoryStats {
+        self.core.history.stats()
+    }
+
     /// Waits until everything submitted to the history store so far is committed.
     pub fn flush_history(
         &self,

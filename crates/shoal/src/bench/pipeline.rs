@@ -91,32 +91,32 @@ fn pipeline_rules() -> Vec<shoal_station::RuleDoc> {
     ]
 }
 
-/// What `bench pipeline` measures.
-pub(super) struct PipelineFigures {
-    pub(super) enabled: usize,
-    pub(super) accepted: u64,
-    pub(super) rejected: usize,
-    pub(super) firings: u64,
-    pub(super) committed: u64,
-    pub(super) elapsed: Duration,
-    pub(super) raw: Duration,
-    pub(super) rate: f64,
-    pub(super) raw_rate: f64,
+/// One pass of the rows through a station.
+struct StationRun {
+    enabled: usize,
+    accepted: u64,
+    rejected: usize,
+    firings: u64,
+    committed: u64,
+    /// Until the last `ingest_state` returned.
+    ingest: Duration,
+    /// Until the last row was committed to the history.
+    total: Duration,
+    /// Time the history's writer thread spent writing during the pass.
+    write_busy: Duration,
 }
 
-pub(super) async fn pipeline_figures(
+/// Feeds `data` through a fresh station whose history is `history`, from the calling
+/// runtime's blocking pool, and waits until every row is committed.
+async fn station_pass(
     cfg: &ShoalConfig,
     domain: u16,
     vehicles: usize,
-    rows: usize,
-) -> Result<PipelineFigures> {
-    let dir = tempfile_dir()?;
-    eprintln!("pipeline: generating {rows} state vectors for {vehicles} vehicles...");
-    let data = pipeline_rows(vehicles, rows);
-    let history = History::open(&HistoryConfig {
-        path: dir.join("pipeline.db"),
-        ..cfg.history.clone()
-    })?;
+    data: Vec<StateVector>,
+    history: &HistoryConfig,
+    dir: &std::path::Path,
+) -> Result<StationRun> {
+    let history = History::open(history)?;
     let station = Station::new(
         StationConfig {
             summary_interval_s: 0.0,
@@ -148,46 +148,134 @@ pub(super) async fn pipeline_figures(
     }
     h.flush_history(Duration::from_secs(30))?;
     let base = h.history_committed();
+    let busy_before = h.history_stats().write_busy;
     eprintln!("pipeline: {enabled} rules enabled; ingesting...");
     let handle = h.clone();
-    let (elapsed, rejected) = tokio::task::spawn_blocking(move || -> Result<(Duration, usize)> {
-        let t = Instant::now();
-        let mut rejected = 0;
-        for s in data {
-            if handle.ingest_state(s).is_err() {
-                rejected += 1;
+    let (ingest, total, rejected) =
+        tokio::task::spawn_blocking(move || -> Result<(Duration, Duration, usize)> {
+            let t = Instant::now();
+            let mut rejected = 0;
+            for s in data {
+                if handle.ingest_state(s).is_err() {
+                    rejected += 1;
+                }
             }
-        }
-        handle.flush_history(Duration::from_secs(120))?;
-        Ok((t.elapsed(), rejected))
-    })
-    .await??;
+            let ingest = t.elapsed();
+            handle.flush_history(Duration::from_secs(300))?;
+            Ok((ingest, t.elapsed(), rejected))
+        })
+        .await??;
     let stats = h.stats();
     let committed = h.history_committed() - base;
+    let write_busy = h.history_stats().write_busy.saturating_sub(busy_before);
     // The handle holds the station's DDS writers: drop it while the participant lives.
     drop(h);
     stop.cancel();
     task.await??;
-    eprintln!("pipeline: raw batched SQLite insert of the same rows...");
-    let raw_rows = pipeline_rows(vehicles, rows);
-    let raw =
-        shoal_history::raw_insert_baseline(&dir.join("raw.db"), &raw_rows, cfg.history.batch_max)?;
-    #[allow(clippy::cast_precision_loss)]
-    let (rate, raw_rate) = (
-        rows as f64 / elapsed.as_secs_f64(),
-        rows as f64 / raw.as_secs_f64(),
-    );
-    let _ = std::fs::remove_dir_all(&dir);
-    Ok(PipelineFigures {
+    Ok(StationRun {
         enabled,
         accepted: stats.states_accepted,
         rejected,
         firings: stats.rule_firings,
         committed,
-        elapsed,
+        ingest,
+        total,
+        write_busy,
+    })
+}
+
+/// What `bench pipeline` measures.
+pub(super) struct PipelineFigures {
+    pub(super) enabled: usize,
+    pub(super) accepted: u64,
+    pub(super) rejected: usize,
+    pub(super) firings: u64,
+    pub(super) committed: u64,
+    /// From the first row offered to the last committed, history included.
+    pub(super) elapsed: Duration,
+    /// Of `elapsed`, until the last row was handed to the history's queue.
+    pub(super) ingest: Duration,
+    /// The history writer's busy time during `elapsed`.
+    pub(super) write_busy: Duration,
+    /// The same rows with the history excluded: queued for it, but its writer does not
+    /// write until the pass is over, so the in-memory stages run alone.
+    pub(super) excluded: Duration,
+    pub(super) raw: Duration,
+    pub(super) rate: f64,
+    pub(super) excluded_rate: f64,
+    pub(super) raw_rate: f64,
+}
+
+/// Runs the rows through a station with its history (as deployed), then with the history
+/// excluded, then the raw SQLite baseline with the history's own settings.
+pub(super) async fn pipeline_figures(
+    cfg: &ShoalConfig,
+    domain: u16,
+    vehicles: usize,
+    rows: usize,
+) -> Result<PipelineFigures> {
+    let dir = tempfile_dir()?;
+    eprintln!("pipeline: generating {rows} state vectors for {vehicles} vehicles...");
+    let included = HistoryConfig {
+        path: dir.join("pipeline.db"),
+        ..cfg.history.clone()
+    };
+    let run = station_pass(
+        cfg,
+        domain,
+        vehicles,
+        pipeline_rows(vehicles, rows),
+        &included,
+        &dir,
+    )
+    .await?;
+    eprintln!("pipeline: again with the history excluded (rows queued, written afterwards)...");
+    // Room for every row in one batch, and no flush before it is full or an hour has
+    // passed: the writer sleeps until the pass asks for the flush.
+    let room = rows + vehicles + 1024;
+    let excluded_history = HistoryConfig {
+        path: dir.join("excluded.db"),
+        batch_max: room,
+        queue_capacity: room,
+        flush_interval_ms: 3_600_000,
+        ..cfg.history.clone()
+    };
+    let _ = std::fs::remove_file(dir.join("rules.json"));
+    let excluded = station_pass(
+        cfg,
+        domain,
+        vehicles,
+        pipeline_rows(vehicles, rows),
+        &excluded_history,
+        &dir,
+    )
+    .await?;
+    eprintln!("pipeline: raw batched SQLite insert of the same rows...");
+    let raw_rows = pipeline_rows(vehicles, rows);
+    let raw = shoal_history::raw_insert_baseline(
+        &HistoryConfig {
+            path: dir.join("raw.db"),
+            ..cfg.history.clone()
+        },
+        &raw_rows,
+    )?;
+    #[allow(clippy::cast_precision_loss)]
+    let per_s = |d: Duration| rows as f64 / d.as_secs_f64();
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(PipelineFigures {
+        enabled: run.enabled,
+        accepted: run.accepted,
+        rejected: run.rejected,
+        firings: run.firings,
+        committed: run.committed,
+        elapsed: run.total,
+        ingest: run.ingest,
+        write_busy: run.write_busy,
+        excluded: excluded.ingest,
         raw,
-        rate,
-        raw_rate,
+        rate: per_s(run.total),
+        excluded_rate: per_s(excluded.ingest),
+        raw_rate: per_s(raw),
     })
 }
 
@@ -197,42 +285,68 @@ pub(super) async fn pipeline(
     vehicles: usize,
     rows: usize,
 ) -> Result<()> {
-    let PipelineFigures {
-        enabled,
-        accepted,
-        rejected,
-        firings,
-        committed,
-        elapsed,
-        raw,
-        rate,
-        raw_rate,
-    } = pipeline_figures(cfg, domain, vehicles, rows).await?;
+    let f = pipeline_figures(cfg, domain, vehicles, rows).await?;
     println!("# shoal bench pipeline — {} — {}", machine(), date());
     println!(
-        "{vehicles} vehicles, {rows} state vectors, {enabled} rules enabled, history batch {}",
-        cfg.history.batch_max
+        "{vehicles} vehicles, {rows} state vectors, {} rules enabled, history batch {}, synchronous {:?}",
+        f.enabled, cfg.history.batch_max, cfg.history.synchronous
     );
     println!(
-        "accepted {accepted}, rejected {rejected}, rule firings {firings}, history committed {committed}"
+        "accepted {}, rejected {}, rule firings {}, history committed {}",
+        f.accepted, f.rejected, f.firings, f.committed
     );
-    println!("{:<58} {:>12} {:>12}", "", "state vec/s", "time");
-    println!(
-        "{:<58} {:>12.0} {:>10.3} s",
-        "Shoal: validate+plausibility+latest+semantic+rules+history",
-        rate,
-        elapsed.as_secs_f64()
+    println!("{:<62} {:>12} {:>12}", "", "state vec/s", "time");
+    let line = |what: &str, rate: f64, d: Duration| {
+        println!("{what:<62} {rate:>12.0} {:>10.3} s", d.as_secs_f64());
+    };
+    line(
+        "Shoal, history included: validate+plausibility+latest+",
+        f.rate,
+        f.elapsed,
     );
-    println!(
-        "{:<58} {:>12.0} {:>10.3} s",
+    println!("  semantic+rules+history, until the last row is committed");
+    line(
+        "Shoal, history excluded (rows queued, written afterwards)",
+        f.excluded_rate,
+        f.excluded,
+    );
+    line(
         "raw batched SQLite insert (same rows, schema, pragmas)",
-        raw_rate,
-        raw.as_secs_f64()
+        f.raw_rate,
+        f.raw,
     );
+    println!("where the time goes, per state vector:");
+    for (what, d) in [
+        ("in-memory stages alone (history excluded)", f.excluded),
+        (
+            "ingesting thread to the last row queued (waits for queue room)",
+            f.ingest,
+        ),
+        (
+            "the history writer's busy time, history included",
+            f.write_busy,
+        ),
+        ("raw SQLite insert", f.raw),
+    ] {
+        #[allow(clippy::cast_precision_loss)]
+        let us = d.as_secs_f64() * 1e6 / rows.max(1) as f64;
+        println!("  {what:<58} {us:>7.2} µs");
+    }
+    // The two threads run at once, so the pipeline goes at the pace of the slower one.
+    let bound = if f.write_busy > f.excluded {
+        "the history writer (SQLite)"
+    } else {
+        "the in-memory stages"
+    };
+    println!("the slower of the two threads, which sets the pace: {bound}");
     println!(
-        "ratio Shoal / raw: {:.2} (goal >= 0.80); goal >= 100000/s: {}",
-        rate / raw_rate,
-        if rate >= 100_000.0 { "met" } else { "NOT met" }
+        "ratio Shoal / raw: {:.2} (goal >= 0.90); goal >= 100000/s: {}",
+        f.rate / f.raw_rate,
+        if f.rate >= 100_000.0 {
+            "met"
+        } else {
+            "NOT met"
+        }
     );
     Ok(())
 }
