@@ -187,8 +187,8 @@ enum Command {
         exit_on_stdin_close: bool,
     },
     #[cfg(feature = "console")]
-    /// Benchmarks that print figures: `suite` runs every target in one table beside its
-    /// peer (Cyclone DDS, raw SQLite, DCCL); the others measure one part each.
+    /// Benchmarks that print figures: `suite` runs every target in one table, beside the
+    /// peer measured in the same run (Cyclone DDS, raw SQLite); the others measure one part each.
     Bench {
         #[command(subcommand)]
         which: bench::BenchCommand,

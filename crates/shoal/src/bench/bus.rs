@@ -12,18 +12,91 @@ use shoal_dds::{Priority, WriterOptions};
 use shoal_model::StateVector;
 use tokio::io::AsyncBufReadExt;
 
-use super::helpers::{THROUGHPUT, date, dds, helper, machine, percentile, sample, seq_of};
+use super::helpers::{THROUGHPUT, date, dds, grouped, helper, machine, percentile, sample, seq_of};
 use crate::config::ShoalConfig;
 
 pub(super) const PING: &str = "shoal/bench/ping";
 pub(super) const PONG: &str = "shoal/bench/pong";
 
-pub(super) struct RoundTrip {
+/// Round trips ddsperf keeps per one-second window for its percentiles (`PINGPONG_RAWSIZE`
+/// in ddsperf.c): later ones in the same second count only in its mean, min, max and count.
+const DDSPERF_RAW_PER_WINDOW: usize = 20_000;
+
+/// A run's p50 and p99 as ddsperf reports its own: each one-second window's p50 and p99,
+/// then the median of those over the windows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct PerSecond {
     pub(super) p50_us: f64,
     pub(super) p99_us: f64,
+    /// One-second windows with at least one round trip.
+    pub(super) windows: usize,
+}
+
+/// Shoal's round trips between two processes.
+pub(super) struct RoundTrip {
+    /// p50 over every round trip of the run, µs.
+    pub(super) p50_us: f64,
+    /// p99 over every round trip of the run, µs.
+    pub(super) p99_us: f64,
+    /// The same round trips computed as ddsperf computes its own ([`per_second`]): the
+    /// figures compared with ddsperf's. `None` when no whole second had a round trip.
+    pub(super) per_second: Option<PerSecond>,
     pub(super) count: usize,
     /// Pings whose pong did not come back within 2 s.
     pub(super) lost: usize,
+}
+
+/// Shoal's round trips reduced the way ddsperf reduces its own, so that the two compare
+/// like with like. ddsperf's ping prints, once a second, the p50 and p99 of the round
+/// trips whose pong came in that second (`print_stats` and `latencystat_print` in
+/// ddsperf.c: the second's first 20,000, sorted, read by [`ddsperf_percentile`]); it
+/// prints no line for a second without one and none for the partial last second, and the
+/// bench takes the median of its lines. `timed` holds, in arrival order, when each pong
+/// came (s since the measurement began) and the round trip (µs); `run_s` is how long the
+/// measurement ran, so only its whole seconds count.
+fn per_second(timed: &[(f64, f64)], run_s: f64) -> Option<PerSecond> {
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+    let whole = run_s.max(0.0).floor() as usize;
+    let mut windows: Vec<Vec<f64>> = vec![Vec::new(); whole];
+    for &(at_s, us) in timed {
+        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+        let w = at_s.max(0.0).floor() as usize;
+        if let Some(window) = windows.get_mut(w)
+            && window.len() < DDSPERF_RAW_PER_WINDOW
+        {
+            window.push(us);
+        }
+    }
+    let (mut p50s, mut p99s) = (Vec::new(), Vec::new());
+    for mut window in windows.into_iter().filter(|w| !w.is_empty()) {
+        window.sort_by(f64::total_cmp);
+        p50s.push(ddsperf_percentile(&window, 50));
+        p99s.push(ddsperf_percentile(&window, 99));
+    }
+    let windows = p50s.len();
+    (windows > 0).then(|| PerSecond {
+        p50_us: median(p50s),
+        p99_us: median(p99s),
+        windows,
+    })
+}
+
+/// A percentile of sorted values as ddsperf prints it: the value with ⌈n·(100 − p)/100⌉
+/// values at or above it (`raw[n - (n + 1) / 2]` for its 50 %, `raw[n - (n + 99) / 100]`
+/// for its 99 %); `p` from 0 to 99.
+fn ddsperf_percentile(sorted: &[f64], p: usize) -> f64 {
+    let n = sorted.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    let at_or_above = (n * (100 - p.min(99))).div_ceil(100);
+    sorted[n - at_or_above]
+}
+
+/// The median of per-second figures, the same reduction for Shoal's and ddsperf's.
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    percentile(&values, 50.0)
 }
 
 async fn shoal_round_trip(cfg: &ShoalConfig, domain: u16, seconds: u64) -> Result<RoundTrip> {
@@ -65,9 +138,11 @@ pub(super) async fn round_trip(
         }
     }
     while let Ok(Some(_)) = tokio::time::timeout(Duration::from_millis(300), pongs.next()).await {}
-    let mut rtts = Vec::new();
+    // (when the pong came, s since `began`; round trip, µs), in arrival order.
+    let mut timed = Vec::new();
     let mut sent = 0usize;
-    let end = Instant::now() + Duration::from_secs(seconds);
+    let began = Instant::now();
+    let end = began + Duration::from_secs(seconds);
     while Instant::now() < end {
         seq += 1;
         sent += 1;
@@ -78,7 +153,10 @@ pub(super) async fn round_trip(
         loop {
             match tokio::time::timeout(Duration::from_secs(2), pongs.next()).await {
                 Ok(Some(Ok((s, _)))) if seq_of(&s) == seq => {
-                    rtts.push(t0.elapsed().as_secs_f64() * 1e6);
+                    timed.push((
+                        began.elapsed().as_secs_f64(),
+                        t0.elapsed().as_secs_f64() * 1e6,
+                    ));
                     break;
                 }
                 Ok(Some(_)) => {}
@@ -87,10 +165,13 @@ pub(super) async fn round_trip(
             }
         }
     }
+    let per_second = per_second(&timed, began.elapsed().as_secs_f64());
+    let mut rtts: Vec<f64> = timed.iter().map(|t| t.1).collect();
     rtts.sort_by(f64::total_cmp);
     Ok(RoundTrip {
         p50_us: percentile(&rtts, 50.0),
         p99_us: percentile(&rtts, 99.0),
+        per_second,
         count: rtts.len(),
         lost: sent - rtts.len(),
     })
@@ -242,10 +323,68 @@ pub(super) async fn sink(cfg: &ShoalConfig, domain: u16) -> Result<()> {
     }
 }
 
+/// What ddsperf measured in its default configuration.
 pub(super) struct PerfResult {
-    pub(super) p50_us: f64,
-    pub(super) p99_us: f64,
+    pub(super) rt: PeerRoundTrip,
     pub(super) throughput: f64,
+}
+
+/// ddsperf's round trip, read from its ping's output.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct PeerRoundTrip {
+    /// Median over its per-second lines of their p50, doubled to a round trip, µs.
+    pub(super) p50_us: f64,
+    /// Median over its per-second lines of their p99, doubled to a round trip, µs.
+    pub(super) p99_us: f64,
+    /// Its per-second lines.
+    pub(super) windows: usize,
+    /// Round trips those lines cover (the sum of their `cnt`).
+    pub(super) received: u64,
+    /// Pings it gave up on after 1 s: the running total in its last "ping timed out" line.
+    /// It prints that line at most once a second, so this can miss the last second's.
+    pub(super) timed_out: u64,
+}
+
+/// Reads ddsperf ping's output: per-second lines
+/// `[pid] t  host:pid size 96 mean 40.1us min … 50% 38.2us 90% … 99% 61.0us max … cnt 13021`
+/// and `[pid] ping timed out (total 3 times) ... sending new ping`. Its figures are half a
+/// round trip (`(tnow - source_timestamp) / 2` in `process_pong`: a one-way estimate), so
+/// they are doubled to compare round trip with round trip. `None` without a latency line.
+fn parse_ddsperf_ping(out: &str) -> Option<PeerRoundTrip> {
+    let field = |line: &str, name: &str| {
+        line.split_whitespace()
+            .skip_while(|w| *w != name)
+            .nth(1)
+            .and_then(|v| v.trim_end_matches("us").parse::<f64>().ok())
+    };
+    let (mut p50s, mut p99s, mut received, mut timed_out) = (Vec::new(), Vec::new(), 0u64, 0u64);
+    for line in out.lines() {
+        if line.contains(" 50% ") {
+            if let (Some(a), Some(b)) = (field(line, "50%"), field(line, "99%")) {
+                p50s.push(a);
+                p99s.push(b);
+                #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+                let cnt = field(line, "cnt").unwrap_or(0.0) as u64;
+                received += cnt;
+            }
+        } else if line.contains("ping timed out")
+            && let Some(total) = line
+                .split("(total ")
+                .nth(1)
+                .and_then(|rest| rest.split_whitespace().next())
+                .and_then(|n| n.parse::<u64>().ok())
+        {
+            timed_out = timed_out.max(total);
+        }
+    }
+    let windows = p50s.len();
+    (windows > 0).then(|| PeerRoundTrip {
+        p50_us: 2.0 * median(p50s),
+        p99_us: 2.0 * median(p99s),
+        windows,
+        received,
+        timed_out,
+    })
 }
 
 /// Runs a ddsperf process with `args`, and with `uri` as its CYCLONEDDS_URI if given.
@@ -264,13 +403,10 @@ fn ddsperf_process(args: Vec<String>, uri: Option<&str>) -> Result<tokio::proces
 }
 
 /// ddsperf's ping/pong round trip with 96-byte payloads (the size of a Shoal state
-/// vector): median of its per-second p50 and p99 lines, µs.
-///
-/// ddsperf prints half the round trip (`(tnow - source_timestamp) / 2` in `ddsperf.c`'s
-/// pong handling: a one-way estimate), so its figures are doubled here to compare round
-/// trip with round trip. Its count of pongs per second agrees: at a printed 38 µs, about
+/// vector): median of its per-second p50 and p99 lines, doubled ([`parse_ddsperf_ping`]).
+/// Its count of pongs per second agrees with the doubling: at a printed 38 µs, about
 /// 13,000 round trips a second, one every 75 µs.
-async fn ddsperf_ping(domain: u16, seconds: u64, uri: Option<&str>) -> Result<(f64, f64)> {
+async fn ddsperf_ping(domain: u16, seconds: u64, uri: Option<&str>) -> Result<PeerRoundTrip> {
     let d = domain.to_string();
     let _pong = ddsperf_process(
         vec![
@@ -297,33 +433,15 @@ async fn ddsperf_ping(domain: u16, seconds: u64, uri: Option<&str>) -> Result<(f
     )?
     .wait_with_output()
     .await?;
-    let out = String::from_utf8_lossy(&ping.stdout);
-    let (mut p50s, mut p99s) = (Vec::new(), Vec::new());
-    for line in out.lines().filter(|l| l.contains(" 50% ")) {
-        let field = |name: &str| {
-            line.split_whitespace()
-                .skip_while(|w| *w != name)
-                .nth(1)
-                .and_then(|v| v.trim_end_matches("us").parse::<f64>().ok())
-        };
-        if let (Some(a), Some(b)) = (field("50%"), field("99%")) {
-            p50s.push(a);
-            p99s.push(b);
-        }
-    }
-    if p50s.is_empty() {
-        bail!("ddsperf ping printed no latency figures");
-    }
-    p50s.sort_by(f64::total_cmp);
-    p99s.sort_by(f64::total_cmp);
-    Ok((2.0 * percentile(&p50s, 50.0), 2.0 * percentile(&p99s, 50.0)))
+    parse_ddsperf_ping(&String::from_utf8_lossy(&ping.stdout))
+        .context("ddsperf ping printed no latency figures")
 }
 
 /// Cyclone DDS's ddsperf, same host, same namespace, its default configuration: ping/pong
 /// with 96-byte payloads, then pub/sub throughput.
 async fn ddsperf(domain: u16, seconds: u64) -> Result<PerfResult> {
     let run = |args: Vec<String>| ddsperf_process(args, None);
-    let (p50, p99) = ddsperf_ping(domain, seconds, None).await?;
+    let rt = ddsperf_ping(domain, seconds, None).await?;
     let d2 = (domain + 1).to_string();
     let sub = run(vec![
         "-i".into(),
@@ -360,8 +478,7 @@ async fn ddsperf(domain: u16, seconds: u64) -> Result<PerfResult> {
         .collect();
     rates.sort_by(f64::total_cmp);
     Ok(PerfResult {
-        p50_us: p50,
-        p99_us: p99,
+        rt,
         throughput: percentile(&rates, 50.0),
     })
 }
@@ -372,8 +489,8 @@ pub(super) struct BusFigures {
     pub(super) throughput: f64,
     pub(super) steps: Vec<(f64, u64, u64)>,
     pub(super) peer: Option<PerfResult>,
-    /// ddsperf's round trip (p50, p99) with the Cyclone configuration Shoal uses.
-    pub(super) peer_shoal_transport: Option<(f64, f64)>,
+    /// ddsperf's round trip with the Cyclone configuration Shoal uses.
+    pub(super) peer_shoal_transport: Option<PeerRoundTrip>,
 }
 
 pub(super) async fn bus_figures(
@@ -422,6 +539,26 @@ pub(super) async fn bus_figures(
     })
 }
 
+/// Shoal's round trip counts, as the reports print them: `92,024 measured, 0 lost`.
+pub(super) fn shoal_counts(rt: &RoundTrip) -> String {
+    format!(
+        "{} measured, {} lost",
+        grouped(rt.count as u64),
+        grouped(rt.lost as u64)
+    )
+}
+
+/// ddsperf's round trip counts, as the reports print them: `92,024 measured, 0 timed out`
+/// (`≥` before a non-zero count of timeouts: ddsperf may not have printed the last ones).
+pub(super) fn peer_counts(p: &PeerRoundTrip) -> String {
+    let at_least = if p.timed_out > 0 { "≥ " } else { "" };
+    format!(
+        "{} measured, {at_least}{} timed out",
+        grouped(p.received),
+        grouped(p.timed_out)
+    )
+}
+
 pub(super) async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: bool) -> Result<()> {
     let BusFigures {
         rt,
@@ -432,42 +569,59 @@ pub(super) async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: b
     } = bus_figures(cfg, domain, seconds, no_peer).await?;
     println!("# shoal bench bus — {} — {}", machine(), date());
     println!(
-        "{:<38} {:>12} {:>14} {:>9}",
+        "{:<52} {:>12} {:>14} {:>9}",
         "figure", "Shoal", "Cyclone DDS", "ratio"
     );
-    let row = |name: &str, ours: f64, theirs: Option<f64>, unit: &str| {
-        let t = theirs.map_or_else(|| "-".to_string(), |v| format!("{v:.1} {unit}"));
-        let r = theirs.map_or_else(|| "-".to_string(), |v| format!("{:.2}×", ours / v));
-        println!(
-            "{name:<38} {:>12} {t:>14} {r:>9}",
-            format!("{ours:.1} {unit}")
-        );
+    let row = |name: &str, ours: Option<f64>, theirs: Option<f64>, unit: &str| {
+        let show = |v: Option<f64>| v.map_or_else(|| "-".to_string(), |v| format!("{v:.1} {unit}"));
+        let r = match (ours, theirs) {
+            (Some(o), Some(t)) => format!("{:.2}×", o / t),
+            _ => "-".to_string(),
+        };
+        println!("{name:<52} {:>12} {:>14} {r:>9}", show(ours), show(theirs));
     };
+    let ps = rt.per_second;
     row(
-        "round trip p50",
-        rt.p50_us,
-        peer.as_ref().map(|p| p.p50_us),
+        "round trip p50, median of per-second p50s",
+        ps.map(|p| p.p50_us),
+        peer.as_ref().map(|p| p.rt.p50_us),
         "µs",
     );
     row(
-        "round trip p99",
-        rt.p99_us,
-        peer.as_ref().map(|p| p.p99_us),
+        "round trip p99, median of per-second p99s",
+        ps.map(|p| p.p99_us),
+        peer.as_ref().map(|p| p.rt.p99_us),
         "µs",
     );
     row(
-        "round trip p50, ddsperf as Shoal's config",
-        rt.p50_us,
-        peer_shoal_transport.map(|p| p.0),
+        "round trip p50 per second, ddsperf as Shoal's config",
+        ps.map(|p| p.p50_us),
+        peer_shoal_transport.map(|p| p.p50_us),
         "µs",
     );
     row(
         "reliable throughput, no loss",
-        thr / 1000.0,
+        Some(thr / 1000.0),
         peer.as_ref().map(|p| p.throughput / 1000.0),
         "k/s",
     );
-    println!("round trips measured: {}", rt.count);
+    row("round trip p50, whole run", Some(rt.p50_us), None, "µs");
+    row("round trip p99, whole run", Some(rt.p99_us), None, "µs");
+    println!(
+        "round trips: Shoal {} (no pong within 2 s) in {} one-second windows",
+        shoal_counts(&rt),
+        ps.map_or(0, |p| p.windows)
+    );
+    let peer_line = |name: &str, p: Option<&PeerRoundTrip>| match p {
+        Some(p) => println!(
+            "             {name} {} (no pong within 1 s) in {} per-second lines",
+            peer_counts(p),
+            p.windows
+        ),
+        None => println!("             {name} not measured"),
+    };
+    peer_line("ddsperf", peer.as_ref().map(|p| &p.rt));
+    peer_line("ddsperf as Shoal's config", peer_shoal_transport.as_ref());
     for (achieved, sent, received) in steps {
         println!(
             "  offered {:>8.0}/s  sent {sent:>7}  received {received:>7}",
@@ -475,10 +629,118 @@ pub(super) async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: b
         );
     }
     println!("(ratio = Shoal / Cyclone: below 1 is better for latency, above 1 for throughput;");
+    println!(" round trip p50 and p99 are computed as ddsperf computes its own: each one-second");
+    println!(" window's p50 and p99, then the median over the windows; the whole-run figures are");
+    println!(" over every round trip and have no ddsperf counterpart;");
     println!(" ddsperf runs with its default configuration, and once more for the round trip with");
     println!(" the Cyclone configuration Shoal uses (interfaces, multicast for discovery only);");
     println!(
         " Cyclone throughput is ddsperf pub/sub with its own 96-byte type, keep-last, reliable)"
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_are_read_as_ddsperf_reads_them() {
+        // ddsperf.c's `latencystat_print`: raw[n - (n+1)/2], raw[n - (n+9)/10],
+        // raw[n - (n+99)/100] of the sorted second.
+        for n in 1..=250usize {
+            #[allow(clippy::cast_precision_loss)]
+            let sorted: Vec<f64> = (0..n).map(|i| i as f64).collect();
+            assert_eq!(ddsperf_percentile(&sorted, 50), sorted[n - n.div_ceil(2)]);
+            assert_eq!(ddsperf_percentile(&sorted, 90), sorted[n - n.div_ceil(10)]);
+            assert_eq!(ddsperf_percentile(&sorted, 99), sorted[n - n.div_ceil(100)]);
+        }
+        assert!(ddsperf_percentile(&[], 50).is_nan());
+    }
+
+    #[test]
+    fn per_second_figures_are_the_median_of_each_whole_seconds_percentiles() {
+        let mut timed = Vec::new();
+        // Second 0: 100 round trips of 1..=100 µs; second 1: 200 of 101..=300 µs;
+        // second 2: none (no line, as ddsperf prints none); second 3 is cut short by the
+        // end of the run (ddsperf prints no partial last second).
+        for i in 1..=100 {
+            timed.push((0.5, f64::from(i)));
+        }
+        for i in 101..=300 {
+            timed.push((1.5, f64::from(i)));
+        }
+        timed.push((3.2, 1e6));
+        let ps = per_second(&timed, 3.4);
+        assert_eq!(
+            ps,
+            Some(PerSecond {
+                // Seconds' p50s 51 and 201, p99s 100 and 299; `median` takes the upper of two.
+                p50_us: 201.0,
+                p99_us: 299.0,
+                windows: 2,
+            })
+        );
+        assert_eq!(per_second(&timed, 0.9), None);
+        assert_eq!(per_second(&[], 5.0), None);
+    }
+
+    #[test]
+    fn a_second_counts_only_its_first_20000_round_trips_as_ddsperf_does() {
+        let mut timed = vec![(0.1, 10.0); DDSPERF_RAW_PER_WINDOW];
+        timed.extend(vec![(0.9, 1e4); 5_000]);
+        let ps = per_second(&timed, 1.0).unwrap_or(PerSecond {
+            p50_us: f64::NAN,
+            p99_us: f64::NAN,
+            windows: 0,
+        });
+        assert_eq!((ps.p50_us, ps.p99_us, ps.windows), (10.0, 10.0, 1));
+    }
+
+    #[test]
+    fn ddsperf_ping_output_gives_doubled_medians_counts_and_timeouts() {
+        let out = "\
+[4242] 1.000  host:4243 size 96 mean 40.100us min 30.000us 50% 38.000us 90% 45.000us 99% 60.000us max 200.000us cnt 12000
+[4242] ping timed out (total 1 times) ... sending new ping
+[4242] 2.000  host:4243 size 96 mean 41.100us min 30.000us 50% 40.000us 90% 45.000us 99% 70.000us max 900.000us cnt 13000
+[4242] 3.000  host:4243 size 96 mean 39.100us min 30.000us 50% 36.000us 90% 45.000us 99% 50.000us max 100.000us cnt 11000
+[4242] ping timed out (total 3 times) ... sending new ping
+";
+        assert_eq!(
+            parse_ddsperf_ping(out),
+            Some(PeerRoundTrip {
+                p50_us: 76.0,
+                p99_us: 120.0,
+                windows: 3,
+                received: 36_000,
+                timed_out: 3,
+            })
+        );
+        assert_eq!(
+            parse_ddsperf_ping("[4242] ping timed out (total 1 times)"),
+            None
+        );
+    }
+
+    #[test]
+    fn counts_read_as_measured_and_lost() {
+        let rt = RoundTrip {
+            p50_us: 150.0,
+            p99_us: 400.0,
+            per_second: None,
+            count: 92_024,
+            lost: 0,
+        };
+        assert_eq!(shoal_counts(&rt), "92,024 measured, 0 lost");
+        let mut p = PeerRoundTrip {
+            p50_us: 76.0,
+            p99_us: 120.0,
+            windows: 10,
+            received: 130_000,
+            timed_out: 0,
+        };
+        assert_eq!(peer_counts(&p), "130,000 measured, 0 timed out");
+        p.timed_out = 2;
+        assert_eq!(peer_counts(&p), "130,000 measured, ≥ 2 timed out");
+    }
 }

@@ -134,9 +134,9 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 24)]
         domain: u16,
     },
-    /// Every figure that has a target, in one run and one table, each beside the peer
-    /// measured in the same run (Cyclone DDS ddsperf, a raw batched SQLite insert, DCCL's
-    /// published size) and its target; saved as Markdown under `--out`.
+    /// Every figure that has a target, in one run and one table, each beside its target
+    /// and, where there is one, the peer measured in the same run (Cyclone DDS ddsperf, a
+    /// raw batched SQLite insert); saved as Markdown under `--out`.
     Suite {
         /// Seconds of round trips (and of latency measurement) per figure.
         #[arg(long, default_value_t = 10)]

@@ -41,8 +41,23 @@ async fn station_sample(api: &ApiClient) -> Option<StationSample> {
 /// What `bench scale` measures.
 pub(super) struct ScaleFigures {
     pub(super) all_alive_after_s: Option<f64>,
+    /// State vectors accepted per second, the mean of the 10 s intervals once every vehicle
+    /// was alive (the first one left out).
     pub(super) mean_rate: f64,
+    /// State vectors offered per second: vehicles × rate.
+    pub(super) offered_rate: f64,
     pub(super) peak_rss_mb: f64,
+}
+
+impl ScaleFigures {
+    /// The mean ingest rate as a percentage of the offered rate (NaN when none was offered).
+    pub(super) fn ingest_pct(&self) -> f64 {
+        if self.offered_rate > 0.0 {
+            100.0 * self.mean_rate / self.offered_rate
+        } else {
+            f64::NAN
+        }
+    }
 }
 
 /// Runs each standard SPARQL query once against the station's endpoint, as an operator's
@@ -264,31 +279,47 @@ pub(super) async fn scale_figures(
     if rows.len() >= 2 {
         print_flatness(&rows);
     }
+    let figures = ScaleFigures {
+        all_alive_after_s: all_alive_at.map(|t| t.as_secs_f64()),
+        mean_rate: mean,
+        offered_rate: rate * {
+            #[allow(clippy::cast_precision_loss)]
+            let v = vehicles as f64;
+            v
+        },
+        peak_rss_mb: peak,
+    };
     match all_alive_at {
         Some(t) => {
             println!(
-                "all {vehicles} alive after {:.0} s; steady ingest {mean:.0} state vectors/s (offered {:.0}/s); station RSS idle {idle_rss:.1} MB, all alive {:.1} MB, peak {peak:.1} MB",
+                "all {vehicles} alive after {:.0} s; steady ingest {mean:.0} state vectors/s, {:.2} % of the {:.0}/s offered; station RSS idle {idle_rss:.1} MB, all alive {:.1} MB, peak {peak:.1} MB",
                 t.as_secs_f64(),
-                rate * {
-                    #[allow(clippy::cast_precision_loss)]
-                    let v = vehicles as f64;
-                    v
-                },
+                figures.ingest_pct(),
+                figures.offered_rate,
                 first_rss.unwrap_or(f64::NAN)
             );
         }
         None => println!("not every vehicle was alive within 120 s"),
     }
-    Ok(ScaleFigures {
-        all_alive_after_s: all_alive_at.map(|t| t.as_secs_f64()),
-        mean_rate: mean,
-        peak_rss_mb: peak,
-    })
+    Ok(figures)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ingest_is_a_percentage_of_what_was_offered() {
+        let mut f = ScaleFigures {
+            all_alive_after_s: Some(20.0),
+            mean_rate: 9_995.0,
+            offered_rate: 10_000.0,
+            peak_rss_mb: 900.0,
+        };
+        assert!((f.ingest_pct() - 99.95).abs() < 1e-9);
+        f.offered_rate = 0.0;
+        assert!(f.ingest_pct().is_nan());
+    }
 
     #[test]
     fn least_squares_finds_a_line_and_ignores_a_steady_swing() {
