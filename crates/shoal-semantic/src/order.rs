@@ -390,50 +390,128 @@ pub(crate) fn sort<R: Cells>(
         }
         columns.push((c, *desc));
     }
-    rows.sort_unstable_by(|a, b| {
-        for &(c, desc) in &columns {
-            let o = cmp_terms(
-                a.cells().get(c).and_then(Option::as_ref),
-                b.cells().get(c).and_then(Option::as_ref),
-            );
-            let o = if desc { o.reverse() } else { o };
-            if o != Ordering::Equal {
-                return o;
+    // Each cell is reduced once to what the order looks at (a number parsed, a string
+    // borrowed), and the sort moves row numbers over that flat table: comparing terms in
+    // place re-parsed numbers and compared datatype IRIs at every comparison, and chased
+    // two pointers per cell.
+    let order = {
+        let width = columns.len();
+        let mut table = Vec::with_capacity(rows.len() * width);
+        for row in rows.iter() {
+            for &(c, _) in &columns {
+                table.push(key_of(row.cells().get(c).and_then(Option::as_ref)));
             }
         }
-        Ordering::Equal
-    });
+        let mut order: Vec<usize> = (0..rows.len()).collect();
+        order.sort_unstable_by(|&a, &b| {
+            let (ka, kb) = (&table[a * width..][..width], &table[b * width..][..width]);
+            for (i, &(_, desc)) in columns.iter().enumerate() {
+                let o = ka[i].cmp(&kb[i]);
+                let o = if desc { o.reverse() } else { o };
+                if o != Ordering::Equal {
+                    return o;
+                }
+            }
+            Ordering::Equal
+        });
+        order
+    };
+    permute(rows, order);
     true
 }
 
-/// SPARQL's order for terms of one column already checked by [`sort`].
-fn cmp_terms(a: Option<&Term>, b: Option<&Term>) -> Ordering {
-    let rank = |t: Option<&Term>| match t {
-        None => 0,
-        Some(Term::BlankNode(_)) => 1,
-        Some(Term::NamedNode(_)) => 2,
-        Some(_) => 3,
-    };
-    match (a, b) {
-        (Some(Term::BlankNode(x)), Some(Term::BlankNode(y))) => x.as_str().cmp(y.as_str()),
-        (Some(Term::NamedNode(x)), Some(Term::NamedNode(y))) => x.as_str().cmp(y.as_str()),
-        (Some(Term::Literal(x)), Some(Term::Literal(y))) => {
-            if x.datatype() == xsd::DOUBLE {
-                let (p, q) = (xsd_double(x.value()), xsd_double(y.value()));
-                p.partial_cmp(&q).unwrap_or(Ordering::Equal)
-            } else if x.datatype() == xsd::INTEGER {
-                xsd_integer(x.value()).cmp(&xsd_integer(y.value()))
+/// Reorders `rows` so that row `i` becomes the one that was at `order[i]`, by swaps along
+/// the permutation's cycles (the rows need not be `Clone`).
+fn permute<R>(rows: &mut [R], mut order: Vec<usize>) {
+    for start in 0..order.len() {
+        let mut at = start;
+        loop {
+            let from = order[at];
+            order[at] = at;
+            if from == start {
+                break;
+            }
+            rows.swap(at, from);
+            at = from;
+        }
+    }
+}
+
+/// A cell as SPARQL's order sees it, within a column already checked by [`sort`] (its
+/// literals all of one [`Kind`]).
+#[derive(Debug, Clone, Copy)]
+enum Key<'a> {
+    Unbound,
+    Blank(&'a str),
+    Iri(&'a str),
+    /// A string, plain, `xsd:string` or of the column's one language.
+    Text(&'a str),
+    Double(f64),
+    Integer(i64),
+}
+
+impl Key<'_> {
+    /// Unbound first, then blank nodes, IRIs and literals.
+    fn rank(&self) -> u8 {
+        match self {
+            Self::Unbound => 0,
+            Self::Blank(_) => 1,
+            Self::Iri(_) => 2,
+            Self::Text(_) | Self::Double(_) | Self::Integer(_) => 3,
+        }
+    }
+
+    fn cmp(&self, other: &Self) -> Ordering {
+        match (self, other) {
+            (Self::Blank(x), Self::Blank(y))
+            | (Self::Iri(x), Self::Iri(y))
+            | (Self::Text(x), Self::Text(y)) => x.cmp(y),
+            (Self::Double(x), Self::Double(y)) => x.partial_cmp(y).unwrap_or(Ordering::Equal),
+            (Self::Integer(x), Self::Integer(y)) => x.cmp(y),
+            _ => self.rank().cmp(&other.rank()),
+        }
+    }
+}
+
+fn key_of(t: Option<&Term>) -> Key<'_> {
+    match t {
+        None => Key::Unbound,
+        Some(Term::BlankNode(b)) => Key::Blank(b.as_str()),
+        Some(Term::NamedNode(n)) => Key::Iri(n.as_str()),
+        Some(Term::Literal(l)) => {
+            let d = l.datatype();
+            if d == xsd::DOUBLE {
+                Key::Double(xsd_double(l.value()).unwrap_or(f64::NAN))
+            } else if d == xsd::INTEGER {
+                Key::Integer(xsd_integer(l.value()).unwrap_or(0))
             } else {
-                x.value().cmp(y.value())
+                Key::Text(l.value())
             }
         }
-        _ => rank(a).cmp(&rank(b)),
+        #[allow(unreachable_patterns)]
+        Some(_) => Key::Unbound,
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    use proptest::prelude::{Just, Strategy};
+
+    proptest::proptest! {
+        /// Any permutation is applied as "row i becomes the row that was at order[i]".
+        #[test]
+        fn permute_applies_any_order(order in Just(()).prop_flat_map(|()| {
+            (0usize..40).prop_flat_map(|n| Just((0..n).collect::<Vec<_>>()).prop_shuffle())
+        })) {
+            let rows: Vec<String> = (0..order.len()).map(|i| format!("row {i}")).collect();
+            let mut moved = rows.clone();
+            permute(&mut moved, order.clone());
+            let expected: Vec<String> = order.iter().map(|&i| rows[i].clone()).collect();
+            proptest::prop_assert_eq!(moved, expected);
+        }
+    }
 
     fn keys(s: &Split<'_>) -> Vec<(String, bool)> {
         s.keys
