@@ -27,9 +27,6 @@ pub(crate) use register::TaskRegister;
 pub use views::{MissionSpec, MissionState, MissionTaskSpec, MissionView, TaskView};
 
 impl StationHandle {
-    /// Checks a task can go to its vehicle now: well-formed, the vehicle registered and
-    /// in contact, able to do it (its announced capabilities, the register's part of the
-    /// information model) and with battery enough for anything but going home or up.
     /// A surface vehicle (USV, ASV) told to go somewhere with neither a depth nor an
     /// altitude goes at the surface: the only depth it has.
     fn surface_by_default(&self, mut task: TaskAssignment) -> TaskAssignment {
@@ -52,7 +49,23 @@ impl StationHandle {
         task
     }
 
+    /// Checks a task can go to its vehicle now: well-formed, the vehicle registered and
+    /// in contact, able to do it (its announced capabilities, the register's part of the
+    /// information model) and with battery enough for anything but going home or up.
     fn check_task(&self, task: &TaskAssignment) -> Result<(), DispatchError> {
+        let moves = matches!(task.kind, TaskKind::GotoWaypoint | TaskKind::SurveyArea);
+        if moves && task.depth_m == shoal_model::UNKNOWN && task.altitude_m == shoal_model::UNKNOWN
+        {
+            // `surface_by_default` left it so: not a surface vehicle. Say what to send
+            // rather than the wire form's "exactly one of" (whose -1 a mission never sees).
+            return Err(DispatchError::Invalid(
+                shoal_model::ValidationError::Inconsistent {
+                    field: "depth_m",
+                    rule: "neither depth_m nor altitude_m is set, which only a surface vehicle \
+                           (USV, ASV) may leave out; give depth_m (0 for the surface) or altitude_m",
+                },
+            ));
+        }
         shoal_model::Validate::validate(task).map_err(DispatchError::Invalid)?;
         task.task().map_err(DispatchError::Invalid)?;
         self.check_dispatch(&task.vehicle_id, task.kind)
@@ -280,6 +293,26 @@ impl StationHandle {
                 return Err(in_mission(DispatchError::DuplicateTask(a.task_id)));
             }
             assignments.push(a);
+        }
+        // A vehicle's next task in a mission goes out when its task before has ended: a
+        // hold until the next task never would, and both would wait for ever.
+        for (n, a) in assignments.iter().enumerate() {
+            let open_hold = a.kind == TaskKind::Hold && a.duration_s == 0.0;
+            if open_hold
+                && assignments[n + 1..]
+                    .iter()
+                    .any(|b| b.vehicle_id == a.vehicle_id)
+            {
+                return Err(DispatchError::InMission {
+                    index: n,
+                    error: Box::new(DispatchError::BadField {
+                        field: "duration_s",
+                        rule: "a hold of 0 s (until the next task) must be its vehicle's last \
+                               task in the mission: the next one is sent only when it ends; \
+                               give it a duration",
+                    }),
+                });
+            }
         }
         Ok((now, assignments))
     }

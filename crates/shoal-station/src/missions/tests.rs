@@ -674,3 +674,76 @@ fn beyond_max_ended_tasks_the_oldest_ended_go_first_and_live_ones_stay() {
     }
     assert_eq!(f.h.stats().tasks_forgotten, 3);
 }
+
+#[test]
+fn an_underwater_vehicle_sent_neither_depth_nor_altitude_is_told_what_to_give() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    let Task::GotoWaypoint { target, .. } = goto() else {
+        unreachable!("goto() is a goto")
+    };
+    let neither = Task::GotoWaypoint {
+        target,
+        depth_m: None,
+        altitude_m: None,
+        speed_mps: 1.0,
+    };
+    let err =
+        f.h.plan_mission(spec("m-auv", &[("auv-1", neither)]))
+            .unwrap_err();
+    let text = err.to_string();
+    assert!(
+        text.starts_with("tasks[0]: invalid task: depth_m: "),
+        "{text}"
+    );
+    assert!(
+        text.contains("give depth_m (0 for the surface) or altitude_m"),
+        "{text}"
+    );
+    assert!(f.h.mission("m-auv").is_none());
+}
+
+#[test]
+fn a_hold_until_the_next_task_must_be_its_vehicles_last_task_in_a_mission() {
+    let f = Fixture::new();
+    f.alive("auv-1");
+    f.alive("auv-2");
+    let open = Task::Hold { duration_s: 0.0 };
+    // Another task of the same vehicle after it would never be sent.
+    let err =
+        f.h.plan_mission(spec(
+            "m-stuck",
+            &[("auv-1", open.clone()), ("auv-1", goto())],
+        ))
+        .unwrap_err();
+    assert!(
+        matches!(
+            &err,
+            DispatchError::InMission { index: 0, error }
+                if matches!(**error, DispatchError::BadField { field: "duration_s", .. })
+        ),
+        "{err:?}"
+    );
+    assert!(f.h.mission("m-stuck").is_none());
+    assert!(
+        f.h.preview_mission(&spec(
+            "m-stuck",
+            &[("auv-1", open.clone()), ("auv-1", goto())]
+        ))
+        .is_err()
+    );
+    // Last for its vehicle (another vehicle's task may follow), or with a duration: planned.
+    f.h.plan_mission(spec(
+        "m-last",
+        &[("auv-1", goto()), ("auv-1", open), ("auv-2", goto())],
+    ))
+    .unwrap();
+    f.h.plan_mission(spec(
+        "m-timed",
+        &[
+            ("auv-2", Task::Hold { duration_s: 30.0 }),
+            ("auv-2", goto()),
+        ],
+    ))
+    .unwrap();
+}
