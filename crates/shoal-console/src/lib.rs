@@ -707,10 +707,53 @@ async fn tasks(State(s): State<StationHandle>) -> impl IntoResponse {
     Json(s.tasks())
 }
 
+/// `POST /api/tasks` as a person writes it: the vehicle and a typed task (as a mission's
+/// step names them); the station fills in the rest: an id if none is given, no mission,
+/// issued now, and its own sequence and expiry as for every task.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TaskOrder {
+    #[serde(default)]
+    task_id: Option<String>,
+    vehicle_id: String,
+    task: shoal_model::Task,
+}
+
+/// Ids of tasks ordered without one: the station's clock and a counter, so two orders in
+/// the same millisecond differ.
+fn order_task_id(now_ms: i64) -> String {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    format!("task-{now_ms}-{n}")
+}
+
+/// The body of `POST /api/tasks`: a [`TaskOrder`] (it has a `task` member) or the wire
+/// form a DDS writer sends, each read with the errors naming the member at fault.
+fn dispatch_body(
+    s: &StationHandle,
+    body: &serde_json::Map<String, serde_json::Value>,
+) -> Result<TaskAssignment, ApiError> {
+    let bytes = serde_json::to_vec(body).map_err(|e| ApiError::Internal(e.to_string()))?;
+    if !body.contains_key("task") {
+        return extract::parse::<TaskAssignment>(&bytes);
+    }
+    let order: TaskOrder = extract::parse(&bytes)?;
+    let now = s.now();
+    let id = order.task_id.unwrap_or_else(|| order_task_id(now));
+    Ok(TaskAssignment::new(
+        id,
+        "",
+        order.vehicle_id,
+        now,
+        &order.task,
+    ))
+}
+
 async fn dispatch(
     State(s): State<StationHandle>,
-    ApiJson(task): ApiJson<TaskAssignment>,
+    ApiJson(body): ApiJson<serde_json::Map<String, serde_json::Value>>,
 ) -> Result<impl IntoResponse, ApiError> {
+    let task = dispatch_body(&s, &body)?;
     let id = task.task_id.clone();
     s.dispatch(task).await?;
     Ok((

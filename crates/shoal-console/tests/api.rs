@@ -482,6 +482,115 @@ async fn a_missions_log_exports_as_csv_and_geojson() {
     f.shutdown.cancel();
 }
 
+/// `POST /api/tasks` takes a task as a person writes it (`{vehicle_id, task}`, the id
+/// filled in when left out) beside the wire form, and refuses a body that is neither,
+/// naming the member at fault.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_single_task_is_ordered_in_the_missions_own_words() {
+    let f = start(150);
+    let r = &f.router;
+    let token = bearer(&f.admin_token);
+    expect(
+        r,
+        "POST",
+        "/api/vehicles",
+        token.clone(),
+        Some(serde_json::to_value(announcement("auv-o")).unwrap()),
+        StatusCode::CREATED,
+    )
+    .await;
+    f.handle
+        .ingest_state(state("auv-o", now_ms(), 63.46))
+        .unwrap();
+    let survey = json!({"vehicle_id": "auv-o", "task": {"kind": "survey_area",
+        "polygon": [{"latitude_deg": 63.46, "longitude_deg": 10.37},
+                    {"latitude_deg": 63.461, "longitude_deg": 10.37},
+                    {"latitude_deg": 63.461, "longitude_deg": 10.372}],
+        "line_spacing_m": 20.0, "altitude_m": 8.0, "speed_mps": 1.0}});
+    let body = expect(
+        r,
+        "POST",
+        "/api/tasks",
+        token.clone(),
+        Some(survey),
+        StatusCode::ACCEPTED,
+    )
+    .await;
+    let id = json_of(&body)["task_id"].as_str().unwrap().to_string();
+    assert!(id.starts_with("task-"), "{id}");
+    let body = expect(
+        r,
+        "GET",
+        &format!("/api/tasks/{id}"),
+        token.clone(),
+        None,
+        StatusCode::OK,
+    )
+    .await;
+    let view = json_of(&body);
+    assert_eq!(view["assignment"]["kind"], "survey_area", "{view}");
+    assert_eq!(view["assignment"]["altitude_m"], 8.0, "{view}");
+    assert_eq!(
+        view["assignment"]["area"].as_array().map(Vec::len),
+        Some(3),
+        "{view}"
+    );
+    assert_eq!(view["assignment"]["mission_id"], "", "{view}");
+    // With an id of the operator's choosing; a second order with it is refused.
+    let goto = json!({"task_id": "t-mine", "vehicle_id": "auv-o", "task": {"kind": "goto_waypoint",
+        "target": {"latitude_deg": 63.47, "longitude_deg": 10.37}, "depth_m": 5.0, "speed_mps": 1.0}});
+    expect(
+        r,
+        "POST",
+        "/api/tasks",
+        token.clone(),
+        Some(goto.clone()),
+        StatusCode::ACCEPTED,
+    )
+    .await;
+    expect(
+        r,
+        "POST",
+        "/api/tasks",
+        token.clone(),
+        Some(goto),
+        StatusCode::BAD_REQUEST,
+    )
+    .await;
+    // A typed task with a member of the wire form is neither: refused, the member named.
+    let mixed = json!({"vehicle_id": "auv-o", "issue_seq": 3, "task": {"kind": "surface"}});
+    let body = expect(
+        r,
+        "POST",
+        "/api/tasks",
+        token.clone(),
+        Some(mixed),
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert!(
+        String::from_utf8_lossy(&body).contains("issue_seq"),
+        "{}",
+        String::from_utf8_lossy(&body)
+    );
+    let bad = json!({"vehicle_id": "auv-o", "task": {"kind": "goto_waypoint", "speed_mps": 1.0}});
+    let body = expect(
+        r,
+        "POST",
+        "/api/tasks",
+        token.clone(),
+        Some(bad),
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert!(
+        String::from_utf8_lossy(&body).contains("target"),
+        "{}",
+        String::from_utf8_lossy(&body)
+    );
+    f.shutdown.cancel();
+}
+
 /// The plan preview: figures per vehicle from its kind's kinematics, a warning when the
 /// battery would not last, the same refusals as planning, and nothing registered; a viewer
 /// may preview (it changes nothing) but not plan.
