@@ -78,6 +78,9 @@ export function describe(e) {
       403: 'Not allowed',
       404: 'Not found',
       409: 'Conflict',
+      413: 'Too large',
+      422: 'Rejected',
+      429: 'Too many attempts',
       503: 'Busy',
     }[e.status];
     return `${what || `Error ${e.status}`}: ${e.message}`;

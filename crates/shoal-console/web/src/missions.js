@@ -1,7 +1,7 @@
-// Missions: the editor (waypoints clicked or a survey polygon drawn on the map, depth or
-// altitude, speed, a vehicle the semantic model finds capable and the station would
-// dispatch to), then confirm and start; the list of missions with
-// their tasks' progress, abort, export and replay.
+// Missions: the editor (waypoints clicked or a survey polygon drawn on the map at the
+// surface, a depth or an altitude, and a speed; or a hold, return home or surface step; a
+// vehicle the semantic model finds capable and the station would dispatch to), then confirm
+// and start; the list of missions with their tasks' progress, abort, export and replay.
 
 import { api, describe } from './api.js';
 import { clearDraft, draftPoints, setDraft, startDrawing, stopDrawing } from './map.js';
@@ -33,6 +33,15 @@ let lastCapableMs = 0;
 /** What the last answer was for, to word the messages. */
 let needText = 'goto';
 
+/** The task kinds that move a vehicle over a route: they need points, a speed and a level. */
+const MOVES = new Set(['goto_waypoint', 'survey_area']);
+/** Vehicle kinds that only go at the surface: a goto or survey sent to one with neither depth
+ *  nor altitude goes at the surface (the station sets depth 0); the editor offers no other. */
+const SURFACE_CRAFT = new Set(['usv', 'asv']);
+/** Whether the "Keep" choice was made by the editor (a surface vehicle chosen), not the
+ *  operator: it goes back to a depth when an underwater vehicle is chosen next. */
+let vrefAuto = false;
+
 function newMissionId() {
   const d = new Date();
   const p = (n) => String(n).padStart(2, '0');
@@ -41,6 +50,42 @@ function newMissionId() {
 
 function kind() {
   return form.elements.kind.value;
+}
+
+/** The kind of a vehicle (`auv`, `usv`, ...), from the fleet or the station's offer. */
+function vehicleKind(vehicleId) {
+  const v = state.vehicles.get(vehicleId);
+  if (v) return v.announcement.kind;
+  const c = offered.get(vehicleId);
+  return c ? c.kind : '';
+}
+
+/**
+ * Fits the "Keep" choice to the vehicle: a surface vehicle (USV, ASV) goes at the surface
+ * and nothing else is offered for it; an underwater one may keep a depth, an altitude above
+ * the seabed, or stay at the surface (depth 0). The metres field shows only for a depth or
+ * an altitude.
+ */
+function syncVertical() {
+  const sel = form.elements.vref;
+  const id = form.elements.vehicle.value;
+  const kindOf = vehicleKind(id);
+  const surfaceCraft = SURFACE_CRAFT.has(kindOf);
+  for (const o of sel.options) {
+    if (o.value === 'surface') continue;
+    o.disabled = surfaceCraft;
+    o.title = surfaceCraft ? `${id} is a ${kindOf.toUpperCase()}: it has no depth or altitude to keep` : '';
+  }
+  if (surfaceCraft && sel.value !== 'surface') {
+    sel.value = 'surface';
+    vrefAuto = true;
+  } else if (!surfaceCraft && vrefAuto && sel.value === 'surface') {
+    sel.value = 'depth';
+    vrefAuto = false;
+  }
+  form.querySelector('#vref-note').textContent = surfaceCraft ? `${id} is a ${kindOf.toUpperCase()}: it goes at the surface.` : '';
+  form.classList.toggle('at-surface', sel.value === 'surface');
+  if (sel.value === 'surface' && form.elements.level.getAttribute('aria-invalid') === 'true') fieldError(form.elements.level, '');
 }
 
 function payload() {
@@ -87,6 +132,7 @@ async function refreshVehicles() {
   const options = [...offered.values()].map((c) => h('option', { value: c.vehicle_id, selected: c.vehicle_id === keep }, optionText(c)));
   sel.replaceChildren(h('option', { value: '' }, `— ${offered.size} of ${answer.vehicles.length} vehicles can do ${needText} now —`), ...options);
   if (offered.has(keep)) sel.value = keep;
+  syncVertical();
   const others = answer.vehicles.filter((c) => !c.dispatchable);
   form.querySelector('#vehicle-why').replaceChildren(
     ...others.map((c) => h('li', { dataset: { vehicle: c.vehicle_id, capable: String(c.capable) } }, h('strong', {}, c.vehicle_id), ` not offered: ${c.reasons.join('; ')}`)),
@@ -135,7 +181,7 @@ function renderPoints() {
       ),
     ),
   );
-  if (!points.length) list.append(h('li', { class: 'muted' }, k === 'survey_area' ? 'Draw the survey polygon on the map (double-click closes it).' : 'Click waypoints on the map, in order.'));
+  if (!points.length && MOVES.has(k)) list.append(h('li', { class: 'muted' }, k === 'survey_area' ? 'Draw the survey polygon on the map (double-click closes it).' : 'Click waypoints on the map, in order.'));
   form.querySelector('.points-count').textContent = `${points.length} ${what}${points.length === 1 ? '' : 's'}`;
 }
 
@@ -174,13 +220,29 @@ function readTasks() {
   if (!vehicleId) vehicleMsg = offered.size ? `Choose a vehicle that can do ${needText}.` : `No vehicle can do ${needText} now: see why under the list.`;
   else if (!offered.has(vehicleId)) vehicleMsg = `${vehicleId} cannot do ${needText} now.`;
   ok = fieldError(form.elements.vehicle, vehicleMsg) && ok;
+  if (!MOVES.has(k)) {
+    if (k !== 'hold') return ok ? [{ vehicle_id: vehicleId, task: { kind: k } }] : null;
+    // In a mission the vehicle's next task waits for the hold to end: it must have a time.
+    const seconds = num('duration');
+    ok = fieldError(form.elements.duration, Number.isFinite(seconds) && seconds > 0 && seconds <= 86400 ? '' : 'Hold for (0, 86400] s: in a mission a hold must end, or the vehicle\'s later tasks would wait for it.') && ok;
+    return ok ? [{ vehicle_id: vehicleId, task: { kind: 'hold', duration_s: seconds } }] : null;
+  }
+  syncVertical();
   const vref = form.elements.vref.value;
-  const level = num('level');
-  const [lo, hi] = vref === 'depth' ? [0, 11000] : [0, 10000];
-  ok = fieldError(form.elements.level, Number.isFinite(level) && level >= lo && level <= hi ? '' : `${vref} must be a number of metres in [${lo}, ${hi}].`) && ok;
+  let vertical = {};
+  if (vref === 'surface') {
+    // A surface vehicle is sent neither (the station keeps it at the surface); an
+    // underwater one goes at depth 0.
+    if (!SURFACE_CRAFT.has(vehicleKind(vehicleId))) vertical = { depth_m: 0 };
+  } else {
+    const level = num('level');
+    const [lo, hi] = vref === 'depth' ? [0, 11000] : [0, 10000];
+    ok = fieldError(form.elements.level, Number.isFinite(level) && level >= lo && level <= hi ? '' : `${vref} must be a number of metres in [${lo}, ${hi}].`) && ok;
+    vertical = vref === 'depth' ? { depth_m: level } : { altitude_m: level };
+  }
   const speed = num('speed');
   let speedMsg = '';
-  if (!(Number.isFinite(speed) && speed > 0 && speed <= 30)) speedMsg = 'Speed must be in (0, 30] m/s.';
+  if (!(Number.isFinite(speed) && speed >= 0 && speed <= 30)) speedMsg = "Speed must be in [0, 30] m/s (0: the vehicle's cruise speed).";
   else if (vehicle && speed > vehicle.announcement.max_speed_mps) speedMsg = `${vehicleId} goes at most ${vehicle.announcement.max_speed_mps} m/s.`;
   ok = fieldError(form.elements.speed, speedMsg) && ok;
   let spacing = NaN;
@@ -192,18 +254,34 @@ function readTasks() {
   if (k === 'survey_area') ok = fieldError(pointsEl, points.length >= 3 ? '' : 'A survey needs a polygon of at least 3 corners: draw it on the map.') && ok;
   else ok = fieldError(pointsEl, points.length >= 1 ? '' : 'Click at least one waypoint on the map.') && ok;
   if (!ok) return null;
-  const vertical = vref === 'depth' ? { depth_m: level } : { altitude_m: level };
   if (k === 'survey_area') {
     return [{ vehicle_id: vehicleId, task: { kind: 'survey_area', polygon: points.slice(), line_spacing_m: spacing, ...vertical, speed_mps: speed } }];
   }
   return points.map((p) => ({ vehicle_id: vehicleId, task: { kind: 'goto_waypoint', target: p, ...vertical, speed_mps: speed } }));
 }
 
+/** "at the surface", "depth 5 m", "altitude 3 m": how a moving task keeps its level. */
+function levelText(x) {
+  if (x.altitude_m !== undefined && x.altitude_m !== null) return `altitude ${x.altitude_m} m`;
+  if (x.depth_m === undefined || x.depth_m === null || x.depth_m === 0) return 'at the surface';
+  return `depth ${x.depth_m} m`;
+}
+
 function describeTask(t) {
   const x = t.task;
-  const v = x.depth_m !== undefined ? `depth ${x.depth_m} m` : `altitude ${x.altitude_m} m`;
-  if (x.kind === 'survey_area') return `${t.vehicle_id}: survey ${x.polygon.length} corners, lines ${x.line_spacing_m} m apart, ${v}, ${x.speed_mps} m/s`;
-  return `${t.vehicle_id}: go to ${x.target.latitude_deg.toFixed(5)}, ${x.target.longitude_deg.toFixed(5)}, ${v}, ${x.speed_mps} m/s`;
+  switch (x.kind) {
+    case 'hold':
+      return `${t.vehicle_id}: hold position ${x.duration_s} s`;
+    case 'return_home':
+      return `${t.vehicle_id}: return home`;
+    case 'surface':
+      return `${t.vehicle_id}: surface`;
+    default:
+      break;
+  }
+  const speed = x.speed_mps > 0 ? `${x.speed_mps} m/s` : 'cruise speed';
+  if (x.kind === 'survey_area') return `${t.vehicle_id}: survey ${x.polygon.length} corners, lines ${x.line_spacing_m} m apart, ${levelText(x)}, ${speed}`;
+  return `${t.vehicle_id}: go to ${x.target.latitude_deg.toFixed(5)}, ${x.target.longitude_deg.toFixed(5)}, ${levelText(x)}, ${speed}`;
 }
 
 function renderDraftTasks() {
@@ -304,7 +382,7 @@ async function submit(start) {
 function buildForm() {
   form = h(
     'form',
-    { id: 'mission-form', class: 'card', novalidate: true, onsubmit: (e) => { e.preventDefault(); submit(true); } },
+    { id: 'mission-form', class: 'card moves', novalidate: true, onsubmit: (e) => { e.preventDefault(); submit(true); } },
     h('h2', {}, 'New mission'),
     h('div', { class: 'row' },
       h('label', {}, 'Mission id', h('input', { name: 'mission_id', value: newMissionId(), required: true })),
@@ -312,22 +390,31 @@ function buildForm() {
     h('fieldset', { class: 'row' },
       h('legend', {}, 'Task'),
       h('label', { class: 'inline' }, h('input', { type: 'radio', name: 'kind', value: 'goto_waypoint', checked: true }), 'Go to waypoints'),
-      h('label', { class: 'inline' }, h('input', { type: 'radio', name: 'kind', value: 'survey_area' }), 'Survey an area')),
+      h('label', { class: 'inline' }, h('input', { type: 'radio', name: 'kind', value: 'survey_area' }), 'Survey an area'),
+      h('label', { class: 'inline' }, h('input', { type: 'radio', name: 'kind', value: 'hold' }), 'Hold position'),
+      h('label', { class: 'inline' }, h('input', { type: 'radio', name: 'kind', value: 'return_home' }), 'Return home'),
+      h('label', { class: 'inline' }, h('input', { type: 'radio', name: 'kind', value: 'surface' }), 'Surface')),
     h('div', { class: 'row survey-only' },
       h('label', { class: 'wide' }, 'Survey for', h('select', { name: 'payload', title: 'the capability the survey needs besides "survey"; sensors count (the semantic model infers it)' }, PAYLOADS.map(([v, t]) => h('option', { value: v }, t))))),
     h('div', { class: 'row' },
       h('label', { class: 'wide' }, 'Vehicle (able to do it, per the semantic model)', h('select', { name: 'vehicle' }))),
     h('ul', { id: 'vehicle-why', class: 'why', 'aria-label': 'vehicles not offered and why' }),
-    h('div', { class: 'row' },
-      h('label', {}, 'Keep', h('select', { name: 'vref' }, h('option', { value: 'depth' }, 'depth (m)'), h('option', { value: 'altitude' }, 'altitude above seabed (m)'))),
-      h('label', {}, 'Metres', h('input', { name: 'level', type: 'number', step: 'any', value: '5' })),
-      h('label', {}, 'Speed m/s', h('input', { name: 'speed', type: 'number', step: 'any', value: '1.5' })),
+    h('div', { class: 'row moves-only' },
+      h('label', {}, 'Keep', h('select', { name: 'vref' },
+        h('option', { value: 'depth' }, 'depth (m)'),
+        h('option', { value: 'altitude' }, 'altitude above seabed (m)'),
+        h('option', { value: 'surface' }, 'at the surface'))),
+      h('label', { class: 'level-field' }, 'Metres', h('input', { name: 'level', type: 'number', step: 'any', value: '5' })),
+      h('label', { title: "0: the vehicle's own cruise speed" }, 'Speed m/s', h('input', { name: 'speed', type: 'number', step: 'any', min: '0', value: '1.5' })),
       h('label', { class: 'survey-only' }, 'Line spacing m', h('input', { name: 'spacing', type: 'number', step: 'any', value: '20' }))),
-    h('div', { class: 'row' },
+    h('p', { id: 'vref-note', class: 'field-note moves-only' }),
+    h('div', { class: 'row hold-only' },
+      h('label', {}, 'Hold for s', h('input', { name: 'duration', type: 'number', step: 'any', min: '0', value: '60' }))),
+    h('div', { class: 'row moves-only' },
       h('button', { type: 'button', id: 'draw', onclick: () => startDraw() }, 'Draw on map'),
       h('button', { type: 'button', onclick: () => { points = []; clearDraft(); stopDraw(); renderPoints(); } }, 'Clear drawing'),
       h('span', { class: 'points-count muted' })),
-    h('div', {}, h('ul', { id: 'points', class: 'points' })),
+    h('div', { class: 'moves-only' }, h('ul', { id: 'points', class: 'points' })),
     h('div', { class: 'row' }, h('button', { type: 'button', id: 'add-task', onclick: () => addTask() }, 'Add to mission')),
     h('h3', {}, 'Tasks in this mission'),
     h('ol', { id: 'draft-tasks', class: 'points' }),
@@ -339,6 +426,8 @@ function buildForm() {
   form.addEventListener('change', (e) => {
     if (e.target.name === 'kind') {
       form.classList.toggle('survey', kind() === 'survey_area');
+      form.classList.toggle('moves', MOVES.has(kind()));
+      form.classList.toggle('hold', kind() === 'hold');
       points = [];
       clearDraft();
       stopDraw();
@@ -346,6 +435,12 @@ function buildForm() {
       refreshVehicles();
     }
     if (e.target.name === 'payload') refreshVehicles();
+    if (e.target.name === 'vehicle') syncVertical();
+    if (e.target.name === 'vref') {
+      // The operator's own choice: kept until they change it.
+      vrefAuto = false;
+      syncVertical();
+    }
   });
   form.addEventListener('input', (e) => {
     if (e.target.getAttribute('aria-invalid') === 'true') fieldError(e.target, '');

@@ -9,6 +9,9 @@ import { fieldError, h, toast } from './util.js';
 
 let root;
 let form;
+/** A threshold expression as the station parses it: `field op number`, op one of <, <=, >,
+ *  >= (no == or !=), the number as Rust reads a float (`20`, `-0.5`, `.5`, `1e3`). */
+const THRESHOLD = /^\s*[a-z_]+\s*(<=|>=|<|>)\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*$/;
 let rules = [];
 /** The rule being edited, or null while the form creates a new one. */
 let editing = null;
@@ -176,7 +179,8 @@ function buildForm() {
     let condition;
     if (f.type.value === 'threshold') {
       const expr = f.expr.value.trim();
-      ok = fieldError(f.expr, /^[a-z_]+\s*(<=|>=|==|!=|<|>)\s*-?[0-9.]+$/.test(expr) ? '' : 'Write "field op number", e.g. battery_pct < 20 or depth_m > 300.') && ok;
+      // What the station's parser takes: a state field, <, <=, > or >=, a number.
+      ok = fieldError(f.expr, THRESHOLD.test(expr) ? '' : 'Write "field op number" with op one of <, <=, >, >=, e.g. battery_pct < 20 or depth_m > 300.') && ok;
       condition = { type: 'threshold', expr };
     } else {
       const query = f.query.value.trim();

@@ -165,7 +165,8 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     await assert.doesNotReject(form.locator('input[name=speed] ~ .field-error', { hasText: 'Speed' }).waitFor());
     assert.match(await form.locator('#points ~ .field-error, #points + .field-error').first().textContent(), /waypoint/);
     await form.locator('input[name=speed]').fill('3');
-    await form.locator('input[name=level]').fill('0');
+    // A surface vehicle: the editor keeps it at the surface, with no depth to fill in.
+    assert.equal(await form.locator('select[name=vref]').inputValue(), 'surface');
     const v = await page.evaluate(() => window.shoalConsole.sources.vehicles.getFeatureById('usv-1').get('view').latest);
     await page.click('#draw');
     // About 60 m north-east of the USV.
@@ -620,6 +621,109 @@ describe('Shoal console in Chromium', { concurrency: false }, () => {
     // The survey stays in the mission being edited; the operator removes it.
     await page.locator('#draft-tasks li', { hasText: 'auv-2' }).locator('button').click();
     assert.equal(await page.locator('#draft-tasks li', { hasText: 'auv-2' }).count(), 0);
+  });
+
+  test('a goto for the USV goes at the surface: no depth asked, none sent', async () => {
+    await page.click('#tabs button[data-tab=missions]');
+    const form = page.locator('#mission-form');
+    await form.locator('input[name=kind][value=goto_waypoint]').check();
+    await page.waitForFunction(() => [...document.querySelectorAll('#mission-form select[name=vehicle] option')].some((o) => o.value === 'usv-1'), null, { timeout: 15000 });
+    // An underwater vehicle first: a depth, its metres asked.
+    await form.locator('select[name=vehicle]').selectOption('auv-1');
+    await form.locator('select[name=vref]').selectOption('depth');
+    assert.equal(await form.locator('input[name=level]').isVisible(), true);
+    // The USV: at the surface, the only choice, and no metres to fill in.
+    await form.locator('select[name=vehicle]').selectOption('usv-1');
+    assert.equal(await form.locator('select[name=vref]').inputValue(), 'surface');
+    assert.equal(await form.locator('select[name=vref] option[value=depth]').isDisabled(), true);
+    assert.equal(await form.locator('select[name=vref] option[value=altitude]').isDisabled(), true);
+    assert.equal(await form.locator('input[name=level]').isVisible(), false);
+    assert.match(await form.locator('#vref-note').textContent(), /usv-1 is a USV: it goes at the surface/);
+    // Speed 0: the vehicle's own cruise speed, as the station takes it.
+    await form.locator('input[name=speed]').fill('0');
+    const v = await page.evaluate(() => window.shoalConsole.sources.vehicles.getFeatureById('usv-1').get('view').latest);
+    await page.click('#draw');
+    await clickMap(page, v.latitude_deg - 0.0004, v.longitude_deg + 0.0006);
+    await page.locator('#points li', { hasText: 'waypoint 1' }).waitFor();
+    const missionId = `e2e-surface-${Date.now() % 100000}`;
+    await form.locator('input[name=mission_id]').fill(missionId);
+    const previewed = page.waitForRequest((r) => r.url().endsWith('/api/mission-preview') && r.method() === 'POST');
+    await page.locator('#mission-form button', { hasText: 'Plan only' }).click();
+    const sentTask = JSON.parse((await previewed).postData()).tasks[0].task;
+    assert.deepEqual(Object.keys(sentTask).sort(), ['kind', 'speed_mps', 'target'], JSON.stringify(sentTask));
+    assert.equal(sentTask.speed_mps, 0);
+    await page.locator('#confirm[open]').waitFor();
+    const planText = await page.locator('#confirm-body ol').textContent();
+    assert.match(planText, /usv-1: go to .*, at the surface, cruise speed/);
+    assert.doesNotMatch(planText, /depth|altitude/);
+    await page.locator('#plan-preview tr[data-vehicle="usv-1"]').waitFor();
+    await shot(page, '25-usv-at-the-surface-review');
+    const planned = page.waitForRequest((r) => /\/api\/missions$/.test(r.url()) && r.method() === 'POST');
+    await page.click('#confirm-ok');
+    assert.ok(!/depth_m|altitude_m/.test((await planned).postData()), (await planned).postData());
+    await page.locator(`.mission[data-mission="${missionId}"] .pill[data-state=planned]`).waitFor({ timeout: 10000 });
+    // The station took it and keeps the USV at the surface.
+    const mission = await admin('GET', `/api/missions/${missionId}`);
+    const a = mission.tasks[0].assignment;
+    assert.deepEqual([a.vehicle_id, a.kind, a.depth_m, a.altitude_m, a.speed_mps], ['usv-1', 'goto_waypoint', 0, -1, 0]);
+    await admin('POST', `/api/missions/${missionId}/abort`);
+    // Back to an underwater vehicle: a depth again, as before the editor chose the surface.
+    await form.locator('select[name=vehicle]').selectOption('auv-1');
+    assert.equal(await form.locator('select[name=vref]').inputValue(), 'depth');
+    assert.equal(await form.locator('input[name=level]').isVisible(), true);
+
+    // A hold as a mission step: it needs an end, or the vehicle's later tasks would wait.
+    await form.locator('input[name=kind][value=hold]').check();
+    await page.waitForFunction(() => [...document.querySelectorAll('#mission-form select[name=vehicle] option')].some((o) => o.value === 'rov-1'), null, { timeout: 15000 });
+    await form.locator('select[name=vehicle]').selectOption('rov-1');
+    assert.equal(await page.locator('#draw').isVisible(), false);
+    await form.locator('input[name=duration]').fill('0');
+    await page.click('#add-task');
+    await form.locator('input[name=duration] ~ .field-error', { hasText: 'must end' }).waitFor();
+    await form.locator('input[name=duration]').fill('30');
+    await page.click('#add-task');
+    const step = page.locator('#draft-tasks li', { hasText: 'rov-1: hold position 30 s' });
+    await step.waitFor();
+    await step.locator('button').click();
+    assert.equal(await page.locator('#draft-tasks li', { hasText: 'rov-1' }).count(), 0);
+    await form.locator('input[name=kind][value=goto_waypoint]').check();
+  });
+
+  test('a single vehicle is given a command from its detail: state request, hold', async () => {
+    await page.click('#tabs button[data-tab=fleet]');
+    // The USV announces no "surface" capability: it is at the surface already.
+    await page.click('#fleet-table tr[data-vehicle="usv-1"]');
+    await page.click('#tabs button[data-tab=vehicles]');
+    const usvCard = page.locator('#vehicle-commands[data-vehicle="usv-1"]');
+    await usvCard.waitFor({ timeout: 10000 });
+    const surface = usvCard.locator('button[data-command=surface]');
+    assert.equal(await surface.isDisabled(), true);
+    assert.match(await surface.getAttribute('title'), /at the surface already/);
+    assert.equal(await usvCard.locator('button[data-command=return_home]').isDisabled(), false);
+
+    await page.click('#tabs button[data-tab=fleet]');
+    await page.click('#fleet-table tr[data-vehicle="rov-1"]');
+    await page.click('#tabs button[data-tab=vehicles]');
+    const card = page.locator('#vehicle-commands[data-vehicle="rov-1"]');
+    await card.waitFor({ timeout: 10000 });
+    const result = card.locator('#command-result');
+    // A state request, served by the vehicle's DDS proxy.
+    await card.locator('button[data-command=request_state]').click();
+    await result.filter({ hasText: 'sent to rov-1' }).waitFor({ timeout: 10000 });
+    // A rate the station would refuse is explained under its field; nothing is sent.
+    await card.locator('input[name=rate_hz]').fill('0');
+    await card.locator('button[data-command=set_reporting_rate]').click();
+    await card.locator('input[name=rate_hz] ~ .field-error', { hasText: '(0, 100]' }).waitFor();
+    // A hold of a few seconds: the station registers it as asked, and the card follows it.
+    await card.locator('input[name=hold_s]').fill('3');
+    await card.locator('button[data-command=hold]').click();
+    await result.filter({ hasText: /Hold sent to rov-1 as task-/ }).waitFor({ timeout: 10000 });
+    const taskId = (await result.textContent()).match(/as (\S+)\.$/)[1];
+    const task = await admin('GET', `/api/tasks/${taskId}`);
+    assert.deepEqual([task.assignment.kind, task.assignment.vehicle_id, task.assignment.duration_s, task.assignment.mission_id], ['hold', 'rov-1', 3, '']);
+    await card.locator('#command-task', { hasText: taskId }).waitFor({ timeout: 10000 });
+    await card.locator('#command-task', { hasText: /: done/ }).waitFor({ timeout: 30000 });
+    await shot(page, '26-vehicle-commands');
   });
 
   test('a vehicle that falls silent turns stale, then lost, live in the list', { skip: !process.env.SHOAL_BIN && 'SHOAL_BIN is not set' }, async () => {
