@@ -681,6 +681,21 @@ impl Checker<'_> {
             for (j, t) in m.tasks.get_ref().iter().enumerate() {
                 tasks.push(self.task(&format!("missions[{i}].tasks[{j}]"), t, &vehicles, &id)?);
             }
+            // The station sends a vehicle's next task when the one before has ended, and a
+            // hold until the next task never ends: the station would refuse the mission.
+            for (j, t) in tasks.iter().enumerate() {
+                let open_hold = matches!(t.task, Task::Hold { duration_s } if duration_s == 0.0);
+                if open_hold && tasks[j + 1..].iter().any(|n| n.vehicle_id == t.vehicle_id) {
+                    let raw_t = &m.tasks.get_ref()[j];
+                    return Err(ScenarioError::Invalid {
+                        line: self.line(&raw_t.kind),
+                        key: format!("missions[{i}].tasks[{j}].duration_s"),
+                        reason: "a hold of 0 s (until the next task) must be its vehicle's last \
+                                 task in the mission: give it a duration"
+                            .into(),
+                    });
+                }
+            }
             missions.push(ScenarioMission {
                 id,
                 name: m.name.get_ref().clone(),

@@ -81,6 +81,27 @@ fn defaults_fill_what_is_left_out() {
     assert_eq!(s.missions[0].tasks[0].task, Task::Hold { duration_s: 0.0 });
 }
 
+/// A hold until the next task followed by another task of the same vehicle would never
+/// let that task go: refused at load, as the station would refuse the mission; as the
+/// vehicle's last task it is fine.
+#[test]
+fn a_hold_until_the_next_task_must_be_its_vehicles_last() {
+    let mission = |second: &str| {
+        format!(
+            "{HEAD}\n[[missions]]\nname = \"m\"\nat_s = 1\n[[missions.tasks]]\nvehicle = \"auv-1\"\nkind = \"hold\"\n\n[[missions.tasks]]\nvehicle = \"auv-1\"\nkind = \"{second}\"\n"
+        )
+    };
+    let e = err(&mission("return_home"));
+    assert_names(&e, 15, "missions[0].tasks[0].duration_s");
+    assert!(e.to_string().contains("last task"), "{e}");
+    let with_end = mission("return_home").replacen(
+        "kind = \"hold\"\n",
+        "kind = \"hold\"\nduration_s = 60\n",
+        1,
+    );
+    assert!(parse(&with_end).is_ok());
+}
+
 #[test]
 fn an_unknown_key_is_named_with_its_line() {
     let e = err(&format!("{HEAD}colour = \"red\"\n"));
