@@ -71,7 +71,7 @@ impl Default for StationConfig {
             rules_path: PathBuf::from("shoal-data/rules.json"),
             task_retention_s: 24.0 * 3600.0,
             max_ended_tasks: 2000,
-            max_unheard_vehicles: 1000,
+            max_unheard_vehicles: 10_000,
         }
     }
 }
