@@ -596,6 +596,14 @@ mod tests {
             .collect()
     }
 
+    /// The row whose figure starts with `start`.
+    fn row_starting(rows: &[Vec<String>], start: &str, table: &str) -> Vec<String> {
+        rows.iter()
+            .find(|r| r[0].starts_with(start))
+            .cloned()
+            .unwrap_or_else(|| panic!("no row {start} in {table}"))
+    }
+
     #[test]
     fn the_peer_column_holds_only_figures_measured_in_the_run() {
         let table = suite_table(&all_rows(&bus(0, true), &latency(0), &scale(9_995.0)));
@@ -623,12 +631,7 @@ mod tests {
     fn the_table_shows_counts_percentages_and_one_verdict_per_ingest_target() {
         let table = suite_table(&all_rows(&bus(0, true), &latency(0), &scale(9_995.0)));
         let rows = cells(&table);
-        let row = |start: &str| {
-            rows.iter()
-                .find(|r| r[0].starts_with(start))
-                .cloned()
-                .unwrap_or_else(|| panic!("no row {start} in {table}"))
-        };
+        let row = |start: &str| row_starting(&rows, start, &table);
         let p50 = row("bus round trip p50 (median of per-second");
         assert_eq!(p50[1], "150 µs (92,024 measured, 0 lost)");
         assert_eq!(p50[2], "Cyclone 76 µs (130,000 measured, 0 timed out)");
@@ -668,12 +671,7 @@ mod tests {
     fn a_dropped_update_a_lost_round_trip_or_a_short_ingest_fails_its_row() {
         let table = suite_table(&all_rows(&bus(1, true), &latency(12), &scale(9_989.0)));
         let rows = cells(&table);
-        let row = |start: &str| {
-            rows.iter()
-                .find(|r| r[0].starts_with(start))
-                .cloned()
-                .unwrap_or_else(|| panic!("no row {start} in {table}"))
-        };
+        let row = |start: &str| row_starting(&rows, start, &table);
         let p50 = row("bus round trip p50 (median of per-second");
         assert_eq!(p50[1], "150 µs (92,024 measured, 1 lost)");
         assert_eq!(p50[5], "**no**");
