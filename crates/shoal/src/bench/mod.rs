@@ -22,8 +22,9 @@
 //! - [`helpers`]: what several of them share (participants, helper processes,
 //!   percentiles, memory, the machine and date of a run).
 //!
-//! Helper processes (`pong`, `sink`, `load`, `replay-sink`) are hidden subcommands of the same binary so
-//! the two sides of each measurement are separate DDS participants, as in deployment.
+//! Helper processes (`pong`, `sink`, `load`, `replay-sink`, `endurance-fleet`) are hidden
+//! subcommands of the same binary so the two sides of each measurement are separate DDS
+//! participants, as in deployment.
 
 mod acoustic;
 mod bus;
@@ -183,9 +184,10 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 26)]
         domain: u16,
     },
-    /// A deployment's lifetime compressed: back-to-back tasks for a simulated fleet with
-    /// vehicle restarts, a station restart and a clock step; memory, history size, the
-    /// late-joiner burst and the tasks-by-state query over time, and tasks run twice.
+    /// A deployment's lifetime compressed: back-to-back tasks for a simulated fleet (in a
+    /// process of its own) with vehicle restarts, a station restart and a clock step; the
+    /// station's and the fleet's memory, history size, the late-joiner burst and the
+    /// tasks-by-state query over time, and tasks run twice.
     Endurance {
         /// Number of vehicles.
         #[arg(long, default_value_t = 200)]
@@ -281,6 +283,17 @@ pub enum BenchCommand {
         #[arg(long)]
         domain: u16,
     },
+    /// (helper) The endurance benchmark's fleet, with its task ledgers under `dir`, driven
+    /// line by line over stdin and stdout by `bench endurance`.
+    #[command(hide = true)]
+    EnduranceFleet {
+        #[arg(long)]
+        domain: u16,
+        #[arg(long)]
+        vehicles: usize,
+        #[arg(long)]
+        dir: std::path::PathBuf,
+    },
     /// (helper) Announce vehicles and publish their state vectors at a rate.
     #[command(hide = true)]
     Load {
@@ -306,6 +319,7 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             | BenchCommand::Load { .. }
             | BenchCommand::Crowd { .. }
             | BenchCommand::ReplaySink { .. }
+            | BenchCommand::EnduranceFleet { .. }
     );
     let mut owned = cfg.clone();
     if !helper_process {
@@ -411,6 +425,11 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
         } => security::crowd(cfg, domain, count, keystore.as_deref()).await,
         BenchCommand::Sink { domain } => bus::sink(cfg, domain).await,
         BenchCommand::ReplaySink { domain } => replay::sink(cfg, domain).await,
+        BenchCommand::EnduranceFleet {
+            domain,
+            vehicles,
+            dir,
+        } => endurance::fleet(cfg, domain, vehicles, &dir).await,
         BenchCommand::Load {
             domain,
             vehicles,
