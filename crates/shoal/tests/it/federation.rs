@@ -41,9 +41,9 @@ fn identity(
     ]
 }
 
-/// A station process with no scenario and the federation on, its API on `api`, its
-/// history in `db`; `env` configures the federation.
-fn federated_station(
+/// A station process with no scenario, its API on `api`, its history in `db`, and `env`
+/// in its environment.
+fn station(
     dir: &Path,
     name: &'static str,
     domain: u16,
@@ -52,8 +52,6 @@ fn federated_station(
     env: &[(&str, &str)],
 ) -> Proc {
     let listen = format!("127.0.0.1:{api}");
-    let mut all = vec![("SHOAL_FEDERATION__ENABLED", "true")];
-    all.extend_from_slice(env);
     Proc::start_with(
         name,
         dir,
@@ -68,8 +66,22 @@ fn federated_station(
             "--db",
             db,
         ],
-        &all,
+        env,
     )
+}
+
+/// [`station`] with the federation on; `env` configures the federation.
+fn federated_station(
+    dir: &Path,
+    name: &'static str,
+    domain: u16,
+    api: u16,
+    db: &str,
+    env: &[(&str, &str)],
+) -> Proc {
+    let mut all = vec![("SHOAL_FEDERATION__ENABLED", "true")];
+    all.extend_from_slice(env);
+    station(dir, name, domain, api, db, &all)
 }
 
 fn refs(env: &[(String, String)]) -> Vec<(&str, &str)> {
@@ -383,24 +395,8 @@ fn an_impostor_and_a_forged_site_never_reach_the_shore() {
 fn a_station_without_federation_says_so() {
     let dir = tempfile::tempdir().unwrap();
     let api = free_port();
-    let listen = format!("127.0.0.1:{api}");
-    let mut station = Proc::start_with(
-        "alone",
-        dir.path(),
-        118,
-        &[
-            "--insecure",
-            "station",
-            "--scenario",
-            "none",
-            "--listen",
-            &listen,
-            "--db",
-            ":memory:",
-        ],
-        &[],
-    );
-    station.wait_for(60, "the station's API", || {
+    let mut alone = station(dir.path(), "alone", 118, api, ":memory:", &[]);
+    alone.wait_for(60, "the station's API", || {
         http_get(api, "/api/fleet").is_ok()
     });
     let doc = json(api, "/api/federation");
