@@ -281,19 +281,21 @@ enum Kind {
     Integer,
 }
 
-fn kind_of(l: &oxrdf::Literal) -> Option<Kind> {
+/// A literal's kind and its sort key, from one look at it; `None` for a literal this
+/// module does not compare.
+fn literal_key(l: &oxrdf::Literal) -> Option<(Kind, Key<'_>)> {
     if let Some(lang) = l.language() {
-        return Some(Kind::Lang(lang.to_owned()));
+        return Some((Kind::Lang(lang.to_owned()), Key::Text(l.value())));
     }
     let d = l.datatype();
     if d == xsd::STRING {
-        Some(Kind::Text)
+        Some((Kind::Text, Key::Text(l.value())))
     } else if d == xsd::DOUBLE {
         xsd_double(l.value())
             .filter(|v| !v.is_nan())
-            .map(|_| Kind::Double)
+            .map(|v| (Kind::Double, Key::Double(v)))
     } else if d == xsd::INTEGER {
-        xsd_integer(l.value()).map(|_| Kind::Integer)
+        xsd_integer(l.value()).map(|v| (Kind::Integer, Key::Integer(v)))
     } else {
         // rdf:langString without a tag cannot occur; everything else is not handled.
         debug_assert_ne!(d, rdf::LANG_STRING);
@@ -372,50 +374,31 @@ pub(crate) fn sort<R: Cells>(
     variables: &[Variable],
     keys: &[(Variable, bool)],
 ) -> bool {
-    let mut columns = Vec::with_capacity(keys.len());
+    // Each cell is reduced once to what the order looks at (a number parsed, a string
+    // borrowed) while its column's kind is checked, and the sort moves row numbers over
+    // those keys: comparing terms in place re-parsed numbers and compared datatype IRIs at
+    // every comparison, and chased two pointers per cell.
+    let mut columns: Vec<(Vec<Key<'_>>, bool)> = Vec::with_capacity(keys.len());
     for (v, desc) in keys {
         let Some(c) = variables.iter().position(|x| x == v) else {
             return false;
         };
-        let mut kind: Option<Kind> = None;
-        for row in rows.iter() {
-            if let Some(Term::Literal(l)) = row.cells().get(c).and_then(Option::as_ref) {
-                let Some(k) = kind_of(l) else { return false };
-                match &kind {
-                    None => kind = Some(k),
-                    Some(seen) if *seen == k => {}
-                    Some(_) => return false,
-                }
-            }
-        }
-        columns.push((c, *desc));
+        let Some(column) = column_keys(rows, c) else {
+            return false;
+        };
+        columns.push((column, *desc));
     }
-    // Each cell is reduced once to what the order looks at (a number parsed, a string
-    // borrowed), and the sort moves row numbers over that flat table: comparing terms in
-    // place re-parsed numbers and compared datatype IRIs at every comparison, and chased
-    // two pointers per cell.
-    let order = {
-        let width = columns.len();
-        let mut table = Vec::with_capacity(rows.len() * width);
-        for row in rows.iter() {
-            for &(c, _) in &columns {
-                table.push(key_of(row.cells().get(c).and_then(Option::as_ref)));
+    let mut order: Vec<usize> = (0..rows.len()).collect();
+    order.sort_unstable_by(|&a, &b| {
+        for (column, desc) in &columns {
+            let o = column[a].cmp(&column[b]);
+            let o = if *desc { o.reverse() } else { o };
+            if o != Ordering::Equal {
+                return o;
             }
         }
-        let mut order: Vec<usize> = (0..rows.len()).collect();
-        order.sort_unstable_by(|&a, &b| {
-            let (ka, kb) = (&table[a * width..][..width], &table[b * width..][..width]);
-            for (i, &(_, desc)) in columns.iter().enumerate() {
-                let o = ka[i].cmp(&kb[i]);
-                let o = if desc { o.reverse() } else { o };
-                if o != Ordering::Equal {
-                    return o;
-                }
-            }
-            Ordering::Equal
-        });
-        order
-    };
+        Ordering::Equal
+    });
     permute(rows, order);
     true
 }
@@ -473,24 +456,30 @@ impl Key<'_> {
     }
 }
 
-fn key_of(t: Option<&Term>) -> Key<'_> {
-    match t {
-        None => Key::Unbound,
-        Some(Term::BlankNode(b)) => Key::Blank(b.as_str()),
-        Some(Term::NamedNode(n)) => Key::Iri(n.as_str()),
-        Some(Term::Literal(l)) => {
-            let d = l.datatype();
-            if d == xsd::DOUBLE {
-                Key::Double(xsd_double(l.value()).unwrap_or(f64::NAN))
-            } else if d == xsd::INTEGER {
-                Key::Integer(xsd_integer(l.value()).unwrap_or(0))
-            } else {
-                Key::Text(l.value())
+/// Column `c`'s sort keys, one per row; `None` when its literals are not all of one
+/// [`Kind`] that this module compares.
+fn column_keys<R: Cells>(rows: &[R], c: usize) -> Option<Vec<Key<'_>>> {
+    let mut kind: Option<Kind> = None;
+    let mut keys = Vec::with_capacity(rows.len());
+    for row in rows {
+        keys.push(match row.cells().get(c).and_then(Option::as_ref) {
+            None => Key::Unbound,
+            Some(Term::BlankNode(b)) => Key::Blank(b.as_str()),
+            Some(Term::NamedNode(n)) => Key::Iri(n.as_str()),
+            Some(Term::Literal(l)) => {
+                let (k, key) = literal_key(l)?;
+                match &kind {
+                    None => kind = Some(k),
+                    Some(seen) if *seen == k => {}
+                    Some(_) => return None,
+                }
+                key
             }
-        }
-        #[allow(unreachable_patterns)]
-        Some(_) => Key::Unbound,
+            #[allow(unreachable_patterns)]
+            Some(_) => return None,
+        });
     }
+    Some(keys)
 }
 
 #[cfg(test)]
