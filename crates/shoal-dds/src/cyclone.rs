@@ -468,15 +468,27 @@ pub(crate) fn writer(participant: &Entity, topic: TopicRef, qos: &Qos) -> Result
 
 /// What a reader's data-available listener wakes.
 pub(crate) trait Wake: Send + Sync {
-    /// Called from a Cyclone thread whenever data arrived.
+    /// Called from a Cyclone thread whenever data arrived (or a malformed report).
     fn wake(&self);
+
+    /// Called from Cyclone's receive thread when `reader` has data; wakes by default.
+    fn data_available(&self, reader: &Entity) {
+        let _ = reader;
+        self.wake();
+    }
 }
 
-unsafe extern "C" fn on_data_available<W: Wake>(_reader: c::dds_entity_t, arg: *mut c_void) {
+unsafe extern "C" fn on_data_available<W: Wake>(reader: c::dds_entity_t, arg: *mut c_void) {
     // SAFETY: arg is the Arc<W> the reader was created with, released only after the
     // reader is deleted (see ReaderHandle's Drop).
     let w = unsafe { &*(arg as *const W) };
-    w.wake();
+    // Lent, never deleted here: the reader belongs to its ReaderHandle.
+    let reader = std::mem::ManuallyDrop::new(Entity(reader));
+    // An unwinding panic may not cross into C: it would abort the process.
+    if std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| w.data_available(&reader))).is_err()
+    {
+        tracing::error!("a data-available listener panicked; its samples were dropped");
+    }
 }
 
 /// A reader with its data-available listener's argument, which it keeps alive.

@@ -30,7 +30,9 @@ mod topics;
 pub use config::DdsConfig;
 pub use error::{CdrError, CreateError, DdsError, EndError, ReadError, TypeError, WriteError};
 pub use log_budget::LogBudget;
-pub use manager::{ParticipantEvent, PubSub, SampleMeta, Subscription, Writer};
+pub use manager::{
+    Delivery, Listening, ParticipantEvent, PubSub, SampleMeta, Subscription, Writer,
+};
 pub use omg::{Credentials, handshake_refusals};
 pub use qos::{Priority, QosProfile, WriterOptions};
 pub use topics::{ALL_TOPICS, ObservationKey, TopicType};

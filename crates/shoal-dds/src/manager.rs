@@ -285,26 +285,12 @@ impl PubSub {
         &self,
         topic_name: &str,
     ) -> Result<Subscription<T>, CreateError> {
-        let mut qos = T::PROFILE
-            .reader_qos(self.config.topic_cache_samples)
-            .to_qos();
-        qos.partitions(&READ_PARTITIONS)
-            .map_err(|e| dds_err(format!("a reader on {topic_name}"), e))?;
         let signal = Arc::new(Signal::default());
-        let reader = |topic: TopicRef| {
-            cyclone::reader(&self.participant.entity, topic, &qos, Arc::clone(&signal))
-                .map_err(|e| dds_err(format!("a reader on {topic_name}"), e))
-        };
-        let mut readers = Vec::new();
-        let (topic, _) = self.model_topic::<T>(topic_name)?;
-        readers.push(Source {
-            reader: reader(topic)?,
+        let readers = vec![Source {
+            reader: self.reader::<T, _>(topic_name, Arc::clone(&signal))?,
             topic: topic_name.to_string(),
-            samples: Samples {
-                writers: HashMap::new(),
-                guard: Arc::clone(&self.guard),
-            },
-        });
+            samples: self.samples(),
+        }];
         let watch: Arc<dyn cyclone::Wake> = signal.clone();
         cyclone::watch_malformed(Arc::downgrade(&watch));
         // Read before the counts: a report between the two is then looked at again.
@@ -322,6 +308,63 @@ impl PubSub {
             _participant: Arc::clone(&self.participant),
             _type: PhantomData,
         })
+    }
+
+    /// Hands each sample of `T`'s topic to `handler` as Cyclone delivers it: on its receive
+    /// thread, or in the writing thread for a writer in this process. No task to wake, so
+    /// the lowest latency the bus has (what ddsperf's default listener mode does).
+    /// `handler` must be quick and must not block: the delivering thread waits for it. Checks and errors are those of [`PubSub::subscribe`]; a malformed
+    /// sample's error comes with the next sample of the topic.
+    pub fn listen<T, F>(&self, handler: F) -> Result<Listening<T>, CreateError>
+    where
+        T: TopicType,
+        F: FnMut(Delivery<T>) + Send + 'static,
+    {
+        self.listen_on(T::TOPIC, handler)
+    }
+
+    /// Like [`PubSub::listen`] on another topic name with `T`'s type and QoS.
+    pub fn listen_on<T, F>(&self, topic_name: &str, handler: F) -> Result<Listening<T>, CreateError>
+    where
+        T: TopicType,
+        F: FnMut(Delivery<T>) + Send + 'static,
+    {
+        let deliver = Arc::new(Deliver {
+            state: Mutex::new(DeliverState {
+                samples: self.samples(),
+                topic: topic_name.to_string(),
+                malformed_total: cyclone::malformed_total(),
+                malformed_seen: cyclone::malformed_count(topic_name),
+                handler: Box::new(handler),
+            }),
+        });
+        Ok(Listening {
+            _reader: self.reader::<T, _>(topic_name, deliver)?,
+            _participant: Arc::clone(&self.participant),
+        })
+    }
+
+    /// A reader of `T`'s QoS on `topic_name` whose arriving data calls `wake`.
+    fn reader<T: TopicType, W: cyclone::Wake>(
+        &self,
+        topic_name: &str,
+        wake: Arc<W>,
+    ) -> Result<ReaderHandle<W>, CreateError> {
+        let mut qos = T::PROFILE
+            .reader_qos(self.config.topic_cache_samples)
+            .to_qos();
+        qos.partitions(&READ_PARTITIONS)
+            .map_err(|e| dds_err(format!("a reader on {topic_name}"), e))?;
+        let (topic, _) = self.model_topic::<T>(topic_name)?;
+        cyclone::reader(&self.participant.entity, topic, &qos, wake)
+            .map_err(|e| dds_err(format!("a reader on {topic_name}"), e))
+    }
+
+    fn samples(&self) -> Samples {
+        Samples {
+            writers: HashMap::new(),
+            guard: Arc::clone(&self.guard),
+        }
     }
 
     /// Discovery events that happened since the last call (never blocks).
@@ -781,6 +824,88 @@ impl<T: TopicType> Stream for Subscription<T> {
             // Data that arrived between the take and the registration woke no one.
             if !self.signal.ready.load(Ordering::Acquire) {
                 return Poll::Pending;
+            }
+        }
+    }
+}
+
+/// What a [`Listening`] handler receives: a valid sample with its metadata, or why a
+/// received sample was unusable.
+pub type Delivery<T> = Result<(Validated<T>, SampleMeta), ReadError>;
+
+/// A reader whose samples go to a function on Cyclone's receive thread
+/// ([`PubSub::listen`]). Dropping it deletes the reader, after a call in progress ends.
+pub struct Listening<T: TopicType> {
+    _reader: ReaderHandle<Deliver<T>>,
+    _participant: Arc<Participant>,
+}
+
+impl<T: TopicType> std::fmt::Debug for Listening<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Listening")
+            .field("topic", &T::TOPIC)
+            .finish_non_exhaustive()
+    }
+}
+
+/// A listening reader's handler and what it needs to turn samples into deliveries.
+struct Deliver<T: TopicType> {
+    state: Mutex<DeliverState<T>>,
+}
+
+struct DeliverState<T: TopicType> {
+    samples: Samples,
+    topic: String,
+    /// As in [`Subscription`]: reports already delivered, and the total last seen.
+    malformed_total: u64,
+    malformed_seen: u64,
+    handler: Box<dyn FnMut(Delivery<T>) + Send>,
+}
+
+impl<T: TopicType> cyclone::Wake for Deliver<T> {
+    /// Nothing to wake: a malformed report is delivered with the topic's next sample, since
+    /// Cyclone reports it from inside its logging, where no handler may run.
+    fn wake(&self) {}
+
+    fn data_available(&self, reader: &Entity) {
+        let mut state = self
+            .state
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let DeliverState {
+            samples,
+            topic,
+            malformed_total,
+            malformed_seen,
+            handler,
+        } = &mut *state;
+        let total = cyclone::malformed_total();
+        if total != *malformed_total {
+            *malformed_total = total;
+            let count = cyclone::malformed_count(topic);
+            if *malformed_seen < count {
+                let last = cyclone::malformed_last(topic);
+                while *malformed_seen < count {
+                    *malformed_seen += 1;
+                    handler(Err(ReadError::Malformed {
+                        topic: T::TOPIC,
+                        detail: format!("Cyclone DDS could not decode it: {last}"),
+                    }));
+                }
+            }
+        }
+        // Until the reader is empty: no further call comes for samples already there.
+        loop {
+            match cyclone::take_cdr(reader, BATCH, |t| handler(samples.item::<T>(reader, &t))) {
+                Ok(taken) if taken >= BATCH => {}
+                Ok(_) => return,
+                Err(e) => {
+                    handler(Err(ReadError::Dds {
+                        topic: T::TOPIC,
+                        detail: e.to_string(),
+                    }));
+                    return;
+                }
             }
         }
     }

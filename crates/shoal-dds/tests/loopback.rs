@@ -420,3 +420,75 @@ async fn every_topic_type_is_accepted_by_dds_and_crosses() {
         .unwrap();
     assert_eq!(*got, announcement);
 }
+
+/// A listening reader hands every sample to its function as it is delivered, in order,
+/// and the function can answer at once with a blocking write; an invalid sample reaches
+/// it as an error and the next good one still comes. (Both participants are in this
+/// process, so Cyclone delivers in the writing task's thread, not its receive thread.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_listener_gets_every_sample_on_the_receive_thread_and_can_answer_there() {
+    const ECHO: &str = "shoal/test/echo";
+    let a = PubSub::new(&config(153)).unwrap();
+    let b = PubSub::new(&config(153)).unwrap();
+    let echo = std::sync::Arc::new(
+        a.writer_on::<StateVector>(ECHO, WriterOptions::new(Priority::Telemetry))
+            .unwrap(),
+    );
+    let (tx, rx) = std::sync::mpsc::channel();
+    let answer = std::sync::Arc::clone(&echo);
+    let _listening = a
+        .listen::<StateVector, _>(move |delivery| {
+            if let Ok((s, _)) = &delivery {
+                answer.write_blocking(s.clone().into_inner()).unwrap();
+            }
+            let _ = tx.send(delivery.map(|(s, _)| s.into_inner()));
+        })
+        .unwrap();
+    let mut echoes = b.subscribe_on::<StateVector>(ECHO).unwrap();
+    let w = b
+        .writer::<StateVector>(WriterOptions::new(Priority::Telemetry))
+        .unwrap();
+    wait_matched(&w).await;
+    wait_matched(&echo).await;
+    // As in the first test: probe until the reader knows the writer.
+    let mut probe = state(0);
+    probe.timestamp_ms -= 1;
+    loop {
+        w.write(probe.clone()).await.unwrap();
+        if let Ok(got) = tokio::time::timeout(Duration::from_millis(200), echoes.next()).await {
+            got.unwrap().unwrap();
+            break;
+        }
+    }
+    while let Ok(Some(_)) = tokio::time::timeout(Duration::from_millis(300), echoes.next()).await {}
+    while rx.try_recv().is_ok() {}
+
+    for i in 0..40 {
+        w.write(state(i)).await.unwrap();
+    }
+    let mut nan = state(40);
+    nan.depth_m = f64::NAN;
+    w.write_unchecked(nan).await.unwrap();
+    w.write(state(41)).await.unwrap();
+
+    for i in 0..42 {
+        let got = tokio::task::block_in_place(|| rx.recv_timeout(Duration::from_secs(10)))
+            .unwrap_or_else(|_| panic!("delivery {i} never came"));
+        match got {
+            Ok(s) => assert_eq!(s.timestamp_ms, state(i).timestamp_ms, "delivery {i}"),
+            Err(ReadError::Invalid { error, .. }) => {
+                assert_eq!(i, 40);
+                assert_eq!(error.reason().to_string(), "not_finite:depth_m");
+            }
+            Err(e) => panic!("unexpected {e}"),
+        }
+    }
+    for i in (0..40).chain([41]) {
+        let (s, _) = tokio::time::timeout(Duration::from_secs(10), echoes.next())
+            .await
+            .unwrap_or_else(|_| panic!("echo of {i} never came"))
+            .unwrap()
+            .unwrap();
+        assert_eq!(s.timestamp_ms, state(i).timestamp_ms);
+    }
+}

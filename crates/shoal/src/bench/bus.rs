@@ -99,12 +99,192 @@ fn median(mut values: Vec<f64>) -> f64 {
     percentile(&values, 50.0)
 }
 
-async fn shoal_round_trip(cfg: &ShoalConfig, domain: u16, seconds: u64) -> Result<RoundTrip> {
-    round_trip(cfg, domain, seconds, None).await
+/// How both ends of the round trip receive a sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum Delivery {
+    /// A function on Cyclone's receive thread answers at once ([`shoal_dds::PubSub::listen`]):
+    /// no thread woken, as in ddsperf's default (listener) mode.
+    Listener,
+    /// A tokio task is woken for each sample (a [`shoal_dds::Subscription`], the station's
+    /// way): one thread woken per side, as in ddsperf's waitset mode.
+    Stream,
 }
 
-/// Round trips between this process and a `pong` helper, both secured with station
-/// identities from the DDS Security keystore in `keystore` when given.
+impl Delivery {
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Listener => "listener",
+            Self::Stream => "stream",
+        }
+    }
+}
+
+/// Starts the `pong` helper on `domain`, answering the way `delivery` says.
+fn pong_helper(
+    cfg: &ShoalConfig,
+    domain: u16,
+    keystore: Option<&std::path::Path>,
+    delivery: Delivery,
+) -> Result<tokio::process::Child> {
+    let mut args = vec![
+        "pong".to_string(),
+        "--domain".into(),
+        domain.to_string(),
+        "--delivery".into(),
+        delivery.as_str().into(),
+    ];
+    if let Some(k) = keystore {
+        args.extend(["--keystore".to_string(), k.display().to_string()]);
+    }
+    helper(cfg, &args)
+}
+
+/// The ping side's state when answers come on Cyclone's receive thread.
+struct Pinging {
+    /// The ping waiting for its pong.
+    seq: u64,
+    /// When it was sent.
+    t0: Instant,
+    /// Some pong came back (discovery is over).
+    answered: bool,
+    /// Round trips are being timed and each pong sends the next ping.
+    measuring: bool,
+    began: Instant,
+    end: Instant,
+    sent: usize,
+    timed: Vec<(f64, f64)>,
+}
+
+impl Pinging {
+    /// Sends the next ping; called with the state locked, so that its pong, which comes
+    /// on another thread, finds `seq` and `t0` already set.
+    fn send_next(&mut self, ping: &shoal_dds::Writer<StateVector>) -> Result<()> {
+        self.seq += 1;
+        self.t0 = Instant::now();
+        ping.write_blocking(sample("ping", self.seq, 0))
+            .map_err(|e| anyhow::anyhow!("{e}"))
+    }
+}
+
+/// Round trips where both ends answer on Cyclone's receive thread, as ddsperf's default
+/// mode does: the pong helper echoes in its listener, and this side's listener times each
+/// pong and sends the next ping. A ping with no pong within 2 s is lost: counted, and the
+/// next one goes.
+async fn listener_round_trip(cfg: &ShoalConfig, domain: u16, seconds: u64) -> Result<RoundTrip> {
+    use std::sync::{Arc, Mutex, PoisonError};
+    let dds = dds(cfg, domain)?;
+    let ping =
+        Arc::new(dds.writer_on::<StateVector>(PING, WriterOptions::new(Priority::Telemetry))?);
+    let now = Instant::now();
+    let state = Arc::new(Mutex::new(Pinging {
+        seq: 0,
+        t0: now,
+        answered: false,
+        measuring: false,
+        began: now,
+        end: now,
+        sent: 0,
+        timed: Vec::new(),
+    }));
+    let (failed_tx, mut failed_rx) = tokio::sync::mpsc::unbounded_channel::<String>();
+    let _listening = {
+        let state = Arc::clone(&state);
+        let ping = Arc::clone(&ping);
+        dds.listen_on::<StateVector, _>(PONG, move |delivery| {
+            let Ok((pong, _)) = delivery else { return };
+            let mut st = state.lock().unwrap_or_else(PoisonError::into_inner);
+            if seq_of(&pong) != st.seq {
+                return;
+            }
+            let now = Instant::now();
+            st.answered = true;
+            if !st.measuring {
+                return;
+            }
+            let rtt = now.duration_since(st.t0).as_secs_f64() * 1e6;
+            let at = now.duration_since(st.began).as_secs_f64();
+            st.timed.push((at, rtt));
+            if now < st.end {
+                st.sent += 1;
+                if let Err(e) = st.send_next(&ping) {
+                    let _ = failed_tx.send(format!("{e:#}"));
+                }
+            }
+        })?
+    };
+    let _child = pong_helper(cfg, domain, None, Delivery::Listener)?;
+    // Discovery first: ping until one comes back.
+    let start = Instant::now();
+    loop {
+        state
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .send_next(&ping)?;
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        if state
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .answered
+        {
+            break;
+        }
+        if start.elapsed() > Duration::from_secs(30) {
+            bail!("the pong process did not answer within 30 s");
+        }
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    {
+        let mut st = state.lock().unwrap_or_else(PoisonError::into_inner);
+        st.measuring = true;
+        st.began = Instant::now();
+        st.end = st.began + Duration::from_secs(seconds);
+        st.sent = 1;
+        st.send_next(&ping)?;
+    }
+    // The listener runs the measurement; this task only replaces lost pings and waits for
+    // the last pong (or its loss) after the end.
+    loop {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        if let Ok(e) = failed_rx.try_recv() {
+            bail!("a ping could not be sent: {e}");
+        }
+        let mut st = state.lock().unwrap_or_else(PoisonError::into_inner);
+        let now = Instant::now();
+        let outstanding = st.timed.len() < st.sent;
+        if !outstanding && now >= st.end {
+            break;
+        }
+        if outstanding && now.duration_since(st.t0) > Duration::from_secs(2) {
+            if now >= st.end {
+                break;
+            }
+            st.sent += 1;
+            st.send_next(&ping)?;
+        }
+    }
+    let mut st = state.lock().unwrap_or_else(PoisonError::into_inner);
+    st.measuring = false;
+    let run_s = st.end.duration_since(st.began).as_secs_f64();
+    Ok(round_trip_of(&st.timed, st.sent, run_s))
+}
+
+/// The figures of a run's timed round trips.
+fn round_trip_of(timed: &[(f64, f64)], sent: usize, run_s: f64) -> RoundTrip {
+    let per_second = per_second(timed, run_s);
+    let mut rtts: Vec<f64> = timed.iter().map(|t| t.1).collect();
+    rtts.sort_by(f64::total_cmp);
+    RoundTrip {
+        p50_us: percentile(&rtts, 50.0),
+        p99_us: percentile(&rtts, 99.0),
+        per_second,
+        count: rtts.len(),
+        lost: sent.saturating_sub(rtts.len()),
+    }
+}
+
+/// Round trips between this process and a `pong` helper, each a tokio task woken per
+/// sample, both secured with station identities from the DDS Security keystore in
+/// `keystore` when given.
 pub(super) async fn round_trip(
     cfg: &ShoalConfig,
     domain: u16,
@@ -115,11 +295,7 @@ pub(super) async fn round_trip(
         super::security::participant(cfg, domain, keystore, &shoal_security::dds::Grant::Station)?;
     let ping = dds.writer_on::<StateVector>(PING, WriterOptions::new(Priority::Telemetry))?;
     let mut pongs = dds.subscribe_on::<StateVector>(PONG)?;
-    let mut args = vec!["pong".to_string(), "--domain".into(), domain.to_string()];
-    if let Some(k) = keystore {
-        args.extend(["--keystore".to_string(), k.display().to_string()]);
-    }
-    let _child = helper(cfg, &args)?;
+    let _child = pong_helper(cfg, domain, keystore, Delivery::Stream)?;
     // Discovery first: ping until one comes back.
     let start = Instant::now();
     let mut seq = 0u64;
@@ -165,28 +341,30 @@ pub(super) async fn round_trip(
             }
         }
     }
-    let per_second = per_second(&timed, began.elapsed().as_secs_f64());
-    let mut rtts: Vec<f64> = timed.iter().map(|t| t.1).collect();
-    rtts.sort_by(f64::total_cmp);
-    Ok(RoundTrip {
-        p50_us: percentile(&rtts, 50.0),
-        p99_us: percentile(&rtts, 99.0),
-        per_second,
-        count: rtts.len(),
-        lost: sent - rtts.len(),
-    })
+    Ok(round_trip_of(&timed, sent, began.elapsed().as_secs_f64()))
 }
 
+/// The `pong` helper: echoes every ping back, in a listener or a task as `delivery` says.
 pub(super) async fn pong(
     cfg: &ShoalConfig,
     domain: u16,
     keystore: Option<&std::path::Path>,
+    delivery: Delivery,
 ) -> Result<()> {
     let dds =
         super::security::participant(cfg, domain, keystore, &shoal_security::dds::Grant::Station)?;
     let w = dds.writer_on::<StateVector>(PONG, WriterOptions::new(Priority::Telemetry))?;
-    let mut pings = dds.subscribe_on::<StateVector>(PING)?;
     let stop = crate::daemons::shutdown_signal(true);
+    if delivery == Delivery::Listener {
+        let _listening = dds.listen_on::<StateVector, _>(PING, move |ping| {
+            if let Ok((s, _)) = ping {
+                let _ = w.write_blocking(s.into_inner());
+            }
+        })?;
+        stop.cancelled().await;
+        return Ok(());
+    }
+    let mut pings = dds.subscribe_on::<StateVector>(PING)?;
     loop {
         tokio::select! {
             () = stop.cancelled() => return Ok(()),
@@ -406,7 +584,14 @@ fn ddsperf_process(args: Vec<String>, uri: Option<&str>) -> Result<tokio::proces
 /// vector): median of its per-second p50 and p99 lines, doubled ([`parse_ddsperf_ping`]).
 /// Its count of pongs per second agrees with the doubling: at a printed 38 µs, about
 /// 13,000 round trips a second, one every 75 µs.
-async fn ddsperf_ping(domain: u16, seconds: u64, uri: Option<&str>) -> Result<PeerRoundTrip> {
+/// `mode` is ddsperf's triggering mode for both ends, `listener` (its default) or
+/// `waitset`.
+async fn ddsperf_ping(
+    domain: u16,
+    seconds: u64,
+    uri: Option<&str>,
+    mode: &str,
+) -> Result<PeerRoundTrip> {
     let d = domain.to_string();
     let _pong = ddsperf_process(
         vec![
@@ -415,6 +600,7 @@ async fn ddsperf_ping(domain: u16, seconds: u64, uri: Option<&str>) -> Result<Pe
             "-D".into(),
             (seconds + 5).to_string(),
             "pong".into(),
+            mode.into(),
         ],
         uri,
     )?;
@@ -428,6 +614,7 @@ async fn ddsperf_ping(domain: u16, seconds: u64, uri: Option<&str>) -> Result<Pe
             "ping".into(),
             "size".into(),
             "96".into(),
+            mode.into(),
         ],
         uri,
     )?
@@ -441,7 +628,7 @@ async fn ddsperf_ping(domain: u16, seconds: u64, uri: Option<&str>) -> Result<Pe
 /// with 96-byte payloads, then pub/sub throughput.
 async fn ddsperf(domain: u16, seconds: u64) -> Result<PerfResult> {
     let run = |args: Vec<String>| ddsperf_process(args, None);
-    let rt = ddsperf_ping(domain, seconds, None).await?;
+    let rt = ddsperf_ping(domain, seconds, None, "listener").await?;
     let d2 = (domain + 1).to_string();
     let sub = run(vec![
         "-i".into(),
@@ -485,12 +672,17 @@ async fn ddsperf(domain: u16, seconds: u64) -> Result<PerfResult> {
 
 /// What `bench bus` measures.
 pub(super) struct BusFigures {
+    /// Both ends answering in a listener: the figure compared with ddsperf's default.
     pub(super) rt: RoundTrip,
+    /// Both ends answering in a task woken per sample, the station's way.
+    pub(super) rt_stream: RoundTrip,
     pub(super) throughput: f64,
     pub(super) steps: Vec<(f64, u64, u64)>,
     pub(super) peer: Option<PerfResult>,
     /// ddsperf's round trip with the Cyclone configuration Shoal uses.
     pub(super) peer_shoal_transport: Option<PeerRoundTrip>,
+    /// ddsperf's round trip in waitset mode (a thread woken per sample, as a task is).
+    pub(super) peer_waitset: Option<PeerRoundTrip>,
 }
 
 pub(super) async fn bus_figures(
@@ -500,9 +692,11 @@ pub(super) async fn bus_figures(
     no_peer: bool,
 ) -> Result<BusFigures> {
     eprintln!(
-        "bus: {seconds} s of Shoal round trips (Cyclone DDS, two processes, state vectors)..."
+        "bus: {seconds} s of Shoal round trips answered in listeners (Cyclone DDS, two processes, state vectors)..."
     );
-    let rt = shoal_round_trip(cfg, domain, seconds).await?;
+    let rt = listener_round_trip(cfg, domain, seconds).await?;
+    eprintln!("bus: {seconds} s of Shoal round trips answered in tasks...");
+    let rt_stream = round_trip(cfg, domain + 8, seconds, None).await?;
     eprintln!("bus: Shoal throughput, stepping the offered rate up until samples are lost...");
     let (thr, steps) = shoal_throughput(cfg, domain + 3).await?;
     let peer = if no_peer {
@@ -522,7 +716,7 @@ pub(super) async fn bus_figures(
     } else {
         eprintln!("bus: ddsperf again with Shoal's Cyclone configuration, {seconds} s...");
         let uri = shoal_dds::cyclone_config(&cfg.dds);
-        match ddsperf_ping(domain + 1, seconds, Some(&uri)).await {
+        match ddsperf_ping(domain + 1, seconds, Some(&uri), "listener").await {
             Ok(p) => Some(p),
             Err(e) => {
                 eprintln!("bus: ddsperf (Shoal's configuration) not measured: {e:#}");
@@ -530,12 +724,26 @@ pub(super) async fn bus_figures(
             }
         }
     };
+    let peer_waitset = if no_peer {
+        None
+    } else {
+        eprintln!("bus: ddsperf again in waitset mode, {seconds} s...");
+        match ddsperf_ping(domain + 1, seconds, None, "waitset").await {
+            Ok(p) => Some(p),
+            Err(e) => {
+                eprintln!("bus: ddsperf (waitset) not measured: {e:#}");
+                None
+            }
+        }
+    };
     Ok(BusFigures {
         rt,
+        rt_stream,
         throughput: thr,
         steps,
         peer,
         peer_shoal_transport,
+        peer_waitset,
     })
 }
 
@@ -562,10 +770,12 @@ pub(super) fn peer_counts(p: &PeerRoundTrip) -> String {
 pub(super) async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: bool) -> Result<()> {
     let BusFigures {
         rt,
+        rt_stream,
         throughput: thr,
         steps,
         peer,
         peer_shoal_transport,
+        peer_waitset,
     } = bus_figures(cfg, domain, seconds, no_peer).await?;
     println!("# shoal bench bus — {} — {}", machine(), date());
     println!(
@@ -599,6 +809,19 @@ pub(super) async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: b
         peer_shoal_transport.map(|p| p.p50_us),
         "µs",
     );
+    let st = rt_stream.per_second;
+    row(
+        "round trip p50 per second, answered in tasks | waitset",
+        st.map(|p| p.p50_us),
+        peer_waitset.map(|p| p.p50_us),
+        "µs",
+    );
+    row(
+        "round trip p99 per second, answered in tasks | waitset",
+        st.map(|p| p.p99_us),
+        peer_waitset.map(|p| p.p99_us),
+        "µs",
+    );
     row(
         "reliable throughput, no loss",
         Some(thr / 1000.0),
@@ -612,6 +835,11 @@ pub(super) async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: b
         shoal_counts(&rt),
         ps.map_or(0, |p| p.windows)
     );
+    println!(
+        "             Shoal in tasks {} in {} one-second windows",
+        shoal_counts(&rt_stream),
+        st.map_or(0, |p| p.windows)
+    );
     let peer_line = |name: &str, p: Option<&PeerRoundTrip>| match p {
         Some(p) => println!(
             "             {name} {} (no pong within 1 s) in {} per-second lines",
@@ -622,6 +850,7 @@ pub(super) async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: b
     };
     peer_line("ddsperf", peer.as_ref().map(|p| &p.rt));
     peer_line("ddsperf as Shoal's config", peer_shoal_transport.as_ref());
+    peer_line("ddsperf waitset", peer_waitset.as_ref());
     for (achieved, sent, received) in steps {
         println!(
             "  offered {:>8.0}/s  sent {sent:>7}  received {received:>7}",
@@ -632,6 +861,11 @@ pub(super) async fn bus(cfg: &ShoalConfig, domain: u16, seconds: u64, no_peer: b
     println!(" round trip p50 and p99 are computed as ddsperf computes its own: each one-second");
     println!(" window's p50 and p99, then the median over the windows; the whole-run figures are");
     println!(" over every round trip and have no ddsperf counterpart;");
+    println!(" Shoal answers in a listener on Cyclone's receive thread at both ends, as ddsperf's");
+    println!(" default listener mode does; the task rows have a tokio task woken per sample at");
+    println!(
+        " each end, the station's way, beside ddsperf's waitset mode, a thread woken per sample;"
+    );
     println!(" ddsperf runs with its default configuration, and once more for the round trip with");
     println!(" the Cyclone configuration Shoal uses (interfaces, multicast for discovery only);");
     println!(

@@ -55,7 +55,7 @@ pub enum BenchCommand {
         /// Seconds of round trips for each implementation.
         #[arg(long, default_value_t = 10)]
         seconds: u64,
-        /// DDS domain for the measurement (ddsperf uses the next two).
+        /// First DDS domain of the measurement: Shoal uses it and the third and eighth after it, ddsperf the next two.
         #[arg(long, default_value_t = 80)]
         domain: u16,
         /// Skip the ddsperf comparison.
@@ -259,6 +259,9 @@ pub enum BenchCommand {
         /// Secure the participant with a station identity from this DDS keystore.
         #[arg(long)]
         keystore: Option<std::path::PathBuf>,
+        /// Answer in a listener on Cyclone's receive thread, or in a task.
+        #[arg(long, value_enum, default_value_t = bus::Delivery::Stream)]
+        delivery: bus::Delivery,
     },
     /// (helper) Participants that each publish their own state.
     #[command(hide = true)]
@@ -415,9 +418,11 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             };
             replay::replay(cfg, plan).await
         }
-        BenchCommand::Pong { domain, keystore } => {
-            bus::pong(cfg, domain, keystore.as_deref()).await
-        }
+        BenchCommand::Pong {
+            domain,
+            keystore,
+            delivery,
+        } => bus::pong(cfg, domain, keystore.as_deref(), delivery).await,
         BenchCommand::Crowd {
             domain,
             count,

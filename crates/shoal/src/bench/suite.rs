@@ -162,7 +162,9 @@ fn scale_ingest_met(pct_of_offered: f64) -> bool {
 
 /// The bus rows. Round trip p50 and p99 are Shoal's computed as ddsperf computes its own
 /// (per one-second window, then the median over the windows: `bus::per_second`), so the
-/// ratio compares like with like; the whole-run figures follow as information only.
+/// ratio compares like with like, as does the delivery: both answer in listeners, and the
+/// row answered in tasks has ddsperf's waitset mode beside it. The whole-run figures
+/// follow as information only.
 fn bus_rows(bus: &BusFigures) -> Vec<SuiteRow> {
     let ps = bus.rt.per_second;
     let (p50, p99) = (ps.map(|p| p.p50_us), ps.map(|p| p.p99_us));
@@ -218,6 +220,29 @@ fn bus_rows(bus: &BusFigures) -> Vec<SuiteRow> {
                         peer_counts(&p)
                     ),
                     ratio(p50, p.p50_us),
+                )
+            }),
+            Better::Lower,
+        ),
+        SuiteRow::new(
+            "bus round trip p50 (per second, as above), answered in tasks (the station's way), ddsperf in waitset mode",
+            format!(
+                "{} ({})",
+                whole(bus.rt_stream.per_second.map(|p| p.p50_us), "µs"),
+                shoal_counts(&bus.rt_stream)
+            ),
+            "-",
+            None,
+        )
+        .with_peer_if(
+            bus.peer_waitset.map(|p| {
+                (
+                    format!(
+                        "Cyclone {} ({})",
+                        whole(Some(p.p50_us), "µs"),
+                        peer_counts(&p)
+                    ),
+                    ratio(bus.rt_stream.per_second.map(|p| p.p50_us), p.p50_us),
                 )
             }),
             Better::Lower,
@@ -540,6 +565,17 @@ mod tests {
                 count: 92_024,
                 lost,
             },
+            rt_stream: RoundTrip {
+                p50_us: 170.0,
+                p99_us: 450.0,
+                per_second: Some(PerSecond {
+                    p50_us: 172.0,
+                    p99_us: 330.0,
+                    windows: 10,
+                }),
+                count: 80_000,
+                lost: 0,
+            },
             throughput: 80_000.0,
             steps: Vec::new(),
             peer: peer.then_some(PerfResult {
@@ -548,6 +584,10 @@ mod tests {
             }),
             peer_shoal_transport: peer.then_some(PeerRoundTrip {
                 p50_us: 90.0,
+                ..peer_rt
+            }),
+            peer_waitset: peer.then_some(PeerRoundTrip {
+                p50_us: 100.0,
                 ..peer_rt
             }),
         }
