@@ -53,6 +53,15 @@ setup() {
     ip -n "$name" link set lo multicast on
     # `replace` is idempotent (add fails if the route is already there).
     ip -n "$name" route replace 224.0.0.0/4 dev lo
+    # DDS discovery binds fixed ports, 7400 + 250 x domain and the next one; from domain
+    # 102 up they fall in the kernel's ephemeral range, where any other socket of the
+    # tests (an HTTP client, a Cyclone unicast socket) could already hold one, and then
+    # creating that domain fails. Reserved ports are never handed out as ephemeral.
+    local ports="" d
+    for ((d = 0; d <= 232; d++)); do
+        ports+="${ports:+,}$((7400 + 250 * d))-$((7401 + 250 * d))"
+    done
+    ip netns exec "$name" sh -c "echo '$ports' > /proc/sys/net/ipv4/ip_local_reserved_ports"
     # Safety net: there must be no interface other than lo.
     local others
     others=$(ip -n "$name" -o link show | awk -F': ' '{print $2}' | sed 's/@.*//' | grep -vx lo || true)
