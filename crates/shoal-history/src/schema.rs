@@ -196,7 +196,8 @@ impl Location {
     }
 }
 
-/// Opens the writer's connection: WAL, the configured sync level, the schema migrated.
+/// Opens the writer's connection: WAL, the configured sync level and page cache, the
+/// schema migrated.
 pub(crate) fn open_writer(
     location: &Location,
     config: &HistoryConfig,
@@ -228,6 +229,8 @@ pub(crate) fn open_writer(
     }
     conn.pragma_update(None, "synchronous", config.synchronous.pragma())?;
     conn.pragma_update(None, "journal_size_limit", JOURNAL_SIZE_LIMIT)?;
+    // Negative: KiB rather than pages.
+    conn.pragma_update(None, "cache_size", -(i64::from(config.cache_mib) * 1024))?;
     migrate(&mut conn)?;
     let auto_vacuum: i64 = conn.pragma_query_value(None, "auto_vacuum", |r| r.get(0))?;
     if auto_vacuum != AUTO_VACUUM_INCREMENTAL && config.retention.is_active() {
@@ -266,6 +269,19 @@ fn create_parent_dir(path: &Path) -> Result<(), HistoryError> {
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
+
+    #[test]
+    fn the_writer_gets_the_configured_page_cache() {
+        let config = HistoryConfig {
+            cache_mib: 48,
+            ..HistoryConfig::in_memory()
+        };
+        let conn = open_writer(&Location::of(&config), &config).unwrap();
+        let kib: i64 = conn
+            .pragma_query_value(None, "cache_size", |r| r.get(0))
+            .unwrap();
+        assert_eq!(kib, -48 * 1024);
+    }
 
     #[test]
     fn a_version_1_store_is_upgraded_in_place_and_keeps_its_tasks() {
