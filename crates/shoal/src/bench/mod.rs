@@ -85,7 +85,7 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 1000)]
         vehicles: usize,
         /// State vectors in all.
-        #[arg(long, default_value_t = 500_000)]
+        #[arg(long, default_value_t = pipeline::DEFAULT_ROWS)]
         rows: usize,
         /// DDS domain of the station's (idle) participant.
         #[arg(long, default_value_t = 85)]

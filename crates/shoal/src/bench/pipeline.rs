@@ -13,6 +13,11 @@ use tokio_util::sync::CancellationToken;
 use super::helpers::{date, dds, machine, tempfile_dir};
 use crate::config::ShoalConfig;
 
+/// State vectors of a pipeline run, `bench pipeline`'s and the suite's: enough that the
+/// pipeline's fill (the writer waits for its first batch while the ingesting thread makes
+/// it) is a small part of the run, as it is of a station's hours.
+pub(super) const DEFAULT_ROWS: usize = 500_000;
+
 /// The rows of the pipeline benchmark: `vehicles` AUVs at 10 Hz over the last minutes,
 /// moving and draining plausibly, so that every row is accepted.
 fn pipeline_rows(vehicles: usize, rows: usize) -> Vec<StateVector> {

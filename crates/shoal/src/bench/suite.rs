@@ -392,7 +392,7 @@ pub(super) async fn suite(
     rows.extend(bus_rows(&bus));
 
     eprintln!("suite 2/6: ingest pipeline (Shoal vs raw batched SQLite insert)");
-    let pf = pipeline_figures(cfg, domain + 4, 1000, 300_000).await?;
+    let pf = pipeline_figures(cfg, domain + 4, 1000, super::pipeline::DEFAULT_ROWS).await?;
     rows.extend(ingest_rows(pf.rate, pf.raw_rate));
 
     eprintln!("suite 3/6: end-to-end latency, 1000 vehicles x 1 Hz");
