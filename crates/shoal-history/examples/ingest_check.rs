@@ -5,7 +5,7 @@
 
 use std::time::{Duration, Instant};
 
-use shoal_history::{History, HistoryConfig, raw_insert_baseline};
+use shoal_history::{History, HistoryConfig, RawOrder, raw_insert_baseline};
 use shoal_model::StateVector;
 
 fn rows(n: usize, vehicles: usize) -> Vec<StateVector> {
@@ -53,6 +53,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             ..HistoryConfig::default()
         },
         &data,
+        RawOrder::Key,
     )?;
 
     let config = HistoryConfig {

@@ -8,9 +8,19 @@ use shoal_model::StateVector;
 use crate::schema::{self, Location};
 use crate::{HistoryConfig, HistoryError, store};
 
+/// The order the raw baseline inserts each transaction's rows in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RawOrder {
+    /// As they came: what a plain application does.
+    Arrival,
+    /// Sorted by key (vehicle, then time), as the history's writer does with each batch;
+    /// the sort is timed with the inserts.
+    Key,
+}
+
 /// Inserts `rows` into a fresh SQLite database at `history.path` with plain prepared
-/// `INSERT`s, `history.batch_max` rows per transaction, in the calling thread: no queue, no
-/// writer thread, no acknowledgements.
+/// `INSERT`s, `history.batch_max` rows per transaction in `order`, in the calling thread:
+/// no queue, no writer thread, no acknowledgements.
 ///
 /// It uses the same pragmas as the store with this configuration (WAL, and the
 /// configuration's own `synchronous`: the baseline is never made less durable than the
@@ -20,6 +30,7 @@ use crate::{HistoryConfig, HistoryError, store};
 pub fn raw_insert_baseline(
     history: &HistoryConfig,
     rows: &[StateVector],
+    order: RawOrder,
 ) -> Result<Duration, HistoryError> {
     let config = HistoryConfig {
         backend: crate::Backend::Sqlite,
@@ -46,6 +57,10 @@ pub fn raw_insert_baseline(
     let start = Instant::now();
     for chunk in rows.chunks(batch.max(1)) {
         let tx = conn.transaction()?;
+        let mut chunk: Vec<&StateVector> = chunk.iter().collect();
+        if order == RawOrder::Key {
+            chunk.sort_by(|a, b| store::state_key(a).cmp(&store::state_key(b)));
+        }
         for row in chunk {
             store::insert_state(&tx, row)?;
         }

@@ -32,9 +32,8 @@ pub struct HistoryConfig {
     /// Most records queued for the writer; beyond it `submit` hands records back.
     pub queue_capacity: usize,
     /// SQLite only: the writer's page cache, MiB. A batch's rows of many vehicles land on
-    /// as many index pages; a cache that holds them all spares reading each page back from
-    /// the file and writing it out again within the batch (about half the writer's time at
-    /// 1,000 vehicles with SQLite's own 2 MiB).
+    /// as many leaves of the state-vector table; a cache that holds them spares reading a
+    /// page back from the file, and spilling it, within a batch (SQLite's own is 2 MiB).
     pub cache_mib: u32,
     /// SQLite only: how hard SQLite syncs to disk at each commit. (PostgreSQL commits with
     /// the server's own `synchronous_commit` setting.)
@@ -43,9 +42,9 @@ pub struct HistoryConfig {
     pub retention: RetentionConfig,
 }
 
-/// The writer's SQLite page cache by default, MiB: the pages a batch of 1,000 vehicles'
-/// rows touches, with room to spare.
-pub const DEFAULT_CACHE_MIB: u32 = 32;
+/// The writer's SQLite page cache by default, MiB: about the leaves a batch of 1,000
+/// vehicles' rows touches (one 4 KiB page each, and their parents).
+pub const DEFAULT_CACHE_MIB: u32 = 8;
 /// The largest page cache `cache_mib` may ask for, MiB.
 pub const MAX_CACHE_MIB: u32 = 4096;
 

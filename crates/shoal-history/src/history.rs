@@ -919,12 +919,18 @@ mod tests {
             batch_max: 300,
             ..f.config()
         };
-        let rows: Vec<StateVector> = (0..1000).map(|i| state("auv-1", T + i)).collect();
-        crate::raw_insert_baseline(&config, &rows).unwrap();
-        // Run twice: the second run starts from a fresh database again.
-        crate::raw_insert_baseline(&config, &rows[..10]).unwrap();
+        let rows: Vec<StateVector> = (0..1000)
+            .map(|i| state(&format!("auv-{}", i % 7), T + i))
+            .collect();
+        crate::raw_insert_baseline(&config, &rows, crate::RawOrder::Arrival).unwrap();
+        let h = History::open(&config).unwrap();
+        assert_eq!(h.count_states(None).unwrap(), 1000);
+        drop(h);
+        // Run again: each run starts from a fresh database.
+        crate::raw_insert_baseline(&config, &rows[..10], crate::RawOrder::Key).unwrap();
         let h = History::open(&config).unwrap();
         assert_eq!(h.count_states(None).unwrap(), 10);
+        assert_eq!(h.count_states(Some("auv-3")).unwrap(), 1);
     }
 
     /// Ingest rate through the writer, per backend: 200,000 state vectors of 20 vehicles,

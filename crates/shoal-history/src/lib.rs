@@ -53,7 +53,7 @@ mod store;
 mod testing;
 mod writer;
 
-pub use baseline::raw_insert_baseline;
+pub use baseline::{RawOrder, raw_insert_baseline};
 pub use config::{
     Backend, DEFAULT_POSTGRES_SCHEMA, DEFAULT_POSTGRES_URL, HistoryConfig, RetentionConfig,
     Synchronous,

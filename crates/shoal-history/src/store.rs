@@ -265,13 +265,32 @@ pub(crate) fn write_batch(conn: &mut Connection, batch: &[Record]) -> Result<Out
 }
 
 /// The fast path: every record in one transaction; any error rolls all of it back.
+///
+/// State vectors go in key order (vehicle, then time): a batch of a thousand vehicles'
+/// reports in arrival order jumps between a thousand leaves of the table's B-tree, one per
+/// row, where key order walks them once, each vehicle's rows landing together. The sort
+/// is stable, so of two reports with the same key the later still replaces the earlier,
+/// and a transaction's rows become visible together whatever their order.
 fn write_all(conn: &mut Connection, batch: &[Record]) -> Result<(), StoreError> {
     let tx = conn.transaction()?;
+    let mut states = Vec::with_capacity(batch.len());
     for record in batch {
-        insert(&tx, record)?;
+        match record {
+            Record::State(s) => states.push(s),
+            other => insert(&tx, other)?,
+        }
+    }
+    states.sort_by(|a, b| state_key(a).cmp(&state_key(b)));
+    for s in states {
+        insert_state(&tx, s)?;
     }
     tx.commit()?;
     Ok(())
+}
+
+/// A state vector's primary key in the table's order.
+pub(crate) fn state_key(s: &shoal_model::StateVector) -> (&str, i64) {
+    (&s.vehicle_id, s.timestamp_ms)
 }
 
 /// The slow path: still one transaction, but each record under its own savepoint so a

@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use shoal_history::{History, HistoryConfig};
+use shoal_history::{History, HistoryConfig, RawOrder};
 use shoal_model::{LinkKind, StateVector, VehicleAnnouncement, VehicleKind, now_ms};
 use shoal_station::{Station, StationConfig};
 use tokio_util::sync::CancellationToken;
@@ -205,14 +205,19 @@ pub(super) struct PipelineFigures {
     /// The same rows with the history excluded: queued for it, but its writer does not
     /// write until the pass is over, so the in-memory stages run alone.
     pub(super) excluded: Duration,
+    /// The raw baseline, each transaction's rows in arrival order.
     pub(super) raw: Duration,
+    /// The raw baseline, each transaction's rows in key order as the writer puts them.
+    pub(super) raw_key: Duration,
     pub(super) rate: f64,
     pub(super) excluded_rate: f64,
+    /// The faster raw baseline's rate: what the pipeline is judged against.
     pub(super) raw_rate: f64,
 }
 
 /// Runs the rows through a station with its history (as deployed), then with the history
-/// excluded, then the raw SQLite baseline with the history's own settings.
+/// excluded, then the raw SQLite baseline with the history's own settings, in arrival
+/// order and in key order.
 pub(super) async fn pipeline_figures(
     cfg: &ShoalConfig,
     domain: u16,
@@ -255,15 +260,15 @@ pub(super) async fn pipeline_figures(
         &dir,
     )
     .await?;
-    eprintln!("pipeline: raw batched SQLite insert of the same rows...");
+    eprintln!("pipeline: raw batched SQLite insert of the same rows, in arrival order...");
     let raw_rows = pipeline_rows(vehicles, rows);
-    let raw = shoal_history::raw_insert_baseline(
-        &HistoryConfig {
-            path: dir.join("raw.db"),
-            ..cfg.history.clone()
-        },
-        &raw_rows,
-    )?;
+    let raw_config = HistoryConfig {
+        path: dir.join("raw.db"),
+        ..cfg.history.clone()
+    };
+    let raw = shoal_history::raw_insert_baseline(&raw_config, &raw_rows, RawOrder::Arrival)?;
+    eprintln!("pipeline: again, each transaction's rows in key order...");
+    let raw_key = shoal_history::raw_insert_baseline(&raw_config, &raw_rows, RawOrder::Key)?;
     #[allow(clippy::cast_precision_loss)]
     let per_s = |d: Duration| rows as f64 / d.as_secs_f64();
     let _ = std::fs::remove_dir_all(&dir);
@@ -278,9 +283,10 @@ pub(super) async fn pipeline_figures(
         write_busy: run.write_busy,
         excluded: excluded.ingest,
         raw,
+        raw_key,
         rate: per_s(run.total),
         excluded_rate: per_s(excluded.ingest),
-        raw_rate: per_s(raw),
+        raw_rate: per_s(raw.min(raw_key)),
     })
 }
 
@@ -315,10 +321,17 @@ pub(super) async fn pipeline(
         f.excluded_rate,
         f.excluded,
     );
+    #[allow(clippy::cast_precision_loss)]
+    let per_s = |d: Duration| rows as f64 / d.as_secs_f64();
     line(
         "raw batched SQLite insert (same rows, schema, pragmas)",
-        f.raw_rate,
+        per_s(f.raw),
         f.raw,
+    );
+    line(
+        "  the same, each transaction's rows in key order",
+        per_s(f.raw_key),
+        f.raw_key,
     );
     println!("where the time goes, per state vector:");
     for (what, d) in [
@@ -331,7 +344,8 @@ pub(super) async fn pipeline(
             "the history writer's busy time, history included",
             f.write_busy,
         ),
-        ("raw SQLite insert", f.raw),
+        ("raw SQLite insert, arrival order", f.raw),
+        ("raw SQLite insert, key order", f.raw_key),
     ] {
         #[allow(clippy::cast_precision_loss)]
         let us = d.as_secs_f64() * 1e6 / rows.max(1) as f64;
@@ -345,7 +359,7 @@ pub(super) async fn pipeline(
     };
     println!("the slower of the two threads, which sets the pace: {bound}");
     println!(
-        "ratio Shoal / raw: {:.2} (goal >= 0.90); goal >= 100000/s: {}",
+        "ratio Shoal / the faster raw insert: {:.2} (goal >= 0.90); goal >= 100000/s: {}",
         f.rate / f.raw_rate,
         if f.rate >= 100_000.0 {
             "met"
