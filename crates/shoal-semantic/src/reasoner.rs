@@ -13,7 +13,12 @@
 //! Not derived, on purpose: facts about literals (`"1.5" rdf:type xsd:double`, which RDF
 //! cannot state) and the reflexive `C rdfs:subClassOf C` triples, which no query needs.
 
-use std::collections::{BTreeSet, HashMap, HashSet};
+use std::collections::BTreeSet;
+
+// Fx: these maps are hashed on every entity write (IRIs and whole triples), where
+// SipHash's resistance to chosen keys buys nothing (the keys are the ontology's and the
+// entity's own) and cost a tenth of a write burst's time.
+use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 
 use oxrdf::{NamedNode, NamedOrBlankNode, Quad, Term, Triple};
 
@@ -36,7 +41,7 @@ pub struct TBox {
 
 /// Strict transitive closure of a relation given as direct edges.
 fn closure(direct: &HashMap<NamedNode, Vec<NamedNode>>) -> HashMap<NamedNode, Vec<NamedNode>> {
-    let mut out = HashMap::with_capacity(direct.len());
+    let mut out = HashMap::with_capacity_and_hasher(direct.len(), Default::default());
     for start in direct.keys() {
         // BTreeSet keeps the output deterministic, which keeps exports diffable.
         let mut seen = BTreeSet::new();
@@ -171,7 +176,7 @@ impl TBox {
         let hosts = vocab::ns(SOSA, "hosts");
         let has_capability = shoal("hasCapability");
         let present: HashSet<&Triple> = asserted.iter().collect();
-        let mut seen: HashSet<Triple> = HashSet::new();
+        let mut seen: HashSet<Triple> = HashSet::default();
         let mut out = Vec::new();
         let mut add = |t: Triple, out: &mut Vec<Triple>| {
             if !present.contains(&t) && seen.insert(t.clone()) {
@@ -180,7 +185,7 @@ impl TBox {
         };
         // Capability inference first, so that the RDFS pass below also closes its output.
         let mut extra = Vec::new();
-        let mut types_of: HashMap<&NamedOrBlankNode, Vec<&NamedNode>> = HashMap::new();
+        let mut types_of: HashMap<&NamedOrBlankNode, Vec<&NamedNode>> = HashMap::default();
         for t in asserted {
             if let (true, Term::NamedNode(c)) = (t.predicate == rdf_type, &t.object) {
                 types_of.entry(&t.subject).or_default().push(c);
