@@ -913,9 +913,12 @@ impl From<DispatchError> for ApiError {
             DispatchError::UnknownVehicle(_) | DispatchError::UnknownMission(_) => {
                 Self::NotFound(e.to_string())
             }
+            // An id already in use conflicts with what exists; the body itself is fine.
             DispatchError::VehicleLost(_)
             | DispatchError::Incapable { .. }
-            | DispatchError::LowBattery { .. } => Self::Conflict(e.to_string()),
+            | DispatchError::LowBattery { .. }
+            | DispatchError::DuplicateTask(_)
+            | DispatchError::DuplicateMission(_) => Self::Conflict(e.to_string()),
             DispatchError::Publish(_) => Self::Internal(e.to_string()),
             DispatchError::InMission { ref error, .. }
                 if matches!(
@@ -924,6 +927,7 @@ impl From<DispatchError> for ApiError {
                         | DispatchError::VehicleLost(_)
                         | DispatchError::Incapable { .. }
                         | DispatchError::LowBattery { .. }
+                        | DispatchError::DuplicateTask(_)
                 ) =>
             {
                 Self::Conflict(e.to_string())

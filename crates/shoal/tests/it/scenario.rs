@@ -132,10 +132,11 @@ async fn three_vehicles_one_acoustic_run_their_missions_to_done() {
         assert_eq!(status, StatusCode::CREATED, "{body}");
         assert_eq!(body["state"], "running");
     }
-    // A duplicate mission id is refused.
+    // A duplicate mission id is refused as a conflict with the mission that has it.
     let dup = serde_json::json!({"mission_id": "m-s1", "tasks": [goto("auv-s1", 63.44, 10.36)]});
-    let (status, _) = call(&router, "POST", "/api/missions", &dup.to_string()).await;
-    assert_eq!(status, StatusCode::BAD_REQUEST);
+    let (status, body) = call(&router, "POST", "/api/missions", &dup.to_string()).await;
+    assert_eq!(status, StatusCode::CONFLICT, "{body}");
+    assert!(body.to_string().contains("already in use"), "{body}");
 
     for m in ["m-s1", "m-s2", "m-ac"] {
         let view = eventually(240, &format!("mission {m} done"), || {
