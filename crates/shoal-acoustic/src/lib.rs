@@ -19,6 +19,9 @@
 //! - [`link`]: the acoustic link layer: priority classes with Goby-style priority growth
 //!   (docs/acoustic.md#link-layer), TTL, ack and retransmission, newest-first telemetry,
 //!   frame packing, TDMA (docs/acoustic.md#medium-access).
+//! - [`relay`]: multi-hop relays (docs/acoustic.md#multi-hop-relays): the relay envelope,
+//!   routes configured or learned, duplicate suppression, TTL per hop, and
+//!   [`relay::RelayDriver`], which forwards for nodes out of the other end's range.
 //!
 //! tokio is used only at the network edges (emulator, drivers, link runner).
 
@@ -31,4 +34,5 @@ pub mod emulator;
 pub mod link;
 pub mod nl;
 pub mod pdu;
+pub mod relay;
 pub mod secure;

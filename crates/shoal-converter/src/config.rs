@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use shoal_acoustic::link::{LinkConfig, Mac};
 use shoal_acoustic::pdu::AddressBook;
 use shoal_acoustic::pdu::convert::MAX_ADDRESS;
+use shoal_acoustic::relay::{RelayConfig, TrustedRelay};
 use shoal_model::Warp;
 
 use crate::error::ConverterError;
@@ -211,6 +212,9 @@ pub struct VdtConfig {
     pub environment_interval_s: f64,
     /// Link layer settings.
     pub link: LinkSettings,
+    /// Multi-hop relaying through this vehicle's modem (docs/acoustic.md#multi-hop-relays):
+    /// routes to the CDT through other vehicles, and forwarding for vehicles farther out.
+    pub relay: RelayConfig,
     /// Wall-clock seconds per simulated second (match the emulator's `time_scale`).
     pub time_scale: f64,
     /// The simulated clock of a scenario run, for every timestamp this converter makes
@@ -233,6 +237,7 @@ impl Default for VdtConfig {
             announce_interval_s: 60.0,
             environment_interval_s: 30.0,
             link: LinkSettings::default(),
+            relay: RelayConfig::default(),
             time_scale: 1.0,
             clock: None,
         }
@@ -273,6 +278,9 @@ pub struct CdtConfig {
     pub carrier: Option<String>,
     /// Link layer settings.
     pub link: LinkSettings,
+    /// Multi-hop relaying through this CDT's modem (docs/acoustic.md#multi-hop-relays);
+    /// the `relays` entries are added to its trusted relays ([`Self::relay_config`]).
+    pub relay: RelayConfig,
     /// Wall-clock seconds per simulated second (match the emulator's `time_scale`).
     pub time_scale: f64,
     /// The simulated clock of a scenario run, for every timestamp this converter makes
@@ -292,6 +300,7 @@ impl Default for CdtConfig {
             position: None,
             carrier: None,
             link: LinkSettings::default(),
+            relay: RelayConfig::default(),
             time_scale: 1.0,
             clock: None,
         }
@@ -389,6 +398,9 @@ impl VdtConfig {
         secs("state_interval_s", self.state_interval_s)?;
         secs("announce_interval_s", self.announce_interval_s)?;
         secs("environment_interval_s", self.environment_interval_s)?;
+        self.relay
+            .check()
+            .map_err(|e| ConverterError::Config(e.to_string()))?;
         self.link.link_config().map(|_| ())
     }
 }
@@ -423,8 +435,24 @@ impl CdtConfig {
                 "carrier: {c:?} is not a valid vehicle id"
             )));
         }
-        self.relay_rules()?;
+        self.relay_config()?;
         self.link.link_config().map(|_| ())
+    }
+
+    /// The relay settings of this CDT's modem: [`Self::relay`], with every relay of
+    /// [`Self::relays`] trusted to carry the vehicles it is listed with.
+    pub fn relay_config(&self) -> Result<RelayConfig, ConverterError> {
+        let mut relay = self.relay.clone();
+        for (r, carries) in self.relay_rules()? {
+            match relay.trusted.iter_mut().find(|t| t.relay == r) {
+                Some(t) => t.carries.extend(carries),
+                None => relay.trusted.push(TrustedRelay { relay: r, carries }),
+            }
+        }
+        relay
+            .check()
+            .map_err(|e| ConverterError::Config(e.to_string()))?;
+        Ok(relay)
     }
 
     /// The relays as (relay address, addresses it may speak for), checked against the
@@ -501,6 +529,8 @@ mod tests {
         e.cdt.check().unwrap();
         assert_eq!(e.vdt.link, LinkSettings::default());
         assert_eq!(e.vdt.topics, AcousticTopics::default());
+        assert_eq!(e.vdt.relay, RelayConfig::default());
+        assert_eq!(e.cdt.relay, RelayConfig::default());
         assert_eq!(e.cdt.link, LinkSettings::default());
         let d = VdtConfig::default();
         assert_eq!(
@@ -601,6 +631,53 @@ mod tests {
             ..CdtConfig::default()
         };
         assert!(spaced.check().unwrap_err().to_string().contains("carrier"));
+    }
+
+    #[test]
+    fn relay_settings_are_checked_and_the_cdts_relays_become_trusted() {
+        let c: VdtConfig = toml::from_str(
+            r#"
+            vehicles = [{ vehicle_id = "auv-far", address = 4 }]
+            [relay]
+            routes = [{ dst = 1, via = 3 }]
+            ttl = 3
+            "#,
+        )
+        .unwrap();
+        c.check().unwrap();
+        assert_eq!(c.relay.routes[0].via, 3);
+        let bad = VdtConfig {
+            relay: RelayConfig {
+                ttl: 9,
+                ..RelayConfig::default()
+            },
+            ..c
+        };
+        assert!(bad.check().unwrap_err().to_string().contains("relay.ttl"));
+        let cdt = CdtConfig {
+            vehicles: vec![
+                AddressEntry {
+                    vehicle_id: "auv-near".into(),
+                    address: 3,
+                },
+                AddressEntry {
+                    vehicle_id: "auv-far".into(),
+                    address: 4,
+                },
+            ],
+            relays: vec![RelayEntry {
+                relay: "auv-near".into(),
+                carries: vec!["auv-far".into()],
+            }],
+            ..CdtConfig::default()
+        };
+        assert_eq!(
+            cdt.relay_config().unwrap().trusted,
+            vec![TrustedRelay {
+                relay: 3,
+                carries: vec![4]
+            }]
+        );
     }
 
     #[test]

@@ -51,6 +51,7 @@ use std::sync::Arc;
 use futures::StreamExt;
 use shoal_acoustic::channel::ChannelModel;
 use shoal_acoustic::emulator::{Emulator, EmulatorConfig, EmulatorHandle, ModemConfig};
+use shoal_acoustic::relay::{HEADER_BYTES, RelayConfig};
 use shoal_acoustic::secure::TaggedDriver;
 use shoal_dds::{DdsConfig, PubSub};
 use shoal_model::{StateVector, Warp};
@@ -169,6 +170,12 @@ pub struct EmulatedRelayConfig {
     /// A scenario run's simulated clock for the converters' timestamps (`None`: the
     /// system clock); set with [`Self::warped`], which matches `time_scale` to it.
     pub clock: Option<Warp>,
+    /// Relay settings of vehicles' modems, by vehicle id (docs/acoustic.md#multi-hop-relays):
+    /// a vehicle out of the relay's range routes through another, which forwards. Others
+    /// keep [`RelayConfig::default`] (no forwarding, no configured routes).
+    pub relaying: std::collections::HashMap<String, RelayConfig>,
+    /// The emulator's hard range, metres (`None`: the channel model decides).
+    pub max_range_m: Option<f64>,
 }
 
 impl EmulatedRelayConfig {
@@ -199,6 +206,8 @@ impl EmulatedRelayConfig {
             follow_vehicles: true,
             relay_vehicle: None,
             clock: None,
+            relaying: std::collections::HashMap::new(),
+            max_range_m: None,
         }
     }
 
@@ -298,6 +307,7 @@ impl EmulatedRelayConfig {
             time_scale: self.time_scale,
             fixed_per: self.fixed_per,
             channel: self.channel,
+            max_range_m: self.max_range_m,
             modems,
             ..EmulatorConfig::default()
         }
@@ -373,7 +383,11 @@ where
         ));
     }
     let mut cdt_cfg = cfg.cdt_config(cfg.modem(relay.at, relay.nl).address);
-    let driver = Modem::start(&cdt_cfg.modem, cfg.time_scale);
+    let driver = Modem::start_relayed(&cdt_cfg.modem, cdt_cfg.relay_config()?, cfg.time_scale)?;
+    if !cfg.relaying.is_empty() {
+        // Tasks for a vehicle behind a relay leave enveloped.
+        cdt_cfg.link.max_frame = cdt_cfg.link.max_frame.saturating_sub(HEADER_BYTES);
+    }
     if let Some(keys) = &keys {
         let mut tagger = keys.tagger(cfg.relay_address);
         for v in &cfg.vehicles {
@@ -409,14 +423,19 @@ where
             link: cfg.link.clone(),
             time_scale: cfg.time_scale,
             clock: cfg.clock,
+            relay: cfg.relaying.get(&v.id).cloned().unwrap_or_default(),
             ..VdtConfig::default()
         };
+        if !vdt_cfg.relay.routes.is_empty() {
+            // What it sends to the relay's CDT goes through another vehicle, enveloped.
+            vdt_cfg.link.max_frame = vdt_cfg.link.max_frame.saturating_sub(HEADER_BYTES);
+        }
         if cfg.follow_vehicles {
             let states = vdt_dds.subscribe::<StateVector>()?;
             tasks.spawn(follow(emu.clone(), v.address, states, None, stop.clone()));
         }
         tasks.spawn(start_vehicle(v, vehicle_dds, stop.clone()));
-        let driver = Modem::start(&vdt_cfg.modem, cfg.time_scale);
+        let driver = Modem::start_relayed(&vdt_cfg.modem, vdt_cfg.relay.clone(), cfg.time_scale)?;
         if let Some(keys) = &keys {
             let mut tagger = keys.tagger(v.address);
             tagger.set_key(cfg.relay_address, keys.key(&v.id)?);

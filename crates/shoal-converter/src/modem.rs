@@ -8,7 +8,10 @@ use shoal_acoustic::driver::{
     AtDriver, DriverConfig, ModemDriver, NlDriver, OutFrame, Outcome, RxFrame, TransmitError,
 };
 
+use shoal_acoustic::relay::{RelayConfig, RelayDriver};
+
 use crate::config::{ModemKind, ModemSettings};
+use crate::error::ConverterError;
 
 /// A modem driver chosen from [`ModemSettings`].
 #[derive(Debug)]
@@ -30,6 +33,20 @@ impl Modem {
             ModemKind::EvologicsAt => Self::At(AtDriver::start(cfg)),
             ModemKind::EvinsNl => Self::Nl(NlDriver::start(cfg, settings.nl_delivery_reports)),
         }
+    }
+
+    /// [`Self::start`] under a relay layer with `relay`'s settings
+    /// (docs/acoustic.md#multi-hop-relays): frames for a node behind a relay leave
+    /// enveloped, and, with `relay.forward`, frames for others are forwarded. Put a
+    /// [`shoal_acoustic::secure::TaggedDriver`] on top, never under it, so tags stay end
+    /// to end.
+    pub fn start_relayed(
+        settings: &ModemSettings,
+        relay: RelayConfig,
+        time_scale: f64,
+    ) -> Result<RelayDriver<Self>, ConverterError> {
+        RelayDriver::start(Self::start(settings, time_scale), relay, time_scale)
+            .map_err(|e| ConverterError::Config(e.to_string()))
     }
 }
 

@@ -19,6 +19,11 @@
 //! 1 (no identity) is refused and reported failed: a re-delivery of it could not be told
 //! from a new task. Keyframe acks from the CDT feed the delta encoder.
 //!
+//! Multi-hop relaying (docs/acoustic.md#multi-hop-relays) happens under the VDT, in the
+//! modem's driver ([`crate::Modem::start_relayed`], [`VdtConfig::relay`]): a vehicle out
+//! of the CDT's range reaches it through another vehicle whose VDT's modem forwards for
+//! it; frames from the CDT come up here as the CDT's whichever way they came.
+//!
 //! Keyframe acks name the keyframe by its 4-bit sequence number only, so delta coding is
 //! used when the VDT serves a single vehicle (the normal case: one VDT per vehicle); a VDT
 //! serving several vehicles sends keyframes only, which is always correct.

@@ -17,7 +17,8 @@
 //! `FAILEDIM`); bytes outside `+++` commands get `+++AT:18:ERROR WRONG FORMAT` (a real
 //! modem in data mode would transmit them); NL payloads travel as IM or burst with the
 //! 4-byte NL header counted in air time but not carried; routing tables are stored but
-//! every packet goes direct.
+//! every packet goes direct (Shoal relays above the modem: [`crate::relay`]); an optional
+//! hard range (`max_range_m`) beyond which nothing is heard, for relay chains.
 
 mod sea;
 
@@ -58,6 +59,11 @@ pub struct EmulatorConfig {
     pub preamble_s: f64,
     /// Instant-message retries after the first attempt (`AT!RI`).
     pub im_retries: u8,
+    /// Beyond this distance, metres, a packet neither arrives nor interferes, whatever
+    /// the channel model or `fixed_per` says: a relay chain's far end is then out of the
+    /// station's range for certain (docs/acoustic.md#multi-hop-relays). `None`: the
+    /// channel model alone decides.
+    pub max_range_m: Option<f64>,
     /// The modems.
     pub modems: Vec<ModemConfig>,
 }
@@ -75,7 +81,46 @@ impl Default for EmulatorConfig {
             // 0.14–0.20 s docs/acoustic.md#frame-sizes-and-bit-rates gives for a short IM.
             preamble_s: 0.1,
             im_retries: 2,
+            max_range_m: None,
             modems: Vec::new(),
+        }
+    }
+}
+
+impl EmulatorConfig {
+    /// A relay chain: the modems `chain` (address, name), first to last, on a line
+    /// heading east from (`latitude_deg`, `longitude_deg`), `spacing_m` apart, with a
+    /// range of 1.5 spacings: each hears only its neighbours, so only the chain reaches
+    /// from one end to the other (docs/acoustic.md#multi-hop-relays).
+    pub fn relay_chain(
+        chain: &[(u8, &str)],
+        latitude_deg: f64,
+        longitude_deg: f64,
+        spacing_m: f64,
+    ) -> Self {
+        let frame = shoal_model::geo::LocalFrame::new(shoal_model::GeoPoint {
+            latitude_deg,
+            longitude_deg,
+        });
+        let modems = chain
+            .iter()
+            .zip(0u32..)
+            .map(|(&(address, name), i)| {
+                let at = frame.to_geo(f64::from(i) * spacing_m, 0.0);
+                ModemConfig {
+                    address,
+                    name: name.to_owned(),
+                    latitude_deg: at.latitude_deg,
+                    longitude_deg: at.longitude_deg,
+                    depth_m: 20.0,
+                    ..ModemConfig::default()
+                }
+            })
+            .collect();
+        Self {
+            max_range_m: Some(1.5 * spacing_m),
+            modems,
+            ..Self::default()
         }
     }
 }
@@ -343,6 +388,9 @@ fn validate(c: &EmulatorConfig) -> Result<(), EmulatorError> {
     }
     if c.fixed_per.is_some_and(|p| !(0.0..=1.0).contains(&p)) {
         return bad("fixed_per must be in [0, 1]");
+    }
+    if c.max_range_m.is_some_and(|r| !(r.is_finite() && r > 0.0)) {
+        return bad("max_range_m must be > 0");
     }
     let mut seen = std::collections::HashSet::new();
     for m in &c.modems {

@@ -128,6 +128,7 @@ pub(super) type Timers = Vec<(Instant, Timer)>;
 pub(super) struct Sea {
     model: ChannelModel,
     fixed_per: Option<f64>,
+    max_range_m: Option<f64>,
     time_scale: f64,
     im_bit_rate: f64,
     burst_bit_rate: f64,
@@ -189,6 +190,7 @@ impl Sea {
         Self {
             model: cfg.channel,
             fixed_per: cfg.fixed_per,
+            max_range_m: cfg.max_range_m,
             time_scale: cfg.time_scale,
             im_bit_rate: cfg.im_bit_rate,
             burst_bit_rate: cfg.burst_bit_rate,
@@ -306,6 +308,10 @@ impl Sea {
                 continue;
             };
             let d = distance_m(&from, &to);
+            // Out of range: not heard at all, not even as interference.
+            if self.max_range_m.is_some_and(|r| d > r) {
+                continue;
+            }
             let snr = self.model.snr(d, attenuation);
             // Far below the noise a packet neither arrives nor interferes.
             if snr < 0.0 && self.fixed_per.is_none() {

@@ -5,6 +5,8 @@
 //! - `driver`: the AT and NL drivers against the emulator and against scripted fake modems
 //!   (BUSY, dropped connections).
 //! - `link`: the link layer over a driver over the emulator (priorities, loss, TTL).
+//! - `relay`: multi-hop relays over a chain of emulated modems (forwarding, tags end to
+//!   end, no direct path).
 //!
 //! The emulator runs with `time_scale` < 1 so simulated seconds pass in milliseconds;
 //! driver and link timings are scaled by the same factor.
@@ -15,3 +17,4 @@ mod common;
 mod driver;
 mod emulator;
 mod link;
+mod relay;

@@ -110,6 +110,9 @@ pub enum BenchCommand {
         /// Wall-clock seconds per simulated second (smaller is faster).
         #[arg(long, default_value_t = 0.05)]
         time_scale: f64,
+        /// Wall-clock seconds per simulated second of the four-vehicle TDMA measurements.
+        #[arg(long, default_value_t = 0.25)]
+        fleet_time_scale: f64,
     },
     /// The semantic store's five standard SPARQL queries at fleet scale, in this process
     /// (no DDS): `burst` on a fresh fleet and after a burst of state mirrors, `hour`
@@ -351,7 +354,10 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             instances,
             domain,
         } => soak::soak(cfg, domain, writes, instances).await,
-        BenchCommand::Acoustic { time_scale } => acoustic::acoustic(time_scale).await,
+        BenchCommand::Acoustic {
+            time_scale,
+            fleet_time_scale,
+        } => acoustic::acoustic(time_scale, fleet_time_scale).await,
         BenchCommand::Scenario {
             name,
             speed,

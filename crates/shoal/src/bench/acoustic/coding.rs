@@ -1,5 +1,5 @@
-//! Predictive State Vector coding over simulated tracks (issue 25 item 1,
-//! docs/acoustic.md#predicted-deltas): the same track coded by a layout-1 [`DeltaEncoder`]
+//! Predictive State Vector coding over simulated tracks
+//! (docs/acoustic.md#predicted-deltas): the same track coded by a layout-1 [`DeltaEncoder`]
 //! and by a predictive one, every state decoded and checked.
 //!
 //! The track is `shoal-proxy`'s simulated AUV (turns at 10°/s, first-order speed response,

@@ -1,5 +1,7 @@
-//! The channel measurements of `shoal bench acoustic`, each on two emulated modems on
-//! 127.0.0.1 with the real AT drivers and link layer, in simulated seconds.
+//! The channel measurements of `shoal bench acoustic` on emulated modems on 127.0.0.1 with
+//! the real AT drivers and link layer, in simulated seconds: two modems with a free MAC
+//! ([`channel_use`], [`emergency_latency`], [`control_delivery`]), and a station with four
+//! vehicles in TDMA slots ([`fleet_channel_use`], [`fleet_emergency`]).
 
 use std::time::Duration;
 
@@ -7,12 +9,15 @@ use anyhow::{Context, Result, anyhow, bail};
 use shoal_acoustic::channel::sound_speed_mackenzie;
 use shoal_acoustic::driver::{AtDriver, DriverConfig};
 use shoal_acoustic::emulator::{Emulator, EmulatorConfig, EmulatorHandle, ModemConfig};
-use shoal_acoustic::link::{self, Class, LinkConfig, LinkEvent, LinkSender, Outgoing};
+use shoal_acoustic::link::{self, Class, LinkConfig, LinkEvent, LinkSender, Mac, Outgoing};
 use shoal_acoustic::pdu::{self, CompactEvent, CompactTask, MAX_FRAME, Pdu, TaskAction};
 use tokio::sync::mpsc;
 use tokio::time::Instant;
 
-use super::{BenchOptions, ChannelUse, ControlDelivery, EmergencyLatency};
+use super::{
+    BenchOptions, ChannelUse, ControlDelivery, EmergencyLatency, FLEET_GOAL, FleetChannelUse,
+    FleetEmergency, FleetTrial,
+};
 
 /// Two modems, a sending link on modem 1 and a receiving link on modem 2.
 struct Rig {
@@ -167,56 +172,8 @@ pub(super) async fn channel_use(opts: &BenchOptions) -> Result<ChannelUse> {
     let mut rig = Rig::start(opts, |_| {}, saturating_link(opts)).await?;
     let pdu = telemetry_pdu()?;
     fill(&rig, opts, &pdu).await?;
-    // Measure from the end of the first frame to the end of the last one in the window, so
-    // the start-up (connect, first frame's flight) is not counted.
-    let mut first: Option<Instant> = None;
-    let mut last = None;
-    let (mut frames, mut bytes, mut air) = (0u64, 0u64, 0f64);
-    let deadline = Instant::now() + rig.wall(opts.saturation_s + 30.0);
-    while let Ok(Some(ev)) = tokio::time::timeout_at(deadline, rig.rx.recv()).await {
-        if let LinkEvent::Received { frame, .. } = ev {
-            let now = Instant::now();
-            match first {
-                None => first = Some(now),
-                Some(t0) => {
-                    frames += 1;
-                    bytes += frame.len() as u64;
-                    air += air_time_s(frame.len());
-                    last = Some(now);
-                    if rig.sim(now - t0) >= opts.saturation_s {
-                        break;
-                    }
-                }
-            }
-        }
-    }
-    let seconds = match (first, last) {
-        (Some(a), Some(b)) => rig.sim(b - a),
-        _ => 0.0,
-    };
-    let d = EmulatorConfig::default();
-    #[allow(clippy::cast_precision_loss)]
-    let (frame_fill, payload_bit_s) = (
-        if frames == 0 {
-            0.0
-        } else {
-            bytes as f64 / (frames as f64 * MAX_FRAME as f64)
-        },
-        bytes as f64 * 8.0 / d.im_bit_rate,
-    );
-    let ratio = |x: f64| if seconds > 0.0 { x / seconds } else { 0.0 };
-    let busy_share = ratio(air).min(1.0);
-    let channel_use = busy_share * frame_fill;
-    Ok(ChannelUse {
-        seconds,
-        frames,
-        payload_bytes: bytes,
-        busy_share,
-        frame_fill,
-        channel_use,
-        payload_bit_share: ratio(payload_bit_s).min(1.0),
-        goal_met: channel_use >= 0.9,
-    })
+    let t = tally(&mut rig.rx, rig.scale, opts.saturation_s).await;
+    Ok(channel_figures(&t, 0.9))
 }
 
 /// Size of the alarm PDU the latency trials send.
@@ -356,5 +313,423 @@ pub(super) async fn control_delivery(opts: &BenchOptions) -> Result<ControlDeliv
         ttl_s: ttl.as_secs_f64(),
         all_delivered_after_s: after,
         packets_lost,
+    })
+}
+
+/// Vehicles sharing the channel in the fleet measurements.
+pub(super) const FLEET: u32 = 4;
+
+/// The station's modem address in the fleet measurements; vehicles are 2..=5.
+const STATION: u8 = 1;
+
+/// Ranges of the four vehicles from the station, metres, as multiples of `distance_m`:
+/// unequal, so the slots must absorb a spread of propagation delays.
+const RANGE_FACTORS: [f64; FLEET as usize] = [0.6, 0.85, 1.0, 1.25];
+
+/// The saturating load each vehicle sends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Load {
+    /// The VDT's State Vector PDUs over the simulated AUV's track (keyframes and the
+    /// smaller of the two delta layouts, as `DeltaEncoder::predictive` sends them).
+    VdtStates,
+    /// 10-byte layout-1 deltas only, the two-modem measurement's load.
+    Deltas10,
+}
+
+impl Load {
+    fn name(self) -> &'static str {
+        match self {
+            Self::VdtStates => "VDT state PDUs (keyframes + predicted deltas)",
+            Self::Deltas10 => "10-byte layout-1 deltas",
+        }
+    }
+}
+
+/// The TDMA plan the fleet shares, simulated seconds.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Plan {
+    /// Slot length.
+    pub slot_s: f64,
+    /// Guard at the end of each slot.
+    pub guard_s: f64,
+    /// Full frames per slot.
+    pub frames_per_slot: u32,
+}
+
+impl Plan {
+    /// Slots of `frames_per_slot` full instant messages plus a guard. Each vehicle starts
+    /// its slot early by its own propagation delay to the station (timing advance), so the
+    /// slots line up where the frames are received and the guard covers only what advance
+    /// cannot: the clocks' disagreement and, in the emulator, timer slip, which is about a
+    /// few milliseconds of wall time, i.e. `3 ms / time_scale` simulated.
+    fn new(frames_per_slot: u32, time_scale: f64) -> Self {
+        let guard_s = 0.02 + 0.003 / time_scale;
+        // Room for the slot's first frame to start a timer tick late.
+        let slack_s = 0.001 / time_scale;
+        Self {
+            slot_s: f64::from(frames_per_slot) * air_time_s(MAX_FRAME) + slack_s + guard_s,
+            guard_s,
+            frames_per_slot,
+        }
+    }
+
+    fn cycle_s(&self) -> f64 {
+        self.slot_s * f64::from(FLEET)
+    }
+
+    /// Vehicle `k`'s link configuration (simulated time), with its timing advance.
+    fn link(&self, k: u32, advance_s: f64, base: &LinkConfig) -> LinkConfig {
+        LinkConfig {
+            mac: Mac::tdma(
+                Duration::from_secs_f64(self.slot_s),
+                FLEET,
+                k,
+                Duration::from_secs_f64(self.guard_s),
+            )
+            .with_advance(Duration::from_secs_f64(advance_s)),
+            ..base.clone()
+        }
+    }
+}
+
+/// A station and four vehicles on one channel, each vehicle in its own TDMA slot.
+struct Fleet {
+    emu: EmulatorHandle,
+    vehicles: Vec<LinkSender>,
+    station: mpsc::Receiver<LinkEvent>,
+    /// One-way propagation delay of each vehicle to the station, simulated s.
+    delay_s: Vec<f64>,
+    plan: Plan,
+    scale: f64,
+    shutdown: tokio_util::sync::CancellationToken,
+}
+
+impl Drop for Fleet {
+    fn drop(&mut self) {
+        self.shutdown.cancel();
+        self.emu.shutdown();
+    }
+}
+
+impl Fleet {
+    async fn start(opts: &BenchOptions, base: &LinkConfig) -> Result<Self> {
+        check(opts)?;
+        let scale = opts.fleet_time_scale;
+        if !(scale.is_finite() && scale > 0.0 && scale <= 1.0) || opts.frames_per_slot == 0 {
+            bail!("fleet bench options out of range: {opts:?}");
+        }
+        let origin = shoal_model::geo::LocalFrame::new(shoal_model::GeoPoint {
+            latitude_deg: 43.0,
+            longitude_deg: 5.0,
+        });
+        let modem = |address: u8, east_m: f64, north_m: f64| {
+            let at = origin.to_geo(east_m, north_m);
+            ModemConfig {
+                address,
+                name: format!("fleet-{address}"),
+                latitude_deg: at.latitude_deg,
+                longitude_deg: at.longitude_deg,
+                depth_m: 20.0,
+                ..ModemConfig::default()
+            }
+        };
+        let mut modems = vec![modem(STATION, 0.0, 0.0)];
+        let mut ranges = Vec::new();
+        for (k, f) in (0u8..).zip(RANGE_FACTORS) {
+            // Spread round the station so the vehicles are far from each other too.
+            let bearing = f64::from(k) * std::f64::consts::FRAC_PI_2 + 0.3;
+            let r = f * opts.distance_m;
+            modems.push(modem(2 + k, r * bearing.sin(), r * bearing.cos()));
+            ranges.push(r);
+        }
+        let cfg = EmulatorConfig {
+            time_scale: scale,
+            seed: opts.seed,
+            fixed_per: Some(0.0),
+            // A modem retries an unacknowledged message whenever it likes, slot or not:
+            // under TDMA the link layer retransmits, in its own slot (AT!RI0 on an S2C).
+            im_retries: 0,
+            modems,
+            ..EmulatorConfig::default()
+        };
+        let c = cfg.channel.sound_speed(20.0);
+        let emu = Emulator::start(cfg, std::future::pending()).await?;
+        let driver = |i: usize| -> Result<AtDriver> {
+            let ep = emu.modems().get(i).context("emulator modem missing")?;
+            let mut d = DriverConfig::new(ep.at).scaled(scale);
+            d.busy_retry = Duration::from_secs_f64(0.02 * scale).max(Duration::from_millis(1));
+            Ok(AtDriver::start(d))
+        };
+        let plan = Plan::new(opts.frames_per_slot, scale);
+        let shutdown = tokio_util::sync::CancellationToken::new();
+        let (_station_tx, station) = link::start(
+            driver(0)?,
+            LinkConfig::default().scaled(scale),
+            shutdown.clone().cancelled_owned(),
+        );
+        let delay_s: Vec<f64> = ranges.iter().map(|r| r / c).collect();
+        let mut vehicles = Vec::new();
+        for (k, d) in (0u32..).zip(&delay_s) {
+            let cfg = plan.link(k, *d, base).scaled(scale);
+            let (tx, _events) = link::start(
+                driver(usize::try_from(k + 1)?)?,
+                cfg,
+                shutdown.clone().cancelled_owned(),
+            );
+            vehicles.push(tx);
+        }
+        Ok(Self {
+            emu,
+            vehicles,
+            station,
+            delay_s,
+            plan,
+            scale,
+            shutdown,
+        })
+    }
+
+    fn sim(&self, wall: Duration) -> f64 {
+        wall.as_secs_f64() / self.scale
+    }
+
+    fn wall(&self, sim_s: f64) -> Duration {
+        Duration::from_secs_f64(sim_s * self.scale)
+    }
+
+    async fn send(&self, vehicle: usize, class: Class, pdu: Vec<u8>) -> Result<u64> {
+        self.vehicles
+            .get(vehicle)
+            .context("no such vehicle")?
+            .send(Outgoing {
+                dst: STATION,
+                class,
+                pdu,
+                supersede_key: None,
+            })
+            .await
+            .map_err(|_| anyhow!("acoustic link stopped"))
+    }
+
+    /// Queues `n` PDUs of `load` on every vehicle.
+    async fn fill(&self, load: Load, n: usize) -> Result<()> {
+        let pdus = match load {
+            Load::VdtStates => vdt_state_pdus(n * self.vehicles.len())?,
+            Load::Deltas10 => vec![telemetry_pdu()?; n * self.vehicles.len()],
+        };
+        for (i, p) in pdus.into_iter().enumerate() {
+            self.send(i % self.vehicles.len(), Class::Telemetry, p)
+                .await?;
+        }
+        Ok(())
+    }
+
+    /// Where the slot of vehicle `k` stands at this instant: simulated seconds until the
+    /// vehicle may next start a frame of `bytes` (0 inside its slot with room for it).
+    fn slot_wait_s(&self, k: usize, bytes: usize) -> f64 {
+        let since_unix = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap_or_default()
+            .as_secs_f64();
+        let cycle = self.plan.cycle_s();
+        let advance = self.delay_s.get(k).copied().unwrap_or(0.0);
+        // The links count cycles from the Unix epoch in wall time (`link::tdma_epoch`).
+        let phase = ((since_unix / self.scale) + advance).rem_euclid(cycle);
+        #[allow(clippy::cast_precision_loss)]
+        let open = self.plan.slot_s * k as f64;
+        let last_start = open + self.plan.slot_s - self.plan.guard_s - air_time_s(bytes);
+        if phase >= open && phase <= last_start {
+            0.0
+        } else {
+            (open - phase).rem_euclid(cycle)
+        }
+    }
+}
+
+/// `n` State Vector PDUs as the VDT codes them: the simulated AUV's track through a
+/// predictive encoder, 7 of 10 keyframes acknowledged (as `coding`).
+fn vdt_state_pdus(n: usize) -> Result<Vec<Vec<u8>>> {
+    let track = super::coding::track(n)?;
+    let mut enc = pdu::DeltaEncoder::predictive();
+    let (mut out, mut keyframes, mut pending) = (Vec::with_capacity(n), 0usize, None);
+    for state in &track {
+        let p = enc.encode(state)?;
+        if let Some(seq) = pending.take() {
+            enc.acknowledge(seq);
+        }
+        if let Pdu::StateKeyframe(k) = &p {
+            keyframes += 1;
+            if !matches!(keyframes % 10, 3 | 6 | 9) {
+                pending = Some(k.seq);
+            }
+        }
+        out.push(pdu::encode(&p)?);
+    }
+    Ok(out)
+}
+
+/// What arrived at a receiver over a measurement window.
+struct Tally {
+    seconds: f64,
+    frames: u64,
+    bytes: u64,
+    air_s: f64,
+    per_src: std::collections::BTreeMap<u8, u64>,
+}
+
+/// Counts frames arriving on `rx` for `window_s` simulated seconds, from the end of the
+/// first one (so start-up is not counted) to the end of the last one.
+async fn tally(rx: &mut mpsc::Receiver<LinkEvent>, scale: f64, window_s: f64) -> Tally {
+    let sim = |d: Duration| d.as_secs_f64() / scale;
+    let mut first: Option<Instant> = None;
+    let mut last = None;
+    let mut t = Tally {
+        seconds: 0.0,
+        frames: 0,
+        bytes: 0,
+        air_s: 0.0,
+        per_src: std::collections::BTreeMap::new(),
+    };
+    let deadline = Instant::now() + Duration::from_secs_f64((window_s + 30.0) * scale);
+    while let Ok(Some(ev)) = tokio::time::timeout_at(deadline, rx.recv()).await {
+        if let LinkEvent::Received { frame, src, .. } = ev {
+            let now = Instant::now();
+            match first {
+                None => first = Some(now),
+                Some(t0) => {
+                    t.frames += 1;
+                    t.bytes += frame.len() as u64;
+                    t.air_s += air_time_s(frame.len());
+                    *t.per_src.entry(src).or_default() += 1;
+                    last = Some(now);
+                    if sim(now - t0) >= window_s {
+                        break;
+                    }
+                }
+            }
+        }
+    }
+    if let (Some(a), Some(b)) = (first, last) {
+        t.seconds = sim(b - a);
+    }
+    t
+}
+
+/// The shared definition of channel use (see [`ChannelUse`]).
+fn channel_figures(t: &Tally, goal: f64) -> ChannelUse {
+    let d = EmulatorConfig::default();
+    #[allow(clippy::cast_precision_loss)]
+    let (frame_fill, payload_bit_s) = (
+        if t.frames == 0 {
+            0.0
+        } else {
+            t.bytes as f64 / (t.frames as f64 * MAX_FRAME as f64)
+        },
+        t.bytes as f64 * 8.0 / d.im_bit_rate,
+    );
+    let ratio = |x: f64| if t.seconds > 0.0 { x / t.seconds } else { 0.0 };
+    let busy_share = ratio(t.air_s).min(1.0);
+    let channel_use = busy_share * frame_fill;
+    ChannelUse {
+        seconds: t.seconds,
+        frames: t.frames,
+        payload_bytes: t.bytes,
+        busy_share,
+        frame_fill,
+        channel_use,
+        payload_bit_share: ratio(payload_bit_s).min(1.0),
+        goal_met: channel_use >= goal,
+    }
+}
+
+/// Channel use at the station while four vehicles saturate their TDMA slots with `load`.
+pub(super) async fn fleet_channel_use(opts: &BenchOptions, load: Load) -> Result<FleetChannelUse> {
+    let mut fleet = Fleet::start(opts, &saturating_link(opts)).await?;
+    // Each vehicle gets a quarter of ~100 B/s; queue twice what the run can drain.
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+    let n = (opts.saturation_s * 10.0).ceil() as usize + 200;
+    fleet.fill(load, n).await?;
+    let scale = fleet.scale;
+    let t = tally(&mut fleet.station, scale, opts.saturation_s).await;
+    let stats = fleet.emu.stats();
+    let to_station = stats.iter().filter(|l| l.dst == STATION);
+    let (collisions, half_duplex) =
+        to_station.fold((0, 0), |(c, h), l| (c + l.collisions, h + l.half_duplex));
+    Ok(FleetChannelUse {
+        vehicles: FLEET,
+        load: load.name(),
+        time_scale: scale,
+        slot_s: fleet.plan.slot_s,
+        guard_s: fleet.plan.guard_s,
+        frames_per_slot: fleet.plan.frames_per_slot,
+        ranges_m: RANGE_FACTORS.iter().map(|f| f * opts.distance_m).collect(),
+        frames_per_vehicle: t.per_src.values().copied().collect(),
+        collisions,
+        half_duplex,
+        channel: channel_figures(&t, FLEET_GOAL),
+    })
+}
+
+/// Emergency latency with four vehicles saturating the channel: each trial queues an alarm
+/// on one vehicle (in turn) at a different point of the TDMA cycle.
+pub(super) async fn fleet_emergency(opts: &BenchOptions) -> Result<FleetEmergency> {
+    let mut fleet = Fleet::start(opts, &saturating_link(opts)).await?;
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+    let n = (opts.saturation_s * 10.0).ceil() as usize + 200;
+    fleet.fill(Load::VdtStates, n).await?;
+    let alarm_len = telemetry_alarm_len()?;
+    let short_frame_s = air_time_s(MAX_FRAME);
+    let own_air_s = air_time_s(alarm_len);
+    let cycle = fleet.plan.cycle_s();
+    let mut trials = Vec::new();
+    // Let the slots settle into saturation first.
+    tokio::time::sleep(fleet.wall(cycle)).await;
+    for trial in 0..opts.emergency_trials {
+        // Golden-ratio steps spread the trials over the cycle.
+        let phase = (f64::from(trial) * 0.618_034).fract() * cycle;
+        tokio::time::sleep(fleet.wall(2.0 + phase)).await;
+        let k = usize::try_from(trial % FLEET)?;
+        let alarm = pdu::encode(&Pdu::Event(CompactEvent {
+            vehicle: Some(u8::try_from(k + 2)?),
+            event_no: u8::try_from(trial % 256).unwrap_or(0),
+            severity: 3,
+            kind: 3,
+            task_no: None,
+            seconds_of_day: 0,
+        }))
+        .context("alarm PDU")?;
+        let slot_wait_s = fleet.slot_wait_s(k, alarm.len());
+        let t0 = Instant::now();
+        fleet.send(k, Class::Emergency, alarm.clone()).await?;
+        let deadline = t0 + fleet.wall(60.0);
+        let latency_s = loop {
+            match tokio::time::timeout_at(deadline, fleet.station.recv()).await {
+                Ok(Some(LinkEvent::Received { frame, .. })) if frame.starts_with(&alarm) => {
+                    break fleet.sim(t0.elapsed());
+                }
+                Ok(Some(_)) => {}
+                Ok(None) => bail!("acoustic link stopped"),
+                Err(_) => break f64::INFINITY,
+            }
+        };
+        let propagation_s = fleet.delay_s.get(k).copied().unwrap_or(0.0);
+        let bound_s = short_frame_s + own_air_s + propagation_s;
+        trials.push(FleetTrial {
+            vehicle: u8::try_from(k + 2)?,
+            latency_s,
+            slot_wait_s,
+            bound_s,
+            within_bound: latency_s <= bound_s,
+            after_slot_s: latency_s - slot_wait_s,
+            within_bound_after_slot: latency_s - slot_wait_s <= bound_s,
+        });
+    }
+    Ok(FleetEmergency {
+        short_frame_s,
+        own_air_s,
+        cycle_s: cycle,
+        within_bound: trials.iter().filter(|t| t.within_bound).count(),
+        within_bound_after_slot: trials.iter().filter(|t| t.within_bound_after_slot).count(),
+        trials,
     })
 }
