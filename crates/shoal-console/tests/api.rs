@@ -554,7 +554,7 @@ async fn a_single_task_is_ordered_in_the_missions_own_words() {
         "/api/tasks",
         token.clone(),
         Some(goto),
-        StatusCode::BAD_REQUEST,
+        StatusCode::CONFLICT,
     )
     .await;
     // A typed task with a member of the wire form is neither: refused, the member named.
