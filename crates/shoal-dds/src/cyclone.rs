@@ -648,12 +648,14 @@ pub(crate) struct Taken<'a> {
 }
 
 /// Takes up to `max` samples (at most 64) and hands each one with data to `each`
-/// (state-only samples, such as an instance's end, are dropped); returns how many were
-/// taken, state-only ones included, so that the caller knows the reader may hold more.
+/// (state-only samples, such as an instance's end, are dropped, and with `skip_disposed`
+/// so is the data of an instance its writer has disposed since); returns how many were
+/// taken, dropped ones included, so that the caller knows the reader may hold more.
 /// The bytes are lent, not copied: each sample is released when `each` returns.
 pub(crate) fn take_cdr(
     reader: &Entity,
     max: usize,
+    skip_disposed: bool,
     mut each: impl FnMut(Taken<'_>),
 ) -> Result<usize, DdsError> {
     const BATCH: usize = 64;
@@ -687,7 +689,8 @@ pub(crate) fn take_cdr(
     }
     let _release = Release(&bufs[..n]);
     for (sd, info) in bufs.iter().zip(&infos).take(n) {
-        if !info.valid_data {
+        let disposed = info.instance_state == c::dds_instance_state_DDS_IST_NOT_ALIVE_DISPOSED;
+        if !info.valid_data || (skip_disposed && disposed) {
             continue;
         }
         // SAFETY: sd is a live serdata reference (released only by `_release`); the

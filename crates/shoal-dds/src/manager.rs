@@ -783,7 +783,7 @@ impl<T: TopicType> Subscription<T> {
             } = source;
             let reader = reader.entity();
             let buffer = &mut self.buffer;
-            match cyclone::take_cdr(reader, BATCH, |t| {
+            match cyclone::take_cdr(reader, BATCH, T::PROFILE.skips_disposed(), |t| {
                 buffer.push_back(samples.item::<T>(reader, &t));
             }) {
                 Ok(taken) => more |= taken >= BATCH,
@@ -896,7 +896,10 @@ impl<T: TopicType> cyclone::Wake for Deliver<T> {
         }
         // Until the reader is empty: no further call comes for samples already there.
         loop {
-            match cyclone::take_cdr(reader, BATCH, |t| handler(samples.item::<T>(reader, &t))) {
+            let skip = T::PROFILE.skips_disposed();
+            match cyclone::take_cdr(reader, BATCH, skip, |t| {
+                handler(samples.item::<T>(reader, &t));
+            }) {
                 Ok(taken) if taken >= BATCH => {}
                 Ok(_) => return,
                 Err(e) => {

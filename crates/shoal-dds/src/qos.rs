@@ -135,6 +135,17 @@ impl QosProfile {
         }
     }
 
+    /// Whether a reader drops the data of an instance that its writer has disposed by
+    /// the time the sample is taken. Tasks only: the station disposes a task when it ends,
+    /// and a reader that joins, or falls behind, while the writer still holds ended tasks
+    /// for a slower reader (a reliable writer keeps every sample until all its readers
+    /// acknowledge it, and a reader that vanished without a goodbye counts until its lease
+    /// ends) would otherwise be handed a burst of tasks that are over. The other topics
+    /// keep their last value: a vehicle's final state is still news.
+    pub fn skips_disposed(self) -> bool {
+        self == Self::Tasks
+    }
+
     /// Durability and writer history depth of the profile.
     fn base(self) -> (bool, i32) {
         match self {

@@ -144,6 +144,59 @@ async fn a_disposed_task_is_not_handed_to_late_joiners_and_a_live_one_is() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_task_disposed_before_the_reader_takes_it_is_not_handed_over() {
+    // A reader that falls behind (or joins while the writer still holds samples for a
+    // slower reader) has a task's data and its dispose waiting together: the task is
+    // over, and the reader must not start it.
+    let station = PubSub::new(&config(45)).unwrap();
+    let w = station
+        .writer::<TaskAssignment>(WriterOptions::new(Priority::Control))
+        .unwrap();
+    let vehicle = PubSub::new(&config(45)).unwrap();
+    let mut sub = vehicle.subscribe::<TaskAssignment>().unwrap();
+    wait_matched(&w).await;
+    let gone = TaskAssignment::new("t-gone", "m1", "auv-7", 1_700_000_000_000, &Task::Surface);
+    let live = TaskAssignment::new("t-live", "m1", "auv-7", 1_700_000_000_001, &Task::Surface);
+    w.write(gone.clone()).await.unwrap();
+    w.dispose(&gone).unwrap();
+    w.write(live.clone()).await.unwrap();
+    // Not polled until all three are in the reader's cache.
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let (got, _) = tokio::time::timeout(Duration::from_secs(15), sub.next())
+        .await
+        .expect("no task arrived")
+        .unwrap()
+        .unwrap();
+    assert_eq!(got.task_id, "t-live", "a disposed task was handed over");
+
+    // Other topics keep the data of an ended instance: an event disposed before it was
+    // read is still delivered.
+    let ew = station
+        .writer::<Event>(WriterOptions::new(Priority::Control))
+        .unwrap();
+    let mut events = vehicle.subscribe::<Event>().unwrap();
+    wait_matched(&ew).await;
+    let e = Event {
+        event_id: "e-1".into(),
+        timestamp_ms: 1_700_000_000_000,
+        severity: Severity::Info,
+        kind: EventKind::Other,
+        vehicle_id: "auv-7".into(),
+        task_id: String::new(),
+        text: "hello".into(),
+    };
+    ew.write(e.clone()).await.unwrap();
+    ew.dispose(&e).unwrap();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let (got, _) = tokio::time::timeout(Duration::from_secs(15), events.next())
+        .await
+        .expect("the ended event was dropped")
+        .unwrap()
+        .unwrap();
+    assert_eq!(got.event_id, "e-1");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_writer_keeps_only_its_newest_instances_for_late_joiners() {
     let vehicle = PubSub::new(&config(50)).unwrap();
     let options = WriterOptions {
