@@ -156,6 +156,40 @@ impl Mac {
         }
     }
 
+    /// When TDMA cycle 0 of the cycle running at `now` began, counted from the Unix epoch
+    /// (`since_unix` is the wall clock at `now`) in whole nanoseconds of `slot × slots`, as
+    /// every node of the plan counts it (`None` without TDMA). Anyone reckoning the slots
+    /// from outside a link (a benchmark, a test) must count with this, not in floating
+    /// seconds: the cycle is a whole number of nanoseconds, and a fraction of a nanosecond
+    /// per cycle over the ~10⁹ cycles since 1970 moves the phase by a sizeable part of it.
+    pub fn tdma_epoch(&self, since_unix: Duration, now: Instant) -> Option<Instant> {
+        match self {
+            Self::Tdma { slot, slots, .. } => {
+                Some(tdma_epoch(*slot * (*slots).max(1), since_unix, now))
+            }
+            Self::Free => None,
+        }
+    }
+
+    /// Where this node stands in its TDMA plan when the wall clock reads `since_unix`,
+    /// reckoned exactly as its running link reckons it (`None` without TDMA): with no frame
+    /// of its own on air, how long its own slot stays open, and when it next opens.
+    pub fn own_slot_at(&self, since_unix: Duration, now: Instant) -> Option<OwnSlot> {
+        let epoch = self.tdma_epoch(since_unix, now)?;
+        let core = LinkCore::new(
+            LinkConfig {
+                mac: *self,
+                ..LinkConfig::default()
+            },
+            epoch,
+        );
+        let pos = core.tdma_at(now)?;
+        Some(OwnSlot {
+            left: Duration::from_secs_f64(pos.left_s.max(0.0)),
+            next_open: pos.next_open,
+        })
+    }
+
     /// The same MAC with a timing advance (TDMA only; a free MAC is returned unchanged).
     #[must_use]
     pub fn with_advance(mut self, by: Duration) -> Self {
@@ -164,6 +198,16 @@ impl Mac {
         }
         self
     }
+}
+
+/// A node's place in its TDMA plan at one instant ([`Mac::own_slot_at`]), at its own
+/// transmitter (timing advance applied).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OwnSlot {
+    /// How long the own slot stays open from that instant (zero outside it).
+    pub left: Duration,
+    /// When the own slot next opens after the current one.
+    pub next_open: Instant,
 }
 
 /// Link layer configuration.
@@ -834,15 +878,10 @@ async fn run<D: ModemDriver>(
     mut stop: watch::Receiver<bool>,
 ) {
     let now = Instant::now();
-    let epoch = match &cfg.mac {
-        Mac::Tdma { slot, slots, .. } => {
-            let since_unix = std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .unwrap_or_default();
-            tdma_epoch(*slot * (*slots).max(1), since_unix, now)
-        }
-        Mac::Free => now,
-    };
+    let since_unix = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    let epoch = cfg.mac.tdma_epoch(since_unix, now).unwrap_or(now);
     let mut core = LinkCore::new(cfg, epoch);
     let mut in_flight: Option<(FramePlan, TxFuture<'_>)> = None;
     let mut cmds_open = true;
@@ -1062,6 +1101,54 @@ mod tests {
         let next = Duration::from_secs(31);
         let c = tdma_epoch(cycle, unix0 + next, t0 + next);
         assert_eq!(c.duration_since(a), cycle);
+    }
+
+    /// Slots are whole nanoseconds counted from 1970: at today's clock, reckoning them in
+    /// floating seconds lands far from where the links are (a benchmark did, and counted
+    /// 0.73 s of the wait for a slot as time after it opened).
+    #[test]
+    fn own_slot_at_reckons_as_a_running_link_at_todays_clock() {
+        // A slot that is no whole number of nanoseconds in floating seconds (the fleet
+        // benchmark's at 0.25x wall time), four per cycle, own slot 2, with an advance.
+        let mac = Mac::tdma(
+            Duration::from_secs_f64(0.321_295_081_967_213_1),
+            4,
+            2,
+            Duration::from_millis(8),
+        )
+        .with_advance(Duration::from_millis(100));
+        let cycle = Duration::from_nanos(4 * 321_295_082);
+        // 2026-11-27T00:00:00Z.
+        let day = Duration::from_secs(1_795_737_600);
+        let t0 = Instant::now();
+        let core = LinkCore::new(
+            LinkConfig {
+                mac,
+                ..LinkConfig::default()
+            },
+            mac.tdma_epoch(day, t0).unwrap(),
+        );
+        let mut float_off = 0.0f64;
+        for step in 0..300u32 {
+            let dt = Duration::from_millis(11) * step;
+            let own = mac.own_slot_at(day + dt, t0 + dt).unwrap();
+            let in_slot = own.left > Duration::ZERO;
+            assert_eq!(in_slot, core.tdma_at(t0 + dt).unwrap().left_s > 0.0);
+            if let Err(next) = core.mac_ready(t0 + dt) {
+                let d = next.max(own.next_open) - next.min(own.next_open);
+                assert!(d < Duration::from_micros(1), "step {step}: {d:?}");
+            }
+            // What floating seconds of the configured slot make of the same instant.
+            let float_phase = (day + dt)
+                .as_secs_f64()
+                .rem_euclid(4.0 * 0.321_295_081_967_213_1);
+            let int_phase = ((day + dt).as_nanos() % cycle.as_nanos()) as f64 * 1e-9;
+            float_off = float_off.max((float_phase - int_phase).abs());
+        }
+        assert!(
+            float_off > 0.1,
+            "floating seconds would be {float_off} s off"
+        );
     }
 
     #[test]

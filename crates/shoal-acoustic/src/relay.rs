@@ -13,14 +13,20 @@
 //!   come up as if the origin had sent them directly; others are forwarded, acknowledged
 //!   and retried hop by hop.
 //!
-//! Security stays end to end: the relay layer sits **under**
+//! Security has two layers. End to end: the relay layer sits **under**
 //! [`crate::secure::TaggedDriver`], so the origin seals its frame for the final
 //! destination (the tag covers origin, final destination, counter and frame), relays
 //! forward the sealed bytes without a key for them, and the final receiver checks the tag
-//! and its replay window against the origin. A relay can drop or delay a frame, never
-//! forge or alter one. The envelope's header itself is not authenticated: a changed origin
-//! or destination fails the tag, a changed TTL at most shortens or lengthens a path that
-//! duplicate suppression and the 3-bit hop fields still bound.
+//! and its replay window against the origin: a relay can drop or delay a frame, never
+//! forge or alter what it carries, nor its origin or destination. Hop by hop, when the
+//! driver has link keys ([`RelayDriver::start_keyed`], [`RelayCore::with_hop_keys`]):
+//! every envelope on air is sealed by the node sending it for the node it is sent to
+//! (counter + truncated HMAC in [`AcousticTagger::for_relay_hops`]'s own domain), and an
+//! envelope whose hop seal fails (forged, altered header, replayed, or from a node without
+//! a link key) is refused and counted (`unauthenticated`) before anything is learned or
+//! forwarded. Then only keyed neighbours can put a route, a hop count or a TTL on the
+//! channel, and plain frames, whose tags only the final receiver above can check, teach no
+//! route.
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -31,6 +37,8 @@ use tokio::sync::mpsc;
 use tokio::task::JoinSet;
 use tokio::time::Instant;
 use tracing::{debug, warn};
+
+use shoal_security::AcousticTagger;
 
 use crate::at::BROADCAST;
 use crate::driver::{ModemDriver, OutFrame, Outcome, RxFrame, TransmitError};
@@ -182,6 +190,32 @@ impl Envelope {
             inner: inner.to_vec(),
         })
     }
+}
+
+/// Why a frame cannot leave through a relay ([`RelayCore::outbound`],
+/// [`RelayCore::seal_hop`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum RelaySendError {
+    /// The frame does not fit an envelope.
+    #[error("cannot relay: {0}")]
+    Envelope(#[from] EncodeError),
+    /// No link key for the next hop (or its counter is used up).
+    #[error("cannot seal for relay {relay}: {source}")]
+    Seal {
+        /// The next hop.
+        relay: u8,
+        /// Why.
+        source: shoal_security::acoustic::SealError,
+    },
+    /// The envelope and its hop seal exceed an instant message.
+    #[error("a relayed frame of {bytes} bytes with its hop seal exceeds a {max}-byte frame")]
+    TooLong {
+        /// Bytes with the seal.
+        bytes: usize,
+        /// The frame limit.
+        max: usize,
+    },
 }
 
 /// A configured route: to reach `dst`, hand frames to `via`.
@@ -366,6 +400,10 @@ pub struct RelayStats {
     pub forged_route: u64,
     /// Envelopes that do not decode (truncated, unknown version, junk after them).
     pub malformed: u64,
+    /// Envelopes whose hop seal failed, with link keys configured: a bad tag (a forged or
+    /// altered header or content), a replayed counter, too short to carry a seal, or sent
+    /// by a node this one holds no link key for.
+    pub unauthenticated: u64,
     /// Frames for others while this node does not forward.
     pub not_forwarding: u64,
     /// Frames for others dropped because the forwarding queue was full.
@@ -380,6 +418,8 @@ pub struct RelayStats {
 pub enum Refusal {
     /// Does not decode.
     Malformed,
+    /// Its hop seal failed (link keys configured).
+    Unauthenticated,
     /// Seen before.
     Duplicate,
     /// Came back, or would go back.
@@ -439,6 +479,8 @@ pub struct RelayCore {
     seen_order: VecDeque<((u8, u16), Instant)>,
     next_msg_id: u16,
     stats: RelayStats,
+    /// Link keys: seals envelopes for the next hop, opens those from the previous one.
+    hop: Option<AcousticTagger>,
 }
 
 impl RelayCore {
@@ -465,6 +507,48 @@ impl RelayCore {
             seen_order: VecDeque::new(),
             next_msg_id: first_msg_id,
             stats: RelayStats::default(),
+            hop: None,
+        })
+    }
+
+    /// Seals every envelope this node puts on air for the node it goes to, and refuses
+    /// envelopes whose seal does not open, with `tagger`'s link keys (one per neighbour,
+    /// looked up by its address; make it with [`AcousticTagger::for_relay_hops`]).
+    #[must_use]
+    pub fn with_hop_keys(mut self, tagger: AcousticTagger) -> Self {
+        self.hop = Some(tagger);
+        self
+    }
+
+    /// Bytes relaying adds to a frame: the envelope header, and the hop seal when link keys
+    /// are configured. A frame sent through a relay carries at most
+    /// `MAX_FRAME - overhead()` bytes of the origin's (sealed) frame.
+    pub fn overhead(&self) -> usize {
+        HEADER_BYTES + self.hop.as_ref().map_or(0, AcousticTagger::overhead)
+    }
+
+    /// The envelope `frame` ready for the air: sealed for its next hop `frame.dst` when
+    /// link keys are configured (a fresh counter each time, so a retransmission is not a
+    /// replay), unchanged otherwise.
+    pub fn seal_hop(&mut self, frame: &OutFrame) -> Result<OutFrame, RelaySendError> {
+        let Some(t) = self.hop.as_mut() else {
+            return Ok(frame.clone());
+        };
+        let data = t
+            .seal(frame.dst, &frame.data)
+            .map_err(|source| RelaySendError::Seal {
+                relay: frame.dst,
+                source,
+            })?;
+        if data.len() > MAX_FRAME {
+            return Err(RelaySendError::TooLong {
+                bytes: data.len(),
+                max: MAX_FRAME,
+            });
+        }
+        Ok(OutFrame {
+            data,
+            ..frame.clone()
         })
     }
 
@@ -573,7 +657,7 @@ impl RelayCore {
         frame: &OutFrame,
         local: Option<u8>,
         now: Instant,
-    ) -> Result<OutFrame, String> {
+    ) -> Result<OutFrame, RelaySendError> {
         let Some(local) = local else {
             return Ok(frame.clone());
         };
@@ -595,22 +679,24 @@ impl RelayCore {
             msg_id,
             inner: frame.data.clone(),
         };
-        let data = env.encode().map_err(|e| format!("cannot relay: {e}"))?;
-        // A copy that comes back is a loop, not a new frame.
-        self.remember((local, msg_id), Some(via), now);
-        self.stats.originated += 1;
-        Ok(OutFrame {
+        let data = env.encode()?;
+        let sealed = self.seal_hop(&OutFrame {
             dst: via,
             data,
             ack: frame.ack,
             burst: false,
-        })
+        })?;
+        // A copy that comes back is a loop, not a new frame.
+        self.remember((local, msg_id), Some(via), now);
+        self.stats.originated += 1;
+        Ok(sealed)
     }
 
     fn refuse(&mut self, r: Refusal) -> Inbound {
         let s = &mut self.stats;
         match r {
             Refusal::Malformed => s.malformed += 1,
+            Refusal::Unauthenticated => s.unauthenticated += 1,
             Refusal::Duplicate => s.duplicates += 1,
             Refusal::Loop => s.loops += 1,
             Refusal::TtlExpired => s.ttl_expired += 1,
@@ -630,11 +716,14 @@ impl RelayCore {
     }
 
     /// Decides what becomes of a received frame at this node (`local`, or the frame's
-    /// own unicast destination while the modem has not told it).
+    /// own unicast destination while the modem has not told it). A forwarded envelope
+    /// comes back without its hop seal: seal each transmission with [`Self::seal_hop`].
     pub fn inbound(&mut self, f: RxFrame, local: Option<u8>, now: Instant) -> Inbound {
         if !Envelope::is_envelope(&f.data) {
-            // The sender is in range: the simplest route there is.
-            if (1..=MAX_RELAY_ADDRESS).contains(&f.src) {
+            // The sender is in range: the simplest route there is. With link keys, only
+            // what a seal proves teaches a route: a plain frame's tag is for the final
+            // receiver above to check, after this.
+            if self.hop.is_none() && (1..=MAX_RELAY_ADDRESS).contains(&f.src) {
                 self.learn(f.src, f.src, 1, now);
             }
             return Inbound::Deliver(f);
@@ -645,6 +734,19 @@ impl RelayCore {
             // Relays are unicast: an envelope to everyone is not one a relay sent.
             None => return self.refuse(Refusal::ForgedRoute),
         };
+        if f.dst == BROADCAST {
+            return self.refuse(Refusal::ForgedRoute);
+        }
+        let mut f = f;
+        if let Some(t) = self.hop.as_mut() {
+            match t.open(f.src, f.dst, &f.data) {
+                Ok(content) => f.data = content.to_vec(),
+                Err(rejection) => {
+                    debug!(src = f.src, reason = %rejection.reason(), "relay hop seal refused");
+                    return self.refuse(Refusal::Unauthenticated);
+                }
+            }
+        }
         let env = match Envelope::decode(&f.data) {
             Ok(e) => e,
             Err(e) => {
@@ -652,7 +754,7 @@ impl RelayCore {
                 return self.refuse(Refusal::Malformed);
             }
         };
-        if f.dst == BROADCAST || env.origin == env.dst {
+        if env.origin == env.dst {
             return self.refuse(Refusal::ForgedRoute);
         }
         if env.origin == me {
@@ -755,13 +857,40 @@ impl<D: ModemDriver + 'static> RelayDriver<D> {
     /// Wraps `inner` with relay settings `cfg` (durations in simulated seconds, at
     /// `time_scale` wall seconds per simulated one). Must be called inside a tokio runtime.
     pub fn start(inner: D, cfg: RelayConfig, time_scale: f64) -> Result<Self, RelayConfigError> {
+        Self::start_with(inner, cfg, time_scale, None)
+    }
+
+    /// [`Self::start`] with link keys for the hop-by-hop seal (`hop`, made with
+    /// [`AcousticTagger::for_relay_hops`], a key for every neighbour envelopes may come
+    /// from or go to): envelopes leave sealed for their next hop, and envelopes whose seal
+    /// fails are refused and counted (`unauthenticated`). The origin's link must then fill
+    /// frames to `MAX_FRAME` less [`Self::overhead`] (and the end-to-end tag).
+    pub fn start_keyed(
+        inner: D,
+        cfg: RelayConfig,
+        time_scale: f64,
+        hop: AcousticTagger,
+    ) -> Result<Self, RelayConfigError> {
+        Self::start_with(inner, cfg, time_scale, Some(hop))
+    }
+
+    fn start_with(
+        inner: D,
+        cfg: RelayConfig,
+        time_scale: f64,
+        hop: Option<AcousticTagger>,
+    ) -> Result<Self, RelayConfigError> {
         let first_msg_id = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| (d.as_millis() / 100) as u16)
             .unwrap_or(0);
         let queue = cfg.forward_queue;
         let attempts = cfg.forward_attempts;
-        let core: Shared = Arc::new(Mutex::new(RelayCore::new(cfg, time_scale, first_msg_id)?));
+        let mut core = RelayCore::new(cfg, time_scale, first_msg_id)?;
+        if let Some(t) = hop {
+            core = core.with_hop_keys(t);
+        }
+        let core: Shared = Arc::new(Mutex::new(core));
         let inner = Arc::new(inner);
         let (tx, rx) = mpsc::channel(256);
         let pump = tokio::spawn(pump(inner.clone(), core.clone(), tx, queue, attempts));
@@ -776,6 +905,11 @@ impl<D: ModemDriver + 'static> RelayDriver<D> {
     /// The counters so far.
     pub fn stats(&self) -> RelayStats {
         lock(&self.core).stats().clone()
+    }
+
+    /// Bytes relaying adds to a frame sent through a relay ([`RelayCore::overhead`]).
+    pub fn overhead(&self) -> usize {
+        lock(&self.core).overhead()
     }
 
     /// A handle on the counters that stays readable after the driver moved into a link.
@@ -839,7 +973,17 @@ async fn pump<D: ModemDriver + 'static>(
 /// Sends a frame on to its next hop, retrying with backoff until acknowledged.
 async fn forward<D: ModemDriver>(inner: Arc<D>, core: Shared, out: OutFrame, attempts: u32) {
     for attempt in 0..attempts {
-        match inner.transmit(out.clone()).await {
+        // Sealed again for every attempt: a fresh counter, so the next hop takes a
+        // retransmission for the duplicate it is, not for a replay.
+        let sealed = lock(&core).seal_hop(&out);
+        let sealed = match sealed {
+            Ok(f) => f,
+            Err(reason) => {
+                warn!(dst = out.dst, %reason, "relayed frame not sealed");
+                break;
+            }
+        };
+        match inner.transmit(sealed).await {
             Ok(Outcome::Delivered) => {
                 lock(&core).stats.forwarded += 1;
                 return;
@@ -867,7 +1011,12 @@ impl<D: ModemDriver + 'static> ModemDriver for RelayDriver<D> {
         let planned = lock(&self.core).outbound(&frame, self.inner.local_address(), Instant::now());
         let out = match planned {
             Ok(out) => out,
-            Err(reason) => return Err(TransmitError::Rejected { frame, reason }),
+            Err(e) => {
+                return Err(TransmitError::Rejected {
+                    frame,
+                    reason: e.to_string(),
+                });
+            }
         };
         // On failure hand back the caller's frame, not the envelope: a retry is planned
         // (and numbered) again.
@@ -1323,5 +1472,348 @@ mod tests {
             .contains("relay.dedup_capacity")
         );
         RelayConfig::default().check().unwrap();
+    }
+
+    // ---- Hop-by-hop seals (link keys) -------------------------------------------------
+
+    use shoal_security::{AcousticKey, TagSize};
+
+    /// The far end of a three-hop chain: FAR2 → FAR → NEAR → STATION.
+    const FAR2: u8 = 4;
+    /// A node with a modem but no link key of anyone in the chain.
+    const OUTSIDER: u8 = 9;
+
+    /// Link keys of the chain's neighbours, one per pair.
+    struct LinkKeys(Vec<((u8, u8), AcousticKey)>);
+
+    impl LinkKeys {
+        fn chain() -> Self {
+            let pairs = [(FAR2, FAR), (FAR, NEAR), (NEAR, STATION)];
+            Self(
+                pairs
+                    .into_iter()
+                    .map(|p| (p, AcousticKey::generate().unwrap()))
+                    .collect(),
+            )
+        }
+
+        /// The hop tagger of `node`: a key for each of its neighbours.
+        fn tagger(&self, node: u8) -> AcousticTagger {
+            let mut t = AcousticTagger::for_relay_hops(node, TagSize::Bits64, 1);
+            for ((a, b), key) in &self.0 {
+                if *a == node {
+                    t.set_key(*b, key);
+                } else if *b == node {
+                    t.set_key(*a, key);
+                }
+            }
+            t
+        }
+    }
+
+    /// The chain's four relay cores with link keys: the far vehicles know the way up.
+    fn keyed_chain(keys: &LinkKeys) -> BTreeMap<u8, RelayCore> {
+        let cfg = |forward, via: Option<u8>| RelayConfig {
+            forward,
+            routes: via
+                .map(|via| vec![Route { dst: STATION, via }])
+                .unwrap_or_default(),
+            ..RelayConfig::default()
+        };
+        [
+            (FAR2, cfg(false, Some(FAR))),
+            (FAR, cfg(true, Some(NEAR))),
+            (NEAR, cfg(true, None)),
+            (STATION, cfg(false, None)),
+        ]
+        .into_iter()
+        .map(|(node, c)| (node, core(c).with_hop_keys(keys.tagger(node))))
+        .collect()
+    }
+
+    /// Carries `frame` from `from` hop by hop until someone delivers or refuses it.
+    fn carry(
+        nodes: &mut BTreeMap<u8, RelayCore>,
+        from: u8,
+        frame: &OutFrame,
+        now: Instant,
+    ) -> (Inbound, Vec<OutFrame>) {
+        let mut on_air = nodes
+            .get_mut(&from)
+            .unwrap()
+            .outbound(frame, Some(from), now)
+            .unwrap();
+        let (mut src, mut hops) = (from, vec![on_air.clone()]);
+        loop {
+            let at = on_air.dst;
+            let node = nodes.get_mut(&at).unwrap();
+            match node.inbound(rx(src, at, on_air.data.clone()), Some(at), now) {
+                Inbound::Forward(next) => {
+                    on_air = node.seal_hop(&next).unwrap();
+                    hops.push(on_air.clone());
+                    src = at;
+                }
+                other => return (other, hops),
+            }
+        }
+    }
+
+    #[test]
+    fn a_keyed_three_hop_chain_delivers_both_ways_with_every_hop_sealed() {
+        let keys = LinkKeys::chain();
+        let mut nodes = keyed_chain(&keys);
+        let now = Instant::now();
+        let overhead = nodes[&FAR2].overhead();
+        assert_eq!(overhead, HEADER_BYTES + TagSize::Bits64.overhead());
+        // The largest frame the origin may hand down still fits every hop.
+        let up = OutFrame {
+            dst: STATION,
+            data: vec![0x5a; MAX_FRAME - overhead],
+            ack: true,
+            burst: false,
+        };
+        let (got, hops) = carry(&mut nodes, FAR2, &up, now);
+        assert_eq!(hops.len(), 3, "three hops");
+        assert!(hops.iter().all(|h| h.data.len() == MAX_FRAME), "{hops:?}");
+        let Inbound::Deliver(f) = got else {
+            panic!("not delivered: {got:?}");
+        };
+        assert_eq!((f.src, f.dst, &f.data), (FAR2, STATION, &up.data));
+        // The way down is learned from what came up, through the same keyed hops.
+        let down = OutFrame {
+            dst: FAR2,
+            ..out(FAR2)
+        };
+        let (got, hops) = carry(&mut nodes, STATION, &down, now);
+        assert_eq!(hops.len(), 3, "three hops down");
+        assert!(matches!(got, Inbound::Deliver(f) if f.src == STATION && f.data == down.data));
+        for n in nodes.values() {
+            assert_eq!(n.stats().unauthenticated, 0);
+        }
+    }
+
+    #[test]
+    fn a_tampered_ttl_hop_count_origin_route_or_content_is_refused_and_counted() {
+        let keys = LinkKeys::chain();
+        let mut nodes = keyed_chain(&keys);
+        let now = Instant::now();
+        // FAR forwards FAR2's frame to NEAR; an attacker (or a relay without NEAR's trust)
+        // rewrites the header in flight and leaves the seal.
+        let far2 = nodes.get_mut(&FAR2).unwrap();
+        let first = far2.outbound(&out(STATION), Some(FAR2), now).unwrap();
+        let far = nodes.get_mut(&FAR).unwrap();
+        let Inbound::Forward(next) = far.inbound(rx(FAR2, FAR, first.data), Some(FAR), now) else {
+            panic!("FAR forwards");
+        };
+        let sealed = far.seal_hop(&next).unwrap();
+        let seal_at = sealed.data.len() - TagSize::Bits64.overhead();
+        let (env_bytes, seal) = sealed.data.split_at(seal_at);
+        let genuine = Envelope::decode(env_bytes).unwrap();
+        let tampered: Vec<(&str, Envelope)> = vec![
+            (
+                "more TTL",
+                Envelope {
+                    ttl: genuine.ttl + 1,
+                    ..genuine.clone()
+                },
+            ),
+            (
+                "fewer hops",
+                Envelope {
+                    hops: 0,
+                    ..genuine.clone()
+                },
+            ),
+            (
+                "hops and TTL shifted",
+                Envelope {
+                    hops: 0,
+                    ttl: genuine.ttl + 1,
+                    ..genuine.clone()
+                },
+            ),
+            (
+                "another origin",
+                Envelope {
+                    origin: 7,
+                    ..genuine.clone()
+                },
+            ),
+            (
+                "another destination",
+                Envelope {
+                    dst: 7,
+                    ..genuine.clone()
+                },
+            ),
+            (
+                "another number",
+                Envelope {
+                    msg_id: genuine.msg_id ^ 1,
+                    ..genuine.clone()
+                },
+            ),
+            (
+                "another content",
+                Envelope {
+                    inner: vec![1, 2, 3],
+                    ..genuine
+                },
+            ),
+        ];
+        let near = nodes.get_mut(&NEAR).unwrap();
+        for (what, e) in &tampered {
+            let mut data = e.encode().unwrap();
+            data.extend_from_slice(seal);
+            assert_eq!(
+                near.inbound(rx(FAR, NEAR, data), Some(NEAR), now),
+                Inbound::Refused(Refusal::Unauthenticated),
+                "{what}"
+            );
+        }
+        assert_eq!(near.stats().unauthenticated, tampered.len() as u64);
+        assert!(
+            near.learned_routes(now).is_empty(),
+            "no route from a refused frame"
+        );
+        // The genuine frame, still unseen by NEAR's replay window, goes on.
+        assert!(matches!(
+            near.inbound(rx(FAR, NEAR, sealed.data.clone()), Some(NEAR), now),
+            Inbound::Forward(f) if f.dst == STATION
+        ));
+    }
+
+    #[test]
+    fn envelopes_from_nodes_without_a_link_key_or_without_a_seal_are_refused() {
+        let keys = LinkKeys::chain();
+        let mut nodes = keyed_chain(&keys);
+        let now = Instant::now();
+        let near = nodes.get_mut(&NEAR).unwrap();
+        // An outsider with a modem and a key of its own claims to relay FAR2's frame: a
+        // forged route that would draw the station's traffic for FAR2 to it.
+        let mut outsider = AcousticTagger::for_relay_hops(OUTSIDER, TagSize::Bits64, 1);
+        outsider.set_key(NEAR, &AcousticKey::generate().unwrap());
+        let forged = env(FAR2, STATION, 2, 1, 77).encode().unwrap();
+        let sealed = outsider.seal(NEAR, &forged).unwrap();
+        assert_eq!(
+            near.inbound(rx(OUTSIDER, NEAR, sealed), Some(NEAR), now),
+            Inbound::Refused(Refusal::Unauthenticated)
+        );
+        // A neighbour's address on an unsealed (version 1, keyless) envelope.
+        assert_eq!(
+            near.inbound(rx(FAR, NEAR, forged.clone()), Some(NEAR), now),
+            Inbound::Refused(Refusal::Unauthenticated)
+        );
+        // Spoofing a keyed neighbour with a wrong key.
+        let mut spoof = AcousticTagger::for_relay_hops(FAR, TagSize::Bits64, 1);
+        spoof.set_key(NEAR, &AcousticKey::generate().unwrap());
+        let sealed = spoof.seal(NEAR, &forged).unwrap();
+        assert_eq!(
+            near.inbound(rx(FAR, NEAR, sealed), Some(NEAR), now),
+            Inbound::Refused(Refusal::Unauthenticated)
+        );
+        assert_eq!(near.stats().unauthenticated, 3);
+        assert!(near.learned_routes(now).is_empty());
+        // Plain frames, whose tags only the receiver above can check, teach no route.
+        assert!(matches!(
+            near.inbound(rx(OUTSIDER, NEAR, vec![4, 0]), Some(NEAR), now),
+            Inbound::Deliver(_)
+        ));
+        assert!(near.learned_routes(now).is_empty());
+        // And an origin with no link key for its next hop does not send unsealed.
+        let lost = OutFrame { dst: 12, ..out(12) };
+        let mut lonely = core(RelayConfig {
+            routes: vec![Route {
+                dst: 12,
+                via: OUTSIDER,
+            }],
+            ..RelayConfig::default()
+        })
+        .with_hop_keys(keys.tagger(FAR2));
+        assert!(matches!(
+            lonely.outbound(&lost, Some(FAR2), now),
+            Err(RelaySendError::Seal {
+                relay: OUTSIDER,
+                ..
+            })
+        ));
+        assert_eq!(lonely.stats().originated, 0);
+    }
+
+    #[test]
+    fn a_replayed_hop_frame_is_refused_and_a_resealed_retransmission_is_a_duplicate() {
+        let keys = LinkKeys::chain();
+        let mut nodes = keyed_chain(&keys);
+        let now = Instant::now();
+        let first = nodes
+            .get_mut(&FAR2)
+            .unwrap()
+            .outbound(&out(STATION), Some(FAR2), now)
+            .unwrap();
+        let far = nodes.get_mut(&FAR).unwrap();
+        let Inbound::Forward(next) = far.inbound(rx(FAR2, FAR, first.data.clone()), Some(FAR), now)
+        else {
+            panic!("FAR forwards");
+        };
+        // The same bytes again: a replay.
+        assert_eq!(
+            far.inbound(rx(FAR2, FAR, first.data), Some(FAR), now),
+            Inbound::Refused(Refusal::Unauthenticated)
+        );
+        // FAR's retransmission to NEAR (its ack was lost) is sealed afresh each time.
+        let a = far.seal_hop(&next).unwrap();
+        let b = far.seal_hop(&next).unwrap();
+        assert_ne!(a.data, b.data);
+        let near = nodes.get_mut(&NEAR).unwrap();
+        assert!(matches!(
+            near.inbound(rx(FAR, NEAR, a.data), Some(NEAR), now),
+            Inbound::Forward(_)
+        ));
+        assert_eq!(
+            near.inbound(rx(FAR, NEAR, b.data), Some(NEAR), now),
+            Inbound::Refused(Refusal::Duplicate)
+        );
+        assert_eq!(
+            (near.stats().duplicates, near.stats().unauthenticated),
+            (1, 0)
+        );
+    }
+
+    proptest! {
+        /// Any one bit flipped in a sealed envelope after its first byte (which would make
+        /// it a plain frame, for the end-to-end tag above to refuse) is refused and counted.
+        #[test]
+        fn any_flipped_bit_of_a_sealed_envelope_is_refused(
+            inner in proptest::collection::vec(any::<u8>(), 1..=MAX_FRAME - HEADER_BYTES - 12),
+            hops in 0u8..=3, ttl in 0u8..=3, msg_id: u16, pick: prop::sample::Index,
+        ) {
+            let keys = LinkKeys::chain();
+            let mut far = keys.tagger(FAR);
+            let mut near = core(RelayConfig { forward: true, ..RelayConfig::default() })
+                .with_hop_keys(keys.tagger(NEAR));
+            let e = Envelope { origin: FAR2, dst: STATION, hops: hops.max(1), ttl, ack: true, msg_id, inner };
+            let mut data = far.seal(NEAR, &e.encode().unwrap()).unwrap();
+            let bit = 8 + pick.index(data.len() * 8 - 8);
+            data[bit / 8] ^= 1 << (bit % 8);
+            prop_assert_eq!(
+                near.inbound(rx(FAR, NEAR, data), Some(NEAR), Instant::now()),
+                Inbound::Refused(Refusal::Unauthenticated)
+            );
+            prop_assert_eq!(near.stats().unauthenticated, 1);
+        }
+
+        /// Junk that looks like an envelope never comes up or goes on at a keyed node.
+        #[test]
+        fn junk_at_a_keyed_node_is_counted_never_delivered(
+            junk in proptest::collection::vec(any::<u8>(), 0..70), src in 1u8..=15,
+        ) {
+            let keys = LinkKeys::chain();
+            let mut near = core(RelayConfig { forward: true, ..RelayConfig::default() })
+                .with_hop_keys(keys.tagger(NEAR));
+            let mut data = vec![ENVELOPE_ID];
+            data.extend(junk);
+            let got = near.inbound(rx(src, NEAR, data), Some(NEAR), Instant::now());
+            prop_assert_eq!(got, Inbound::Refused(Refusal::Unauthenticated));
+        }
     }
 }

@@ -48,6 +48,9 @@ pub const OVERHEAD_64: usize = COUNTER_LEN + 8;
 pub const KEY_PEM_LABEL: &str = "SHOAL ACOUSTIC KEY";
 /// Domain-separation prefix of the MAC input, so these tags can never be valid elsewhere.
 const DOMAIN: &[u8] = b"shoal-acoustic-v1";
+/// The prefix of relay hop tags ([`AcousticTagger::for_relay_hops`]): a hop tag made with
+/// the same key as an end-to-end tag can never pass for one, nor the reverse.
+const HOP_DOMAIN: &[u8] = b"shoal-acoustic-hop-v1";
 /// Start of the clock-based counter epoch: 2025-01-01T00:00:00Z in ms.
 const COUNTER_EPOCH_MS: i64 = 1_735_689_600_000;
 /// Counter values the clock advances per second (see [`counter_start_from_clock`]).
@@ -174,6 +177,7 @@ struct Peer {
 /// Seals outgoing frames and opens incoming ones for one modem address.
 pub struct AcousticTagger {
     local: u8,
+    domain: &'static [u8],
     size: TagSize,
     next_counter: u64,
     window_size: u32,
@@ -203,11 +207,22 @@ impl AcousticTagger {
     pub fn new(local_address: u8, size: TagSize, counter_start: u32) -> Self {
         Self {
             local: local_address,
+            domain: DOMAIN,
             size,
             next_counter: u64::from(counter_start),
             window_size: ReplayWindow::DEFAULT_SIZE,
             peers: HashMap::new(),
             windows: HashMap::new(),
+        }
+    }
+
+    /// A tagger for the hop-by-hop seal of relay envelopes (docs/acoustic.md#multi-hop-relays):
+    /// the same frame layout and keys looked up the same way (the neighbour's address), but
+    /// a MAC input of its own, so hop tags and end-to-end tags never stand in for each other.
+    pub fn for_relay_hops(local_address: u8, size: TagSize, counter_start: u32) -> Self {
+        Self {
+            domain: HOP_DOMAIN,
+            ..Self::new(local_address, size, counter_start)
         }
     }
 
@@ -259,7 +274,7 @@ impl AcousticTagger {
 
     fn tag(&self, mac: &Hmac<Sha256>, src: u8, dst: u8, counter: u32, frame: &[u8]) -> [u8; 32] {
         let mut mac = mac.clone();
-        mac.update(DOMAIN);
+        mac.update(self.domain);
         mac.update(&[src, dst]);
         mac.update(&counter.to_be_bytes());
         mac.update(frame);
@@ -310,7 +325,7 @@ impl AcousticTagger {
             .check(u64::from(counter))
             .map_err(Rejection::Replayed)?;
         let mut mac = peer.mac.clone();
-        mac.update(DOMAIN);
+        mac.update(self.domain);
         mac.update(&[src, dst]);
         mac.update(&cb);
         mac.update(frame);
@@ -364,6 +379,35 @@ mod tests {
         ));
         let up = auv.seal(STATION, b"state").unwrap();
         assert_eq!(station.open(AUV, STATION, &up).unwrap(), b"state");
+    }
+
+    #[test]
+    fn hop_tags_and_end_to_end_tags_never_stand_in_for_each_other() {
+        let key = AcousticKey::generate().unwrap();
+        let hop = |local, peer| {
+            let mut t = AcousticTagger::for_relay_hops(local, TagSize::Bits64, 1);
+            t.set_key(peer, &key);
+            t
+        };
+        let (mut station, mut auv) = pair(TagSize::Bits64);
+        // The same key on both kinds of tagger (a USV's link key is also its own).
+        station.set_key(AUV, &key);
+        let (mut auv_hop, mut station_hop) = (hop(AUV, STATION), hop(STATION, AUV));
+        let by_hop = auv_hop.seal(STATION, b"envelope").unwrap();
+        assert!(matches!(
+            station.open(AUV, STATION, &by_hop),
+            Err(Rejection::BadTag)
+        ));
+        assert_eq!(
+            station_hop.open(AUV, STATION, &by_hop).unwrap(),
+            b"envelope"
+        );
+        auv.set_key(STATION, &key);
+        let end_to_end = auv.seal(STATION, b"envelope").unwrap();
+        assert!(matches!(
+            station_hop.open(AUV, STATION, &end_to_end),
+            Err(Rejection::BadTag)
+        ));
     }
 
     #[test]

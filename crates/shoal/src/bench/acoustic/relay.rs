@@ -1,7 +1,8 @@
 //! The three-hop relay measurement of `shoal bench acoustic`
 //! (docs/acoustic.md#multi-hop-relays): AUV → AUV → USV → station on four emulated modems
 //! in a line, each in range of its neighbours only, every packet (data and modem acks)
-//! lost at a fixed rate per hop, no modem-level retries, frames tagged end to end. Control
+//! lost at a fixed rate per hop, no modem-level retries, frames tagged end to end and every
+//! envelope sealed hop by hop with the neighbours' link keys. Control
 //! messages go up from the far AUV, then down from the station over the route it learned;
 //! each is timed from queueing at the origin to arrival at the destination's link.
 
@@ -31,6 +32,9 @@ const FAR: u8 = 4;
 const SPACING_M: f64 = 1500.0;
 /// The loss per hop.
 const PER: f64 = 0.1;
+/// Neighbours sharing a link key for the hop seals: each pair along the chain.
+const LINKS: [(u8, u8); 3] = [(FAR, NEAR), (NEAR, USV), (USV, STATION)];
+
 /// Messages each way, and the simulated seconds between two.
 const MESSAGES: u8 = 30;
 const INTERVAL_S: f64 = 8.0;
@@ -75,6 +79,8 @@ pub struct RelayReport {
     pub packets_lost: u64,
     /// Frames refused by their end-to-end tag at the station and the far AUV.
     pub tag_refusals: u64,
+    /// Envelopes refused by their hop seal at any of the four nodes.
+    pub hop_refusals: u64,
     /// Whether every message arrived within the TTL both ways (the goal).
     pub goal_met: bool,
 }
@@ -111,7 +117,17 @@ impl Chain {
             .find(|m| m.address == address)
             .context("emulator modem missing")?;
         let modem = AtDriver::start(DriverConfig::new(ep.at).scaled(scale));
-        let relayed = RelayDriver::start(modem, relay, scale)?;
+        // Link keys with its neighbours in the chain, for the hop seals.
+        let mut hop = AcousticTagger::for_relay_hops(address, TagSize::Bits64, 1);
+        for (a, b) in LINKS {
+            let link_key = AcousticKey::from_bytes([0x80 | (a << 4) | b; 32]);
+            if a == address {
+                hop.set_key(b, &link_key);
+            } else if b == address {
+                hop.set_key(a, &link_key);
+            }
+        }
+        let relayed = RelayDriver::start_keyed(modem, relay, scale, hop)?;
         let stats = relayed.stats_handle();
         let mut tagger = AcousticTagger::new(address, TagSize::Bits64, 1);
         for &p in peers {
@@ -292,6 +308,10 @@ pub(super) async fn three_hop(opts: &BenchOptions) -> Result<RelayReport> {
         .sum();
     let refusals = |r: &Refused| r.lock().map_or(0, |c| c.total());
     let tag_refusals = refusals(&station.refused) + refusals(&far.refused);
+    let hop_refusals = [&station, &usv, &near, &far]
+        .iter()
+        .map(|n| n.relay.stats().unauthenticated)
+        .sum();
     let goal_met = up.delivered_within_ttl == up.sent && down.delivered_within_ttl == down.sent;
     Ok(RelayReport {
         per_hop_per: PER,
@@ -304,6 +324,7 @@ pub(super) async fn three_hop(opts: &BenchOptions) -> Result<RelayReport> {
         direct_frames,
         packets_lost,
         tag_refusals,
+        hop_refusals,
         goal_met,
     })
 }
@@ -311,7 +332,7 @@ pub(super) async fn three_hop(opts: &BenchOptions) -> Result<RelayReport> {
 /// The relay lines of the report.
 pub(super) fn print(r: &RelayReport) {
     println!(
-        "three-hop relay (AUV -> AUV -> USV -> station, {} hops learned, {:.0}% PER per hop, no modem retries, tags end to end):",
+        "three-hop relay (AUV -> AUV -> USV -> station, {} hops learned, {:.0}% PER per hop, no modem retries, tags end to end, hop seals):",
         r.hops,
         r.per_hop_per * 100.0
     );
@@ -326,21 +347,23 @@ pub(super) fn print(r: &RelayReport) {
     }
     for (name, s) in [("near AUV", &r.near), ("USV", &r.usv)] {
         println!(
-            "  {name:<9} forwarded {}, duplicates {}, loops {}, ttl expired {}, forged routes {}, malformed {}, undeliverable {}",
+            "  {name:<9} forwarded {}, duplicates {}, loops {}, ttl expired {}, forged routes {}, malformed {}, unauthenticated {}, undeliverable {}",
             s.forwarded,
             s.duplicates,
             s.loops,
             s.ttl_expired,
             s.forged_route,
             s.malformed,
+            s.unauthenticated,
             s.undeliverable
         );
     }
     println!(
-        "  direct frames between the ends {}, packets lost {}, tag refusals {}; 100 % within TTL: {}",
+        "  direct frames between the ends {}, packets lost {}, tag refusals {}, hop seal refusals {}; 100 % within TTL: {}",
         r.direct_frames,
         r.packets_lost,
         r.tag_refusals,
+        r.hop_refusals,
         if r.goal_met { "met" } else { "NOT met" }
     );
 }
@@ -360,6 +383,8 @@ mod tests {
         assert!(r.goal_met, "{r:?}");
         assert_eq!(r.direct_frames, 0);
         assert_eq!(r.tag_refusals, 0);
+        // Every hop sealed, none refused: retransmissions are sealed afresh.
+        assert_eq!(r.hop_refusals, 0, "{r:?}");
         assert!(r.packets_lost > 0, "10 % PER should lose packets");
         assert!(r.near.forwarded >= u64::from(MESSAGES) * 2, "{:?}", r.near);
     }
