@@ -10,7 +10,9 @@ use futures::StreamExt;
 use shoal_model::now_ms;
 use tokio_util::sync::CancellationToken;
 
-use super::helpers::{bench_station, child, date, grouped, machine, percentile, tempfile_dir};
+use super::helpers::{
+    bench_station, date, dds, grouped, helper, machine, percentile, tempfile_dir,
+};
 use crate::config::ShoalConfig;
 
 /// What `bench latency` measures. Counts are of the measured window (after the warm-up).
@@ -96,6 +98,21 @@ pub(super) async fn latency(
     Ok(())
 }
 
+/// The helper process of [`latency_figures`]: `shoal swarm`'s vehicles on one
+/// participant, secured with a station identity when `cfg` says so, until stdin closes.
+pub(super) async fn swarm(cfg: &ShoalConfig, domain: u16, count: usize, rate: f64) -> Result<()> {
+    let spec = shoal_proxy::swarm::SwarmSpec {
+        count,
+        rate_hz: rate,
+        ..shoal_proxy::swarm::SwarmSpec::default()
+    };
+    spec.check()?;
+    let shutdown = crate::daemons::shutdown_signal(true);
+    shoal_proxy::swarm::run_swarm(spec, dds(cfg, domain)?, shutdown)
+        .await
+        .context("swarm failed")
+}
+
 pub(super) async fn latency_figures(
     cfg: &ShoalConfig,
     vehicles: usize,
@@ -122,11 +139,30 @@ pub(super) async fn latency_figures(
     let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{api}/api/ws"))
         .await
         .context("cannot open the console's live feed")?;
-    let count = vehicles.to_string();
-    let rate_arg = rate.to_string();
-    let mut swarm = child(&["swarm", "--count", &count, "--rate", &rate_arg], domain)?;
+    // Secured as the station is (`bench security`), insecure otherwise.
+    let mut swarm = helper(
+        cfg,
+        &[
+            "swarm".into(),
+            "--domain".into(),
+            domain.to_string(),
+            "--count".into(),
+            vehicles.to_string(),
+            "--rate".into(),
+            rate.to_string(),
+        ],
+    )?;
+    // Nothing is read from the helper's standard output; it must never block on it.
+    if let Some(mut out) = swarm.stdout.take() {
+        tokio::spawn(async move { tokio::io::copy(&mut out, &mut tokio::io::sink()).await });
+    }
     eprintln!(
-        "latency: {vehicles} vehicles x {rate} Hz -> station -> /api/ws; 5 s warm-up, then {seconds} s"
+        "latency: {vehicles} vehicles x {rate} Hz -> station -> /api/ws{}; 5 s warm-up, then {seconds} s",
+        if cfg.security.enabled {
+            ", DDS Security on"
+        } else {
+            ""
+        }
     );
     let mut figures = LatencyFigures::default();
     let mut started = None::<Instant>;

@@ -217,7 +217,7 @@ pub enum BenchCommand {
         /// Participants to discover.
         #[arg(long, default_value_t = 100)]
         participants: usize,
-        /// First of the four DDS domains the measurement uses.
+        /// First of the eight DDS domains the measurement uses.
         #[arg(long, default_value_t = 74)]
         domain: u16,
     },
@@ -300,6 +300,18 @@ pub enum BenchCommand {
         #[arg(long)]
         dir: std::path::PathBuf,
     },
+    /// (helper) `shoal swarm`'s vehicles on one participant, secured with a station
+    /// identity when the process that starts it is (`bench security`'s latency): no
+    /// vehicle's permissions allow one participant to speak for a thousand vehicles.
+    #[command(hide = true)]
+    Swarm {
+        #[arg(long)]
+        domain: u16,
+        #[arg(long)]
+        count: usize,
+        #[arg(long)]
+        rate: f64,
+    },
     /// (helper) Announce vehicles and publish their state vectors at a rate.
     #[command(hide = true)]
     Load {
@@ -326,6 +338,7 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             | BenchCommand::Crowd { .. }
             | BenchCommand::ReplaySink { .. }
             | BenchCommand::EnduranceFleet { .. }
+            | BenchCommand::Swarm { .. }
     );
     let mut owned = cfg.clone();
     if !helper_process {
@@ -447,5 +460,10 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             rate,
             seconds,
         } => ingest::load(cfg, domain, vehicles, rate, seconds).await,
+        BenchCommand::Swarm {
+            domain,
+            count,
+            rate,
+        } => latency::swarm(cfg, domain, count, rate).await,
     }
 }

@@ -2,7 +2,10 @@
 //! on one host. The state-vector round trip between two processes (p50, p99 and lost
 //! round trips), and the time until one participant has heard N participants of another
 //! process (when secured, each authenticated, its permissions checked and keys exchanged
-//! with every other). A throwaway keystore is made for the run.
+//! with every other), ingest, and the vehicle → console latency at 1000 vehicles × 1 Hz
+//! (their states from one participant with a station identity, as no vehicle's permissions
+//! let one participant speak for a thousand vehicles; the cost per sample is the same).
+//! A throwaway keystore is made for the run.
 
 use std::collections::HashSet;
 use std::path::Path;
@@ -16,8 +19,9 @@ use shoal_model::StateVector;
 use shoal_security::dds::{DdsKeystore, Grant};
 
 use super::bus::{RoundTrip, round_trip};
-use super::helpers::{date, helper, machine, sample};
+use super::helpers::{date, helper, machine, percentile, sample};
 use super::ingest::ingest_figures;
+use super::latency::{LatencyFigures, latency_figures};
 use crate::config::ShoalConfig;
 
 fn now_s() -> i64 {
@@ -132,9 +136,7 @@ fn ms(d: Option<Duration>) -> String {
     )
 }
 
-/// Runs the comparison and prints the table. Not measured here: the vehicle → console
-/// latency at 1000 vehicles with security on (`shoal swarm` runs its vehicles on one
-/// participant, which no vehicle's permissions allow).
+/// Runs the comparison and prints the table.
 pub(super) async fn security(
     cfg: &ShoalConfig,
     domain: u16,
@@ -219,6 +221,14 @@ async fn compare(
     let plain_ingest = ingest_figures(cfg, domain + 4, vehicles, rate, load_s).await?;
     eprintln!("security: ingest, secured...");
     let secure_ingest = ingest_figures(&secure_cfg, domain + 5, vehicles, rate, load_s).await?;
+    let (fleet, fleet_rate, latency_s) = (1000, 1.0, seconds.max(10));
+    eprintln!(
+        "security: vehicle -> console latency, {fleet} vehicles × {fleet_rate} Hz for {latency_s} s, insecure..."
+    );
+    let plain_latency = latency_figures(cfg, fleet, fleet_rate, latency_s, domain + 6).await?;
+    eprintln!("security: vehicle -> console latency, secured...");
+    let secure_latency =
+        latency_figures(&secure_cfg, fleet, fleet_rate, latency_s, domain + 7).await?;
 
     println!("# shoal bench security — {} — {}", machine(), date());
     println!("# governance: {}", cfg.security.governance);
@@ -282,6 +292,36 @@ async fn compare(
         "  sent / accepted",
         format!("{} / {}", plain_ingest.sent, plain_ingest.accepted),
         format!("{} / {}", secure_ingest.sent, secure_ingest.accepted)
+    );
+    let p99 = |f: &LatencyFigures| percentile(&f.samples, 99.0);
+    println!(
+        "{:<44} {:>14} {:>14} {:>8}  secure ≤ 5 ms, none dropped",
+        format!("vehicle → console p99 ({fleet} × {fleet_rate} Hz)"),
+        format!("{:.0} ms", p99(&plain_latency)),
+        format!("{:.0} ms", p99(&secure_latency)),
+        ratio(p99(&secure_latency), p99(&plain_latency))
+    );
+    println!(
+        "{:<44} {:>14} {:>14}",
+        "  p50",
+        format!("{:.0} ms", percentile(&plain_latency.samples, 50.0)),
+        format!("{:.0} ms", percentile(&secure_latency.samples, 50.0))
+    );
+    println!(
+        "{:<44} {:>14} {:>14}",
+        "  updates timed / sent / dropped",
+        format!(
+            "{} / {} / {}",
+            plain_latency.samples.len(),
+            plain_latency.sent(),
+            plain_latency.dropped
+        ),
+        format!(
+            "{} / {} / {}",
+            secure_latency.samples.len(),
+            secure_latency.sent(),
+            secure_latency.dropped
+        )
     );
     if secure_disc.is_none() || plain_disc.is_none() {
         println!(
