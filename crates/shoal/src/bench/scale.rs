@@ -225,17 +225,39 @@ pub(super) async fn scale_figures(
     let mut last = (Instant::now(), 0u64);
     let mut first_rss = None;
     let mut rows = Vec::new();
+    // A poll can time out while a loaded station is busy: one is retried at the next
+    // sample and counted; three in a row, or a station process that ended, end the run.
+    let (mut failed_polls, mut failed_in_a_row) = (0u32, 0u32);
     loop {
         tokio::time::sleep(Duration::from_secs(10)).await;
-        let Some(s) = station_sample(api).await else {
-            bail!("the station stopped answering");
+        let polled = match station_sample(api).await {
+            Some(s) => match standard_query_times(api).await {
+                Ok(q) => Some((s, q)),
+                Err(e) => {
+                    eprintln!("scale: a SPARQL poll failed: {e:#}");
+                    None
+                }
+            },
+            None => None,
         };
+        let Some((s, q)) = polled else {
+            failed_polls += 1;
+            failed_in_a_row += 1;
+            if let Ok(Some(status)) = station.try_wait() {
+                bail!("the station process ended ({status})");
+            }
+            if failed_in_a_row >= 3 {
+                bail!("the station stopped answering (3 polls in a row failed)");
+            }
+            eprintln!("scale: the station's API did not answer a poll; trying again in 10 s");
+            continue;
+        };
+        failed_in_a_row = 0;
         let now = Instant::now();
         #[allow(clippy::cast_precision_loss)]
         let per_s = (s.accepted - last.1) as f64 / now.duration_since(last.0).as_secs_f64();
         last = (now, s.accepted);
         let (st, sw) = (rss_mb_of(&station_pid), rss_mb_of(&swarm_pid));
-        let q = standard_query_times(api).await?;
         println!(
             "{:>6.0} {:>7} {:>12.0} {:>10} {:>12.1} {:>10.1}  {}",
             start.elapsed().as_secs_f64(),
@@ -278,6 +300,9 @@ pub(super) async fn scale_figures(
     let peak = rows.iter().map(|r| r.rss_mb).fold(0.0, f64::max);
     if rows.len() >= 2 {
         print_flatness(&rows);
+    }
+    if failed_polls > 0 {
+        println!("polls of the station's API that failed and were retried: {failed_polls}");
     }
     let figures = ScaleFigures {
         all_alive_after_s: all_alive_at.map(|t| t.as_secs_f64()),
