@@ -9,6 +9,11 @@
 //! requires), retries after `BUSY`, maps `DELIVEREDIM` / `FAILEDIM` / `CANCELEDIM` (or
 //! `NL,delivered` / `NL,failed`) to outcomes, and reconnects when the connection drops,
 //! re-sending the frame in flight so nothing the caller queued is lost.
+//!
+//! The next frame is handed over a little before the modem is free (`handover_lead`), so
+//! the channel does not idle between frames, but the driver holds it until the frame on
+//! air ends: until then the caller may take it back ([`ModemDriver::transmit_withdrawable`])
+//! and send an emergency instead (docs/acoustic.md#channel-use-and-emergency-latency).
 
 use std::future::Future;
 use std::net::SocketAddr;
@@ -18,7 +23,7 @@ use std::time::Duration;
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
-use tokio::sync::{Mutex, mpsc, oneshot};
+use tokio::sync::{Mutex, Notify, mpsc, oneshot};
 use tokio::time::Instant;
 use tracing::{debug, info, warn};
 
@@ -85,6 +90,52 @@ pub enum TransmitError {
         /// The frame.
         frame: OutFrame,
     },
+    /// The caller withdrew the frame before the modem took it: it was never on air.
+    #[error("frame withdrawn before the modem took it")]
+    Withdrawn {
+        /// The frame.
+        frame: OutFrame,
+    },
+}
+
+/// A request to take back a frame handed to [`ModemDriver::transmit_withdrawable`]: shared
+/// between the caller, who [`request`](Self::request)s it, and the driver, which honours it
+/// only while the modem has not taken the frame (there is no abort of a frame on air).
+#[derive(Debug, Clone, Default)]
+pub struct Withdrawal(Arc<WithdrawalState>);
+
+#[derive(Debug, Default)]
+struct WithdrawalState {
+    requested: AtomicBool,
+    wake: Notify,
+}
+
+impl Withdrawal {
+    /// A withdrawal not (yet) requested.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Asks for the frame back; the pending transmit then resolves to
+    /// [`TransmitError::Withdrawn`], or to its usual outcome if the modem already took it.
+    pub fn request(&self) {
+        self.0.requested.store(true, Ordering::SeqCst);
+        // One waiter (the driver task); a stored permit covers a request made while it is
+        // not waiting.
+        self.0.wake.notify_one();
+    }
+
+    /// Whether the frame has been asked back.
+    pub fn is_requested(&self) -> bool {
+        self.0.requested.load(Ordering::SeqCst)
+    }
+
+    /// Resolves once the frame has been asked back.
+    async fn requested(&self) {
+        while !self.is_requested() {
+            self.0.wake.notified().await;
+        }
+    }
 }
 
 /// An acoustic modem as the link layer sees it.
@@ -95,6 +146,18 @@ pub trait ModemDriver: Send + Sync {
         &self,
         frame: OutFrame,
     ) -> impl Future<Output = Result<Outcome, TransmitError>> + Send;
+    /// [`Self::transmit`], except that the frame is handed back as
+    /// [`TransmitError::Withdrawn`] if `withdrawal` is requested before the modem took it
+    /// (the link layer does so to send an emergency first). The default never withdraws: a
+    /// wrapping driver forwards this to its inner driver to keep the feature.
+    fn transmit_withdrawable(
+        &self,
+        frame: OutFrame,
+        withdrawal: Withdrawal,
+    ) -> impl Future<Output = Result<Outcome, TransmitError>> + Send {
+        drop(withdrawal);
+        self.transmit(frame)
+    }
     /// The next received frame; `None` once the driver has stopped.
     fn receive(&self) -> impl Future<Output = Option<RxFrame>> + Send;
     /// The modem's own address, once learnt.
@@ -112,6 +175,11 @@ pub struct DriverConfig {
     pub reconnect_delay: Duration,
     /// Wait before re-sending after a `BUSY` reply.
     pub busy_retry: Duration,
+    /// How long before an unacknowledged frame leaves the air it is reported sent, so the
+    /// caller's next frame is already at the driver when the modem frees up. The driver
+    /// holds that frame until then, withdrawable; with a caller that cannot withdraw, an
+    /// alarm queued in this lead waits for one more frame, so it stays short.
+    pub handover_lead: Duration,
     /// Longest wait for a command's reply before the connection is considered dead.
     pub reply_timeout: Duration,
     /// Longest wait for a delivery report before the frame counts as failed.
@@ -125,13 +193,14 @@ pub struct DriverConfig {
 }
 
 impl DriverConfig {
-    /// Defaults for a real-time link: reconnect after 1 s, retry busy after 0.5 s, 5 s for
-    /// a reply, 60 s for a delivery report.
+    /// Defaults for a real-time link: reconnect after 1 s, retry busy after 0.5 s, hand
+    /// over 20 ms before the modem frees up, 5 s for a reply, 60 s for a delivery report.
     pub fn new(addr: SocketAddr) -> Self {
         Self {
             addr,
             reconnect_delay: Duration::from_secs(1),
             busy_retry: Duration::from_millis(500),
+            handover_lead: Duration::from_millis(20),
             reply_timeout: Duration::from_secs(5),
             report_timeout: Duration::from_secs(60),
             im_bit_rate: 976.0,
@@ -139,10 +208,10 @@ impl DriverConfig {
         }
     }
 
-    /// How long a frame of `len` bytes stays on air: an unacknowledged frame is reported
-    /// sent only then, because the modem cannot take another one before (it does not
-    /// queue: docs/acoustic.md#at-interface) and the link must still be free to choose what
-    /// goes next.
+    /// How long a frame of `len` bytes stays on air: the next frame is held until then,
+    /// because the modem cannot take another one before (it does not queue:
+    /// docs/acoustic.md#at-interface), and an unacknowledged frame is reported sent only
+    /// `handover_lead` before then, so the link is still free to choose what goes next.
     pub fn air_time(&self, len: usize) -> Duration {
         #[allow(clippy::cast_precision_loss)]
         let bits = (len * 8) as f64;
@@ -154,6 +223,7 @@ impl DriverConfig {
         let s = |d: Duration| Duration::from_secs_f64((d.as_secs_f64() * factor).max(0.001));
         self.reconnect_delay = s(self.reconnect_delay);
         self.busy_retry = s(self.busy_retry);
+        self.handover_lead = s(self.handover_lead);
         self.reply_timeout = s(self.reply_timeout);
         self.report_timeout = s(self.report_timeout);
         self.air_overhead = s(self.air_overhead);
@@ -317,7 +387,35 @@ impl Wire for NlWire {
     }
 }
 
-type Job = (OutFrame, oneshot::Sender<Result<Outcome, TransmitError>>);
+/// One frame handed to the background task.
+#[derive(Debug)]
+struct Job {
+    frame: OutFrame,
+    reply: oneshot::Sender<Result<Outcome, TransmitError>>,
+    withdrawal: Option<Withdrawal>,
+    /// Written and not yet answered: the modem may have taken it.
+    unanswered: bool,
+    /// The modem answered `OK` to it once (it went on air at least once).
+    accepted: bool,
+}
+
+impl Job {
+    /// The caller's withdrawal, while the modem cannot have taken the frame: never written,
+    /// or answered `BUSY` every time (a write whose reply died with the connection may have
+    /// gone on air, so it counts as taken).
+    fn withdrawal_open(&self, phase: Phase) -> Option<&Withdrawal> {
+        let untaken = matches!(phase, Phase::ToSend | Phase::Held | Phase::BusyWait)
+            && !self.unanswered
+            && !self.accepted;
+        self.withdrawal.as_ref().filter(|_| untaken)
+    }
+
+    /// Whether the caller asked the frame back and the modem cannot have taken it.
+    fn withdrawable(&self, phase: Phase) -> bool {
+        self.withdrawal_open(phase)
+            .is_some_and(Withdrawal::is_requested)
+    }
+}
 
 /// Shared state between a driver handle and its background task.
 #[derive(Debug)]
@@ -352,10 +450,21 @@ impl Engine {
         }
     }
 
-    async fn transmit(&self, frame: OutFrame) -> Result<Outcome, TransmitError> {
+    async fn transmit(
+        &self,
+        frame: OutFrame,
+        withdrawal: Option<Withdrawal>,
+    ) -> Result<Outcome, TransmitError> {
         let (tx, rx) = oneshot::channel();
-        if let Err(mpsc::error::SendError((frame, _))) = self.jobs.send((frame.clone(), tx)).await {
-            return Err(TransmitError::Closed { frame });
+        let job = Job {
+            frame: frame.clone(),
+            reply: tx,
+            withdrawal,
+            unanswered: false,
+            accepted: false,
+        };
+        if let Err(mpsc::error::SendError(job)) = self.jobs.send(job).await {
+            return Err(TransmitError::Closed { frame: job.frame });
         }
         rx.await.unwrap_or(Err(TransmitError::Closed { frame }))
     }
@@ -376,6 +485,9 @@ impl Engine {
 /// Where the frame in flight is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Phase {
+    /// Handed over while the previous frame is still on air: held (and withdrawable) until
+    /// the deadline, when the modem is free, instead of being answered `BUSY`.
+    Held,
     /// Must be (re)written to the modem.
     ToSend,
     /// Written; waiting for the command's reply.
@@ -399,6 +511,9 @@ async fn run<W: Wire + Default>(
 ) {
     let mut wire = W::default();
     let mut current: Option<(Job, Phase, Instant)> = None;
+    // When the last frame the modem accepted leaves the air (counted from its `OK`, so a
+    // little late rather than early).
+    let mut free_at = Instant::now();
     let mut buf = vec![0u8; 4096];
     loop {
         let mut stream = match TcpStream::connect(cfg.addr).await {
@@ -426,13 +541,23 @@ async fn run<W: Wire + Default>(
             *phase = Phase::ToSend;
         }
         'conn: loop {
+            if let Some((job, phase, _)) = current.as_ref()
+                && job.withdrawable(*phase)
+            {
+                debug!(proto = W::NAME, "frame withdrawn before the modem took it");
+                let frame = job.frame.clone();
+                finish(&mut current, Err(TransmitError::Withdrawn { frame }));
+            }
             if !hello_pending
-                && let Some(((frame, _), phase, deadline)) = current.as_mut()
+                && let Some((job, phase, deadline)) = current.as_mut()
                 && *phase == Phase::ToSend
             {
-                if stream.write_all(&wire.send(frame)).await.is_err() {
+                if stream.write_all(&wire.send(&job.frame)).await.is_err() {
+                    // It may have reached the modem: never withdraw it now.
+                    job.unanswered = true;
                     break 'conn;
                 }
+                job.unanswered = true;
                 *phase = Phase::AwaitReply;
                 *deadline = Instant::now() + cfg.reply_timeout;
             }
@@ -442,6 +567,10 @@ async fn run<W: Wire + Default>(
                 (None, false) => None,
             };
             let idle = current.is_none();
+            // Woken when the caller asks back a frame the modem has not taken yet.
+            let withdrawal = current
+                .as_ref()
+                .and_then(|(j, p, _)| j.withdrawal_open(*p).cloned());
             tokio::select! {
                 r = stream.read(&mut buf) => {
                     let n = match r {
@@ -460,14 +589,25 @@ async fn run<W: Wire + Default>(
                                 status.address.store(u16::from(a), Ordering::Relaxed);
                                 hello_pending = false;
                             }
-                            ev => handle_reply::<W>(ev, &mut current, &cfg, expect_reports, &mut hello_pending),
+                            ev => handle_reply::<W>(ev, &mut current, &mut free_at, &cfg, expect_reports, &mut hello_pending),
                         }
                     }
                 }
                 job = jobs.recv(), if idle => match job {
-                    Some(job) => current = Some((job, Phase::ToSend, Instant::now())),
+                    Some(job) => {
+                        // The modem does not queue and answers `BUSY` while on air: keep
+                        // the frame here until it is free, where the caller can still
+                        // take it back.
+                        let now = Instant::now();
+                        current = Some(if now < free_at {
+                            (job, Phase::Held, free_at)
+                        } else {
+                            (job, Phase::ToSend, now)
+                        });
+                    }
                     None => return,
                 },
+                () = requested_opt(withdrawal.as_ref()) => {}
                 () = sleep_until_opt(deadline) => {
                     if hello_pending {
                         // An old modem may not know the query: carry on without it.
@@ -482,7 +622,7 @@ async fn run<W: Wire + Default>(
                         }
                         Some(Phase::AwaitReport) => finish(&mut current, Ok(Outcome::Failed)),
                         Some(Phase::OnAir) => finish(&mut current, Ok(Outcome::Sent)),
-                        Some(Phase::BusyWait) => {
+                        Some(Phase::BusyWait | Phase::Held) => {
                             if let Some(c) = current.as_mut() {
                                 c.1 = Phase::ToSend;
                             }
@@ -508,10 +648,17 @@ async fn sleep_until_opt(deadline: Option<Instant>) {
     }
 }
 
+async fn requested_opt(withdrawal: Option<&Withdrawal>) {
+    match withdrawal {
+        Some(w) => w.requested().await,
+        None => std::future::pending().await,
+    }
+}
+
 fn finish(current: &mut Option<(Job, Phase, Instant)>, result: Result<Outcome, TransmitError>) {
-    if let Some(((_, reply), _, _)) = current.take() {
+    if let Some((job, _, _)) = current.take() {
         // The caller may have given up waiting; that is fine.
-        let _ = reply.send(result);
+        let _ = job.reply.send(result);
     }
 }
 
@@ -519,11 +666,12 @@ fn finish(current: &mut Option<(Job, Phase, Instant)>, result: Result<Outcome, T
 fn handle_reply<W: Wire>(
     ev: WireEvent,
     current: &mut Option<(Job, Phase, Instant)>,
+    free_at: &mut Instant,
     cfg: &DriverConfig,
     expect_reports: bool,
     hello_pending: &mut bool,
 ) {
-    let Some(((frame, _), phase, deadline)) = current.as_mut() else {
+    let Some((job, phase, deadline)) = current.as_mut() else {
         if let WireEvent::Rejected(r) = ev {
             // E.g. the reply to a hello an old modem did not understand.
             *hello_pending = false;
@@ -531,21 +679,31 @@ fn handle_reply<W: Wire>(
         }
         return;
     };
+    let frame = &job.frame;
     let wants_report = expect_reports && frame.ack && frame.dst != crate::at::BROADCAST;
+    if *phase == Phase::AwaitReply
+        && matches!(
+            ev,
+            WireEvent::Accepted | WireEvent::Busy | WireEvent::Rejected(_)
+        )
+    {
+        job.unanswered = false;
+    }
     match (ev, *phase) {
-        (WireEvent::Accepted, Phase::AwaitReply) if wants_report => {
-            *phase = Phase::AwaitReport;
-            *deadline = Instant::now() + cfg.report_timeout;
-        }
         (WireEvent::Accepted, Phase::AwaitReply) => {
-            // Hand over one busy-poll interval before the frame ends, so the next frame is
-            // at the modem when it frees up (the channel would idle otherwise), and no
-            // earlier, so an alarm arriving meanwhile is not stuck behind another frame.
-            *phase = Phase::OnAir;
-            *deadline = Instant::now()
-                + cfg
-                    .air_time(frame.data.len())
-                    .saturating_sub(cfg.busy_retry);
+            job.accepted = true;
+            let air = cfg.air_time(frame.data.len());
+            *free_at = Instant::now() + air;
+            if wants_report {
+                *phase = Phase::AwaitReport;
+                *deadline = Instant::now() + cfg.report_timeout;
+            } else {
+                // Report it sent a short lead before it ends, so the caller's next frame
+                // is here when the modem frees up; that frame is held until then, and the
+                // caller may still swap it for an alarm (`Phase::Held`).
+                *phase = Phase::OnAir;
+                *deadline = *free_at - air.min(cfg.handover_lead);
+            }
         }
         (WireEvent::Busy, Phase::AwaitReply) => {
             debug!(proto = W::NAME, "modem busy; will retry");
@@ -587,7 +745,15 @@ impl ModemDriver for AtDriver {
         &self,
         frame: OutFrame,
     ) -> impl Future<Output = Result<Outcome, TransmitError>> + Send {
-        self.engine.transmit(frame)
+        self.engine.transmit(frame, None)
+    }
+
+    fn transmit_withdrawable(
+        &self,
+        frame: OutFrame,
+        withdrawal: Withdrawal,
+    ) -> impl Future<Output = Result<Outcome, TransmitError>> + Send {
+        self.engine.transmit(frame, Some(withdrawal))
     }
 
     fn receive(&self) -> impl Future<Output = Option<RxFrame>> + Send {
@@ -624,7 +790,15 @@ impl ModemDriver for NlDriver {
         &self,
         frame: OutFrame,
     ) -> impl Future<Output = Result<Outcome, TransmitError>> + Send {
-        self.engine.transmit(frame)
+        self.engine.transmit(frame, None)
+    }
+
+    fn transmit_withdrawable(
+        &self,
+        frame: OutFrame,
+        withdrawal: Withdrawal,
+    ) -> impl Future<Output = Result<Outcome, TransmitError>> + Send {
+        self.engine.transmit(frame, Some(withdrawal))
     }
 
     fn receive(&self) -> impl Future<Output = Option<RxFrame>> + Send {
@@ -637,5 +811,244 @@ impl ModemDriver for NlDriver {
 
     fn is_connected(&self) -> bool {
         self.engine.is_connected()
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+mod tests {
+    use tokio::net::TcpListener;
+
+    use super::*;
+    use crate::at::{self, AtCommand, CommandParser};
+    use crate::link::{self, Class, LinkConfig, Outgoing};
+
+    /// An instant message the modem took, and when.
+    type Taken = (Instant, Vec<u8>);
+
+    /// A scripted S2C on 127.0.0.1: answers the address query; takes an instant message
+    /// when nothing is on air (`OK`, then `DELIVEREDIM` at once if it asks for an ack) and
+    /// answers `BUSY` while one is, for [`slow_modem`]'s air time. Reports every frame it
+    /// took.
+    async fn fake_s2c() -> (SocketAddr, mpsc::UnboundedReceiver<Taken>) {
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let air = slow_modem(addr);
+        let (taken_tx, taken) = mpsc::unbounded_channel();
+        tokio::spawn(async move {
+            let Ok((mut s, _)) = listener.accept().await else {
+                return;
+            };
+            let mut parser = CommandParser::new();
+            let mut on_air_until = Instant::now();
+            let mut buf = [0u8; 1024];
+            loop {
+                for cmd in parser.by_ref() {
+                    let mut out = Vec::new();
+                    match cmd {
+                        Ok(AtCommand::GetLocalAddress) => out = at::reply("AT?AL", b"1"),
+                        Ok(AtCommand::SendIm { dst, ack, data }) => {
+                            let now = Instant::now();
+                            if now < on_air_until {
+                                out = at::reply("AT*SENDIM", b"BUSY TRANSMITTING");
+                            } else {
+                                on_air_until = now + air.air_time(data.len());
+                                let _ = taken_tx.send((now, data));
+                                out.extend(at::reply("AT*SENDIM", b"OK"));
+                                if ack {
+                                    out.extend(at::notification(
+                                        format!("DELIVEREDIM,{dst}").as_bytes(),
+                                    ));
+                                }
+                            }
+                        }
+                        other => panic!("unexpected command {other:?}"),
+                    }
+                    if s.write_all(&out).await.is_err() {
+                        return;
+                    }
+                }
+                match s.read(&mut buf).await {
+                    Ok(0) | Err(_) => return,
+                    Ok(n) => parser.push(&buf[..n]),
+                }
+            }
+        });
+        (addr, taken)
+    }
+
+    /// A driver configuration whose 60-byte frame is 0.6 s on air (0.1 s + 480 bits at
+    /// 960 bit/s), with the real-time defaults otherwise (`busy_retry` 0.5 s).
+    fn slow_modem(addr: SocketAddr) -> DriverConfig {
+        DriverConfig {
+            im_bit_rate: 960.0,
+            ..DriverConfig::new(addr)
+        }
+    }
+
+    fn frame(data: &[u8], ack: bool) -> OutFrame {
+        OutFrame {
+            dst: 2,
+            data: data.to_vec(),
+            ack,
+            burst: false,
+        }
+    }
+
+    /// A frame handed over while another is on air is held, and withdrawn on request
+    /// without the modem ever seeing it; one the modem took goes on to its usual outcome.
+    #[tokio::test]
+    async fn a_frame_is_withdrawn_only_while_the_modem_has_not_taken_it() {
+        let (addr, mut taken) = fake_s2c().await;
+        let cfg = DriverConfig {
+            handover_lead: Duration::from_millis(400),
+            ..slow_modem(addr)
+        };
+        let d = AtDriver::start(cfg);
+        let a = frame(&[1; 60], false);
+        assert_eq!(d.transmit(a.clone()).await.unwrap(), Outcome::Sent);
+        let (t_a, got) = next_taken(&mut taken).await;
+        assert_eq!(got, a.data);
+        // A is still on air for about 0.4 s: B waits at the driver.
+        let b = frame(&[2; 10], false);
+        let w = Withdrawal::new();
+        let pending = d.transmit_withdrawable(b.clone(), w.clone());
+        let ask = async {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+            w.request();
+        };
+        let (out, ()) = tokio::join!(pending, ask);
+        match out {
+            Err(TransmitError::Withdrawn { frame }) => assert_eq!(frame, b),
+            other => panic!("{other:?}"),
+        }
+        // The next frame goes when A is off air; B never did.
+        let c = frame(&[3; 10], false);
+        let w = Withdrawal::new();
+        let pending = d.transmit_withdrawable(c.clone(), w.clone());
+        let ask = async {
+            let (t_c, got) = next_taken(&mut taken).await;
+            // Too late: the modem has it.
+            w.request();
+            (t_c, got)
+        };
+        let (out, (t_c, got)) = tokio::join!(pending, ask);
+        assert_eq!(out.unwrap(), Outcome::Sent);
+        assert_eq!(got, c.data);
+        assert!(t_c >= t_a + cfg.air_time(60), "{:?}", t_c - t_a);
+        assert!(taken.try_recv().is_err());
+    }
+
+    async fn next_taken(taken: &mut mpsc::UnboundedReceiver<Taken>) -> Taken {
+        tokio::time::timeout(Duration::from_secs(10), taken.recv())
+            .await
+            .expect("the modem took no frame")
+            .expect("fake modem gone")
+    }
+
+    /// Frames the modem takes until the first full one (the link may start with the first
+    /// PDU alone, before the rest are queued); the last one is the full frame.
+    async fn until_full(taken: &mut mpsc::UnboundedReceiver<Taken>) -> Vec<Taken> {
+        let mut frames = vec![next_taken(taken).await];
+        while frames.last().is_some_and(|(_, d)| d.len() < 60) {
+            frames.push(next_taken(taken).await);
+        }
+        frames
+    }
+
+    /// A saturating link over a driver on the fake modem, and its sender.
+    fn telemetry_link(cfg: DriverConfig) -> link::LinkSender {
+        let mut link_cfg = LinkConfig::default();
+        link_cfg.telemetry.max_len = 1000;
+        // Its events are not needed: the fake modem reports what went on air.
+        let (tx, _) = link::start(AtDriver::start(cfg), link_cfg, std::future::pending());
+        tx
+    }
+
+    fn outgoing(class: Class, pdu: Vec<u8>) -> Outgoing {
+        Outgoing {
+            dst: 2,
+            class,
+            pdu,
+            supersede_key: None,
+        }
+    }
+
+    /// The driver handed the modem its next frame one busy-poll interval (0.5 s by
+    /// default) before the frame on air ended, so an alarm queued then waited for one more
+    /// telemetry frame (1.616 s against the 1.453 s bound in `shoal bench acoustic`).
+    #[tokio::test]
+    async fn an_alarm_queued_in_the_last_busy_poll_of_a_frame_goes_next() {
+        let (addr, mut taken) = fake_s2c().await;
+        let cfg = slow_modem(addr);
+        let link = telemetry_link(cfg);
+        for i in 1..=24u8 {
+            link.send(outgoing(Class::Telemetry, vec![i; 10]))
+                .await
+                .unwrap();
+        }
+        let (t1, _) = until_full(&mut taken).await.pop().unwrap();
+        // Inside the frame's last 0.5 s and well before its last 20 ms.
+        tokio::time::sleep_until(t1 + Duration::from_millis(350)).await;
+        let alarm = vec![0xee; 5];
+        link.send(outgoing(Class::Emergency, alarm.clone()))
+            .await
+            .unwrap();
+        let (t2, second) = next_taken(&mut taken).await;
+        assert_eq!(
+            second, alarm,
+            "the alarm waited behind another telemetry frame"
+        );
+        // And it went as soon as the frame on air was over.
+        let after = t2.duration_since(t1);
+        assert!(
+            after < cfg.air_time(60) + Duration::from_millis(150),
+            "{after:?}"
+        );
+    }
+
+    /// With a long hand-over lead the next telemetry frame is already at the driver when
+    /// the alarm comes: it is withdrawn (the modem never had it), the alarm goes first, and
+    /// every telemetry PDU still goes on air exactly once.
+    #[tokio::test]
+    async fn a_held_telemetry_frame_gives_way_to_an_alarm_and_nothing_is_lost_or_repeated() {
+        let (addr, mut taken) = fake_s2c().await;
+        let cfg = DriverConfig {
+            handover_lead: Duration::from_millis(400),
+            ..slow_modem(addr)
+        };
+        let link = telemetry_link(cfg);
+        for i in 1..=24u8 {
+            link.send(outgoing(Class::Telemetry, vec![i; 10]))
+                .await
+                .unwrap();
+        }
+        let before = until_full(&mut taken).await;
+        let t1 = before.last().unwrap().0;
+        // The next frame was handed over at 0.2 s and is held until 0.6 s.
+        tokio::time::sleep_until(t1 + Duration::from_millis(350)).await;
+        let alarm = vec![0xee; 5];
+        link.send(outgoing(Class::Emergency, alarm.clone()))
+            .await
+            .unwrap();
+        let (_, second) = next_taken(&mut taken).await;
+        assert_eq!(second, alarm);
+        let mut seen = std::collections::BTreeMap::<u8, usize>::new();
+        let count = |seen: &mut std::collections::BTreeMap<u8, usize>, data: &[u8]| {
+            for pdu in data.chunks(10) {
+                *seen.entry(pdu[0]).or_default() += 1;
+            }
+        };
+        for (_, data) in &before {
+            count(&mut seen, data);
+        }
+        while seen.values().sum::<usize>() < 24 {
+            count(&mut seen, &next_taken(&mut taken).await.1);
+        }
+        // Nothing more goes on air.
+        let more = tokio::time::timeout(Duration::from_secs(1), taken.recv()).await;
+        assert!(more.is_err(), "{more:?}");
+        assert_eq!(seen.len(), 24, "{seen:?}");
+        assert!(seen.values().all(|&n| n == 1), "{seen:?}");
     }
 }

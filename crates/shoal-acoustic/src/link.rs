@@ -31,7 +31,7 @@ use tokio::time::Instant;
 use tracing::{debug, warn};
 
 use crate::at::BROADCAST;
-use crate::driver::{ModemDriver, OutFrame, Outcome, TransmitError};
+use crate::driver::{ModemDriver, OutFrame, Outcome, TransmitError, Withdrawal};
 use crate::pdu::MAX_FRAME;
 
 /// Message classes, most urgent first.
@@ -365,6 +365,17 @@ pub struct FramePlan {
     /// Messages in it.
     pub ids: Vec<MessageId>,
     entries: Vec<Entry>,
+    /// The core's `busy_until` and `last_sent` before this frame was planned, restored if
+    /// the frame is withdrawn (it never went on air).
+    busy_before: Instant,
+    last_sent_before: [Instant; 4],
+}
+
+impl FramePlan {
+    /// Whether the frame carries an emergency PDU.
+    pub fn has_emergency(&self) -> bool {
+        self.entries.iter().any(|e| e.msg.class == Class::Emergency)
+    }
 }
 
 /// Where an instant falls in the TDMA cycle.
@@ -550,6 +561,8 @@ impl LinkCore {
     /// emergency and control messages, so it stays short.
     pub fn next_frame(&mut self, now: Instant) -> Option<FramePlan> {
         let budget = self.frame_budget(now).ok()?;
+        let busy_before = self.busy_until;
+        let last_sent_before = self.last_sent;
         let mut order: Vec<Class> = Class::ALL
             .into_iter()
             .filter(|&c| self.eligible(c, now))
@@ -642,6 +655,8 @@ impl LinkCore {
             },
             ids: entries.iter().map(|e| e.id).collect(),
             entries,
+            busy_before,
+            last_sent_before,
         })
     }
 
@@ -698,13 +713,53 @@ impl LinkCore {
         )
     }
 
-    /// Applies a frame's outcome: done, or back in the queue with backoff.
+    /// Whether an emergency waits behind `in_flight`, a frame without one that the driver
+    /// holds until the modem is free: the link then withdraws it, so the alarm goes in the
+    /// next frame instead of after it (docs/acoustic.md#channel-use-and-emergency-latency).
+    pub fn emergency_waits_behind(&self, in_flight: &FramePlan, now: Instant) -> bool {
+        !in_flight.has_emergency() && self.eligible(Class::Emergency, now)
+    }
+
+    /// Puts the messages of a withdrawn frame (never on air) back where they were, as if it
+    /// had not been planned: same attempts, same place, slot time and priority restored.
+    /// One superseded meanwhile by a newer state is dropped, as `push` would have.
+    fn requeue(&mut self, plan: FramePlan) -> Vec<LinkEvent> {
+        let mut events = Vec::new();
+        self.busy_until = plan.busy_before;
+        self.last_sent = plan.last_sent_before;
+        // In queue order (by age, then by id: ids grow as messages are queued), pushed to
+        // the front in reverse, so each class's queue is as it was before the frame.
+        let mut entries = plan.entries;
+        entries.sort_by_key(|e| (e.enqueued, e.id));
+        for e in entries.into_iter().rev() {
+            let Some(q) = self.queues.get_mut(e.msg.class.index()) else {
+                events.push(LinkEvent::Dropped(e.id));
+                continue;
+            };
+            let superseded = e.msg.supersede_key.is_some_and(|key| {
+                q.iter()
+                    .any(|n| n.msg.supersede_key == Some(key) && n.msg.dst == e.msg.dst)
+            });
+            if superseded {
+                events.push(LinkEvent::Dropped(e.id));
+            } else {
+                q.push_front(e);
+            }
+        }
+        events
+    }
+
+    /// Applies a frame's outcome: done, back in the queue with backoff, or (withdrawn)
+    /// back in the queue as it was.
     pub fn on_outcome(
         &mut self,
         plan: FramePlan,
         outcome: &Result<Outcome, TransmitError>,
         now: Instant,
     ) -> Vec<LinkEvent> {
+        if let Err(TransmitError::Withdrawn { .. }) = outcome {
+            return self.requeue(plan);
+        }
         let mut events = Vec::new();
         for mut e in plan.entries {
             let qc = *self.cfg.queue(e.msg.class);
@@ -849,9 +904,17 @@ pub fn start<D: ModemDriver + 'static>(
 
 type TxFuture<'a> = Pin<Box<dyn Future<Output = Result<Outcome, TransmitError>> + Send + 'a>>;
 
-async fn poll_opt(f: &mut Option<(FramePlan, TxFuture<'_>)>) -> Result<Outcome, TransmitError> {
+/// The frame handed to the driver, until its outcome is known.
+struct InFlight<'a> {
+    plan: FramePlan,
+    fut: TxFuture<'a>,
+    /// Takes the frame back while the modem has not taken it (for an emergency).
+    withdrawal: Withdrawal,
+}
+
+async fn poll_opt(f: &mut Option<InFlight<'_>>) -> Result<Outcome, TransmitError> {
     match f {
-        Some((_, fut)) => fut.await,
+        Some(f) => f.fut.as_mut().await,
         None => std::future::pending().await,
     }
 }
@@ -883,7 +946,7 @@ async fn run<D: ModemDriver>(
         .unwrap_or_default();
     let epoch = cfg.mac.tdma_epoch(since_unix, now).unwrap_or(now);
     let mut core = LinkCore::new(cfg, epoch);
-    let mut in_flight: Option<(FramePlan, TxFuture<'_>)> = None;
+    let mut in_flight: Option<InFlight<'_>> = None;
     let mut cmds_open = true;
     loop {
         let now = Instant::now();
@@ -904,13 +967,29 @@ async fn run<D: ModemDriver>(
                             n = plan.ids.len(),
                             "frame out"
                         );
-                        let fut: TxFuture<'_> = Box::pin(driver.transmit(plan.frame.clone()));
-                        in_flight = Some((plan, fut));
+                        let withdrawal = Withdrawal::new();
+                        let fut: TxFuture<'_> = Box::pin(
+                            driver.transmit_withdrawable(plan.frame.clone(), withdrawal.clone()),
+                        );
+                        in_flight = Some(InFlight {
+                            plan,
+                            fut,
+                            withdrawal,
+                        });
                     }
                 }
                 Err(next) if core.queued() > 0 => mac_wait = Some(next),
                 Err(_) => {}
             }
+        } else if let Some(f) = &in_flight
+            && !f.withdrawal.is_requested()
+            && core.emergency_waits_behind(&f.plan, now)
+        {
+            // The driver takes the next frame a little before the modem is free; if the
+            // modem has not taken it yet, take it back so the alarm goes first. Its
+            // messages come back to the queues (or it was already on air and completes).
+            debug!(ids = ?f.plan.ids, "withdrawing a frame for an emergency");
+            f.withdrawal.request();
         }
         let wake = match (core.next_wakeup(now), mac_wait) {
             (Some(a), Some(b)) => Some(a.min(b)),
@@ -918,8 +997,11 @@ async fn run<D: ModemDriver>(
         };
         tokio::select! {
             r = poll_opt(&mut in_flight) => {
-                if let Some((plan, _)) = in_flight.take() {
-                    let evs = core.on_outcome(plan, &r, Instant::now());
+                if let Some(f) = in_flight.take() {
+                    if matches!(r, Err(TransmitError::Withdrawn { .. })) {
+                        debug!(ids = ?f.plan.ids, "frame withdrawn; its messages are queued again");
+                    }
+                    let evs = core.on_outcome(f.plan, &r, Instant::now());
                     emit(&events, evs).await;
                 }
             }
@@ -1286,6 +1368,41 @@ mod tests {
         let next = core.next_frame(handover).unwrap();
         assert_eq!(next.ids, vec![e]);
         assert!(air <= core.air_time(MAX_FRAME).unwrap());
+    }
+
+    /// A frame the driver hands back unsent (withdrawn for an alarm) puts its messages back
+    /// as they were: nothing lost, nothing repeated, no attempt counted, the slot time it
+    /// had reserved free again for the alarm.
+    #[test]
+    fn a_withdrawn_frame_gives_its_messages_back_and_its_slot_time_to_the_alarm() {
+        let t0 = Instant::now();
+        let mut core = tdma_core(3000, 0, t0);
+        let mut ids = Vec::new();
+        for i in 0..12 {
+            ids.push(core.push(msg(Class::Telemetry, i, 10), t0).0);
+        }
+        let on_air = core.next_frame(t0).unwrap();
+        let held = core.next_frame(t0).unwrap();
+        let busy = core.busy_until;
+        let (e, _) = core.push(msg(Class::Emergency, 0xee, 5), t0);
+        assert!(core.emergency_waits_behind(&held, t0));
+        let frame = held.frame.clone();
+        let held_ids = held.ids.clone();
+        let ev = core.on_outcome(held, &Err(TransmitError::Withdrawn { frame }), t0);
+        assert!(ev.is_empty(), "{ev:?}");
+        assert!(core.busy_until < busy);
+        assert_eq!(core.busy_until, t0 + core.air_time(60).unwrap());
+        let alarm = core.next_frame(t0).unwrap();
+        assert_eq!(alarm.ids, vec![e]);
+        assert!(alarm.has_emergency());
+        // The withdrawn messages go next, in the same frame as before.
+        let again = core.next_frame(t0).unwrap();
+        assert_eq!(again.ids, held_ids);
+        let mut sent: Vec<MessageId> = on_air.ids;
+        sent.extend(&again.ids);
+        sent.sort_unstable();
+        assert_eq!(sent, ids);
+        assert_eq!(core.queued(), 0);
     }
 
     #[test]

@@ -84,8 +84,10 @@ impl Rig {
         let driver = |i: usize| -> Result<AtDriver> {
             let ep = emu.modems().get(i).context("emulator modem missing")?;
             let mut d = DriverConfig::new(ep.at).scaled(opts.time_scale);
-            // Poll a busy modem every 20 ms (simulated) instead of 0.5 s: under saturation
-            // the default leaves the channel idle for up to half a second per frame.
+            // Poll a busy modem every 20 ms (simulated) instead of 0.5 s: the driver holds
+            // the next frame until the modem should be free, but should it still answer
+            // `BUSY` (timer slip), the default would idle the channel for half a second.
+            // The hand-over lead is the driver's default (20 ms, scaled).
             d.busy_retry =
                 Duration::from_secs_f64(0.02 * opts.time_scale).max(Duration::from_millis(1));
             Ok(AtDriver::start(d))
