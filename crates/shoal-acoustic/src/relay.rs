@@ -41,7 +41,7 @@ use tracing::{debug, warn};
 use shoal_security::AcousticTagger;
 
 use crate::at::BROADCAST;
-use crate::driver::{ModemDriver, OutFrame, Outcome, RxFrame, TransmitError};
+use crate::driver::{ModemDriver, OutFrame, Outcome, RxFrame, TransmitError, Withdrawal};
 use crate::pdu::{BitReader, BitWriter, DecodeError, EncodeError, MAX_FRAME};
 
 /// First byte of an enveloped frame. Outside the compact PDUs' ids (1..=10), so a build
@@ -1006,8 +1006,14 @@ async fn forward<D: ModemDriver>(inner: Arc<D>, core: Shared, out: OutFrame, att
     lock(&core).stats.undeliverable += 1;
 }
 
-impl<D: ModemDriver + 'static> ModemDriver for RelayDriver<D> {
-    async fn transmit(&self, frame: OutFrame) -> Result<Outcome, TransmitError> {
+impl<D: ModemDriver + 'static> RelayDriver<D> {
+    /// Envelopes `frame` and hands it to the inner driver, withdrawably when `withdrawal`
+    /// is given.
+    async fn send(
+        &self,
+        frame: OutFrame,
+        withdrawal: Option<Withdrawal>,
+    ) -> Result<Outcome, TransmitError> {
         let planned = lock(&self.core).outbound(&frame, self.inner.local_address(), Instant::now());
         let out = match planned {
             Ok(out) => out,
@@ -1018,12 +1024,31 @@ impl<D: ModemDriver + 'static> ModemDriver for RelayDriver<D> {
                 });
             }
         };
-        // On failure hand back the caller's frame, not the envelope: a retry is planned
-        // (and numbered) again.
-        self.inner.transmit(out).await.map_err(|e| match e {
+        // On failure (or withdrawal) hand back the caller's frame, not the envelope: a retry
+        // is planned (and numbered) again.
+        let sent = match withdrawal {
+            Some(w) => self.inner.transmit_withdrawable(out, w).await,
+            None => self.inner.transmit(out).await,
+        };
+        sent.map_err(|e| match e {
             TransmitError::Rejected { reason, .. } => TransmitError::Rejected { frame, reason },
+            TransmitError::Withdrawn { .. } => TransmitError::Withdrawn { frame },
             _ => TransmitError::Closed { frame },
         })
+    }
+}
+
+impl<D: ModemDriver + 'static> ModemDriver for RelayDriver<D> {
+    async fn transmit(&self, frame: OutFrame) -> Result<Outcome, TransmitError> {
+        self.send(frame, None).await
+    }
+
+    async fn transmit_withdrawable(
+        &self,
+        frame: OutFrame,
+        withdrawal: Withdrawal,
+    ) -> Result<Outcome, TransmitError> {
+        self.send(frame, Some(withdrawal)).await
     }
 
     async fn receive(&self) -> Option<RxFrame> {

@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex};
 use shoal_security::{AcousticTagger, RejectionCounts};
 use tracing::debug;
 
-use crate::driver::{ModemDriver, OutFrame, Outcome, RxFrame, TransmitError};
+use crate::driver::{ModemDriver, OutFrame, Outcome, RxFrame, TransmitError, Withdrawal};
 
 /// A modem driver whose frames carry an authentication tag.
 pub struct TaggedDriver<D> {
@@ -55,8 +55,14 @@ impl<D: ModemDriver> TaggedDriver<D> {
     }
 }
 
-impl<D: ModemDriver> ModemDriver for TaggedDriver<D> {
-    async fn transmit(&self, frame: OutFrame) -> Result<Outcome, TransmitError> {
+impl<D: ModemDriver> TaggedDriver<D> {
+    /// Seals `frame` and hands it to the inner driver, withdrawably when `withdrawal` is
+    /// given.
+    async fn send(
+        &self,
+        frame: OutFrame,
+        withdrawal: Option<Withdrawal>,
+    ) -> Result<Outcome, TransmitError> {
         let sealed = match self.tagger.lock() {
             Ok(mut t) => t.seal(frame.dst, &frame.data).map_err(|e| e.to_string()),
             Err(_) => Err("tagger lock poisoned".to_string()),
@@ -69,12 +75,31 @@ impl<D: ModemDriver> ModemDriver for TaggedDriver<D> {
             data,
             ..frame.clone()
         };
-        // On failure hand back the frame as the caller gave it: a retry is sealed again
-        // with a fresh counter, so the receiver's replay window accepts it.
-        self.inner.transmit(tagged).await.map_err(|e| match e {
+        // On failure (or withdrawal) hand back the frame as the caller gave it: a retry is
+        // sealed again with a fresh counter, so the receiver's replay window accepts it.
+        let sent = match withdrawal {
+            Some(w) => self.inner.transmit_withdrawable(tagged, w).await,
+            None => self.inner.transmit(tagged).await,
+        };
+        sent.map_err(|e| match e {
             TransmitError::Rejected { reason, .. } => TransmitError::Rejected { frame, reason },
+            TransmitError::Withdrawn { .. } => TransmitError::Withdrawn { frame },
             _ => TransmitError::Closed { frame },
         })
+    }
+}
+
+impl<D: ModemDriver> ModemDriver for TaggedDriver<D> {
+    async fn transmit(&self, frame: OutFrame) -> Result<Outcome, TransmitError> {
+        self.send(frame, None).await
+    }
+
+    async fn transmit_withdrawable(
+        &self,
+        frame: OutFrame,
+        withdrawal: Withdrawal,
+    ) -> Result<Outcome, TransmitError> {
+        self.send(frame, Some(withdrawal)).await
     }
 
     async fn receive(&self) -> Option<RxFrame> {
@@ -106,5 +131,69 @@ impl<D: ModemDriver> ModemDriver for TaggedDriver<D> {
 
     fn is_connected(&self) -> bool {
         self.inner.is_connected()
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+mod tests {
+    use shoal_security::{AcousticKey, TagSize};
+
+    use super::*;
+
+    /// A modem that gives every frame back once its withdrawal was asked for.
+    struct Yielding;
+
+    impl ModemDriver for Yielding {
+        async fn transmit(&self, _frame: OutFrame) -> Result<Outcome, TransmitError> {
+            Ok(Outcome::Sent)
+        }
+
+        async fn transmit_withdrawable(
+            &self,
+            frame: OutFrame,
+            withdrawal: Withdrawal,
+        ) -> Result<Outcome, TransmitError> {
+            if withdrawal.is_requested() {
+                Err(TransmitError::Withdrawn { frame })
+            } else {
+                Ok(Outcome::Sent)
+            }
+        }
+
+        async fn receive(&self) -> Option<RxFrame> {
+            None
+        }
+
+        fn local_address(&self) -> Option<u8> {
+            Some(1)
+        }
+
+        fn is_connected(&self) -> bool {
+            true
+        }
+    }
+
+    #[tokio::test]
+    async fn a_withdrawn_frame_comes_back_as_the_caller_gave_it_not_sealed() {
+        let mut tagger = AcousticTagger::new(1, TagSize::Bits64, 1);
+        tagger.set_key(2, &AcousticKey::from_bytes([7; 32]));
+        let driver = TaggedDriver::new(Yielding, tagger);
+        let frame = OutFrame {
+            dst: 2,
+            data: vec![1, 2, 3],
+            ack: false,
+            burst: false,
+        };
+        let w = Withdrawal::new();
+        assert!(matches!(
+            driver.transmit_withdrawable(frame.clone(), w.clone()).await,
+            Ok(Outcome::Sent)
+        ));
+        w.request();
+        match driver.transmit_withdrawable(frame.clone(), w).await {
+            Err(TransmitError::Withdrawn { frame: back }) => assert_eq!(back, frame),
+            other => panic!("not withdrawn: {other:?}"),
+        }
     }
 }

@@ -6,6 +6,7 @@
 
 use shoal_acoustic::driver::{
     AtDriver, DriverConfig, ModemDriver, NlDriver, OutFrame, Outcome, RxFrame, TransmitError,
+    Withdrawal,
 };
 
 use shoal_acoustic::relay::{RelayConfig, RelayDriver};
@@ -55,6 +56,17 @@ impl ModemDriver for Modem {
         match self {
             Self::At(d) => d.transmit(frame).await,
             Self::Nl(d) => d.transmit(frame).await,
+        }
+    }
+
+    async fn transmit_withdrawable(
+        &self,
+        frame: OutFrame,
+        withdrawal: Withdrawal,
+    ) -> Result<Outcome, TransmitError> {
+        match self {
+            Self::At(d) => d.transmit_withdrawable(frame, withdrawal).await,
+            Self::Nl(d) => d.transmit_withdrawable(frame, withdrawal).await,
         }
     }
 
