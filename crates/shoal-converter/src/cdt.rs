@@ -17,6 +17,18 @@
 //! TTL; aborts as emergency), and reported as `sent` on `shoal/task_status`, or `expired` if
 //! the link gives up. A task whose PDU would not fit one frame is reported `failed`. Status
 //! reports coming back name the task number; the CDT maps it to the station's task id.
+//!
+//! Link failover (docs/acoustic.md#link-failover): a vehicle whose VDT also has an IP path
+//! shows up on the station's domain through its own participant while it is at the
+//! surface. The CDT watches the state vectors and task status there: a vehicle heard over
+//! IP within [`CdtConfig::ip_silence_s`] is on IP, and its tasks wait (the vehicle takes
+//! them from the station's domain itself) instead of crossing the water; an acoustic state
+//! newer than any IP state, or the IP silence, puts it back on acoustic. Then the CDT says
+//! so (its link status at once, and a switch event) and sends every task of the vehicle
+//! that has not ended: the ones that waited, and the ones the vehicle took over IP, whose
+//! status can only come back with an acoustic task number (the vehicle's ledger refuses
+//! to run any of them twice). Acoustic states older than the newest the station has from
+//! either link are not republished, so the station never sees time run backwards.
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
@@ -31,9 +43,11 @@ use shoal_model::{
     EnvironmentObservation, Event, EventKind, LinkKind, Severity, StateVector, TaskAssignment,
     TaskKind, TaskState, TaskStatus, VehicleAnnouncement,
 };
-use tokio::time::Instant;
+use tokio::time::{Instant, MissedTickBehavior};
 use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
+
+use crate::failover::switch_event;
 
 use crate::common::{Counter, encode, key, next_opt, start_link, supersede_key, wall};
 use crate::config::{CdtConfig, address_book};
@@ -59,7 +73,13 @@ pub async fn run_cdt<D: ModemDriver + 'static>(
     config.check()?;
     let (link, mut events) = start_link(driver, &config.link, config.time_scale, &shutdown)?;
     let mut tasks = Some(dds.subscribe::<TaskAssignment>()?);
+    // Vehicles with an IP path as well: what they say there, through their own participant.
+    let mut ip_states = Some(dds.subscribe::<StateVector>()?);
+    let mut ip_status = Some(dds.subscribe::<TaskStatus>()?);
+    let mut ip_links = Some(dds.subscribe::<Event>()?);
     let mut cdt = Cdt::new(config, &dds, link)?;
+    let mut ip_tick = tokio::time::interval(wall(1.0, cdt.cfg.time_scale));
+    ip_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
     info!(address = cdt.cfg.address, participant = %cdt.participant, "CDT running");
     loop {
         let step: Result<(), ConverterError> = tokio::select! {
@@ -75,6 +95,28 @@ pub async fn run_cdt<D: ModemDriver + 'static>(
                 Some(ev) => cdt.on_link_event(ev).await,
                 None => Err(ConverterError::LinkStopped),
             },
+            Some(item) = next_opt(&mut ip_states) => match item {
+                Ok((s, meta)) if meta.participant != cdt.participant => {
+                    cdt.on_ip_state(&s);
+                    Ok(())
+                }
+                _ => Ok(()),
+            },
+            Some(item) = next_opt(&mut ip_status) => match item {
+                Ok((s, meta)) => {
+                    cdt.on_status_seen(&s, meta.participant != cdt.participant);
+                    Ok(())
+                }
+                Err(_) => Ok(()),
+            },
+            Some(item) = next_opt(&mut ip_links) => match item {
+                Ok((e, meta)) if meta.participant != cdt.participant => {
+                    cdt.on_ip_event(&e);
+                    Ok(())
+                }
+                _ => Ok(()),
+            },
+            _ = ip_tick.tick() => cdt.check_ip_silence().await,
         };
         // The link stops with the same shutdown signal: a send that races the stop is
         // part of stopping, not a failure.
@@ -100,6 +142,14 @@ struct Peer {
     /// Frames heard from it since the CDT started (the console animates their arrival).
     frames: u64,
     status_published: Option<Instant>,
+    /// The vehicle is on its IP path (heard there within `ip_silence_s`).
+    on_ip: bool,
+    /// When it was last heard over IP.
+    ip_heard: Option<Instant>,
+    /// Vehicle time of its latest IP evidence: its newest state over IP, or the moment
+    /// its VDT said it switched to IP. An acoustic state no newer than this was on the
+    /// water before the switch, and says nothing about where the vehicle is now.
+    ip_ms: i64,
 }
 
 struct Writers {
@@ -126,8 +176,13 @@ struct Cdt {
     /// Tasks already forwarded, with their issue time: transient-local DDS re-delivers
     /// history, while a station retrying an undelivered task re-issues it later.
     forwarded: VecDeque<(String, i64)>,
-    /// Link message id → (task id, vehicle id) of tasks in the link's hands.
-    in_flight: HashMap<MessageId, (String, String)>,
+    /// Link message id → the task in the link's hands.
+    in_flight: HashMap<MessageId, TaskAssignment>,
+    /// Tasks for vehicles on IP, kept until the vehicle reports them ended or comes back
+    /// to the acoustic link, oldest first.
+    held: VecDeque<TaskAssignment>,
+    /// Tasks reported ended on the station's domain, oldest first.
+    ended: VecDeque<String>,
     event_no: u64,
     /// Relay address → the addresses it may speak for ([`CdtConfig::relays`]).
     relays: HashMap<u8, Vec<u8>>,
@@ -242,6 +297,8 @@ impl Cdt {
             task_numbers: HashMap::new(),
             forwarded: VecDeque::new(),
             in_flight: HashMap::new(),
+            held: VecDeque::new(),
+            ended: VecDeque::new(),
             event_no: 0,
             relays: cfg_relays,
             impersonation: Impersonation::default(),
@@ -268,10 +325,9 @@ impl Cdt {
         let Ok(addr) = self.book.addr(&t.vehicle_id) else {
             return Ok(()); // Not an acoustic vehicle of this CDT: IP carries it.
         };
-        if self
-            .forwarded
-            .iter()
-            .any(|(id, issued)| *id == t.task_id && *issued >= t.issued_ms)
+        let again = |id: &str, issued: i64| id == t.task_id && issued >= t.issued_ms;
+        if self.forwarded.iter().any(|(id, issued)| again(id, *issued))
+            || self.held.iter().any(|h| again(&h.task_id, h.issued_ms))
         {
             return Ok(());
         }
@@ -280,6 +336,26 @@ impl Cdt {
             debug!(task = %t.task_id, "stale task not forwarded");
             return Ok(());
         }
+        if self.peers.get(&addr).is_some_and(|p| p.on_ip) {
+            // The vehicle takes it from the station's domain itself; nothing redundant on
+            // the water. Sent if the vehicle dives before reporting it ended.
+            info!(task = %t.task_id, vehicle = %t.vehicle_id, "vehicle on IP: task not sent acoustically");
+            self.hold(t);
+            return Ok(());
+        }
+        self.send_task(addr, t).await
+    }
+
+    fn hold(&mut self, t: TaskAssignment) {
+        self.held.retain(|h| h.task_id != t.task_id);
+        self.held.push_back(t);
+        while self.held.len() > TASK_MEMORY {
+            self.held.pop_front();
+        }
+    }
+
+    /// Sends a task over the acoustic link now (see [`Self::on_task`] for when).
+    async fn send_task(&mut self, addr: u8, t: TaskAssignment) -> Result<(), ConverterError> {
         self.forwarded.push_back((t.task_id.clone(), t.issued_ms));
         while self.forwarded.len() > TASK_MEMORY {
             self.forwarded.pop_front();
@@ -330,8 +406,6 @@ impl Cdt {
             .send(msg)
             .await
             .map_err(|_| ConverterError::LinkStopped)?;
-        self.in_flight
-            .insert(id, (t.task_id.clone(), t.vehicle_id.clone()));
         info!(task = %t.task_id, vehicle = %t.vehicle_id, task_no, ?class, "task queued on the acoustic link");
         self.publish_status(
             &t.task_id,
@@ -340,6 +414,135 @@ impl Cdt {
             "queued on the acoustic link",
         )
         .await;
+        self.in_flight.insert(id, t);
+        Ok(())
+    }
+
+    /// A state vector on the station's domain from another participant: the vehicle's own,
+    /// over its IP path.
+    fn on_ip_state(&mut self, s: &StateVector) {
+        let Ok(addr) = self.book.addr(&s.vehicle_id) else {
+            return;
+        };
+        let peer = self.peers.entry(addr).or_default();
+        peer.ip_heard = Some(Instant::now());
+        peer.ip_ms = peer.ip_ms.max(s.timestamp_ms);
+        if peer.last_state_ms.is_none_or(|t| t < s.timestamp_ms) {
+            peer.last_state_ms = Some(s.timestamp_ms);
+        }
+        if !peer.on_ip {
+            peer.on_ip = true;
+            info!(vehicle = %s.vehicle_id, "vehicle heard over IP: its tasks wait there");
+        }
+    }
+
+    /// An event on the station's domain from another participant: a VDT's link status
+    /// saying it switched to IP is the earliest evidence (before its first state there).
+    fn on_ip_event(&mut self, e: &Event) {
+        let Some(status) = LinkStatus::from_event(e) else {
+            return;
+        };
+        // Transient-local history brings old statuses to a CDT that starts: only a fresh
+        // one says where the vehicle is now.
+        let age_ms = self.cfg.now_ms().saturating_sub(status.heard_ms);
+        // Timestamps are simulated time on a scenario's clock, wall time otherwise.
+        let silence = if self.cfg.clock.is_some() {
+            std::time::Duration::from_secs_f64(self.cfg.ip_silence_s)
+        } else {
+            wall(self.cfg.ip_silence_s, self.cfg.time_scale)
+        };
+        let fresh = u128::try_from(age_ms).unwrap_or(0) < silence.as_millis();
+        if status.link != LinkKind::Ip || !fresh {
+            return;
+        }
+        let Ok(addr) = self.book.addr(&status.vehicle_id) else {
+            return;
+        };
+        let peer = self.peers.entry(addr).or_default();
+        peer.ip_heard = Some(Instant::now());
+        peer.ip_ms = peer.ip_ms.max(status.heard_ms);
+        if !peer.on_ip {
+            peer.on_ip = true;
+            info!(vehicle = %status.vehicle_id, "vehicle switched to IP: its tasks wait there");
+        }
+    }
+
+    /// A task status on the station's domain (`over_ip`: not this CDT's own): an ended
+    /// task is not sent again.
+    fn on_status_seen(&mut self, s: &TaskStatus, over_ip: bool) {
+        if over_ip && let Ok(addr) = self.book.addr(&s.vehicle_id) {
+            self.peers.entry(addr).or_default().ip_heard = Some(Instant::now());
+        }
+        let ended = matches!(
+            s.state,
+            TaskState::Done | TaskState::Failed | TaskState::Aborted | TaskState::Expired
+        );
+        if ended && !self.ended.contains(&s.task_id) {
+            self.held.retain(|h| h.task_id != s.task_id);
+            self.ended.push_back(s.task_id.clone());
+            while self.ended.len() > TASK_MEMORY {
+                self.ended.pop_front();
+            }
+        }
+    }
+
+    /// Vehicles on IP not heard there for `ip_silence_s` are back on acoustic.
+    async fn check_ip_silence(&mut self) -> Result<(), ConverterError> {
+        let silence = wall(self.cfg.ip_silence_s, self.cfg.time_scale);
+        let now = Instant::now();
+        let silent: Vec<u8> = self
+            .peers
+            .iter()
+            .filter(|(_, p)| {
+                p.on_ip
+                    && p.ip_heard
+                        .is_none_or(|t| now.saturating_duration_since(t) >= silence)
+            })
+            .map(|(a, _)| *a)
+            .collect();
+        for addr in silent {
+            let why = format!("not heard over IP for {:.0} s", self.cfg.ip_silence_s);
+            self.back_on_acoustic(addr, &why).await?;
+        }
+        Ok(())
+    }
+
+    /// The vehicle at `addr` is back on the acoustic link: says so at once (link status
+    /// and a switch event) and sends its tasks that have not ended.
+    async fn back_on_acoustic(&mut self, addr: u8, why: &str) -> Result<(), ConverterError> {
+        let Ok(vehicle_id) = self.book.vehicle_id(addr).map(str::to_owned) else {
+            return Ok(());
+        };
+        if let Some(p) = self.peers.get_mut(&addr) {
+            p.on_ip = false;
+            p.status_published = None;
+        }
+        info!(vehicle = %vehicle_id, why, "link: acoustic");
+        let now = self.cfg.now_ms();
+        let ev = switch_event(
+            &vehicle_id,
+            LinkKind::Acoustic,
+            now,
+            format!("switched to the acoustic link: {why}"),
+        );
+        if let Err(e) = self.w.event.write(ev).await {
+            warn!(error = %e, "switch event not published");
+        }
+        if self.peers.get(&addr).is_some_and(|p| p.heard_ms > 0) {
+            self.maybe_publish_link_status(addr, &vehicle_id).await;
+        }
+        let (mine, rest): (VecDeque<_>, VecDeque<_>) = std::mem::take(&mut self.held)
+            .into_iter()
+            .partition(|t| t.vehicle_id == vehicle_id);
+        self.held = rest;
+        let now_ms = self.cfg.now_ms();
+        for t in mine {
+            if self.ended.contains(&t.task_id) || stale(&self.cfg, &t, now_ms) {
+                continue;
+            }
+            info!(task = %t.task_id, vehicle = %vehicle_id, "vehicle back on acoustic: task sent over the water");
+            self.send_task(addr, t).await?;
+        }
         Ok(())
     }
 
@@ -353,16 +556,32 @@ impl Cdt {
                 ..
             } => self.on_frame(src, &frame, rssi, integrity).await?,
             LinkEvent::Delivered(id) => {
-                if let Some((task, _)) = self.in_flight.remove(&id) {
-                    debug!(task = %task, "task delivered to the vehicle's modem");
+                if let Some(t) = self.in_flight.remove(&id) {
+                    debug!(task = %t.task_id, "task delivered to the vehicle's modem");
                 }
             }
             LinkEvent::Expired(id) | LinkEvent::Dropped(id) => {
-                if let Some((task, vehicle)) = self.in_flight.remove(&id) {
-                    warn!(task = %task, vehicle = %vehicle, "task not delivered within its TTL");
+                if let Some(t) = self.in_flight.remove(&id) {
+                    let on_ip = self
+                        .book
+                        .addr(&t.vehicle_id)
+                        .ok()
+                        .and_then(|a| self.peers.get(&a))
+                        .is_some_and(|p| p.on_ip);
+                    if on_ip {
+                        // Not lost: the vehicle takes it over IP, or gets it again when it
+                        // dives before ending it.
+                        debug!(task = %t.task_id, "acoustic copy given up while the vehicle is on IP");
+                        if !self.ended.contains(&t.task_id) {
+                            self.forwarded.retain(|(id, _)| *id != t.task_id);
+                            self.hold(t);
+                        }
+                        return Ok(());
+                    }
+                    warn!(task = %t.task_id, vehicle = %t.vehicle_id, "task not delivered within its TTL");
                     self.publish_status(
-                        &task,
-                        &vehicle,
+                        &t.task_id,
+                        &t.vehicle_id,
                         TaskState::Expired,
                         "not delivered over the acoustic link within its TTL",
                     )
@@ -663,12 +882,24 @@ impl Cdt {
             }
         };
         let peer = self.peers.entry(k.vehicle).or_default();
-        // Newest-first telemetry may deliver an older state after a newer one; the station
-        // would see time run backwards, so only newer states are republished.
+        // Newest-first telemetry may deliver an older state after a newer one (and one
+        // queued before a switch to IP may follow the IP states); the station would see
+        // time run backwards, so only newer states are republished.
         if peer.last_state_ms.is_some_and(|t| t >= sv.timestamp_ms) {
             debug!(vehicle = %sv.vehicle_id, "older state not republished");
             return;
         }
+        if peer.on_ip && sv.timestamp_ms > peer.ip_ms {
+            // The VDT routes each state once: one over the water newer than anything it
+            // sent over IP (or than its switch to IP) means it left IP.
+            if let Err(e) = self
+                .back_on_acoustic(k.vehicle, "a newer state came over the acoustic link")
+                .await
+            {
+                warn!(error = %e, "tasks not sent after the switch");
+            }
+        }
+        let peer = self.peers.entry(k.vehicle).or_default();
         peer.last_state_ms = Some(sv.timestamp_ms);
         if let Err(e) = self.w.state.write(sv).await {
             warn!(error = %e, "state vector not published");
@@ -681,6 +912,10 @@ impl Cdt {
         let Some(peer) = self.peers.get_mut(&src) else {
             return;
         };
+        if peer.on_ip {
+            // A straggler frame; the vehicle's own link status (over IP) stands.
+            return;
+        }
         if peer
             .status_published
             .is_some_and(|t| now.saturating_duration_since(t) < interval)

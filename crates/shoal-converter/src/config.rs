@@ -16,6 +16,7 @@ use shoal_acoustic::relay::{RelayConfig, TrustedRelay};
 use shoal_model::Warp;
 
 use crate::error::ConverterError;
+pub use crate::failover::IpPathConfig;
 
 /// Which modem protocol the converter speaks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -215,6 +216,9 @@ pub struct VdtConfig {
     /// Multi-hop relaying through this vehicle's modem (docs/acoustic.md#multi-hop-relays):
     /// routes to the CDT through other vehicles, and forwarding for vehicles farther out.
     pub relay: RelayConfig,
+    /// The vehicle's IP path beside the acoustic link, and the automatic failover between
+    /// them (docs/acoustic.md#link-failover); off by default.
+    pub ip: IpPathConfig,
     /// Wall-clock seconds per simulated second (match the emulator's `time_scale`).
     pub time_scale: f64,
     /// The simulated clock of a scenario run, for every timestamp this converter makes
@@ -238,6 +242,7 @@ impl Default for VdtConfig {
             environment_interval_s: 30.0,
             link: LinkSettings::default(),
             relay: RelayConfig::default(),
+            ip: IpPathConfig::default(),
             time_scale: 1.0,
             clock: None,
         }
@@ -270,6 +275,10 @@ pub struct CdtConfig {
     pub relays: Vec<RelayEntry>,
     /// A per-vehicle link-status event is republished at most this often (seconds).
     pub link_status_interval_s: f64,
+    /// A vehicle heard over IP (its own participant on the station's domain) within this
+    /// many seconds is on IP: its tasks wait there and none goes acoustically
+    /// (docs/acoustic.md#link-failover).
+    pub ip_silence_s: f64,
     /// Where this CDT's modem is (a moored buoy, the station's own transducer), named in
     /// the link status so the console can draw it; with `carrier`, where it starts.
     pub position: Option<ModemPosition>,
@@ -297,6 +306,7 @@ impl Default for CdtConfig {
             vehicles: Vec::new(),
             relays: Vec::new(),
             link_status_interval_s: 30.0,
+            ip_silence_s: 5.0,
             position: None,
             carrier: None,
             link: LinkSettings::default(),
@@ -401,6 +411,7 @@ impl VdtConfig {
         self.relay
             .check()
             .map_err(|e| ConverterError::Config(e.to_string()))?;
+        self.ip.check()?;
         self.link.link_config().map(|_| ())
     }
 }
@@ -417,6 +428,7 @@ impl CdtConfig {
         }
         check_scale(self.time_scale)?;
         secs("link_status_interval_s", self.link_status_interval_s)?;
+        secs("ip_silence_s", self.ip_silence_s)?;
         if let Some(p) = self.position {
             let ok = p.latitude_deg.is_finite()
                 && p.longitude_deg.is_finite()
@@ -530,6 +542,8 @@ mod tests {
         assert_eq!(e.vdt.link, LinkSettings::default());
         assert_eq!(e.vdt.topics, AcousticTopics::default());
         assert_eq!(e.vdt.relay, RelayConfig::default());
+        assert_eq!(e.vdt.ip, IpPathConfig::default());
+        assert_eq!(e.cdt.ip_silence_s, CdtConfig::default().ip_silence_s);
         assert_eq!(e.cdt.relay, RelayConfig::default());
         assert_eq!(e.cdt.link, LinkSettings::default());
         let d = VdtConfig::default();
@@ -678,6 +692,35 @@ mod tests {
                 carries: vec![4]
             }]
         );
+    }
+
+    #[test]
+    fn the_ip_path_is_off_by_default_and_its_bad_values_are_refused() {
+        let c: VdtConfig = toml::from_str(
+            r#"
+            vehicles = [{ vehicle_id = "auv-1", address = 2 }]
+            [ip]
+            enabled = true
+            domain_id = 7
+            up_after_s = -3.0
+            "#,
+        )
+        .unwrap();
+        let e = c.check().unwrap_err().to_string();
+        assert!(e.contains("ip.up_after_s") && e.contains("-3"), "{e}");
+        assert!(!VdtConfig::default().ip.enabled);
+        let typo: Result<VdtConfig, _> = toml::from_str("[ip]\nenable = true");
+        assert!(typo.is_err());
+        let cdt = CdtConfig {
+            vehicles: vec![AddressEntry {
+                vehicle_id: "auv-1".into(),
+                address: 2,
+            }],
+            ip_silence_s: 0.0,
+            ..CdtConfig::default()
+        };
+        let e = cdt.check().unwrap_err().to_string();
+        assert!(e.contains("ip_silence_s"), "{e}");
     }
 
     #[test]

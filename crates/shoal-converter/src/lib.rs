@@ -12,6 +12,9 @@
 //!   forwards tasks for its vehicles through the modem.
 //! - [`link_status`]: how the station tells acoustic data from IP data without new IDL
 //!   types (a per-vehicle link-status event plus the writer's participant).
+//! - [`failover`]: which link a vehicle with an IP path and an acoustic link uses now
+//!   ([`failover::Failover`], network-free); the VDT and CDT act on it
+//!   (docs/acoustic.md#link-failover).
 //! - [`config`]: [`VdtConfig`] and [`CdtConfig`] (serde, defaults, `deny_unknown_fields`).
 //! - [`Modem`]: the configured modem driver (EvoLogics AT or EviNS NL).
 //! - [`emulated_relay`]: the SWARMs sea-trial topology in one call: any vehicle software on
@@ -29,14 +32,15 @@ pub mod config;
 mod dedup;
 pub mod emulated_relay;
 mod error;
+pub mod failover;
 pub mod link_status;
 mod modem;
 pub mod vdt;
 
 pub use cdt::run_cdt;
 pub use config::{
-    AcousticTopics, AddressEntry, CdtConfig, LinkSettings, ModemKind, ModemPosition, ModemSettings,
-    RelayEntry, TtlConfig, VdtConfig,
+    AcousticTopics, AddressEntry, CdtConfig, IpPathConfig, LinkSettings, ModemKind, ModemPosition,
+    ModemSettings, RelayEntry, TtlConfig, VdtConfig,
 };
 pub use error::ConverterError;
 pub use link_status::LinkStatus;

@@ -24,6 +24,16 @@
 //! of the CDT's range reaches it through another vehicle whose VDT's modem forwards for
 //! it; frames from the CDT come up here as the CDT's whichever way they came.
 //!
+//! With an IP path (`[vdt.ip]`, docs/acoustic.md#link-failover) the VDT also owns a
+//! participant on the station's DDS domain, opened only while the vehicle's radio can
+//! work (at the surface), and a [`Failover`] decides which link carries the vehicle's data:
+//! on IP every sample goes over DDS straight to the station's domain, as an IP vehicle's
+//! would, the station's tasks come back the same way, and the acoustic link carries
+//! nothing; on acoustic everything goes through the modem as above. Each sample is routed
+//! once, at the moment it is handled, so no state vector crosses both links. The switch
+//! to IP is announced to the station over IP (a `link.<vehicle>` status with link `ip`,
+//! and a switch [`Event`]); the switch back is seen by the CDT, which says so.
+//!
 //! Keyframe acks name the keyframe by its 4-bit sequence number only, so delta coding is
 //! used when the VDT serves a single vehicle (the normal case: one VDT per vehicle); a VDT
 //! serving several vehicles sends keyframes only, which is always correct.
@@ -38,10 +48,12 @@ use shoal_acoustic::pdu::{
     self, AddressBook, CompactAnnouncement, CompactEnvironment, CompactEvent, CompactTaskStatus,
     ConvertError, DeltaEncoder, IdentifiedTask, Pdu, StateKeyframe,
 };
-use shoal_dds::{Priority, PubSub, ReadError, SampleMeta, Writer, WriterOptions};
+use shoal_dds::{
+    DdsConfig, Priority, PubSub, ReadError, SampleMeta, Subscription, Writer, WriterOptions,
+};
 use shoal_model::{
-    EnvironmentObservation, Event, Severity, StateVector, TaskAssignment, TaskKind, TaskState,
-    TaskStatus, VehicleAnnouncement,
+    EnvironmentObservation, Event, LinkKind, LinkStatus, Severity, StateVector, TaskAssignment,
+    TaskKind, TaskState, TaskStatus, VehicleAnnouncement,
 };
 use tokio::time::{Instant, MissedTickBehavior};
 use tokio_util::sync::CancellationToken;
@@ -51,9 +63,59 @@ use crate::common::{Counter, encode, key, next_opt, start_link, supersede_key, w
 use crate::config::{VdtConfig, address_book};
 use crate::dedup::Dedup;
 use crate::error::ConverterError;
+use crate::failover::{Failover, IpPathConfig, Switch, switch_event};
 
 /// Acoustic task numbers remembered for mapping task status back (oldest forgotten).
 const TASK_MEMORY: usize = 256;
+
+/// How often the failover looks at the IP path's evidence, simulated seconds.
+const FAILOVER_POLL_S: f64 = 0.5;
+
+/// The VDT's side of the IP path: its own participant on the station's domain, with a
+/// writer per class (as the CDT's) and the station's tasks. Dropping it (and the task
+/// subscription the run loop holds) deletes the participant: nothing more crosses.
+struct IpSide {
+    /// GUID prefix of the participant, named in the link status.
+    participant: String,
+    state: Writer<StateVector>,
+    announcement: Writer<VehicleAnnouncement>,
+    status: Writer<TaskStatus>,
+    event: Writer<Event>,
+    alarm: Writer<Event>,
+    environment: Writer<EnvironmentObservation>,
+    /// Handed once to the run loop, which polls it.
+    tasks: Option<Subscription<TaskAssignment>>,
+    _dds: Arc<PubSub>,
+}
+
+impl IpSide {
+    fn open(cfg: &IpPathConfig) -> Result<Self, ConverterError> {
+        let dds = Arc::new(PubSub::new(&DdsConfig {
+            domain_id: cfg.domain_id,
+            interfaces: cfg.interfaces.clone(),
+            ..DdsConfig::default()
+        })?);
+        let control = WriterOptions::new(Priority::Control);
+        Ok(Self {
+            participant: dds.participant_id(),
+            state: dds.writer(WriterOptions::new(Priority::Telemetry))?,
+            announcement: dds.writer(control)?,
+            status: dds.writer(control)?,
+            event: dds.writer(control)?,
+            alarm: dds.writer(WriterOptions::new(Priority::Emergency))?,
+            environment: dds.writer(WriterOptions::new(Priority::Bulk))?,
+            tasks: Some(dds.subscribe::<TaskAssignment>()?),
+            _dds: dds,
+        })
+    }
+}
+
+/// Logs a sample the IP path could not take (the participant is going away with it).
+fn ip_write_failed<T>(what: &str, r: Result<(), shoal_dds::WriteError<T>>) {
+    if let Err(e) = r {
+        warn!(error = %e, "{what} not written over IP");
+    }
+}
 
 /// One vehicle the VDT serves.
 #[derive(Debug)]
@@ -104,23 +166,33 @@ pub async fn run_vdt<D: ModemDriver + 'static>(
     state_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
     let mut announce_tick = tokio::time::interval(wall(vdt.cfg.announce_interval_s, scale));
     announce_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+    let ip_enabled = vdt.cfg.ip.enabled;
+    let mut failover_tick = tokio::time::interval(wall(FAILOVER_POLL_S, scale));
+    failover_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+    // The station's tasks over IP, while the IP side is open (taken from it after each
+    // step, dropped with it).
+    let mut ip_tasks: Option<Subscription<TaskAssignment>> = None;
+    let mut ip_opened = vdt.take_ip_opened();
     // The first tick of an interval fires at once; announcements are sent on arrival.
     announce_tick.tick().await;
     info!(
         vehicles = ?vdt.served.iter().map(|s| &s.id).collect::<Vec<_>>(),
         cdt = vdt.cfg.cdt_address,
         delta = vdt.delta_coding,
+        ip = ip_enabled,
         "VDT running"
     );
     loop {
         let step: Result<(), ConverterError> = tokio::select! {
             () = shutdown.cancelled() => break,
-            Some(item) = next_opt(&mut states) => {
-                if let Some(s) = sample(item) {
-                    vdt.on_state(s.into_inner());
-                }
-                Ok(())
-            }
+            Some(item) = next_opt(&mut states) => match sample(item) {
+                Some(s) => vdt.on_state(s.into_inner()).await,
+                None => Ok(()),
+            },
+            Some(item) = next_opt(&mut ip_tasks) => match sample(item) {
+                Some(t) => vdt.on_ip_task(t.into_inner()).await,
+                None => Ok(()),
+            },
             Some(item) = next_opt(&mut announcements) => match sample(item) {
                 Some(a) => vdt.on_announcement(a.into_inner()).await,
                 None => Ok(()),
@@ -143,7 +215,20 @@ pub async fn run_vdt<D: ModemDriver + 'static>(
             },
             _ = state_tick.tick() => vdt.flush_states().await,
             _ = announce_tick.tick() => vdt.reannounce().await,
+            _ = failover_tick.tick(), if ip_enabled => vdt.on_failover_tick().await,
+            Some(opened) = ip_opened.recv() => {
+                vdt.on_ip_opened(opened);
+                Ok(())
+            }
         };
+        if vdt.ip_changed {
+            vdt.ip_changed = false;
+            let new = vdt.ip.as_mut().and_then(|ip| ip.tasks.take());
+            if let Some(old) = std::mem::replace(&mut ip_tasks, new) {
+                // Deleting DDS entities may wait for acknowledgements: not on this loop.
+                tokio::task::spawn_blocking(move || drop(old));
+            }
+        }
         // The link stops with the same shutdown signal: a send that races the stop is
         // part of stopping, not a failure.
         if let Err(e) = step {
@@ -180,6 +265,25 @@ struct Vdt {
     dedup: Dedup,
     task_writer: Writer<TaskAssignment>,
     abort_writer: Writer<TaskAssignment>,
+    /// Which link the data uses (acoustic only without `[vdt.ip]`).
+    failover: Failover,
+    /// The IP path's participant, while the radio can work.
+    ip: Option<IpSide>,
+    /// `ip` was opened or closed: the run loop takes (or drops) its task subscription.
+    ip_changed: bool,
+    /// The radio works at the vehicle's latest depth.
+    radio_up: bool,
+    /// An IP side is being opened (off the loop: creating a participant takes a while).
+    opening: bool,
+    /// Where an opened IP side comes back, and the run loop's end of it.
+    ip_opened_tx: tokio::sync::mpsc::Sender<Result<IpSide, ConverterError>>,
+    ip_opened_rx: Option<tokio::sync::mpsc::Receiver<Result<IpSide, ConverterError>>>,
+    /// Tasks handed to the vehicle, (task id, issue sequence), newest last, by either
+    /// link: the station's transient-local history brings them again each time the IP
+    /// side opens, and the CDT sends acoustically those a vehicle took over IP and had not
+    /// ended when it dived. Only spares the vehicle's bus; its ledger is what keeps a task
+    /// from running twice.
+    handed: VecDeque<(String, u64)>,
 }
 
 impl Vdt {
@@ -200,6 +304,8 @@ impl Vdt {
             })
             .collect();
         let ttl = cfg.link.ttl.control_s.max(cfg.link.ttl.emergency_s);
+        let cfg_timing = cfg.ip.timing(cfg.time_scale);
+        let (ip_opened_tx, ip_opened_rx) = tokio::sync::mpsc::channel(1);
         Ok(Self {
             dedup: Dedup::new(wall(ttl, cfg.time_scale), 4096),
             delta_coding: served.len() == 1,
@@ -211,7 +317,199 @@ impl Vdt {
             link,
             tasks: VecDeque::new(),
             event_no: Counter::default(),
+            failover: Failover::new(cfg_timing, Instant::now()),
+            ip: None,
+            ip_changed: false,
+            radio_up: false,
+            opening: false,
+            ip_opened_tx,
+            ip_opened_rx: Some(ip_opened_rx),
+            handed: VecDeque::new(),
         })
+    }
+
+    /// True while the data goes over IP.
+    fn on_ip(&self) -> bool {
+        self.failover.link() == LinkKind::Ip && self.ip.is_some()
+    }
+
+    /// The radio as the vehicle's depth allows it: opens the IP side at the surface,
+    /// closes it below `radio_max_depth_m` (and falls back to acoustic at once: the path is
+    /// gone for certain).
+    async fn radio(&mut self, depth_m: f64) -> Result<(), ConverterError> {
+        let ip = &self.cfg.ip;
+        if !ip.enabled {
+            return Ok(());
+        }
+        let up = ip.radio_max_depth_m.is_none_or(|d| depth_m <= d);
+        self.radio_up = up;
+        if up && self.ip.is_none() {
+            self.open_ip();
+        } else if !up && let Some(side) = self.ip.take() {
+            self.ip_changed = true;
+            info!(depth_m, "radio under water: IP participant closed");
+            // Deleting writers waits for their acknowledgements: not on this loop.
+            tokio::task::spawn_blocking(move || drop(side));
+            self.failover.ip_down(Instant::now());
+            self.poll_failover().await?;
+        }
+        Ok(())
+    }
+
+    /// The receiver of opened IP sides, for the run loop (once).
+    fn take_ip_opened(&mut self) -> tokio::sync::mpsc::Receiver<Result<IpSide, ConverterError>> {
+        self.ip_opened_rx
+            .take()
+            .unwrap_or_else(|| tokio::sync::mpsc::channel(1).1)
+    }
+
+    /// Opens the IP side off the loop (a participant takes a while to create); it comes
+    /// back to [`Self::on_ip_opened`].
+    fn open_ip(&mut self) {
+        if self.opening {
+            return;
+        }
+        self.opening = true;
+        let cfg = self.cfg.ip.clone();
+        let tx = self.ip_opened_tx.clone();
+        tokio::task::spawn_blocking(move || {
+            // The loop may have stopped meanwhile; the side is dropped then.
+            let _ = tx.blocking_send(IpSide::open(&cfg));
+        });
+    }
+
+    fn on_ip_opened(&mut self, opened: Result<IpSide, ConverterError>) {
+        self.opening = false;
+        match opened {
+            // The vehicle dived while it opened: the radio is gone again.
+            Ok(side) if !self.radio_up || self.ip.is_some() => {
+                tokio::task::spawn_blocking(move || drop(side));
+            }
+            Ok(side) => {
+                info!(participant = %side.participant, domain = self.cfg.ip.domain_id, "IP participant opened");
+                self.ip = Some(side);
+                self.ip_changed = true;
+            }
+            Err(e) => warn!(error = %e, "IP participant could not be opened; staying acoustic"),
+        }
+    }
+
+    /// Feeds the failover what the IP path shows now, and acts on its decision.
+    async fn on_failover_tick(&mut self) -> Result<(), ConverterError> {
+        if self.cfg.ip.radio_max_depth_m.is_none() && self.ip.is_none() {
+            self.radio_up = true;
+            self.open_ip();
+        }
+        // A station reader matched to our state writer: discovery crossed the path both
+        // ways, and the match ends when the station's lease runs out.
+        if self
+            .ip
+            .as_ref()
+            .is_some_and(|ip| ip.state.matched_readers() > 0)
+        {
+            self.failover.heard_ip(Instant::now());
+        }
+        self.poll_failover().await
+    }
+
+    async fn poll_failover(&mut self) -> Result<(), ConverterError> {
+        let Some(sw) = self.failover.poll(Instant::now()) else {
+            return Ok(());
+        };
+        if sw.to == LinkKind::Ip {
+            self.switched_to_ip(sw).await;
+            Ok(())
+        } else {
+            self.switched_to_acoustic(sw).await
+        }
+    }
+
+    /// Now on IP: tells the station (link status and a switch event, over IP), announces
+    /// the vehicles there, and sends the state that waited for the acoustic slot.
+    async fn switched_to_ip(&mut self, sw: Switch) {
+        let Some(ip) = &self.ip else {
+            return;
+        };
+        let now = self.cfg.now_ms();
+        let after = sw.after.as_secs_f64() / self.cfg.time_scale;
+        for v in &mut self.served {
+            info!(vehicle = %v.id, after_s = after, "link: IP (the station is heard over IP)");
+            let status = LinkStatus {
+                vehicle_id: v.id.clone(),
+                link: LinkKind::Ip,
+                cdt_address: self.cfg.cdt_address,
+                vehicle_address: v.addr,
+                rssi_db: None,
+                integrity: None,
+                heard_ms: now,
+                participant: ip.participant.clone(),
+                cdt_latitude_deg: None,
+                cdt_longitude_deg: None,
+                cdt_vehicle: None,
+                frames: None,
+                interval_s: None,
+            };
+            ip_write_failed("link status", ip.event.write(status.to_event()).await);
+            let text = format!(
+                "switched to the IP link after {after:.1} s on the acoustic link: the station is heard over IP"
+            );
+            let ev = switch_event(&v.id, LinkKind::Ip, now, text);
+            ip_write_failed("switch event", ip.event.write(ev).await);
+            if let Some(mut a) = v.announcement.clone() {
+                a.timestamp_ms = now;
+                ip_write_failed("announcement", ip.announcement.write(a).await);
+            }
+            // Not yet given to the acoustic link: it goes the new way, never both.
+            if let Some(s) = v.pending_state.take() {
+                ip_write_failed("state vector", ip.state.write(s).await);
+            }
+        }
+    }
+
+    /// Back on acoustic: announce at once, so the station learns the vehicle through the
+    /// CDT again; the CDT tells the station of the switch when the first frame arrives.
+    async fn switched_to_acoustic(&mut self, sw: Switch) -> Result<(), ConverterError> {
+        let after = sw.after.as_secs_f64() / self.cfg.time_scale;
+        for v in &self.served {
+            info!(vehicle = %v.id, after_s = after, "link: acoustic (IP path lost)");
+        }
+        self.reannounce().await
+    }
+
+    /// Notes that `t` is handed to the vehicle now; false if it was already.
+    fn hand_over(&mut self, t: &TaskAssignment) -> bool {
+        let key = (t.task_id.clone(), t.issue_seq);
+        if self.handed.contains(&key) {
+            return false;
+        }
+        self.handed.push_back(key);
+        while self.handed.len() > TASK_MEMORY {
+            self.handed.pop_front();
+        }
+        true
+    }
+
+    /// A task from the station over IP: handed to the vehicle as an acoustic one would be.
+    /// The vehicle's ledger refuses a copy that also came acoustically.
+    async fn on_ip_task(&mut self, t: TaskAssignment) -> Result<(), ConverterError> {
+        if !self.served.iter().any(|v| v.id == t.vehicle_id) {
+            return Ok(());
+        }
+        if !self.hand_over(&t) {
+            debug!(task = %t.task_id, "task over IP already handed to the vehicle");
+            return Ok(());
+        }
+        info!(vehicle = %t.vehicle_id, task = %t.task_id, seq = t.issue_seq, "task over IP handed to the vehicle");
+        let writer = if t.kind == TaskKind::Abort {
+            &self.abort_writer
+        } else {
+            &self.task_writer
+        };
+        let id = t.task_id.clone();
+        if let Err(e) = writer.write(t).await {
+            warn!(task = %id, error = %e, "task not published on the vehicle's DDS");
+        }
+        Ok(())
     }
 
     fn served_mut(&mut self, vehicle_id: &str) -> Option<&mut Served> {
@@ -242,7 +540,18 @@ impl Vdt {
         }
     }
 
-    fn on_state(&mut self, s: StateVector) {
+    async fn on_state(&mut self, s: StateVector) -> Result<(), ConverterError> {
+        if self.served_mut(&s.vehicle_id).is_none() {
+            return Ok(());
+        }
+        // The radio first: a state reported below the surface does not go over IP.
+        self.radio(s.depth_m).await?;
+        if self.on_ip()
+            && let Some(ip) = &self.ip
+        {
+            ip_write_failed("state vector", ip.state.write(s).await);
+            return Ok(());
+        }
         if let Some(v) = self.served_mut(&s.vehicle_id) {
             // Newest first: only the freshest state waits for the next slot.
             let newer = v
@@ -253,6 +562,7 @@ impl Vdt {
                 v.pending_state = Some(s);
             }
         }
+        Ok(())
     }
 
     async fn flush_states(&mut self) -> Result<(), ConverterError> {
@@ -290,6 +600,12 @@ impl Vdt {
         };
         v.announcement = Some(a.clone());
         let addr = v.addr;
+        if self.on_ip()
+            && let Some(ip) = &self.ip
+        {
+            ip_write_failed("announcement", ip.announcement.write(a).await);
+            return Ok(());
+        }
         self.send_announcement(addr, &a).await
     }
 
@@ -315,6 +631,10 @@ impl Vdt {
     }
 
     async fn reannounce(&mut self) -> Result<(), ConverterError> {
+        if self.on_ip() {
+            // The vehicle's own announcements cross over IP; nothing redundant on the water.
+            return Ok(());
+        }
         let list: Vec<(u8, VehicleAnnouncement)> = self
             .served
             .iter()
@@ -336,6 +656,12 @@ impl Vdt {
 
     async fn on_task_status(&mut self, s: &TaskStatus) -> Result<(), ConverterError> {
         if self.served_mut(&s.vehicle_id).is_none() {
+            return Ok(());
+        }
+        if self.on_ip()
+            && let Some(ip) = &self.ip
+        {
+            ip_write_failed("task status", ip.status.write(s.clone()).await);
             return Ok(());
         }
         let Some((addr, task_no)) = self.task_no_of(&s.task_id) else {
@@ -360,6 +686,17 @@ impl Vdt {
         if self.served_mut(&e.vehicle_id).is_none() {
             return Ok(());
         }
+        if self.on_ip()
+            && let Some(ip) = &self.ip
+        {
+            let w = if e.severity >= Severity::Alarm {
+                &ip.alarm
+            } else {
+                &ip.event
+            };
+            ip_write_failed("event", w.write(e.clone()).await);
+            return Ok(());
+        }
         let task_no = self.task_no_of(&e.task_id).map(|(_, n)| n);
         let no = self.event_no.next();
         match CompactEvent::from_model(e, &self.book, no, task_no) {
@@ -379,6 +716,14 @@ impl Vdt {
     }
 
     async fn on_observation(&mut self, o: &EnvironmentObservation) -> Result<(), ConverterError> {
+        if self.served_mut(&o.vehicle_id).is_some()
+            && self.on_ip()
+            && let Some(ip) = &self.ip
+        {
+            // No rate limit over IP: the acoustic one exists for the channel's sake.
+            ip_write_failed("observation", ip.environment.write(o.clone()).await);
+            return Ok(());
+        }
         let interval = wall(self.cfg.environment_interval_s, self.cfg.time_scale);
         let now = Instant::now();
         let Some(v) = self.served_mut(&o.vehicle_id) else {
@@ -521,6 +866,12 @@ impl Vdt {
         self.tasks.push_back((task_id.clone(), addr, t.task_no));
         while self.tasks.len() > TASK_MEMORY {
             self.tasks.pop_front();
+        }
+        if !self.hand_over(&assignment) {
+            // Taken over IP before the vehicle dived: the CDT sent it so that its status
+            // can come back with this task number, which is now known.
+            debug!(vehicle = %vehicle_id, task = %task_id, "acoustic task already handed over IP");
+            return Ok(());
         }
         let writer = if assignment.kind == TaskKind::Abort {
             &self.abort_writer

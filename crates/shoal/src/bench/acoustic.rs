@@ -20,6 +20,9 @@
 //! - [`link::fleet_emergency`]: alarms raised in turn on the four vehicles at spread points
 //!   of the TDMA cycle; each trial against one short frame time + its own air time +
 //!   propagation, with the wait for the vehicle's own slot shown apart.
+//! - [`failover::run`]: a simulated AUV surfacing and diving ten times (20 link switches)
+//!   with a VDT that has an IP path beside its modem, tasks dispatched around every switch;
+//!   lost or duplicated tasks and state vectors (docs/acoustic.md#link-failover).
 //!
 //! Emergency latency has two bounds. The strict one is the goal's "one frame time plus
 //! propagation" (a 64-byte frame + d/c). A modem cannot abort a frame already on air (it
@@ -39,6 +42,7 @@ use shoal_acoustic::pdu::{self, MAX_FRAME};
 use super::helpers::{date, machine};
 
 mod coding;
+pub(crate) mod failover;
 mod link;
 mod relay;
 
@@ -300,6 +304,8 @@ pub struct AcousticBench {
     pub fleet_emergency: FleetEmergency,
     /// Control messages over a three-hop relay chain ([`relay::three_hop`]).
     pub relay: relay::RelayReport,
+    /// A surfacing/diving vehicle switching between IP and acoustic ([`failover::run`]).
+    pub failover: failover::FailoverReport,
 }
 
 /// Runs every measurement in turn.
@@ -314,6 +320,7 @@ pub async fn run(opts: &BenchOptions) -> Result<AcousticBench> {
         fleet_channel_deltas: link::fleet_channel_use(opts, link::Load::Deltas10).await?,
         fleet_emergency: link::fleet_emergency(opts).await?,
         relay: relay::three_hop(opts).await?,
+        failover: failover::run(&failover::FailoverOptions::default()).await?,
     })
 }
 
@@ -400,6 +407,7 @@ pub(super) async fn acoustic(time_scale: f64, fleet_time_scale: f64) -> Result<(
         d.packets_lost
     );
     relay::print(&r.relay);
+    failover::print(&r.failover);
     Ok(())
 }
 

@@ -3,7 +3,7 @@
 //! the vehicle side, and the converter library does not depend on the simulator.
 //!
 //! Every test runs the real modem emulator on 127.0.0.1 and real DDS participants. Each
-//! uses its own DDS domains (from 100..130, listed in the module); domain A stands for the
+//! uses its own DDS domains (from 100..130 and 190..191, listed in the module); domain A stands for the
 //! vehicle side, domain B for the station side.
 //!
 //! - `common`: emulator, participants and waiting helpers, and the demo's relay topology.
@@ -21,12 +21,16 @@
 //!   112).
 //! - `redelivery`: at most once over the acoustic link: a finished task delivered again
 //!   after the VDT and the vehicle restart is not run again (domains 109, 110).
+//! - `failover`: a vehicle surfacing and diving switches between its IP path and the
+//!   acoustic link; tasks exactly once, no state vector lost or duplicated (domains 190,
+//!   191; `shoal bench acoustic` measures the same on 192, 193).
 //!
 //! New converter tests go in the module of their area; a new area gets a module listed
 //! here. The `shoal bench acoustic` figures are checked by the benchmark's own unit tests.
 
 pub mod common;
 mod end_to_end;
+mod failover;
 mod impersonation;
 mod keyframes;
 mod outage;
