@@ -66,6 +66,10 @@ pub(crate) struct Entry {
     pub(crate) participant: Option<String>,
     /// Station time that participant left DDS; contact is lost until a newer state.
     pub(crate) left_ms: Option<i64>,
+    /// The participant of the CDT that last reported hearing it acoustically: a vehicle
+    /// that fails over between IP and acoustic still has that path when its own IP
+    /// participant leaves (it dived), so that leaving does not make it lost at once.
+    pub(crate) acoustic_via: Option<String>,
     /// What it can be asked to do, as last decided by [`Entry::refresh_availability`].
     pub(crate) availability: Availability,
     /// A task is under way, as the Mission & Task Register last said.
@@ -108,6 +112,7 @@ impl Fleet {
                         last_fault_ms: None,
                         participant: None,
                         left_ms: None,
+                        acoustic_via: None,
                         availability: Availability::Idle,
                         busy: false,
                     },
@@ -170,7 +175,11 @@ impl Fleet {
     pub(crate) fn participant_left(&mut self, participant: &str, now_ms: i64) -> Vec<String> {
         let mut gone = Vec::new();
         for (id, e) in &mut self.vehicles {
-            if e.participant.as_deref() == Some(participant) {
+            let other_path = e
+                .acoustic_via
+                .as_deref()
+                .is_some_and(|via| via != participant);
+            if e.participant.as_deref() == Some(participant) && !other_path {
                 e.left_ms = Some(now_ms);
                 gone.push(id.clone());
             }
@@ -296,5 +305,31 @@ mod tests {
             e.last_contact_ms = Some(3000);
         }
         assert_eq!(f.refresh_contact(3100, 5000, 30_000)[0].2, Contact::Alive);
+    }
+
+    #[test]
+    fn a_vehicle_a_cdt_also_hears_is_not_lost_when_its_ip_participant_leaves() {
+        let mut f = Fleet::default();
+        f.register(ann("a"));
+        if let Some(e) = f.vehicles.get_mut("a") {
+            e.last_contact_ms = Some(1000);
+            // It surfaced: its announcements now come over its own IP participant, and
+            // a CDT heard it acoustically before.
+            e.participant = Some("ip".into());
+            e.acoustic_via = Some("cdt".into());
+        }
+        f.refresh_contact(1500, 5000, 30_000);
+        // It dives: its IP participant leaves; contact ages as usual over acoustic.
+        assert!(f.participant_left("ip", 2000).is_empty());
+        assert!(f.refresh_contact(2100, 5000, 30_000).is_empty());
+        assert_eq!(f.refresh_contact(31_000, 5000, 30_000)[0].2, Contact::Lost);
+        // The CDT's own participant leaving takes its acoustic vehicles' path away.
+        if let Some(e) = f.vehicles.get_mut("a") {
+            e.last_contact_ms = Some(40_000);
+            e.participant = Some("cdt".into());
+        }
+        f.refresh_contact(40_100, 5000, 30_000);
+        assert_eq!(f.participant_left("cdt", 41_000), vec!["a".to_string()]);
+        assert_eq!(f.refresh_contact(41_100, 5000, 30_000)[0].2, Contact::Lost);
     }
 }

@@ -7,7 +7,7 @@
 mod fleet;
 
 use shoal_history::Record;
-use shoal_model::{Availability, EventKind, LinkStatus, Severity, VehicleAnnouncement};
+use shoal_model::{Availability, EventKind, LinkKind, LinkStatus, Severity, VehicleAnnouncement};
 use tracing::{debug, info, warn};
 
 use crate::config::ms;
@@ -107,6 +107,9 @@ impl StationHandle {
                 info!(vehicle = %status.vehicle_id, link = ?status.link, "vehicle heard on a new link");
             }
             v.link = status.link;
+            if status.link == LinkKind::Acoustic {
+                v.acoustic_via = Some(status.participant.clone());
+            }
             v.link_status = Some(status);
         }
     }
