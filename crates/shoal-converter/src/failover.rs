@@ -51,6 +51,10 @@ pub struct IpPathConfig {
     /// this, metres: a radio antenna works only above the water. `None`: always (the
     /// radio's own reach decides).
     pub radio_max_depth_m: Option<f64>,
+    /// Open the IP participant without DDS Security (labs only). Anyone on the domain could
+    /// then hand the vehicle tasks through it, so without this the IP path needs the
+    /// vehicle's credentials ([`crate::run_vdt_secured`]).
+    pub insecure: bool,
 }
 
 impl Default for IpPathConfig {
@@ -66,6 +70,7 @@ impl Default for IpPathConfig {
             down_after_s: 2.0,
             min_acoustic_s: 10.0,
             radio_max_depth_m: Some(0.5),
+            insecure: false,
         }
     }
 }

@@ -45,4 +45,4 @@ pub use config::{
 pub use error::ConverterError;
 pub use link_status::LinkStatus;
 pub use modem::Modem;
-pub use vdt::run_vdt;
+pub use vdt::{run_vdt, run_vdt_secured};

@@ -49,7 +49,8 @@ use shoal_acoustic::pdu::{
     ConvertError, DeltaEncoder, IdentifiedTask, Pdu, StateKeyframe,
 };
 use shoal_dds::{
-    DdsConfig, Priority, PubSub, ReadError, SampleMeta, Subscription, Writer, WriterOptions,
+    Credentials, DdsConfig, Priority, PubSub, ReadError, SampleMeta, Subscription, Writer,
+    WriterOptions,
 };
 use shoal_model::{
     EnvironmentObservation, Event, LinkKind, LinkStatus, Severity, StateVector, TaskAssignment,
@@ -89,12 +90,17 @@ struct IpSide {
 }
 
 impl IpSide {
-    fn open(cfg: &IpPathConfig) -> Result<Self, ConverterError> {
-        let dds = Arc::new(PubSub::new(&DdsConfig {
+    fn open(cfg: &IpPathConfig, credentials: Option<Credentials>) -> Result<Self, ConverterError> {
+        let c = DdsConfig {
             domain_id: cfg.domain_id,
             interfaces: cfg.interfaces.clone(),
             ..DdsConfig::default()
-        })?);
+        };
+        let dds = Arc::new(match credentials {
+            Some(credentials) => PubSub::with_credentials(&c, credentials)?,
+            // `run_vdt_secured` or `insecure`, checked when the VDT starts.
+            None => PubSub::new(&c)?,
+        });
         let control = WriterOptions::new(Priority::Control);
         Ok(Self {
             participant: dds.participant_id(),
@@ -140,9 +146,47 @@ pub async fn run_vdt<D: ModemDriver + 'static>(
     driver: D,
     shutdown: CancellationToken,
 ) -> Result<(), ConverterError> {
+    run(config, dds, driver, None, shutdown).await
+}
+
+/// Refuses an IP path that would join the station's domain without DDS Security unless
+/// `insecure` says that is meant.
+fn ip_path_secured(ip: &IpPathConfig, has_credentials: bool) -> Result<(), ConverterError> {
+    if ip.enabled && !has_credentials && !ip.insecure {
+        return Err(ConverterError::Config(
+            "vdt.ip.enabled needs the vehicle's DDS Security credentials (run_vdt_secured), \
+             or vdt.ip.insecure = true for a lab: an IP participant without them would take \
+             tasks from anyone on the station's domain"
+                .into(),
+        ));
+    }
+    Ok(())
+}
+
+/// [`run_vdt`] with the vehicle's DDS Security credentials, which the IP path's
+/// participant (`[vdt.ip]`) joins the station's secured domain with.
+pub async fn run_vdt_secured<D: ModemDriver + 'static>(
+    config: VdtConfig,
+    dds: Arc<PubSub>,
+    driver: D,
+    ip_credentials: Credentials,
+    shutdown: CancellationToken,
+) -> Result<(), ConverterError> {
+    run(config, dds, driver, Some(ip_credentials), shutdown).await
+}
+
+async fn run<D: ModemDriver + 'static>(
+    config: VdtConfig,
+    dds: Arc<PubSub>,
+    driver: D,
+    ip_credentials: Option<Credentials>,
+    shutdown: CancellationToken,
+) -> Result<(), ConverterError> {
     config.check()?;
+    ip_path_secured(&config.ip, ip_credentials.is_some())?;
     let (link, mut events) = start_link(driver, &config.link, config.time_scale, &shutdown)?;
     let mut vdt = Vdt::new(config, &dds, link)?;
+    vdt.ip_credentials = ip_credentials;
     let t = &vdt.cfg.topics;
     let mut states = t
         .state
@@ -277,6 +321,9 @@ struct Vdt {
     opening: bool,
     /// Where an opened IP side comes back, and the run loop's end of it.
     ip_opened_tx: tokio::sync::mpsc::Sender<Result<IpSide, ConverterError>>,
+    /// The vehicle's DDS Security credentials for the IP participant (`None`: insecure,
+    /// allowed only with `ip.insecure`).
+    ip_credentials: Option<Credentials>,
     ip_opened_rx: Option<tokio::sync::mpsc::Receiver<Result<IpSide, ConverterError>>>,
     /// Tasks handed to the vehicle, (task id, issue sequence), newest last, by either
     /// link: the station's transient-local history brings them again each time the IP
@@ -323,6 +370,7 @@ impl Vdt {
             radio_up: false,
             opening: false,
             ip_opened_tx,
+            ip_credentials: None,
             ip_opened_rx: Some(ip_opened_rx),
             handed: VecDeque::new(),
         })
@@ -371,10 +419,11 @@ impl Vdt {
         }
         self.opening = true;
         let cfg = self.cfg.ip.clone();
+        let credentials = self.ip_credentials.clone();
         let tx = self.ip_opened_tx.clone();
         tokio::task::spawn_blocking(move || {
             // The loop may have stopped meanwhile; the side is dropped then.
-            let _ = tx.blocking_send(IpSide::open(&cfg));
+            let _ = tx.blocking_send(IpSide::open(&cfg, credentials));
         });
     }
 
@@ -897,5 +946,25 @@ fn task_state_code(s: TaskState) -> u8 {
         TaskState::Failed => 5,
         TaskState::Aborted => 6,
         TaskState::Expired => 7,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_ip_path_without_credentials_is_refused_unless_insecure_is_meant() {
+        let mut ip = IpPathConfig::default();
+        assert!(ip_path_secured(&ip, false).is_ok(), "off needs nothing");
+        ip.enabled = true;
+        let e = ip_path_secured(&ip, false).unwrap_err().to_string();
+        assert!(
+            e.contains("vdt.ip.insecure") && e.contains("credentials"),
+            "{e}"
+        );
+        assert!(ip_path_secured(&ip, true).is_ok());
+        ip.insecure = true;
+        assert!(ip_path_secured(&ip, false).is_ok());
     }
 }

@@ -493,6 +493,8 @@ async fn measure(
         ip: IpPathConfig {
             enabled: true,
             domain_id: opts.station_domain,
+            // The measurement's domains are insecure, as every bench's but `security`.
+            insecure: true,
             ..IpPathConfig::default()
         },
         time_scale: scale,
@@ -717,7 +719,10 @@ fn analyse(
     let mut lost_at = Vec::new();
     let mut lost_near_switch = 0u32;
     let mut worst_wait = 0i64;
-    for t in published.keys() {
+    // The link's start is no switch: a state published before the station first heard
+    // the vehicle at all (announcement, keyframe, the first frames' way) is not judged.
+    let first_heard = arrivals.keys().next().copied().unwrap_or(i64::MAX);
+    for t in published.keys().filter(|t| **t >= first_heard) {
         let on_ip = ip_spans.iter().any(|(a, b)| a <= t && t <= b);
         let missing_on_ip = on_ip && !arrivals.contains_key(t);
         let next = arrivals.range(*t..).next().map(|(r, _)| *r);
