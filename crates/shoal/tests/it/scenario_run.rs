@@ -155,8 +155,9 @@ fn a_scenario_with_faults_runs_at_60x_and_leaves_a_report_with_its_figures() {
     for (got, want) in when.iter().zip([20.0, 50.0, 100.0, 200.0, 300.0, 310.0]) {
         assert!((want..want + 30.0).contains(got), "{when:?}");
     }
+    // The report gives times to 0.1 s, and 50.3 - 20.3 is 29.999... in floating point.
     assert!(
-        when[1] - when[0] >= 30.0,
+        when[1] - when[0] >= 29.9,
         "restarted 30 s after failing: {when:?}"
     );
     // The rogue sample was refused and counted; the battery drop is in the track.
