@@ -74,9 +74,17 @@ pub async fn run_cdt<D: ModemDriver + 'static>(
     let (link, mut events) = start_link(driver, &config.link, config.time_scale, &shutdown)?;
     let mut tasks = Some(dds.subscribe::<TaskAssignment>()?);
     // Vehicles with an IP path as well: what they say there, through their own participant.
-    let mut ip_states = Some(dds.subscribe::<StateVector>()?);
-    let mut ip_status = Some(dds.subscribe::<TaskStatus>()?);
-    let mut ip_links = Some(dds.subscribe::<Event>()?);
+    // Only with `ip_failover`: otherwise nothing a participant publishes about a vehicle
+    // (a replay, a second tool) can hold its tasks back, and no CDT reads the whole fleet's
+    // states for nothing.
+    let failover = config.ip_failover;
+    let mut ip_states = failover
+        .then(|| dds.subscribe::<StateVector>())
+        .transpose()?;
+    let mut ip_status = failover
+        .then(|| dds.subscribe::<TaskStatus>())
+        .transpose()?;
+    let mut ip_links = failover.then(|| dds.subscribe::<Event>()).transpose()?;
     let mut cdt = Cdt::new(config, &dds, link)?;
     let mut ip_tick = tokio::time::interval(wall(1.0, cdt.cfg.time_scale));
     ip_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);

@@ -275,6 +275,10 @@ pub struct CdtConfig {
     pub relays: Vec<RelayEntry>,
     /// A per-vehicle link-status event is republished at most this often (seconds).
     pub link_status_interval_s: f64,
+    /// Watch the station's domain for vehicles that also have an IP path (`[vdt.ip]`) and
+    /// hold their tasks back while they are on it (docs/acoustic.md#link-failover). Off:
+    /// every task of an acoustic vehicle goes over the water.
+    pub ip_failover: bool,
     /// A vehicle heard over IP (its own participant on the station's domain) within this
     /// many seconds is on IP: its tasks wait there and none goes acoustically
     /// (docs/acoustic.md#link-failover).
@@ -306,6 +310,7 @@ impl Default for CdtConfig {
             vehicles: Vec::new(),
             relays: Vec::new(),
             link_status_interval_s: 30.0,
+            ip_failover: false,
             ip_silence_s: 5.0,
             position: None,
             carrier: None,
@@ -709,6 +714,10 @@ mod tests {
         let e = c.check().unwrap_err().to_string();
         assert!(e.contains("ip.up_after_s") && e.contains("-3"), "{e}");
         assert!(!VdtConfig::default().ip.enabled);
+        assert!(
+            !CdtConfig::default().ip_failover,
+            "a CDT holds no task back unless asked"
+        );
         let typo: Result<VdtConfig, _> = toml::from_str("[ip]\nenable = true");
         assert!(typo.is_err());
         let cdt = CdtConfig {

@@ -513,6 +513,7 @@ async fn measure(
         address: CDT_ADDRESS,
         vehicles: book,
         link_status_interval_s: 5.0,
+        ip_failover: true,
         time_scale: scale,
         clock: Some(warp),
         ..CdtConfig::default()
