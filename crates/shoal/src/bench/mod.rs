@@ -22,9 +22,9 @@
 //! - [`helpers`]: what several of them share (participants, helper processes,
 //!   percentiles, memory, the machine and date of a run).
 //!
-//! Helper processes (`pong`, `sink`, `load`, `replay-sink`, `endurance-fleet`) are hidden
-//! subcommands of the same binary so the two sides of each measurement are separate DDS
-//! participants, as in deployment.
+//! Helper processes (`pong`, `sink`, `load`, `replay-sink`, `endurance-fleet`,
+//! `endurance-station`) are hidden subcommands of the same binary so the two sides of each
+//! measurement are separate DDS participants, as in deployment.
 
 mod acoustic;
 mod bus;
@@ -300,6 +300,22 @@ pub enum BenchCommand {
         #[arg(long)]
         dir: std::path::PathBuf,
     },
+    /// (helper) The station of `bench endurance` in its own process, driven on stdin.
+    #[command(hide = true)]
+    EnduranceStation {
+        #[arg(long)]
+        domain: u16,
+        #[arg(long)]
+        vehicles: usize,
+        #[arg(long)]
+        tasks: u64,
+        #[arg(long)]
+        first_task: u64,
+        #[arg(long, default_value_t = 0)]
+        clock_offset_ms: i64,
+        #[arg(long)]
+        dir: std::path::PathBuf,
+    },
     /// (helper) `shoal swarm`'s vehicles on one participant, secured with a station
     /// identity when the process that starts it is (`bench security`'s latency): no
     /// vehicle's permissions allow one participant to speak for a thousand vehicles.
@@ -338,6 +354,7 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             | BenchCommand::Crowd { .. }
             | BenchCommand::ReplaySink { .. }
             | BenchCommand::EnduranceFleet { .. }
+            | BenchCommand::EnduranceStation { .. }
             | BenchCommand::Swarm { .. }
     );
     let mut owned = cfg.clone();
@@ -454,6 +471,23 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             vehicles,
             dir,
         } => endurance::fleet(cfg, domain, vehicles, &dir).await,
+        BenchCommand::EnduranceStation {
+            domain,
+            vehicles,
+            tasks,
+            first_task,
+            clock_offset_ms,
+            dir,
+        } => {
+            let args = endurance::StationArgs {
+                domain,
+                vehicles,
+                tasks,
+                first_task,
+                clock_offset_ms,
+            };
+            endurance::station(cfg, args, &dir).await
+        }
         BenchCommand::Load {
             domain,
             vehicles,
