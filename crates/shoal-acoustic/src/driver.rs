@@ -98,6 +98,35 @@ pub enum TransmitError {
     },
 }
 
+impl TransmitError {
+    /// The same error carrying `frame` instead: a wrapping driver hands back the caller's
+    /// frame, not what it made of it (sealed, enveloped), so a retry wraps it afresh.
+    #[must_use]
+    pub fn with_frame(self, frame: OutFrame) -> Self {
+        match self {
+            Self::Rejected { reason, .. } => Self::Rejected { frame, reason },
+            Self::Withdrawn { .. } => Self::Withdrawn { frame },
+            Self::Closed { .. } => Self::Closed { frame },
+        }
+    }
+}
+
+/// Hands `wrapped`, what a wrapping driver made of the caller's `frame`, to `inner`,
+/// withdrawably when `withdrawal` is given; an error carries `frame` back (see
+/// [`TransmitError::with_frame`]).
+pub async fn transmit_wrapped<D: ModemDriver>(
+    inner: &D,
+    wrapped: OutFrame,
+    withdrawal: Option<Withdrawal>,
+    frame: OutFrame,
+) -> Result<Outcome, TransmitError> {
+    let sent = match withdrawal {
+        Some(w) => inner.transmit_withdrawable(wrapped, w).await,
+        None => inner.transmit(wrapped).await,
+    };
+    sent.map_err(|e| e.with_frame(frame))
+}
+
 /// A request to take back a frame handed to [`ModemDriver::transmit_withdrawable`]: shared
 /// between the caller, who [`request`](Self::request)s it, and the driver, which honours it
 /// only while the modem has not taken the frame (there is no abort of a frame on air).

@@ -41,7 +41,9 @@ use tracing::{debug, warn};
 use shoal_security::AcousticTagger;
 
 use crate::at::BROADCAST;
-use crate::driver::{ModemDriver, OutFrame, Outcome, RxFrame, TransmitError, Withdrawal};
+use crate::driver::{
+    ModemDriver, OutFrame, Outcome, RxFrame, TransmitError, Withdrawal, transmit_wrapped,
+};
 use crate::pdu::{BitReader, BitWriter, DecodeError, EncodeError, MAX_FRAME};
 
 /// First byte of an enveloped frame. Outside the compact PDUs' ids (1..=10), so a build
@@ -1026,15 +1028,7 @@ impl<D: ModemDriver + 'static> RelayDriver<D> {
         };
         // On failure (or withdrawal) hand back the caller's frame, not the envelope: a retry
         // is planned (and numbered) again.
-        let sent = match withdrawal {
-            Some(w) => self.inner.transmit_withdrawable(out, w).await,
-            None => self.inner.transmit(out).await,
-        };
-        sent.map_err(|e| match e {
-            TransmitError::Rejected { reason, .. } => TransmitError::Rejected { frame, reason },
-            TransmitError::Withdrawn { .. } => TransmitError::Withdrawn { frame },
-            _ => TransmitError::Closed { frame },
-        })
+        transmit_wrapped(&*self.inner, out, withdrawal, frame).await
     }
 }
 

@@ -13,7 +13,9 @@ use std::sync::{Arc, Mutex};
 use shoal_security::{AcousticTagger, RejectionCounts};
 use tracing::debug;
 
-use crate::driver::{ModemDriver, OutFrame, Outcome, RxFrame, TransmitError, Withdrawal};
+use crate::driver::{
+    ModemDriver, OutFrame, Outcome, RxFrame, TransmitError, Withdrawal, transmit_wrapped,
+};
 
 /// A modem driver whose frames carry an authentication tag.
 pub struct TaggedDriver<D> {
@@ -77,15 +79,7 @@ impl<D: ModemDriver> TaggedDriver<D> {
         };
         // On failure (or withdrawal) hand back the frame as the caller gave it: a retry is
         // sealed again with a fresh counter, so the receiver's replay window accepts it.
-        let sent = match withdrawal {
-            Some(w) => self.inner.transmit_withdrawable(tagged, w).await,
-            None => self.inner.transmit(tagged).await,
-        };
-        sent.map_err(|e| match e {
-            TransmitError::Rejected { reason, .. } => TransmitError::Rejected { frame, reason },
-            TransmitError::Withdrawn { .. } => TransmitError::Withdrawn { frame },
-            _ => TransmitError::Closed { frame },
-        })
+        transmit_wrapped(&self.inner, tagged, withdrawal, frame).await
     }
 }
 
