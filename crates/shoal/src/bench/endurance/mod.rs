@@ -53,9 +53,9 @@ pub(super) struct Plan {
 struct Row {
     completed: u64,
     elapsed_s: f64,
-    /// The station's RSS averaged over the row's interval (read every 20 ms): single
-    /// readings swing by tens of MB with the allocator's retained pages and the semantic
-    /// model's copy while a query runs.
+    /// The station's RSS at the row, the mean of its readings over the last two seconds
+    /// (one every 20 ms): single readings swing by tens of MB with the allocator's retained
+    /// pages and the semantic model's copy while a query runs.
     station_rss_mb: f64,
     /// The highest reading in the interval.
     station_rss_max_mb: f64,
@@ -66,30 +66,36 @@ struct Row {
     register_tasks: usize,
 }
 
-/// The mean of the station's RSS readings over one row's interval, and the highest.
+/// The station's RSS at a row: the mean of its last [`RssWindow::LEN`] readings (about the
+/// last two seconds before the row), and the highest reading over the whole interval.
 #[derive(Debug, Default)]
-struct RssMean {
-    sum: f64,
-    n: u32,
+struct RssWindow {
+    last: std::collections::VecDeque<f64>,
     max: f64,
 }
 
-impl RssMean {
+impl RssWindow {
+    /// Readings averaged: at one every 20 ms or so, about two seconds.
+    const LEN: usize = 100;
+
     fn add(&mut self, mb: f64) {
         // A process between readings (a restart) reads as NaN: not a reading.
         if mb.is_finite() {
-            self.sum += mb;
-            self.n += 1;
+            if self.last.len() == Self::LEN {
+                self.last.pop_front();
+            }
+            self.last.push_back(mb);
             self.max = self.max.max(mb);
         }
     }
 
     fn mean(&self) -> f64 {
-        if self.n == 0 {
-            f64::NAN
-        } else {
-            self.sum / f64::from(self.n)
+        if self.last.is_empty() {
+            return f64::NAN;
         }
+        #[allow(clippy::cast_precision_loss)]
+        let n = self.last.len() as f64;
+        self.last.iter().sum::<f64>() / n
     }
 }
 
@@ -163,7 +169,7 @@ pub(super) async fn endurance(cfg: &ShoalConfig, plan: Plan) -> Result<()> {
     let mut contact_changes_in_step = 0usize;
     let mut last_progress = (0u64, Instant::now());
     let mut done = 0;
-    let mut rss = RssMean::default();
+    let mut rss = RssWindow::default();
     while done < plan.tasks {
         tokio::time::sleep(Duration::from_millis(20)).await;
         rss.add(station.rss_mb());
@@ -193,8 +199,8 @@ pub(super) async fn endurance(cfg: &ShoalConfig, plan: Plan) -> Result<()> {
             let next_task = station.stop().await?;
             station = StationProcess::start(cfg, &plan, &dir, next_task).await?;
             station.alive().await?;
-            // The interval's mean is the new process's alone.
-            rss = RssMean::default();
+            // The readings are the new process's alone.
+            rss = RssWindow::default();
         }
         if done >= next_row || done >= plan.tasks {
             next_row += plan.report_every;
@@ -230,7 +236,7 @@ pub(super) async fn endurance(cfg: &ShoalConfig, plan: Plan) -> Result<()> {
                 row.register_tasks
             );
             rows.push(row);
-            rss = RssMean::default();
+            rss = RssWindow::default();
         }
     }
     let twice = fleet.stop().await?.twice;
@@ -260,7 +266,8 @@ fn render(plan: &Plan, rows: &[Row], twice: u64, contact_changes: usize) -> Stri
          row, one station restart, a +1 h clock step and back. The fleet runs in its own \
          process (its own DDS participant and ledgers), the station in its own (restarted as a new \
          process on the same history): station RSS is the station's process alone, the mean \
-         of its readings every 20 ms over the row's interval (the highest beside it), fleet \
+         of its readings (one every 20 ms) over the two seconds before the row, the highest \
+         reading of the row's interval beside it, fleet \
          RSS the fleet's at the row, whose ledgers grow by design (each remembers a task \
          until an hour after its expiry). q3 is measured while the station dispatches and \
          ingests at full pace.\n",
@@ -268,7 +275,7 @@ fn render(plan: &Plan, rows: &[Row], twice: u64, contact_changes: usize) -> Stri
     );
     let _ = writeln!(
         s,
-        "| completed tasks | elapsed s | station RSS MB (mean) | station RSS MB (max) | fleet RSS MB | history MB | late-joiner burst | q3 p50 ms | tasks in register |"
+        "| completed tasks | elapsed s | station RSS MB (2 s mean) | station RSS MB (interval max) | fleet RSS MB | history MB | late-joiner burst | q3 p50 ms | tasks in register |"
     );
     let _ = writeln!(s, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
@@ -305,7 +312,7 @@ fn render(plan: &Plan, rows: &[Row], twice: u64, contact_changes: usize) -> Stri
     if let (Some(a), Some(b)) = (first, last) {
         let _ = writeln!(
             s,
-            "- station RSS (interval mean) at {} tasks {:.1} MB, at {} tasks {:.1} MB: {:+.1} % (target within 10 %)",
+            "- station RSS (2 s mean) at {} tasks {:.1} MB, at {} tasks {:.1} MB: {:+.1} % (target within 10 %)",
             a.completed,
             a.station_rss_mb,
             b.completed,
