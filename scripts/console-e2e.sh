@@ -205,6 +205,7 @@ set +e
 ip netns exec "$ns" env \
     SHOAL_REPORT="$work/run/report.html" \
     SHOAL_URL="http://127.0.0.1:$port" \
+    SHOAL_SHIP_URL="http://127.0.0.1:$ship_port" \
     SHOAL_AIS_PORT="$((port + 1))" \
     SHOAL_ADMIN_TOKEN="$token" \
     SHOAL_E2E_OUT="$out" \

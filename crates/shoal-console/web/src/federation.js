@@ -1,6 +1,7 @@
-// Other sites' vehicles and alarms, as the federation brings them (docs/federation.md):
-// polled from GET /api/federation, drawn on the map apart from the own fleet and listed
-// under "Other sites" in the fleet panel. They are read-only here: this station cannot
+// Other sites' vehicles, alarms and task transitions, as the federation brings them
+// (docs/federation.md): polled from GET /api/federation, drawn on the map apart from the
+// own fleet and listed under "Other sites" in the fleet panel (each site's vehicles, then
+// its latest tasks). They are read-only here: this station cannot
 // command another site's vehicles, so nothing offers them for a task.
 
 import Overlay from 'ol/Overlay.js';
@@ -83,6 +84,7 @@ async function poll(gen) {
       sites: doc.sites,
       vehicles: doc.vehicles,
       alarms: doc.alarms,
+      transitions: doc.transitions || [],
       receivedMs: Date.now(),
       error: null,
     });
@@ -237,6 +239,36 @@ function siteRows(site, vehicles, now) {
   });
 }
 
+/** Tasks shown per site: the latest state of each, newest first. */
+const TASKS_SHOWN = 8;
+
+/** The latest transition of each of a site's tasks, newest first, at most TASKS_SHOWN. */
+export function latestTasks(transitions, site) {
+  const last = new Map();
+  for (const t of transitions) {
+    if (t.site !== site) continue;
+    const seen = last.get(t.task_id);
+    // Transitions come oldest first; equal times keep the later one (it arrived last).
+    if (!seen || t.timestamp_ms >= seen.timestamp_ms) last.set(t.task_id, t);
+  }
+  return [...last.values()].sort((a, b) => b.timestamp_ms - a.timestamp_ms).slice(0, TASKS_SHOWN);
+}
+
+function taskRows(site, tasks, now) {
+  return tasks.map((t) => h(
+    'tr',
+    {
+      class: 'remote-task',
+      title: `${t.task_id} at ${site}${t.mission_id ? ` (mission ${t.mission_id})` : ''}: ${t.state} at ${time(t.timestamp_ms)}; read-only`,
+      dataset: { task: t.task_id, site, state: t.state },
+    },
+    h('td', {}, h('strong', {}, t.task_id)),
+    h('td', {}, t.vehicle_id),
+    h('td', {}, h('span', { class: `pill state-${t.state}` }, t.state)),
+    h('td', { class: 'num age' }, ago(t.timestamp_ms, now)),
+  ));
+}
+
 /** The fleet panel's "Other sites" section, or null when this station is not federated. */
 export function remoteSection() {
   const f = fed();
@@ -274,9 +306,19 @@ export function remoteSection() {
             h('thead', {}, h('tr', {}, ['vehicle', 'kind', 'depth m', 'speed m/s', 'battery', 'age'].map((t) => h('th', {}, t)))),
             h('tbody', {}, siteRows(site, vehicles, now)))
           : h('p', { class: 'muted' }, online === false ? 'Offline: nothing heard.' : 'No vehicle position received yet.'),
+        remoteTasks(site, f.transitions, now),
       );
     }),
   );
+}
+
+/** A site's latest tasks under its vehicles, or nothing before the first transition. */
+function remoteTasks(site, transitions, now) {
+  const tasks = latestTasks(transitions, site);
+  if (!tasks.length) return null;
+  return h('table', { class: 'grid compact remote remote-tasks' },
+    h('thead', {}, h('tr', {}, ['task', 'vehicle', 'state', 'when'].map((t) => h('th', {}, t)))),
+    h('tbody', {}, taskRows(site, tasks, now)));
 }
 
 /** Remote alarms for the events list: [{site, alarm}], oldest first. */

@@ -2,7 +2,7 @@
 // scripts/console-e2e.sh federates the `shoal up` station (site "shore") over Zenoh with a
 // second station (site "ship", DDS domain 147) that has one simulated AUV, ship-auv-1.
 // The shore's console must show it on the map and under "Other sites", as the ship's,
-// and never offer it for a task.
+// with the ship's task transitions, and never offer it for a task.
 
 import { after, before, describe, test } from 'node:test';
 import assert from 'node:assert/strict';
@@ -17,6 +17,8 @@ const OUT = process.env.SHOAL_E2E_OUT || 'target/console-e2e';
 const CHROMIUM = process.env.CHROMIUM || '/usr/bin/chromium';
 const ARGS = ['--headless', '--no-sandbox', '--disable-gpu', '--no-first-run', '--disable-background-networking', '--disable-component-update', '--disable-sync'];
 const REMOTE = 'ship/ship-auv-1';
+/** The ship station's API (console logins off there: a lab station of its own). */
+const SHIP = process.env.SHOAL_SHIP_URL;
 const operator = { user: 'fed-operator', password: `fed-op-${Date.now()}-pw` };
 
 async function admin(method, path, body) {
@@ -153,6 +155,43 @@ describe('Another site in the console', { concurrency: false }, () => {
       tasks: [{ vehicle_id: 'ship-auv-1', task: { kind: 'goto_waypoint', target: { latitude_deg: 63.456, longitude_deg: 10.35 }, depth_m: 5, speed_mps: 1 } }],
     });
     assert.ok(refused.status >= 400 && refused.status < 500, `planning a mission for ship-auv-1 answered ${refused.status}`);
+  });
+
+  test("the ship's task transitions show at the shore, under its site, read-only", async () => {
+    assert.ok(SHIP, 'SHOAL_SHIP_URL is not set (scripts/console-e2e.sh sets it)');
+    const mission = `ship-m-${Date.now()}`;
+    const res = await fetch(`${SHIP}/api/missions?start=true`, {
+      method: 'POST',
+      headers: { 'Content-Type': 'application/json' },
+      body: JSON.stringify({
+        mission_id: mission,
+        name: 'a ship mission seen from shore',
+        tasks: [{ vehicle_id: 'ship-auv-1', task: { kind: 'goto_waypoint', target: { latitude_deg: 63.4555, longitude_deg: 10.35 }, depth_m: 2, speed_mps: 1.5 } }],
+      }),
+    });
+    const body = await res.text();
+    assert.ok(res.status < 300, `the ship refused the mission: ${res.status} ${body}`);
+    const task = JSON.parse(body).tasks[0].assignment.task_id;
+
+    // The shore's API carries the transitions, with the ship's site.
+    let seen = [];
+    for (let i = 0; i < 60 && !seen.length; i++) {
+      const doc = (await admin('GET', '/api/federation')).body;
+      seen = doc.transitions.filter((t) => t.task_id === task);
+      if (!seen.length) await new Promise((resolve) => setTimeout(resolve, 1000));
+    }
+    assert.ok(seen.length, `no transition of ${task} at the shore within a minute`);
+    assert.ok(seen.every((t) => t.site === 'ship' && t.vehicle_id === 'ship-auv-1' && t.mission_id === mission), JSON.stringify(seen));
+
+    // The console lists the task under the ship with its latest state.
+    await page.click('#tabs button[data-tab=fleet]');
+    const row = page.locator(`#remote-fleet .remote-site[data-site="ship"] tr.remote-task[data-task="${task}"]`);
+    await row.waitFor({ timeout: 30000 });
+    const text = await row.textContent();
+    assert.match(text, /ship-auv-1/);
+    assert.match(text, /sent|accepted|running|done/);
+    // Not among the shore's own missions or tasks.
+    assert.equal((await admin('GET', `/api/missions/${mission}`)).status, 404);
   });
 
   test('no request left this host', async () => {
