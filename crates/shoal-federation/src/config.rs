@@ -26,7 +26,7 @@ pub enum ConfigError {
     },
 }
 
-fn invalid(key: impl Into<String>, problem: impl Into<String>) -> ConfigError {
+pub(crate) fn invalid(key: impl Into<String>, problem: impl Into<String>) -> ConfigError {
     ConfigError::Invalid {
         key: key.into(),
         problem: problem.into(),
@@ -66,6 +66,9 @@ pub struct FederationConfig {
     /// Zenoh's user-password dictionary (`<site>:<password>` a line) of the remote sites
     /// this site accepts connections from; empty: none.
     pub credentials_file: PathBuf,
+    /// Mutual TLS between sites: encryption, and each side of a link checks the other's
+    /// certificate.
+    pub tls: TlsConfig,
     /// Vehicle positions.
     pub positions: PositionsPolicy,
     /// Alarms.
@@ -93,11 +96,47 @@ impl Default for FederationConfig {
             password_file: PathBuf::new(),
             password: Secret::default(),
             credentials_file: PathBuf::new(),
+            tls: TlsConfig::default(),
             positions: PositionsPolicy::default(),
             alarms: AlarmsPolicy::default(),
             tasks: TasksPolicy::default(),
             environment: EnvironmentPolicy::default(),
             limits: Limits::default(),
+        }
+    }
+}
+
+/// `[federation.tls]`: Zenoh's TLS link with client certificates (mutual TLS). Each site
+/// has a certificate whose common name is its site name (`shoal keys site-cert`); a link
+/// is accepted only when each side's certificate chains to one of the other's
+/// `trusted_cas`, and Zenoh's access control lets each site publish only under its own
+/// `shoal/<site>/**` (by that common name).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TlsConfig {
+    /// Every link is TLS (`tls/<host>:<port>` endpoints) with client certificates.
+    pub enabled: bool,
+    /// This site's certificate (PEM; common name = `site`), presented both when it
+    /// listens and when it connects. A chain (leaf first) is accepted.
+    pub certificate: PathBuf,
+    /// Its private key (PEM: PKCS#8, or PKCS#1 RSA / SEC1 EC), readable by this site only.
+    pub private_key: PathBuf,
+    /// PEM bundle of the CA certificates whose site certificates this site accepts: the
+    /// remote sites' CAs (and this site's own if it issued theirs).
+    pub trusted_cas: PathBuf,
+    /// The connecting side checks that the listener's certificate names the host of the
+    /// endpoint (`tls/<host>:<port>`) in its subject alternative names.
+    pub verify_name: bool,
+}
+
+impl Default for TlsConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            certificate: PathBuf::new(),
+            private_key: PathBuf::new(),
+            trusted_cas: PathBuf::new(),
+            verify_name: true,
         }
     }
 }
@@ -360,8 +399,15 @@ impl FederationConfig {
                 return Err(invalid(key, format!("{remote} is listed twice")));
             }
         }
-        endpoints("listen", &self.listen)?;
-        endpoints("connect", &self.connect)?;
+        let scheme = if self.tls.enabled { "tls" } else { "tcp" };
+        endpoints("listen", &self.listen, scheme)?;
+        endpoints("connect", &self.connect, scheme)?;
+        if self.tls.enabled && self.insecure_open {
+            return Err(invalid(
+                "insecure_open",
+                "tls.enabled is site identity (certificates): set insecure_open = false",
+            ));
+        }
         if self.mode == Mode::Client && !self.listen.is_empty() {
             return Err(invalid(
                 "listen",
@@ -413,13 +459,16 @@ impl FederationConfig {
     /// connects, to the side that accepts, and never the other way round.
     fn identity_topology(&self) -> Result<(), ConfigError> {
         const WHY: &str = "with site identity (insecure_open = false), ";
-        if !self.listen.is_empty() && !self.connect.is_empty() {
+        // With TLS both ends of every link are identified by certificate: a site may
+        // listen and connect.
+        if !self.tls.enabled && !self.listen.is_empty() && !self.connect.is_empty() {
             return Err(invalid(
                 "connect",
                 format!(
                     "{WHY}a site either listens (and checks the sites that connect to it) or \
-                     connects (to the endpoints it trusts), not both: Zenoh identifies only \
-                     the connecting side of a link"
+                     connects (to the endpoints it trusts), not both: Zenoh's user-password \
+                     scheme identifies only the connecting side of a link (tls.enabled \
+                     identifies both)"
                 ),
             ));
         }
@@ -438,12 +487,37 @@ impl FederationConfig {
         Ok(())
     }
 
-    /// This site's Zenoh identity, read from its files; `None` with `insecure_open`.
-    /// Errors name the key and the file, never a password.
+    /// This site's identity, read from its files; `None` with `insecure_open`. Errors
+    /// name the key and the file, never a password or a key.
+    ///
+    /// TLS (`tls.enabled`), user-password (`password_file`/`password` and
+    /// `credentials_file`), or both; at least one unless `insecure_open`.
     pub fn identity(&self) -> Result<Option<Identity>, ConfigError> {
         if self.insecure_open {
             return Ok(None);
         }
+        let tls = if self.tls.enabled {
+            Some(self.tls_identity()?)
+        } else {
+            None
+        };
+        let usrpwd_set = !self.password_file.as_os_str().is_empty()
+            || !self.password.is_empty()
+            || !self.credentials_file.as_os_str().is_empty();
+        let usrpwd = if tls.is_none() || usrpwd_set {
+            Some(self.user_password()?)
+        } else {
+            None
+        };
+        Ok(Some(Identity {
+            site: self.site.clone(),
+            usrpwd,
+            tls,
+        }))
+    }
+
+    /// The user-password half of the identity.
+    fn user_password(&self) -> Result<UserPassword, ConfigError> {
         let password = match (
             self.password_file.as_os_str().is_empty(),
             self.password.is_empty(),
@@ -457,9 +531,10 @@ impl FederationConfig {
             (true, true) => {
                 return Err(invalid(
                     "password_file",
-                    "site identity needs this site's password: set password_file (or \
-                     password, e.g. from SHOAL_FEDERATION__PASSWORD), or insecure_open = \
-                     true to federate without identity",
+                    "site identity needs TLS (tls.enabled, with tls.certificate, \
+                     tls.private_key and tls.trusted_cas) or this site's password: set \
+                     password_file (or password, e.g. from SHOAL_FEDERATION__PASSWORD), or \
+                     insecure_open = true to federate without identity",
                 ));
             }
             (false, true) => {
@@ -485,9 +560,7 @@ impl FederationConfig {
             ));
         }
         let path = &self.credentials_file;
-        let dictionary_file = path
-            .to_str()
-            .ok_or_else(|| invalid("credentials_file", format!("{}: not UTF-8", path.display())))?;
+        let dictionary_file = utf8_path(path, "credentials_file")?;
         let text = read(path, "credentials_file")?;
         let users = dictionary_users(&text)
             .map_err(|p| invalid("credentials_file", format!("{}: {p}", path.display())))?;
@@ -502,12 +575,44 @@ impl FederationConfig {
                 ));
             }
         }
-        Ok(Some(Identity {
+        Ok(UserPassword {
             user: self.site.clone(),
             password: Secret(password),
-            credentials_file: dictionary_file.to_string(),
+            credentials_file: dictionary_file,
             users,
-        }))
+        })
+    }
+
+    /// The TLS half of the identity: the three files, each read and checked as Zenoh's
+    /// rustls will load it, so that a bad one stops the start naming its key (Zenoh
+    /// itself would only log it at each connection attempt).
+    fn tls_identity(&self) -> Result<TlsIdentity, ConfigError> {
+        let t = &self.tls;
+        let mut paths = Vec::new();
+        for (key, path) in [
+            ("tls.certificate", &t.certificate),
+            ("tls.private_key", &t.private_key),
+            ("tls.trusted_cas", &t.trusted_cas),
+        ] {
+            if path.as_os_str().is_empty() {
+                return Err(invalid(
+                    key,
+                    "tls.enabled needs this site's certificate, its private key and the \
+                     trusted CAs (PEM files; `shoal keys site-cert` issues the first two)",
+                ));
+            }
+            paths.push(utf8_path(path, key)?);
+        }
+        let [certificate, private_key, trusted_cas] =
+            <[String; 3]>::try_from(paths).map_err(|_| invalid("tls", "three files"))?;
+        let not_after_ms = crate::tls::check_files(&self.site, t, shoal_model::now_ms())?;
+        Ok(TlsIdentity {
+            certificate,
+            private_key,
+            trusted_cas,
+            verify_name: t.verify_name,
+            not_after_ms,
+        })
     }
 
     /// Whether data from `site` is accepted.
@@ -516,10 +621,37 @@ impl FederationConfig {
     }
 }
 
-/// This site's identity in the federation: its Zenoh username and password, and the
-/// dictionary of the remote sites it accepts connections from.
+/// This site's identity in the federation: TLS, user-password, or both.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Identity {
+    /// This site's name: its certificate's common name and its Zenoh username.
+    pub site: String,
+    /// Zenoh's user-password authentication, if configured.
+    pub usrpwd: Option<UserPassword>,
+    /// Mutual TLS, if `tls.enabled`.
+    pub tls: Option<TlsIdentity>,
+}
+
+impl Identity {
+    /// Which mechanisms are on: `tls`, `usrpwd` or `tls+usrpwd`, for the logs.
+    pub fn mechanisms(&self) -> &'static str {
+        match (self.tls.is_some(), self.usrpwd.is_some()) {
+            (true, true) => "tls+usrpwd",
+            (true, false) => "tls",
+            _ => "usrpwd",
+        }
+    }
+
+    /// Whether the links are encrypted (TLS).
+    pub fn encrypted(&self) -> bool {
+        self.tls.is_some()
+    }
+}
+
+/// Zenoh's user-password authentication: this site's username and password, and the
+/// dictionary of the remote sites it accepts connections from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct UserPassword {
     /// This site's Zenoh username: its site name.
     pub user: String,
     /// This site's password (trimmed, as Zenoh trims the dictionary's).
@@ -530,8 +662,30 @@ pub struct Identity {
     pub users: Vec<String>,
 }
 
+/// Mutual TLS: the files as Zenoh reads them (checked at start).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TlsIdentity {
+    /// This site's certificate (PEM), presented when listening and when connecting.
+    pub certificate: String,
+    /// Its private key (PEM).
+    pub private_key: String,
+    /// The CAs whose site certificates are accepted (PEM bundle).
+    pub trusted_cas: String,
+    /// Whether the connecting side checks the listener's name.
+    pub verify_name: bool,
+    /// When this site's certificate expires, ms since the Unix epoch.
+    pub not_after_ms: i64,
+}
+
+/// A configured path as Zenoh's configuration takes it (a string).
+fn utf8_path(path: &Path, key: &str) -> Result<String, ConfigError> {
+    path.to_str()
+        .map(str::to_owned)
+        .ok_or_else(|| invalid(key, format!("{}: not UTF-8", path.display())))
+}
+
 /// Reads a file named by `key`; the error names the key and the file, not its content.
-fn read(path: &Path, key: &str) -> Result<String, ConfigError> {
+pub(crate) fn read(path: &Path, key: &str) -> Result<String, ConfigError> {
     std::fs::read_to_string(path)
         .map_err(|e| invalid(key, format!("cannot read {}: {e}", path.display())))
 }
@@ -567,18 +721,21 @@ fn bounded(key: &str, n: usize) -> Result<(), ConfigError> {
     Ok(())
 }
 
-/// Checks each endpoint uses TCP, the only transport built in, and (with the transport)
-/// parses as Zenoh's.
-fn endpoints(key: &str, list: &[String]) -> Result<(), ConfigError> {
+/// Checks each endpoint uses `scheme` (`tls` when `tls.enabled`, `tcp` otherwise: one
+/// transport for every link, so none is left unencrypted or unidentified by mistake) and
+/// (with the transport) parses as Zenoh's.
+fn endpoints(key: &str, list: &[String], scheme: &str) -> Result<(), ConfigError> {
     for (i, e) in list.iter().enumerate() {
         #[cfg(feature = "transport")]
         e.parse::<zenoh::config::EndPoint>()
             .map_err(|err| invalid(format!("{key}[{i}]"), format!("{e:?}: {err}")))?;
-        if !e.starts_with("tcp/") {
-            return Err(invalid(
-                format!("{key}[{i}]"),
-                format!("{e:?}: only tcp/<host>:<port> is built in"),
-            ));
+        if !e.starts_with(&format!("{scheme}/")) {
+            let why = if scheme == "tls" {
+                "with tls.enabled every endpoint is tls/<host>:<port>"
+            } else {
+                "only tcp/<host>:<port> without TLS (tls.enabled = false); tls/ needs tls.enabled"
+            };
+            return Err(invalid(format!("{key}[{i}]"), format!("{e:?}: {why}")));
         }
     }
     Ok(())
@@ -727,17 +884,20 @@ mod tests {
         let (_dir, c) = files("shore:pw-shore\n\n  other : x \n");
         assert_eq!(c.validate(), Ok(()));
         let id = c.identity().unwrap().unwrap();
-        assert_eq!(id.user, "ship");
-        assert_eq!(id.password.expose(), "s3cret-ship");
-        assert_eq!(id.users, ["shore", "other"]);
-        assert_eq!(id.credentials_file, c.credentials_file.to_str().unwrap());
+        assert_eq!((id.mechanisms(), id.encrypted()), ("usrpwd", false));
+        let up = id.usrpwd.unwrap();
+        assert_eq!(up.user, "ship");
+        assert_eq!(up.password.expose(), "s3cret-ship");
+        assert_eq!(up.users, ["shore", "other"]);
+        assert_eq!(up.credentials_file, c.credentials_file.to_str().unwrap());
         // From the environment's key instead of a file.
         let c = FederationConfig {
             password_file: PathBuf::new(),
             password: Secret::new("from-env"),
             ..c
         };
-        assert_eq!(c.identity().unwrap().unwrap().password.expose(), "from-env");
+        let id = c.identity().unwrap().unwrap();
+        assert_eq!(id.usrpwd.unwrap().password.expose(), "from-env");
     }
 
     #[test]
@@ -827,5 +987,94 @@ mod tests {
             !text.contains("s3cret") && text.contains("<redacted>"),
             "{text}"
         );
+    }
+
+    /// An enabled site `ship` with TLS files issued by a station CA, and no password.
+    #[cfg(feature = "transport")]
+    fn tls_site() -> (tempfile::TempDir, FederationConfig) {
+        let (dir, tls) = crate::tls::tests::site_files("ship");
+        let c = FederationConfig {
+            enabled: true,
+            site: "ship".into(),
+            listen: vec!["tls/127.0.0.1:7447".into()],
+            remote_sites: vec!["shore".into()],
+            tls,
+            ..FederationConfig::default()
+        };
+        (dir, c)
+    }
+
+    #[cfg(feature = "transport")]
+    #[test]
+    fn tls_alone_is_site_identity() {
+        let (_dir, c) = tls_site();
+        assert_eq!(c.validate(), Ok(()));
+        let id = c.identity().unwrap().unwrap();
+        assert_eq!((id.mechanisms(), id.encrypted()), ("tls", true));
+        assert!(id.usrpwd.is_none());
+        let tls = id.tls.unwrap();
+        assert_eq!(tls.certificate, c.tls.certificate.to_str().unwrap());
+        assert!(tls.verify_name);
+        // With both ends identified, a site may listen and connect.
+        let mut both = c.clone();
+        both.connect = vec!["tls/127.0.0.1:7448".into()];
+        assert_eq!(both.validate(), Ok(()));
+        // Gossip and scouting would still open links nobody configured.
+        assert!(refused_from(&c, |c| c.gossip = true).starts_with("federation.gossip:"));
+    }
+
+    #[cfg(feature = "transport")]
+    #[test]
+    fn tls_and_a_password_together() {
+        let (dir, c) = tls_site();
+        std::fs::write(dir.path().join("password"), "pw\n").unwrap();
+        std::fs::write(dir.path().join("sites.txt"), "shore:pw2\n").unwrap();
+        let c = FederationConfig {
+            password_file: dir.path().join("password"),
+            credentials_file: dir.path().join("sites.txt"),
+            ..c
+        };
+        let id = c.identity().unwrap().unwrap();
+        assert_eq!(id.mechanisms(), "tls+usrpwd");
+        // Half of the user-password settings is an error, not silently TLS alone.
+        let e = refused_from(&c, |c| c.credentials_file = PathBuf::new());
+        assert!(e.starts_with("federation.credentials_file:"), "{e}");
+    }
+
+    #[cfg(feature = "transport")]
+    #[test]
+    fn tls_endpoints_and_settings_are_checked() {
+        let (_dir, c) = tls_site();
+        // Every link is TLS with tls.enabled, and TCP without.
+        let e = refused_from(&c, |c| c.listen = vec!["tcp/127.0.0.1:7447".into()]);
+        assert!(e.starts_with("federation.listen[0]:"), "{e}");
+        assert!(e.contains("tls/<host>:<port>"), "{e}");
+        let e = refused(|c| c.connect = vec!["tls/127.0.0.1:7447".into()]);
+        assert!(e.starts_with("federation.connect[0]:"), "{e}");
+        assert!(e.contains("tls.enabled"), "{e}");
+        let e = refused_from(&c, |c| c.insecure_open = true);
+        assert!(e.starts_with("federation.insecure_open:"), "{e}");
+        for (key, edit) in [
+            (
+                "tls.certificate",
+                (|c: &mut FederationConfig| c.tls.certificate = PathBuf::new())
+                    as fn(&mut FederationConfig),
+            ),
+            ("tls.private_key", |c| c.tls.private_key = PathBuf::new()),
+            ("tls.trusted_cas", |c| c.tls.trusted_cas = PathBuf::new()),
+        ] {
+            let e = refused_from(&c, edit);
+            assert!(e.starts_with(&format!("federation.{key}:")), "{e}");
+            assert!(e.contains("shoal keys site-cert"), "{e}");
+        }
+        // A file that cannot be read is named with its key.
+        let e = refused_from(&c, |c| c.tls.trusted_cas = "/nonexistent/cas.pem".into());
+        assert!(
+            e.starts_with("federation.tls.trusted_cas: cannot read /nonexistent/cas.pem"),
+            "{e}"
+        );
+        // The certificate must be this site's.
+        let e = refused_from(&c, |c| c.site = "ship2".into());
+        assert!(e.starts_with("federation.tls.certificate:"), "{e}");
     }
 }

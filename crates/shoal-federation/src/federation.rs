@@ -9,10 +9,11 @@
 //! - tasks: one publishing positions as their vehicles fall due, one publishing alarms
 //!   and task transitions from a bounded queue, one asking catch-up queries.
 //!
-//! With site identity (the default), the session authenticates as its site and, when
-//! it listens, Zenoh's access control lets each remote site send only under its own
-//! `shoal/<site>/**` (see `zenoh_config`); the inbound checks below still refuse what
-//! an authorised site sends that is inconsistent or from a site not configured.
+//! With site identity (the default), the session authenticates as its site (TLS client
+//! certificates and/or user-password) and Zenoh's access control lets each remote site
+//! send only under its own `shoal/<site>/**` (see `zenoh_config`: on every link with TLS,
+//! on accepted links with user-password alone); the inbound checks below still refuse
+//! what an authorised site sends that is inconsistent or from a site not configured.
 //!
 //! Zenoh calls the subscribers' callbacks on its own threads; they only lock a core for
 //! the time of one sample and hand catch-up queries to a task through a bounded channel.
@@ -40,7 +41,7 @@ use crate::keys::{self, ROOT, Stream};
 use crate::outbound::{Outbound, OutboundCounters, Publication, PushError};
 use crate::picture::FederatedPicture;
 use crate::types::{TaskTransition, VehiclePosition};
-use crate::zenoh_config::zenoh_config;
+use crate::zenoh_config::{polices, zenoh_config};
 
 /// Alarms and transitions waiting to be published; beyond, remote sites catch up.
 const PUBLISH_QUEUE: usize = 1024;
@@ -120,6 +121,10 @@ enum Outgoing {
 #[derive(Debug)]
 pub struct Federation {
     site: String,
+    /// `tls`, `usrpwd`, `tls+usrpwd` or `none` (`Identity::mechanisms`).
+    identity: &'static str,
+    /// Whether the links are TLS.
+    encrypted: bool,
     epoch: u64,
     shared: Arc<Shared>,
     outgoing: mpsc::Sender<Outgoing>,
@@ -228,15 +233,21 @@ impl Federation {
                 stop.clone(),
             )),
         ];
+        let mechanisms = identity.as_ref().map_or("none", |id| id.mechanisms());
+        let encrypted = identity.as_ref().is_some_and(|id| id.encrypted());
         info!(
             site = %site,
             epoch,
             zid = %session.zid(),
-            identity = identity.is_some(),
+            identity = mechanisms,
+            encrypted,
+            access_control = identity.as_ref().is_some_and(|id| polices(&config, id)),
             "federation started"
         );
         Ok(Self {
             site,
+            identity: mechanisms,
+            encrypted,
             epoch,
             shared,
             outgoing,
@@ -251,6 +262,17 @@ impl Federation {
     /// This site's name.
     pub fn site(&self) -> &str {
         &self.site
+    }
+
+    /// The site identity in force: `tls`, `usrpwd`, `tls+usrpwd` (see
+    /// [`crate::Identity::mechanisms`]) or `none` (`insecure_open`).
+    pub fn identity(&self) -> &'static str {
+        self.identity
+    }
+
+    /// Whether the links are encrypted (`[federation.tls]`).
+    pub fn encrypted(&self) -> bool {
+        self.encrypted
     }
 
     /// This run's epoch (ms since the Unix epoch when it started).

@@ -27,12 +27,15 @@ pub mod inbound;
 pub mod keys;
 pub mod outbound;
 pub mod picture;
+mod tls;
 pub mod types;
 pub mod wire;
 #[cfg(feature = "transport")]
 mod zenoh_config;
 
-pub use config::{ConfigError, FederationConfig, Identity, Secret};
+pub use config::{
+    ConfigError, FederationConfig, Identity, Secret, TlsConfig, TlsIdentity, UserPassword,
+};
 #[cfg(feature = "transport")]
 pub use error::{ShutdownError, StartError};
 #[cfg(feature = "transport")]

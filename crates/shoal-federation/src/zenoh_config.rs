@@ -3,14 +3,17 @@
 //! Every key this crate depends on is set explicitly, so Zenoh's own defaults (which
 //! listen on every interface and scout by UDP multicast) never apply.
 //!
-//! With an [`Identity`], the site authenticates with Zenoh's user-password scheme
-//! (`transport/auth/usrpwd`: username = site name) and, when it listens, polices what
-//! the sites connecting to it send with Zenoh's access control (`access_control`).
+//! With an [`Identity`], the site authenticates with Zenoh's TLS link and client
+//! certificates (`transport/link/tls`: mTLS, the certificate's common name = site name),
+//! with Zenoh's user-password scheme (`transport/auth/usrpwd`: username = site name), or
+//! both; and polices what remote sites send with Zenoh's access control
+//! (`access_control`): on every link with TLS (both ends are identified), on the links it
+//! accepts with user-password alone (only the connecting end is identified).
 
 use serde_json::json;
 use zenoh::Config;
 
-use crate::config::{FederationConfig, Identity};
+use crate::config::{FederationConfig, Identity, Mode};
 use crate::error::StartError;
 use crate::keys::ROOT;
 
@@ -59,22 +62,50 @@ pub fn zenoh_config(
         ("listen/exit_on_failure", json(true.into())),
     ];
     if let Some(id) = identity {
-        // Only a listening site has links Zenoh identifies (those it accepts); a site
-        // that connects trusts the endpoints it was given (see `identity_topology`).
-        if !c.listen.is_empty() {
-            settings.push(("access_control", json(access_control(c))));
+        if polices(c, id) {
+            settings.push(("access_control", json(access_control(c, id))));
         }
-        let usrpwd = json!({
-            "user": id.user,
-            "password": id.password.expose(),
-            "dictionary_file": id.credentials_file,
-        });
-        // Zenoh's error could quote the value, which holds the password: withheld.
-        z.insert_json5("transport/auth/usrpwd", &json(usrpwd))
-            .map_err(|_| StartError::Zenoh {
-                what: "configure user-password authentication",
-                source: "refused (details withheld: the value holds the password)".into(),
-            })?;
+        if let Some(t) = &id.tls {
+            // One certificate for both roles: a site presents it when it listens and when
+            // it connects, and checks the other side's against the same trusted CAs.
+            // `enable_mtls` makes a listener require and verify the client's certificate
+            // (rustls WebPkiClientVerifier over `root_ca_certificate`) and a connecting
+            // side present its own; Zenoh then runs TLS 1.3 only. The connecting side
+            // verifies the listener's chain against the same CAs (Zenoh 1.10 adds the
+            // Mozilla web roots there too: see docs/federation.md) and, with
+            // `verify_name_on_connect`, that it names the endpoint's host.
+            for (key, value) in [
+                ("root_ca_certificate", json(t.trusted_cas.clone().into())),
+                ("listen_certificate", json(t.certificate.clone().into())),
+                ("listen_private_key", json(t.private_key.clone().into())),
+                ("connect_certificate", json(t.certificate.clone().into())),
+                ("connect_private_key", json(t.private_key.clone().into())),
+                ("enable_mtls", json(true.into())),
+                ("verify_name_on_connect", json(t.verify_name.into())),
+                // A link ends when a certificate of the peer's chain expires, rather than
+                // living on with it.
+                ("close_link_on_expiration", json(true.into())),
+            ] {
+                z.insert_json5(&format!("transport/link/tls/{key}"), &value)
+                    .map_err(|source| StartError::Zenoh {
+                        what: "configure TLS",
+                        source,
+                    })?;
+            }
+        }
+        if let Some(up) = &id.usrpwd {
+            let usrpwd = json!({
+                "user": up.user,
+                "password": up.password.expose(),
+                "dictionary_file": up.credentials_file,
+            });
+            // Zenoh's error could quote the value, which holds the password: withheld.
+            z.insert_json5("transport/auth/usrpwd", &json(usrpwd))
+                .map_err(|_| StartError::Zenoh {
+                    what: "configure user-password authentication",
+                    source: "refused (details withheld: the value holds the password)".into(),
+                })?;
+        }
     }
     for (key, value) in settings {
         z.insert_json5(key, &value)
@@ -86,12 +117,33 @@ pub fn zenoh_config(
     Ok(z)
 }
 
-/// Zenoh's access control of a listening site: each remote site (Zenoh username = its
-/// name, authenticated by the dictionary) may send data, replies, queryables and
-/// liveliness tokens only under `shoal/<its site>/**`, and declare its interest in any
+/// Whether this site runs Zenoh's access control on its links.
+///
+/// - With TLS, Zenoh knows the common name of the certificate at the far end of every
+///   link, accepted or opened (zenoh-link-tls records it on both sides): every site
+///   polices, except a client, whose one link is to a router that relays every site's
+///   data under their keys (a client trusts the router it verified by certificate).
+/// - With user-password alone, Zenoh knows the username only on the links a site
+///   accepts: a site polices only if it listens (and then does not connect, see
+///   `FederationConfig::validate`).
+pub fn polices(c: &FederationConfig, id: &Identity) -> bool {
+    if id.tls.is_some() {
+        c.mode != Mode::Client
+    } else {
+        !c.listen.is_empty()
+    }
+}
+
+/// Zenoh's access control of a site: each remote site may send data, replies, queryables
+/// and liveliness tokens only under `shoal/<its site>/**`, and declare its interest in any
 /// `shoal/**` key; this site sends it anything under `shoal/**`. Everything else, and
 /// everything from a peer that matches no remote site, is denied both ways.
-pub fn access_control(c: &FederationConfig) -> serde_json::Value {
+///
+/// A remote site is recognised (its subject) by its certificate's common name with TLS,
+/// by its Zenoh username with user-password alone, and by both (the same name twice)
+/// when both are on and this site only listens (on links it opens, Zenoh has no
+/// username for the far end).
+pub fn access_control(c: &FederationConfig, id: &Identity) -> serde_json::Value {
     let every = [WRITES.as_slice(), READS.as_slice()].concat();
     let mut rules = vec![
         json!({
@@ -119,7 +171,14 @@ pub fn access_control(c: &FederationConfig) -> serde_json::Value {
             "messages": WRITES,
             "key_exprs": [format!("{ROOT}/{site}/**")],
         }));
-        subjects.push(json!({ "id": format!("site-{site}"), "usernames": [site] }));
+        let mut subject = json!({ "id": format!("site-{site}") });
+        if id.tls.is_some() {
+            subject["cert_common_names"] = json!([site]);
+        }
+        if id.usrpwd.is_some() && (id.tls.is_none() || c.connect.is_empty()) {
+            subject["usernames"] = json!([site]);
+        }
+        subjects.push(subject);
         policies.push(json!({
             "id": format!("site-{site}"),
             "rules": ["shoal-reads", "shoal-sends", format!("own-{site}")],
@@ -138,7 +197,7 @@ pub fn access_control(c: &FederationConfig) -> serde_json::Value {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::Mode;
+    use crate::config::{Secret, TlsIdentity, UserPassword};
 
     #[test]
     fn the_zenoh_config_of_the_default_does_not_scout_and_listens_on_loopback() {
@@ -166,11 +225,35 @@ mod tests {
 
     fn identity() -> Identity {
         Identity {
-            user: "shore".into(),
-            password: crate::config::Secret::new("pw-shore"),
-            credentials_file: "/etc/shoal/sites.txt".into(),
-            users: vec!["ship".into(), "ship2".into()],
+            site: "shore".into(),
+            usrpwd: Some(UserPassword {
+                user: "shore".into(),
+                password: Secret::new("pw-shore"),
+                credentials_file: "/etc/shoal/sites.txt".into(),
+                users: vec!["ship".into(), "ship2".into()],
+            }),
+            tls: None,
         }
+    }
+
+    fn tls_identity(site: &str, usrpwd: bool) -> Identity {
+        let mut id = identity();
+        id.site = site.into();
+        if usrpwd {
+            if let Some(up) = id.usrpwd.as_mut() {
+                up.user = site.into();
+            }
+        } else {
+            id.usrpwd = None;
+        }
+        id.tls = Some(TlsIdentity {
+            certificate: format!("/etc/shoal/{site}.crt"),
+            private_key: format!("/etc/shoal/{site}.key"),
+            trusted_cas: "/etc/shoal/trusted-cas.pem".into(),
+            verify_name: true,
+            not_after_ms: i64::MAX,
+        });
+        id
     }
 
     fn parsed(z: &Config, key: &str) -> serde_json::Value {
@@ -253,7 +336,7 @@ mod tests {
             ],
             "policies": [policy("ship"), policy("ship2")],
         });
-        assert_eq!(access_control(&c), expected);
+        assert_eq!(access_control(&c, &identity()), expected);
         // Zenoh took it as given (its own defaults fill the keys left out).
         let acl = parsed(&z, "access_control");
         assert_eq!(acl["enabled"], true);
@@ -288,7 +371,9 @@ mod tests {
             ..FederationConfig::default()
         };
         let mut id = identity();
-        id.user = "ship".into();
+        if let Some(up) = id.usrpwd.as_mut() {
+            up.user = "ship".into();
+        }
         let z = zenoh_config(&c, Some(&id)).unwrap();
         assert_eq!(parsed(&z, "transport/auth/usrpwd")["user"], "ship");
         assert_eq!(parsed(&z, "access_control")["enabled"], false);
@@ -302,5 +387,87 @@ mod tests {
             json!({ "user": null, "password": null, "dictionary_file": null })
         );
         assert_eq!(parsed(&z, "access_control")["enabled"], false);
+    }
+
+    #[test]
+    fn tls_sets_mutual_tls_with_one_certificate_for_both_roles() {
+        let c = FederationConfig {
+            site: "shore".into(),
+            listen: vec!["tls/127.0.0.1:7447".into()],
+            remote_sites: vec!["ship".into()],
+            ..FederationConfig::default()
+        };
+        let z = zenoh_config(&c, Some(&tls_identity("shore", false))).unwrap();
+        let tls = parsed(&z, "transport/link/tls");
+        for (key, want) in [
+            ("root_ca_certificate", json!("/etc/shoal/trusted-cas.pem")),
+            ("listen_certificate", json!("/etc/shoal/shore.crt")),
+            ("listen_private_key", json!("/etc/shoal/shore.key")),
+            ("connect_certificate", json!("/etc/shoal/shore.crt")),
+            ("connect_private_key", json!("/etc/shoal/shore.key")),
+            ("enable_mtls", json!(true)),
+            ("verify_name_on_connect", json!(true)),
+            ("close_link_on_expiration", json!(true)),
+        ] {
+            assert_eq!(tls[key], want, "{key}: {tls}");
+        }
+        // No user-password without its files.
+        assert_eq!(parsed(&z, "transport/auth/usrpwd")["user"], json!(null));
+        // Remote sites are known by their certificate's common name.
+        let acl = parsed(&z, "access_control");
+        assert_eq!(acl["enabled"], true);
+        assert_eq!(acl["subjects"][0]["cert_common_names"], json!(["ship"]));
+        assert_eq!(acl["subjects"][0]["usernames"], json!(null));
+    }
+
+    #[test]
+    fn with_tls_a_connecting_site_polices_too_but_a_client_trusts_its_router() {
+        let peer = FederationConfig {
+            site: "ship".into(),
+            listen: vec![],
+            connect: vec!["tls/127.0.0.1:7447".into()],
+            remote_sites: vec!["shore".into()],
+            ..FederationConfig::default()
+        };
+        let id = tls_identity("ship", false);
+        assert!(polices(&peer, &id));
+        let acl = parsed(&zenoh_config(&peer, Some(&id)).unwrap(), "access_control");
+        assert_eq!(acl["enabled"], true);
+        assert_eq!(acl["rules"][2]["key_exprs"], json!(["shoal/shore/**"]));
+        let client = FederationConfig {
+            mode: Mode::Client,
+            ..peer.clone()
+        };
+        assert!(!polices(&client, &id));
+        let acl = parsed(&zenoh_config(&client, Some(&id)).unwrap(), "access_control");
+        assert_eq!(acl["enabled"], false);
+        // User-password alone: only a listening site polices.
+        assert!(!polices(&peer, &identity()));
+    }
+
+    #[test]
+    fn tls_and_usrpwd_together_require_both_names_where_zenoh_knows_both() {
+        let listening = FederationConfig {
+            site: "shore".into(),
+            listen: vec!["tls/127.0.0.1:7447".into()],
+            remote_sites: vec!["ship".into()],
+            ..FederationConfig::default()
+        };
+        let id = tls_identity("shore", true);
+        let z = zenoh_config(&listening, Some(&id)).unwrap();
+        assert_eq!(parsed(&z, "transport/auth/usrpwd")["user"], "shore");
+        assert_eq!(
+            access_control(&listening, &id)["subjects"],
+            json!([{ "id": "site-ship", "cert_common_names": ["ship"], "usernames": ["ship"] }])
+        );
+        // A site that also connects knows no username on the links it opens.
+        let both = FederationConfig {
+            connect: vec!["tls/127.0.0.1:7448".into()],
+            ..listening
+        };
+        assert_eq!(
+            access_control(&both, &id)["subjects"],
+            json!([{ "id": "site-ship", "cert_common_names": ["ship"] }])
+        );
     }
 }

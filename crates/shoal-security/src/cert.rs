@@ -11,8 +11,8 @@ use std::path::Path;
 
 use ed25519_dalek::{Signature, Signer as _, SigningKey, VerifyingKey};
 use rcgen::{
-    BasicConstraints, CertificateParams, DistinguishedName, DnType, IsCa, Issuer, KeyIdMethod,
-    KeyUsagePurpose, SanType, SerialNumber,
+    BasicConstraints, CertificateParams, DistinguishedName, DnType, ExtendedKeyUsagePurpose, IsCa,
+    Issuer, KeyIdMethod, KeyUsagePurpose, SanType, SerialNumber,
 };
 use sha2::{Digest, Sha256};
 use x509_parser::oid_registry::OID_SIG_ED25519;
@@ -591,6 +591,75 @@ pub(crate) fn issue_leaf(
     Ok(cert)
 }
 
+/// A name a site's federation certificate is valid for: what the sites that connect to it
+/// write as the host of its endpoint (`tls/<host>:<port>`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SiteName {
+    /// A DNS name, e.g. `shore.example.org`.
+    Dns(String),
+    /// An IP address, e.g. `203.0.113.5`.
+    Ip(std::net::IpAddr),
+}
+
+impl SiteName {
+    /// An IP address if `s` parses as one, otherwise a DNS name (RFC 1123 labels of
+    /// letters, digits and `-`, dot-separated, at most 253 bytes; no wildcard).
+    pub fn parse(s: &str) -> Result<Self, String> {
+        if let Ok(ip) = s.parse() {
+            return Ok(Self::Ip(ip));
+        }
+        let label_ok = |l: &str| {
+            (1..=63).contains(&l.len())
+                && l.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-')
+                && !l.starts_with('-')
+                && !l.ends_with('-')
+        };
+        if s.len() <= 253 && s.split('.').all(label_ok) {
+            Ok(Self::Dns(s.to_ascii_lowercase()))
+        } else {
+            Err(format!("{s:?} is neither an IP address nor a DNS name"))
+        }
+    }
+}
+
+/// Issues a site's federation certificate (TLS over Zenoh, both as the side that listens
+/// and the side that connects): CN = the site name, which Zenoh's access control reads
+/// (`cert_common_names`); SANs = the names it listens on, which the connecting side's
+/// rustls checks; extended key usage serverAuth and clientAuth. No `urn:shoal:` identity:
+/// a site is not a station or vehicle of this station's fleet.
+pub(crate) fn issue_site_leaf(
+    ca: &Certificate,
+    ca_key: &PrivateKey,
+    subject_key: &PrivateKey,
+    site: &str,
+    names: &[SiteName],
+    not_before_ms: i64,
+    not_after_ms: i64,
+) -> Result<Certificate, IssueError> {
+    let mut params = base_params(site, subject_key, not_before_ms, not_after_ms)?;
+    params.is_ca = IsCa::ExplicitNoCa;
+    params.key_usages = vec![KeyUsagePurpose::DigitalSignature];
+    params.extended_key_usages = vec![
+        ExtendedKeyUsagePurpose::ServerAuth,
+        ExtendedKeyUsagePurpose::ClientAuth,
+    ];
+    params.use_authority_key_identifier_extension = true;
+    let mut sans = Vec::with_capacity(names.len());
+    for name in names {
+        sans.push(match name {
+            SiteName::Dns(dns) => SanType::DnsName(dns.as_str().try_into()?),
+            SiteName::Ip(ip) => SanType::IpAddress(*ip),
+        });
+    }
+    params.subject_alt_names = sans;
+    let cert = params.signed_by(subject_key, &issuer(ca, ca_key))?;
+    let cert = Certificate::from_der(cert.der())?;
+    if cert.issuer_raw != ca.subject_raw || !cert.is_signed_by(&ca.public_key) {
+        return Err(IssueError::Reparse(CertError::Untrusted));
+    }
+    Ok(cert)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -673,5 +742,29 @@ mod tests {
             Certificate::from_der(&der).unwrap_err(),
             CertError::TrailingBytes(1)
         );
+    }
+
+    #[test]
+    fn a_site_certificate_names_the_site_and_its_addresses() {
+        let (ca_key, ca_cert) = ca();
+        let key = PrivateKey::generate().unwrap();
+        let names = [
+            SiteName::parse("127.0.0.1").unwrap(),
+            SiteName::parse("shore.example.org").unwrap(),
+        ];
+        assert_eq!(names[0], SiteName::Ip([127, 0, 0, 1].into()));
+        let leaf = issue_site_leaf(&ca_cert, &ca_key, &key, "shore", &names, T0, T0 + DAY).unwrap();
+        assert_eq!(leaf.common_name(), "shore");
+        assert!(leaf.identity().is_none() && !leaf.is_ca());
+        assert!(leaf.is_signed_by(ca_cert.public_key()));
+        let (_, x509) = x509_parser::parse_x509_certificate(leaf.der()).unwrap();
+        let san = x509.subject_alternative_name().unwrap().unwrap();
+        assert_eq!(san.value.general_names.len(), 2);
+        let eku = x509.extended_key_usage().unwrap().unwrap();
+        assert!(eku.value.server_auth && eku.value.client_auth);
+        // A name that is neither is refused before anything is issued.
+        for bad in ["shore example", "", "-a.b", "*.example.org", "a..b"] {
+            assert!(SiteName::parse(bad).is_err(), "{bad:?}");
+        }
     }
 }

@@ -18,7 +18,8 @@
 //! - [`KeyStore`] (station side, on disk): a 256-bit acoustic key per vehicle, with a
 //!   station CA, the station's certificate, an Ed25519 certificate per vehicle naming its
 //!   enrolment, and a CRL. `init`, `issue_vehicle`, `list`, `revoke`, `rotate`,
-//!   `renew_station`, `export_vehicle`. [`VehicleBundle`] loads and checks what
+//!   `renew_station`, `export_vehicle`, and `issue_site` (a federation site's TLS
+//!   certificate, [`SiteName`]). [`VehicleBundle`] loads and checks what
 //!   `export_vehicle` writes. The DDS Security keystore lives beside it (`<store>/dds`).
 //!
 //! # How the other parts use it
@@ -121,7 +122,7 @@ pub mod store;
 mod util;
 
 pub use acoustic::{AcousticKey, AcousticTagger, TagSize};
-pub use cert::{Certificate, PrivateKey, TrustAnchor};
+pub use cert::{Certificate, PrivateKey, SiteName, TrustAnchor};
 pub use files::{FileError, FileProblem};
 pub use identity::{Identity, Role};
 pub use reject::{Rejection, RejectionCounts, RejectionReason};

@@ -26,8 +26,8 @@ use tracing::{info, warn};
 
 use crate::acoustic::AcousticKey;
 use crate::cert::{
-    CertError, Certificate, IssueError, PrivateKey, TrustAnchor, Validity, issue_leaf,
-    self_signed_ca,
+    CertError, Certificate, IssueError, PrivateKey, SiteName, TrustAnchor, Validity, issue_leaf,
+    issue_site_leaf, self_signed_ca,
 };
 use crate::files::{self, FileError, FileProblem};
 use crate::identity::{Identity, IdentityError, Role};
@@ -125,6 +125,9 @@ pub enum StoreError {
     /// No randomness for a key.
     #[error(transparent)]
     Random(#[from] RandomError),
+    /// A federation site name or address that a site certificate cannot carry.
+    #[error("{0}")]
+    BadSite(String),
 }
 
 /// What `issue_vehicle` and `rotate` produced.
@@ -383,6 +386,58 @@ impl KeyStore {
         )?;
         files::write_secret(key_path, key.to_pem().as_bytes())?;
         files::write_public(cert_path, cert.to_pem().as_bytes())?;
+        Ok(cert)
+    }
+
+    /// Issues a federation site certificate (CN `site`, SANs `names`, serverAuth and
+    /// clientAuth) from the station CA and writes, in `dest` (created 0700 if missing):
+    /// `<site>.key` (0600), `<site>.crt`, and `<site>-ca.crt`, the CA certificate that
+    /// remote sites add to their trusted CAs. Not recorded in the store: the files are
+    /// the site's, and a new certificate replaces them (valid `cert_validity_days`, never
+    /// beyond the CA).
+    pub fn issue_site(
+        &self,
+        site: &str,
+        names: &[SiteName],
+        dest: &Path,
+    ) -> Result<Certificate, StoreError> {
+        if !shoal_model::is_identifier(site, shoal_model::MAX_VEHICLE_ID_LEN) {
+            return Err(StoreError::BadSite(format!(
+                "site name {site:?} is not an identifier (1 to 32 characters of A-Z a-z 0-9 _ . -)"
+            )));
+        }
+        if names.is_empty() {
+            return Err(StoreError::BadSite(format!(
+                "site {site:?}: name at least one DNS name or IP address it listens on"
+            )));
+        }
+        let now = self.now();
+        let key = PrivateKey::generate()?;
+        let ca = self.anchor.certificate();
+        let not_after = now
+            .saturating_add(days_ms(self.options.cert_validity_days))
+            .min(ca.not_after_ms());
+        let cert = issue_site_leaf(
+            ca,
+            &self.ca_key,
+            &key,
+            site,
+            names,
+            now - BACKDATE_MS,
+            not_after,
+        )?;
+        if !dest.exists() {
+            // An existing directory (e.g. /etc/shoal) keeps its mode.
+            files::create_private_dir(dest)?;
+        }
+        files::write_secret(&dest.join(format!("{site}.key")), key.to_pem().as_bytes())?;
+        files::write_public(&dest.join(format!("{site}.crt")), cert.to_pem().as_bytes())?;
+        files::write_public(&dest.join(format!("{site}-ca.crt")), ca.to_pem().as_bytes())?;
+        info!(
+            site,
+            serial = cert.serial(),
+            "federation site certificate issued"
+        );
         Ok(cert)
     }
 
@@ -970,5 +1025,28 @@ mod tests {
         let reopened = KeyStore::open_at(store.dir(), later).unwrap();
         assert_eq!(reopened.revocations().number(), first + 1);
         assert!(reopened.revocations().next_update_ms() > later);
+    }
+
+    #[test]
+    fn a_site_certificate_comes_with_the_ca_to_trust() {
+        let (dir, store) = new_store();
+        let dest = dir.path().join("federation");
+        let names = [SiteName::parse("127.0.0.1").unwrap()];
+        let cert = store.issue_site("ship-1", &names, &dest).unwrap();
+        assert_eq!(cert.common_name(), "ship-1");
+        assert_eq!(mode(&dest.join("ship-1.key")), 0o600);
+        let key = PrivateKey::load(&dest.join("ship-1.key")).unwrap();
+        assert!(cert.matches_key(&key));
+        let ca = Certificate::load(&dest.join("ship-1-ca.crt")).unwrap();
+        assert_eq!(ca.der(), store.trust_anchor().certificate().der());
+        assert!(cert.is_signed_by(ca.public_key()));
+        assert!(matches!(
+            store.issue_site("ship/1", &names, &dest),
+            Err(StoreError::BadSite(_))
+        ));
+        assert!(matches!(
+            store.issue_site("ship-1", &[], &dest),
+            Err(StoreError::BadSite(_))
+        ));
     }
 }

@@ -644,7 +644,7 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 25]>([
+        rows.extend::<[(&str, &str, &str, Check); 26]>([
             ("foxglove", "SHOAL_FOXGLOVE__ENABLED", "true", |c| {
                 c.foxglove.enabled && c.foxglove.max_clients == 8
             }),
@@ -657,6 +657,15 @@ mod tests {
                 "SHOAL_FEDERATION__PASSWORD",
                 "pw from env",
                 |c| c.federation.password.expose() == "pw from env" && !c.federation.insecure_open,
+            ),
+            (
+                "federation.tls",
+                "SHOAL_FEDERATION__TLS__CERTIFICATE",
+                "/etc/shoal/federation/ship-1.crt",
+                |c| {
+                    c.federation.tls.certificate == Path::new("/etc/shoal/federation/ship-1.crt")
+                        && !c.federation.tls.enabled
+                },
             ),
             (
                 "federation.positions",

@@ -156,12 +156,30 @@ pub async fn start(
         eprintln!("shoal: WARNING: {msg}");
         warn!("{msg}");
     }
+    let insecure_open = config.insecure_open;
     let fed = Arc::new(
         Federation::start(config)
             .await
             .context("cannot start the federation ([federation])")?,
     );
-    info!(site = fed.site(), "federated over Zenoh ([federation])");
+    info!(
+        site = fed.site(),
+        identity = fed.identity(),
+        encrypted = fed.encrypted(),
+        "federated over Zenoh ([federation])"
+    );
+    if !fed.encrypted() && !insecure_open {
+        // User-password alone: authenticated, but in clear on the WAN.
+        let msg = format!(
+            "FEDERATION NOT ENCRYPTED: site {} authenticates with Zenoh's user-password \
+             scheme alone ([federation.tls] enabled = false), so positions, alarms and tasks \
+             cross in clear and a connecting site cannot check who it reached. Turn on \
+             [federation.tls] (docs/federation.md, \"Site identity\").",
+            fed.site()
+        );
+        eprintln!("shoal: WARNING: {msg}");
+        warn!("{msg}");
+    }
     if station
         .attach_federation(Arc::new(View(Arc::clone(&fed))))
         .is_err()

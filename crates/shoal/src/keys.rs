@@ -11,7 +11,7 @@ use anyhow::{Context, Result, bail};
 use shoal_dds::{Credentials, PubSub};
 use shoal_security::dds::{DdsKeystore, Enclave, Grant, KeystoreOptions, names as dds_names};
 use shoal_security::store::CertStatus;
-use shoal_security::{KeyStore, RevokeReason};
+use shoal_security::{KeyStore, RevokeReason, SiteName};
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
@@ -71,6 +71,22 @@ enum KeysCommand {
     /// Renew the station's certificates, its DDS Security identity included (the old ones
     /// are revoked as superseded); restart the station afterwards.
     RenewStation,
+    /// Issue this site's federation certificate ([federation.tls]) from the station CA:
+    /// common name SITE (what remote sites' access control knows it by), valid for each
+    /// --name (the host in the tls/<host>:<port> endpoints other sites connect to). Writes
+    /// DIR/SITE.key (0600), DIR/SITE.crt and DIR/SITE-ca.crt, the CA certificate to send
+    /// to the remote sites for their tls.trusted_cas.
+    SiteCert {
+        /// This site's name ([federation] site).
+        site: String,
+        /// A DNS name or IP address this site listens on; repeat for several. A site that
+        /// only connects still needs one (its certificate's name is not checked then).
+        #[arg(long = "name", value_name = "HOST", required = true)]
+        names: Vec<String>,
+        /// Destination directory (created 0700 if missing); default: <store>/federation.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
     /// Sign the governance again from [security.governance] (which topics are encrypted,
     /// signed or open) and copy it into every enclave; export each vehicle's bundle again
     /// and restart every participant: all must hold the same governance.
@@ -228,6 +244,33 @@ pub fn run(args: KeysArgs, cfg: &SecurityConfig) -> Result<()> {
             println!(
                 "{vehicle}'s bundle written to {} (keep it on the vehicle only)",
                 dest.display()
+            );
+        }
+        KeysCommand::SiteCert { site, names, out } => {
+            let store = open()?;
+            let names = names
+                .iter()
+                .map(|n| SiteName::parse(n).map_err(anyhow::Error::msg))
+                .collect::<Result<Vec<_>>>()
+                .context("--name")?;
+            let dest = out.unwrap_or_else(|| dir.join("federation"));
+            let cert = store
+                .issue_site(&site, &names, &dest)
+                .with_context(|| format!("cannot issue site {site:?}'s certificate"))?;
+            println!(
+                "site {site}: certificate {} valid until {}",
+                cert.serial(),
+                date(cert.not_after_ms())
+            );
+            let file = |suffix: &str| dest.join(format!("{site}{suffix}")).display().to_string();
+            println!(
+                "[federation.tls] certificate = {:?}, private_key = {:?}",
+                file(".crt"),
+                file(".key")
+            );
+            println!(
+                "send {} to the remote sites (their tls.trusted_cas); put theirs in yours",
+                file("-ca.crt")
             );
         }
         KeysCommand::Governance => {

@@ -27,7 +27,7 @@ pub fn endpoint(port: u16) -> String {
 /// A peer site listening on `listen` (if any), connecting to `connect`, accepting
 /// `remotes`. Without site identity (`insecure_open`): these tests are of the transport
 /// and the cores (and one has a site the shore was not told of reach it); identity is
-/// tested through the binary (`crates/shoal/tests/it/federation.rs`).
+/// tested in `tls` and through the binary (`crates/shoal/tests/it/federation.rs`).
 pub fn site(
     name: &str,
     listen: Option<u16>,

@@ -1,5 +1,5 @@
 //! The federation's integration tests: real Zenoh sessions in one process, talking over
-//! tcp/127.0.0.1 only (multicast scouting and gossip off in every configuration).
+//! tcp/127.0.0.1 (and tls/127.0.0.1) only (multicast scouting and gossip off in every configuration).
 //!
 //! One test binary; where new tests go:
 //! - `common`: ports, configurations, a router to cut the link with, waiting helpers.
@@ -8,6 +8,8 @@
 //! - `three_sites`: two ships and a shore (also as their router); unknown sites and bad
 //!   payloads are refused.
 //! - `python_client`: an independent PyPI `eclipse-zenoh` client decodes from the doc.
+//! - `tls`: site identity over mutual TLS (`tls/127.0.0.1`): an expired certificate and a
+//!   common name not accepted never reach the shore; bad files stop the start.
 //! - `encoding_size`: the WAN encoding measured against CDR (+ zstd) on a realistic fleet.
 
 // Test code: a failed step is a failed test.
@@ -18,4 +20,5 @@ mod encoding_size;
 mod outage;
 mod python_client;
 mod three_sites;
+mod tls;
 mod two_sites;

@@ -6,8 +6,17 @@
 //! Site identity refusing (domains 119 shore, 125 ship, 126 impostor): a station claiming
 //! site `ship` with the wrong password, and the genuine ship's credentials used to publish
 //! under another site's keys, never reach the shore's picture while the ship's vehicle does.
+//!
+//! Mutual TLS (domains 127 ship, 128 shore, 129 rogue; 130 a false shore, 132 the ship
+//! facing it):
+//! each site's certificate from its own station CA (`shoal keys site-cert`), the CAs
+//! exchanged; the ship's vehicle reaches the shore, a station claiming `ship` with a
+//! certificate from another CA is refused, the genuine ship's certificate publishing under
+//! another site's keys is dropped; a connecting ship refuses a listener whose certificate
+//! its trusted CAs did not issue, and drops what the genuine shore's certificate publishes
+//! under another site's keys.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use crate::common::{free_port, http_get};
@@ -187,12 +196,13 @@ fn a_shore_station_sees_the_ships_vehicle_over_the_federation() {
         ship.log()
     );
     assert!(ship_doc["vehicles"].as_array().unwrap().is_empty());
-    // Neither password shows in either log.
+    // Neither password shows in either log; both say their links are not encrypted.
     for log in [ship.log(), shore.log()] {
         assert!(
             !log.contains("pw-ship-1") && !log.contains("pw-shore-1"),
             "{log}"
         );
+        assert!(log.contains("FEDERATION NOT ENCRYPTED"), "{log}");
     }
     drop(vehicle);
 }
@@ -389,6 +399,403 @@ fn an_impostor_and_a_forged_site_never_reach_the_shore() {
         !log.contains("pw-shore-2") && !log.contains("wrong-pw"),
         "{log}"
     );
+}
+
+/// A site's TLS files: its certificate and key, and its CA's certificate (what the
+/// other sites trust).
+struct SiteTls {
+    cert: PathBuf,
+    key: PathBuf,
+    ca: PathBuf,
+}
+
+/// A new station key store in `dir/<store>` (`shoal keys init`) and `site`'s certificate
+/// from it (`shoal keys site-cert`), valid for 127.0.0.1.
+fn site_tls(dir: &Path, store: &str, site: &str) -> SiteTls {
+    let keys = dir.join(store);
+    let out = dir.join(format!("{store}-federation"));
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_shoal"))
+            .arg("keys")
+            .arg("--dir")
+            .arg(&keys)
+            .args(args)
+            .current_dir(dir)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "shoal keys {args:?}: {o:?}");
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    run(&["init", "--station", store]);
+    let out_arg = out.display().to_string();
+    let said = run(&["site-cert", site, "--name", "127.0.0.1", "--out", &out_arg]);
+    assert!(said.contains(&format!("{site}-ca.crt")), "{said}");
+    SiteTls {
+        cert: out.join(format!("{site}.crt")),
+        key: out.join(format!("{site}.key")),
+        ca: out.join(format!("{site}-ca.crt")),
+    }
+}
+
+/// The environment turning on `[federation.tls]` with `tls`, trusting the CAs in
+/// `trusted` (one PEM bundle written next to them).
+fn tls_env(dir: &Path, name: &str, tls: &SiteTls, trusted: &[&Path]) -> Vec<(String, String)> {
+    let bundle = dir.join(format!("{name}-trusted-cas.pem"));
+    let pem: String = trusted
+        .iter()
+        .map(|p| std::fs::read_to_string(p).unwrap())
+        .collect();
+    std::fs::write(&bundle, pem).unwrap();
+    let path = |p: &Path| p.display().to_string();
+    vec![
+        ("SHOAL_FEDERATION__TLS__ENABLED".into(), "true".into()),
+        ("SHOAL_FEDERATION__TLS__CERTIFICATE".into(), path(&tls.cert)),
+        ("SHOAL_FEDERATION__TLS__PRIVATE_KEY".into(), path(&tls.key)),
+        ("SHOAL_FEDERATION__TLS__TRUSTED_CAS".into(), path(&bundle)),
+    ]
+}
+
+/// `site/vehicle` of every remote vehicle in a station's federated picture.
+fn remote_vehicles(api: u16) -> Vec<String> {
+    json(api, "/api/federation")["vehicles"]
+        .as_array()
+        .map(|vs| {
+            vs.iter()
+                .map(|v| {
+                    format!(
+                        "{}/{}",
+                        v["site"].as_str().unwrap_or(""),
+                        v["vehicle_id"].as_str().unwrap_or("")
+                    )
+                })
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// A simulated AUV on `domain`.
+fn auv(dir: &Path, id: &'static str, domain: u16) -> Proc {
+    Proc::start_with(
+        id,
+        dir,
+        domain,
+        &[
+            "--insecure",
+            "vehicle",
+            "--sim",
+            "auv",
+            "--id",
+            id,
+            "--lat",
+            "63.44",
+            "--lon",
+            "10.36",
+        ],
+        &[],
+    )
+}
+
+#[test]
+fn two_stations_federate_over_mutual_tls_and_refuse_a_foreign_ca_and_a_forged_site() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ship_api, shore_api, rogue_api, zenoh) =
+        (free_port(), free_port(), free_port(), free_port());
+    let endpoint = format!("[\"tls/127.0.0.1:{zenoh}\"]");
+    // Each site's certificate from its own station's CA; the CAs exchanged. The rogue's
+    // CA is nobody's: it trusts the shore's, but the shore does not trust it.
+    let shore_tls = site_tls(dir.path(), "shore-keys", "shore");
+    let ship_tls = site_tls(dir.path(), "ship-keys", "ship");
+    let rogue_tls = site_tls(dir.path(), "rogue-keys", "ship");
+    let station = |name: &'static str, domain: u16, api: u16, env: &[(String, String)]| {
+        federated_station(dir.path(), name, domain, api, ":memory:", &refs(env))
+    };
+    let with = |mut env: Vec<(String, String)>, more: &[(&str, &str)]| {
+        env.extend(
+            more.iter()
+                .map(|(k, v)| ((*k).to_string(), (*v).to_string())),
+        );
+        env
+    };
+
+    // The shore listens and accepts ship and ship2 (a site that is not running: the
+    // forgery below claims it). The refused handshakes show in its log at Zenoh's
+    // TLS link target.
+    let shore_env = with(
+        tls_env(dir.path(), "shore", &shore_tls, &[&ship_tls.ca]),
+        &[
+            ("SHOAL_FEDERATION__SITE", "shore"),
+            ("SHOAL_FEDERATION__LISTEN", &endpoint),
+            ("SHOAL_FEDERATION__REMOTE_SITES", "[\"ship\", \"ship2\"]"),
+            (
+                "RUST_LOG",
+                "info,zenoh_link_tls=debug,zenoh::net::runtime::orchestrator=debug",
+            ),
+        ],
+    );
+    let mut shore = station("shore", 128, shore_api, &shore_env);
+    shore.wait_for(60, "the shore's API", || {
+        http_get(shore_api, "/api/fleet").is_ok()
+    });
+    let ship_like = |tls: &SiteTls, name: &str| {
+        with(
+            tls_env(dir.path(), name, tls, &[&shore_tls.ca]),
+            &[
+                ("SHOAL_FEDERATION__SITE", "ship"),
+                ("SHOAL_FEDERATION__LISTEN", "[]"),
+                ("SHOAL_FEDERATION__CONNECT", &endpoint),
+                ("SHOAL_FEDERATION__REMOTE_SITES", "[\"shore\"]"),
+                ("SHOAL_FEDERATION__POSITIONS__MAX_RATE_HZ", "2.0"),
+            ],
+        )
+    };
+    let mut rogue = station("rogue", 129, rogue_api, &ship_like(&rogue_tls, "rogue"));
+    let mut ship = station("ship", 127, ship_api, &ship_like(&ship_tls, "ship"));
+    let _genuine = auv(dir.path(), "auv-t1", 127);
+    let _rogue_auv = auv(dir.path(), "auv-rogue", 129);
+
+    shore.wait_for(60, "the ship's auv-t1 at the shore over TLS", || {
+        remote_vehicles(shore_api).contains(&"ship/auv-t1".to_string())
+    });
+    rogue.wait_for(30, "the rogue's vehicle at its own station", || {
+        http_get(rogue_api, "/api/fleet").is_ok_and(|b| b.contains("auv-rogue"))
+    });
+    // The shore is online at the ship: the link is up both ways.
+    ship.wait_for(30, "the shore online at the ship", || {
+        json(ship_api, "/api/federation")["sites"]
+            .as_array()
+            .is_some_and(|s| {
+                s.iter()
+                    .any(|s| s["site"] == "shore" && s["online"] == true)
+            })
+    });
+    for (p, who) in [(&ship, "ship"), (&shore, "shore")] {
+        let log = p.log();
+        assert!(log.contains("tls"), "{who} does not say TLS is on:\n{log}");
+        assert!(!log.contains("NOT ENCRYPTED"), "{who}:\n{log}");
+    }
+
+    // The genuine ship's certificate in a raw Zenoh session: what it publishes under its
+    // own site arrives, what it publishes under ship2 (a site the shore accepts) is
+    // dropped by the shore's access control (by the certificate's common name).
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let mut z = zenoh::Config::default();
+    let quoted = |p: &Path| format!("{:?}", p.display().to_string());
+    for (k, v) in [
+        ("mode", r#""peer""#.to_string()),
+        ("listen/endpoints", "[]".into()),
+        ("connect/endpoints", endpoint.clone()),
+        ("scouting/multicast/enabled", "false".into()),
+        ("scouting/gossip/enabled", "false".into()),
+        (
+            "transport/link/tls/root_ca_certificate",
+            quoted(&shore_tls.ca),
+        ),
+        (
+            "transport/link/tls/connect_certificate",
+            quoted(&ship_tls.cert),
+        ),
+        (
+            "transport/link/tls/connect_private_key",
+            quoted(&ship_tls.key),
+        ),
+        ("transport/link/tls/enable_mtls", "true".into()),
+    ] {
+        z.insert_json5(k, &v).unwrap();
+    }
+    let raw = rt.block_on(async { zenoh::open(z).await }).unwrap();
+    let publish = || {
+        rt.block_on(async {
+            raw.put(
+                "shoal/ship/vehicles/raw-t1/position",
+                position_frame("raw-t1"),
+            )
+            .await
+            .unwrap();
+            raw.put(
+                "shoal/ship2/vehicles/forged-t1/position",
+                position_frame("forged-t1"),
+            )
+            .await
+            .unwrap();
+        });
+        true
+    };
+    shore.wait_for(
+        30,
+        "raw-t1 from the raw session with ship's certificate",
+        || publish() && remote_vehicles(shore_api).contains(&"ship/raw-t1".to_string()),
+    );
+    // A bounded wait, publishing the forgery all along, in which neither the rogue's
+    // vehicle nor anything of ship2 ever shows.
+    let until = Instant::now() + Duration::from_secs(10);
+    while Instant::now() < until {
+        publish();
+        let ids = remote_vehicles(shore_api);
+        assert!(
+            ids.iter()
+                .all(|id| id != "ship/auv-rogue" && !id.starts_with("ship2/")),
+            "{ids:?}\n{}",
+            shore.log()
+        );
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    rt.block_on(async { raw.close().await }).unwrap();
+    let doc = json(shore_api, "/api/federation");
+    for reason in ["refused_unknown_site", "refused_site_mismatch"] {
+        assert_eq!(doc["counters"][reason].as_u64().unwrap_or(0), 0, "{doc}");
+    }
+    // The rogue's handshake was refused by the shore's rustls (its CA is not trusted),
+    // and the rogue never saw the shore.
+    let log = shore.log();
+    assert!(
+        log.contains("UnknownIssuer") || log.contains("unknown issuer"),
+        "the rogue's refused handshake is not in the shore's log:\n{log}"
+    );
+    let rogue_doc = json(rogue_api, "/api/federation");
+    assert!(
+        rogue_doc["sites"]
+            .as_array()
+            .is_some_and(|s| s.iter().all(|s| s["online"] != true)),
+        "{rogue_doc}"
+    );
+}
+
+#[test]
+fn a_connecting_ship_refuses_a_false_shore_and_polices_the_genuine_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ship_api, false_api, false_port, genuine_port) =
+        (free_port(), free_port(), free_port(), free_port());
+    let false_ep = format!("tls/127.0.0.1:{false_port}");
+    let genuine_ep = format!("tls/127.0.0.1:{genuine_port}");
+    let shore_tls = site_tls(dir.path(), "shore-keys", "shore");
+    let false_tls = site_tls(dir.path(), "false-keys", "shore");
+    let ship_tls = site_tls(dir.path(), "ship-keys", "ship");
+    // A false shore that trusts the ship (so only the ship's check can refuse the link),
+    // with a certificate for site `shore` from a CA the ship does not trust.
+    let false_listen = format!("[\"{false_ep}\"]");
+    let mut false_env = tls_env(dir.path(), "false", &false_tls, &[&ship_tls.ca]);
+    false_env.extend(
+        [
+            ("SHOAL_FEDERATION__SITE", "shore"),
+            ("SHOAL_FEDERATION__LISTEN", false_listen.as_str()),
+            ("SHOAL_FEDERATION__REMOTE_SITES", "[\"ship\"]"),
+        ]
+        .map(|(k, v)| (k.to_string(), v.to_string())),
+    );
+    let mut false_shore = federated_station(
+        dir.path(),
+        "false-shore",
+        130,
+        false_api,
+        ":memory:",
+        &refs(&false_env),
+    );
+    false_shore.wait_for(60, "the false shore's API", || {
+        http_get(false_api, "/api/fleet").is_ok()
+    });
+    // The genuine shore's certificate in a raw Zenoh listener that publishes under its
+    // own site and under ship9's (a site the ship accepts): the ship, which connects,
+    // polices what it receives by the listener's common name too.
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let mut z = zenoh::Config::default();
+    let quoted = |p: &Path| format!("{:?}", p.display().to_string());
+    for (k, v) in [
+        ("mode", r#""peer""#.to_string()),
+        ("listen/endpoints", format!("[\"{genuine_ep}\"]")),
+        ("connect/endpoints", "[]".into()),
+        ("scouting/multicast/enabled", "false".into()),
+        ("scouting/gossip/enabled", "false".into()),
+        (
+            "transport/link/tls/root_ca_certificate",
+            quoted(&ship_tls.ca),
+        ),
+        (
+            "transport/link/tls/listen_certificate",
+            quoted(&shore_tls.cert),
+        ),
+        (
+            "transport/link/tls/listen_private_key",
+            quoted(&shore_tls.key),
+        ),
+        ("transport/link/tls/enable_mtls", "true".into()),
+    ] {
+        z.insert_json5(k, &v).unwrap();
+    }
+    let raw = rt.block_on(async { zenoh::open(z).await }).unwrap();
+
+    let connect = format!("[\"{false_ep}\", \"{genuine_ep}\"]");
+    let mut ship_env = tls_env(dir.path(), "ship", &ship_tls, &[&shore_tls.ca]);
+    ship_env.extend(
+        [
+            ("SHOAL_FEDERATION__SITE", "ship"),
+            ("SHOAL_FEDERATION__LISTEN", "[]"),
+            ("SHOAL_FEDERATION__CONNECT", connect.as_str()),
+            ("SHOAL_FEDERATION__REMOTE_SITES", "[\"shore\", \"ship9\"]"),
+            // A connecting site logs each refused attempt here (docs/federation.md).
+            ("RUST_LOG", "info,zenoh::net::runtime::orchestrator=debug"),
+        ]
+        .map(|(k, v)| (k.to_string(), v.to_string())),
+    );
+    let mut ship = federated_station(
+        dir.path(),
+        "ship",
+        132,
+        ship_api,
+        ":memory:",
+        &refs(&ship_env),
+    );
+    let publish = || {
+        rt.block_on(async {
+            raw.put(
+                "shoal/shore/vehicles/raw-s1/position",
+                position_frame("raw-s1"),
+            )
+            .await
+            .unwrap();
+            raw.put(
+                "shoal/ship9/vehicles/forged-s1/position",
+                position_frame("forged-s1"),
+            )
+            .await
+            .unwrap();
+        });
+        true
+    };
+    ship.wait_for(
+        60,
+        "raw-s1 from the genuine shore's certificate at the ship",
+        || publish() && remote_vehicles(ship_api).contains(&"shore/raw-s1".to_string()),
+    );
+    let ship_log = dir.path().join("ship.log");
+    ship.wait_for(
+        30,
+        "the ship's refusal of the false shore in its log",
+        || {
+            let log = std::fs::read_to_string(&ship_log).unwrap_or_default();
+            log.contains("UnknownIssuer")
+        },
+    );
+    // A bounded wait in which nothing of ship9 reaches the ship, and the false shore
+    // never has the ship online.
+    let until = Instant::now() + Duration::from_secs(5);
+    while Instant::now() < until {
+        publish();
+        let ids = remote_vehicles(ship_api);
+        assert!(
+            ids.iter().all(|id| !id.starts_with("ship9/")),
+            "{ids:?}\n{}",
+            ship.log()
+        );
+        let doc = json(false_api, "/api/federation");
+        assert!(
+            doc["sites"]
+                .as_array()
+                .is_some_and(|s| s.iter().all(|s| s["online"] != true)),
+            "{doc}"
+        );
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    rt.block_on(async { raw.close().await }).unwrap();
 }
 
 #[test]
