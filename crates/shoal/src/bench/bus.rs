@@ -101,7 +101,7 @@ fn median(mut values: Vec<f64>) -> f64 {
 
 /// How both ends of the round trip receive a sample.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub(crate) enum Delivery {
+pub(crate) enum ReceivePath {
     /// A function on Cyclone's receive thread answers at once ([`shoal_dds::PubSub::listen`]):
     /// no thread woken, as in ddsperf's default (listener) mode.
     Listener,
@@ -110,7 +110,7 @@ pub(crate) enum Delivery {
     Stream,
 }
 
-impl Delivery {
+impl ReceivePath {
     fn as_str(self) -> &'static str {
         match self {
             Self::Listener => "listener",
@@ -124,7 +124,7 @@ fn pong_helper(
     cfg: &ShoalConfig,
     domain: u16,
     keystore: Option<&std::path::Path>,
-    delivery: Delivery,
+    delivery: ReceivePath,
 ) -> Result<tokio::process::Child> {
     let mut args = vec![
         "pong".to_string(),
@@ -212,7 +212,7 @@ async fn listener_round_trip(cfg: &ShoalConfig, domain: u16, seconds: u64) -> Re
             }
         })?
     };
-    let _child = pong_helper(cfg, domain, None, Delivery::Listener)?;
+    let _child = pong_helper(cfg, domain, None, ReceivePath::Listener)?;
     // Discovery first: ping until one comes back.
     let start = Instant::now();
     loop {
@@ -295,7 +295,7 @@ pub(super) async fn round_trip(
         super::security::participant(cfg, domain, keystore, &shoal_security::dds::Grant::Station)?;
     let ping = dds.writer_on::<StateVector>(PING, WriterOptions::new(Priority::Telemetry))?;
     let mut pongs = dds.subscribe_on::<StateVector>(PONG)?;
-    let _child = pong_helper(cfg, domain, keystore, Delivery::Stream)?;
+    let _child = pong_helper(cfg, domain, keystore, ReceivePath::Stream)?;
     // Discovery first: ping until one comes back.
     let start = Instant::now();
     let mut seq = 0u64;
@@ -349,13 +349,13 @@ pub(super) async fn pong(
     cfg: &ShoalConfig,
     domain: u16,
     keystore: Option<&std::path::Path>,
-    delivery: Delivery,
+    delivery: ReceivePath,
 ) -> Result<()> {
     let dds =
         super::security::participant(cfg, domain, keystore, &shoal_security::dds::Grant::Station)?;
     let w = dds.writer_on::<StateVector>(PONG, WriterOptions::new(Priority::Telemetry))?;
     let stop = crate::daemons::shutdown_signal(true);
-    if delivery == Delivery::Listener {
+    if delivery == ReceivePath::Listener {
         let _listening = dds.listen_on::<StateVector, _>(PING, move |ping| {
             if let Ok((s, _)) = ping {
                 let _ = w.write_blocking(s.into_inner());
