@@ -18,6 +18,8 @@
 //!   in another process: wall time against the ideal, loss, lag behind the schedule.
 //! - [`scenario`]: a scenario run headless at a speed-up, start to report, against its
 //!   target.
+//! - [`federation`]: three sites' stations over [`wan`], a user-space satellite WAN
+//!   between network namespaces (delay, rate, loss, outage on TUN devices).
 //! - [`suite`]: every target in one table, each beside its peer.
 //! - [`helpers`]: what several of them share (participants, helper processes,
 //!   percentiles, memory, the machine and date of a run).
@@ -29,6 +31,7 @@
 mod acoustic;
 mod bus;
 mod endurance;
+mod federation;
 mod helpers;
 mod ingest;
 mod late_joiner;
@@ -41,6 +44,7 @@ mod security;
 mod semantic;
 mod soak;
 mod suite;
+mod wan;
 
 use anyhow::Result;
 use clap::Subcommand;
@@ -254,6 +258,13 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 87)]
         domain: u16,
     },
+    /// The federation over an emulated satellite WAN (network namespaces, TUN devices):
+    /// a ship, the shore and a second ship; backlog, uplink per added site, alarm latency
+    /// and exactly-once across an outage. Needs root.
+    Federation(federation::Plan),
+    /// (helper) One ship's load for `bench federation`, in its namespace.
+    #[command(hide = true)]
+    WanLoad(federation::LoadArgs),
     /// (helper) Echo pings back as pongs.
     #[command(hide = true)]
     Pong {
@@ -263,8 +274,8 @@ pub enum BenchCommand {
         #[arg(long)]
         keystore: Option<std::path::PathBuf>,
         /// Answer in a listener on Cyclone's receive thread, or in a task.
-        #[arg(long, value_enum, default_value_t = bus::Delivery::Stream)]
-        delivery: bus::Delivery,
+        #[arg(long, value_enum, default_value_t = bus::ReceivePath::Stream)]
+        delivery: bus::ReceivePath,
     },
     /// (helper) Participants that each publish their own state.
     #[command(hide = true)]
@@ -454,6 +465,8 @@ pub async fn run(which: BenchCommand, cfg: &ShoalConfig) -> Result<()> {
             };
             replay::replay(cfg, plan).await
         }
+        BenchCommand::Federation(plan) => federation::federation(plan).await,
+        BenchCommand::WanLoad(args) => federation::wan_load(cfg, args).await,
         BenchCommand::Pong {
             domain,
             keystore,

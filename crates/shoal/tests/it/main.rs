@@ -21,6 +21,8 @@
 //! - `scenario_run`: `shoal scenario run` headless at 60x and its report directory.
 //! - `converter`: the DDS-Acoustic Converter (VDT, CDT, the emulated relay) with a
 //!   simulated vehicle behind it; its own module list says where its tests go.
+//! - `wan`: `shoal bench federation`'s short run: three stations in network namespaces of
+//!   their own over an emulated satellite link, exactly once across an outage.
 //! - `interop`: foreign DDS implementations (Cyclone DDS, RTI Connext, Fast DDS) against
 //!   the station, both directions; skipped with a reason when a peer is not installed.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
@@ -40,3 +42,4 @@ mod scenario;
 mod scenario_run;
 mod security;
 mod station;
+mod wan;
