@@ -359,6 +359,10 @@ pub struct Limits {
     pub reorder_window: usize,
     /// Replies read from one catch-up query at most.
     pub catchup_replies: usize,
+    /// Frames asked for in one catch-up query (`limit=`); a full answer is followed by the
+    /// next query at once. Small enough that an answer crosses a slow link within
+    /// `catchup_timeout_ms`: 100 frames are about 10 kB, 1.3 s at 64 kbit/s.
+    pub catchup_batch: usize,
     /// How long a catch-up query waits for its replies, ms.
     pub catchup_timeout_ms: u64,
 }
@@ -371,6 +375,7 @@ impl Default for Limits {
             remote_transitions: 1000,
             reorder_window: 1024,
             catchup_replies: 1000,
+            catchup_batch: 100,
             catchup_timeout_ms: 10_000,
         }
     }
@@ -438,6 +443,13 @@ impl FederationConfig {
         bounded("limits.remote_transitions", l.remote_transitions)?;
         bounded("limits.reorder_window", l.reorder_window)?;
         bounded("limits.catchup_replies", l.catchup_replies)?;
+        bounded("limits.catchup_batch", l.catchup_batch)?;
+        if l.catchup_batch > l.catchup_replies {
+            return Err(invalid(
+                "limits.catchup_batch",
+                "must not exceed limits.catchup_replies",
+            ));
+        }
         if !(1..=600_000).contains(&l.catchup_timeout_ms) {
             return Err(invalid(
                 "limits.catchup_timeout_ms",

@@ -480,7 +480,12 @@ async fn serve_catchup(
             .and_then(|v| v.parse().ok())
             .unwrap_or(0);
         let epoch = params.get("epoch").and_then(|v| v.parse().ok());
-        let frames = lock(&shared.outbound).catchup(stream, epoch, after, limit);
+        // What the asker can take in one answer (a slow link), never more than ours.
+        let asked = params
+            .get("limit")
+            .and_then(|v| v.parse::<usize>().ok())
+            .map_or(limit, |n| n.clamp(1, limit));
+        let frames = lock(&shared.outbound).catchup(stream, epoch, after, asked);
         debug!(
             stream = stream.as_str(),
             after,
@@ -496,7 +501,8 @@ async fn serve_catchup(
     }
 }
 
-/// Asks remote sites for what this site missed, one query at a time.
+/// Asks remote sites for what this site missed, one query at a time, each for at most
+/// `limits.catchup_batch` frames; a full answer is followed by the query for the next part.
 async fn ask_catchup(
     session: Session,
     shared: Arc<Shared>,
@@ -504,15 +510,20 @@ async fn ask_catchup(
     timeout: Duration,
     stop: CancellationToken,
 ) {
+    let mut next: Option<CatchupRequest> = None;
     loop {
-        let request = tokio::select! {
-            () = stop.cancelled() => break,
-            r = requests.recv() => match r { Some(r) => r, None => break },
+        let request = match next.take() {
+            Some(r) => r,
+            None => tokio::select! {
+                () = stop.cancelled() => break,
+                r = requests.recv() => match r { Some(r) => r, None => break },
+            },
         };
         let mut selector = format!(
-            "{}?after={}",
+            "{}?after={};limit={}",
             keys::catchup(&request.site, request.stream),
-            request.after
+            request.after,
+            request.limit
         );
         if let Some(epoch) = request.epoch {
             selector.push_str(&format!(";epoch={epoch}"));
@@ -531,12 +542,13 @@ async fn ask_catchup(
                 continue;
             }
         };
-        let mut taken = 0u64;
+        let (mut taken, mut answered) = (0u64, 0usize);
         loop {
             let reply = tokio::select! {
                 () = stop.cancelled() => return,
                 r = replies.recv_async() => match r { Ok(r) => r, Err(_) => break },
             };
+            answered += 1;
             match reply.result() {
                 Ok(sample) => {
                     let key = sample.key_expr().as_str();
@@ -550,10 +562,18 @@ async fn ask_catchup(
                 Err(e) => debug!(selector, error = ?e, "catch-up error reply"),
             }
         }
-        lock(&shared.inbound).finish_catchup(&request, true);
+        let more = {
+            let mut inbound = lock(&shared.inbound);
+            inbound.finish_catchup(&request, true);
+            // A full answer: the sender may have more; ask for the next part at once.
+            (answered >= request.limit)
+                .then(|| inbound.continue_catchup(&request.site, request.stream))
+                .flatten()
+        };
         if taken > 0 {
             shared.changed.send_modify(|n| *n += 1);
         }
-        debug!(site = %request.site, stream = request.stream.as_str(), taken, "catch-up done");
+        debug!(site = %request.site, stream = request.stream.as_str(), taken, answered, more = more.is_some(), "catch-up done");
+        next = more;
     }
 }

@@ -91,6 +91,8 @@ pub struct CatchupRequest {
     pub epoch: Option<u64>,
     /// Everything up to this sequence number has been delivered.
     pub after: u64,
+    /// Frames asked for at most (`limits.catchup_batch`).
+    pub limit: usize,
 }
 
 /// The receiving side's counters.
@@ -349,6 +351,12 @@ impl Inbound {
         }
     }
 
+    /// The next part of a catch-up whose last answer was full (as many frames as it
+    /// asked for: the sender may have more), unless a query is already under way.
+    pub fn continue_catchup(&mut self, site: &str, stream: Stream) -> Option<CatchupRequest> {
+        self.request(site, stream)
+    }
+
     /// A catch-up query for a stream, unless one is already under way.
     fn request(&mut self, site: &str, stream: Stream) -> Option<CatchupRequest> {
         let key = (site.to_string(), stream);
@@ -366,6 +374,7 @@ impl Inbound {
             stream,
             epoch,
             after,
+            limit: self.limits.catchup_batch,
         })
     }
 

@@ -28,7 +28,8 @@ pub struct PositionLimiter {
 #[derive(Debug, Default)]
 struct Slot {
     pending: Option<VehiclePosition>,
-    last_sent_ms: Option<i64>,
+    /// When the vehicle may next send; `None` until its first position is due.
+    next_ms: Option<i64>,
     /// Fix time of the newest position taken, to ignore older ones arriving late.
     newest_fix_ms: i64,
 }
@@ -78,14 +79,32 @@ impl PositionLimiter {
     }
 
     /// The positions to send at `now_ms`, each marked sent.
+    ///
+    /// Each vehicle sends on its own phase of the period, from a hash of its id: a fleet
+    /// whose states arrive together would otherwise leave together, every period, as one
+    /// burst that fills a slow link's buffer for seconds (500 vehicles at 0.2 Hz: 20 kB,
+    /// 2.5 s of a 64 kbit/s link) with alarms queued behind it.
     pub fn due(&mut self, now_ms: i64) -> Vec<VehiclePosition> {
+        let period = self.period_ms;
         let mut out = Vec::new();
-        for slot in self.vehicles.values_mut() {
-            let ready = slot
-                .last_sent_ms
-                .is_none_or(|last| now_ms - last >= self.period_ms);
-            if ready && let Some(p) = slot.pending.take() {
-                slot.last_sent_ms = Some(now_ms);
+        for (id, slot) in &mut self.vehicles {
+            if slot.pending.is_none() {
+                continue;
+            }
+            let next = *slot
+                .next_ms
+                .get_or_insert_with(|| now_ms + phase(id, period));
+            if now_ms >= next
+                && let Some(p) = slot.pending.take()
+            {
+                // On the vehicle's grid while it keeps sending; a vehicle silent for longer
+                // than a period starts again from now.
+                let after = next + period;
+                slot.next_ms = Some(if after > now_ms {
+                    after
+                } else {
+                    now_ms + period
+                });
                 out.push(p);
             }
         }
@@ -313,6 +332,15 @@ impl Outbound {
     }
 }
 
+/// A vehicle's offset into the period, ms: FNV-1a of its id, so the same on every run.
+fn phase(id: &str, period_ms: i64) -> i64 {
+    let h = id.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    });
+    let period = u64::try_from(period_ms.max(1)).unwrap_or(1);
+    i64::try_from(h % period).unwrap_or(0)
+}
+
 #[cfg(test)]
 mod tests {
     use shoal_model::{Severity, TaskState};
@@ -331,31 +359,65 @@ mod tests {
     #[test]
     fn a_vehicle_sends_at_most_once_per_period_and_the_latest_value_wins() {
         let mut l = PositionLimiter::new(0.2); // every 5 s
+        let p = phase("a", 5000);
         assert_eq!(l.offer(at("a", 0, 1.0)), Offer::Queued);
-        assert_eq!(l.due(0).len(), 1);
+        if p > 0 {
+            assert!(l.due(0).is_empty(), "sent before its phase");
+        }
+        assert_eq!(l.due(p).len(), 1);
         // Four fixes within the period: only the last crosses, when the period is over.
         for (i, lat) in [2.0, 3.0, 4.0, 5.0].into_iter().enumerate() {
-            l.offer(at("a", 1000 * (i as i64 + 1), lat));
-            assert!(l.due(1000 * (i as i64 + 1)).is_empty());
+            l.offer(at("a", p + 1000 * (i as i64 + 1), lat));
+            assert!(l.due(p + 1000 * (i as i64 + 1)).is_empty());
         }
-        assert!(l.due(4999).is_empty());
-        let sent = l.due(5000);
+        assert!(l.due(p + 4999).is_empty());
+        let sent = l.due(p + 5000);
         assert_eq!(sent.len(), 1);
         assert_eq!(sent[0].latitude_deg, 5.0);
         assert_eq!(l.coalesced(), 3);
         // Nothing new: nothing sent, however late.
         assert!(l.due(60_000).is_empty());
+        // After a silence longer than the period, the next fix waits a period at most.
+        l.offer(at("a", 60_000, 6.0));
+        assert_eq!(l.due(60_000).len(), 1);
+        l.offer(at("a", 61_000, 7.0));
+        assert!(l.due(64_999).is_empty());
+        assert_eq!(l.due(65_000).len(), 1);
+    }
+
+    #[test]
+    fn a_fleet_whose_states_arrive_together_is_sent_spread_over_the_period() {
+        let mut l = PositionLimiter::new(0.2);
+        let ids: Vec<String> = (0..500).map(|i| format!("auv-{i}")).collect();
+        let mut per_tick = Vec::new();
+        // States at 1 Hz, all in the same instant; the sender ticks every 100 ms.
+        for t in (0..30_000).step_by(100) {
+            if t % 1000 == 0 {
+                for id in &ids {
+                    l.offer(at(id, t, 1.0));
+                }
+            }
+            per_tick.push(l.due(t).len());
+        }
+        // Every vehicle still sends once per period once it has started (from 5 s on)...
+        let steady: usize = per_tick[100..150].iter().sum();
+        assert_eq!(steady, 500);
+        // ...but no tick carries more than a few times its share (500 / 50 ticks).
+        let worst = per_tick.iter().max().copied().unwrap_or(0);
+        assert!(worst <= 40, "{worst} positions in one tick");
     }
 
     #[test]
     fn vehicles_are_limited_independently() {
         let mut l = PositionLimiter::new(1.0);
+        let pa = phase("a", 1000);
         l.offer(at("a", 0, 1.0));
         l.offer(at("b", 0, 1.0));
-        assert_eq!(l.due(0).len(), 2);
-        l.offer(at("a", 10, 2.0));
-        assert!(l.due(500).is_empty());
-        assert_eq!(l.due(1000).len(), 1);
+        // Each on its own phase within the first period.
+        assert_eq!(l.due(0).len() + l.due(999).len(), 2);
+        l.offer(at("a", 1000, 2.0));
+        assert!(l.due(pa + 999).is_empty());
+        assert_eq!(l.due(pa + 1000).len(), 1);
     }
 
     #[test]
@@ -363,7 +425,8 @@ mod tests {
         let mut l = PositionLimiter::new(1.0);
         l.offer(at("a", 100, 1.0));
         assert_eq!(l.offer(at("a", 50, 2.0)), Offer::Stale);
-        assert_eq!(l.due(0)[0].latitude_deg, 1.0);
+        let sent = [l.due(0), l.due(999)].concat();
+        assert_eq!(sent[0].latitude_deg, 1.0);
     }
 
     #[test]

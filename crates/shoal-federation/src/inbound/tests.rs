@@ -191,7 +191,8 @@ fn a_site_coming_up_is_asked_for_what_was_missed_on_each_stream() {
             site: "ship".into(),
             stream: Stream::Alarms,
             epoch: Some(3),
-            after: 1
+            after: 1,
+            limit: 100,
         }
     );
     assert_eq!((requests[1].epoch, requests[1].after), (None, 0));

@@ -104,3 +104,49 @@ async fn after_an_outage_each_side_catches_up_on_exactly_what_it_missed() {
     shore.shutdown().await.unwrap();
     link.close().await.unwrap();
 }
+
+/// What was missed comes in parts of `limits.catchup_batch` frames, each query asking for
+/// the next part as soon as the last was full, so a long catch-up never has to cross a
+/// slow link in one answer (the WAN bench's loop: one answer too big for the timeout,
+/// asked again and again).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_long_catch_up_comes_in_parts_of_the_batch_size() {
+    logs();
+    let port = free_port();
+    let link = router(port).await;
+    let ship = Federation::start(client("ship", port, &["shore"]))
+        .await
+        .unwrap();
+    let mut config = client("shore", port, &["ship"]);
+    config.limits.catchup_batch = 10;
+    let shore = Federation::start(config).await.unwrap();
+    eventually("the sites to see each other", || {
+        sees(&shore, "ship") && sees(&ship, "shore")
+    })
+    .await;
+    ship.push_alarm(&alarm("a0")).unwrap();
+    eventually("the first alarm", || alarm_ids(&shore, "ship") == ["a0"]).await;
+    let queries_before = shore.counters().inbound.catchup_queries;
+
+    link.close().await.unwrap();
+    eventually("the link to be down", || lost(&shore, "ship")).await;
+    for i in 1..=35 {
+        ship.push_alarm(&alarm(&format!("a{i}"))).unwrap();
+    }
+    let link = router(port).await;
+    eventually("the whole catch-up", || {
+        alarm_ids(&shore, "ship").len() >= 36
+    })
+    .await;
+
+    let seqs = alarm_seqs(&shore, "ship");
+    assert_eq!(seqs, (1..=36).collect::<Vec<u64>>());
+    let c = shore.counters().inbound;
+    assert_eq!(c.lost, 0);
+    // 35 alarms in parts of 10: four parts (10, 10, 10, 5), and the tasks stream's one.
+    let asked = c.catchup_queries - queries_before;
+    assert!(asked >= 5, "{asked} catch-up queries");
+    ship.shutdown().await.unwrap();
+    shore.shutdown().await.unwrap();
+    link.close().await.unwrap();
+}
