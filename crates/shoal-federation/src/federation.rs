@@ -229,7 +229,11 @@ impl Federation {
                 session.clone(),
                 Arc::clone(&shared),
                 catchup_rx,
-                Duration::from_millis(config.limits.catchup_timeout_ms),
+                CatchupQos {
+                    alarms: config.alarms.qos,
+                    tasks: config.tasks.qos,
+                    timeout: Duration::from_millis(config.limits.catchup_timeout_ms),
+                },
                 stop.clone(),
             )),
         ];
@@ -501,23 +505,68 @@ async fn serve_catchup(
     }
 }
 
+/// How catch-up queries are sent: each with its stream's QoS (the replies travel with the
+/// query's priority and congestion control), and how long each waits.
+#[derive(Debug, Clone, Copy)]
+struct CatchupQos {
+    alarms: Qos,
+    tasks: Qos,
+    timeout: Duration,
+}
+
+/// Wait before asking again for what a query that ran out of time did not bring.
+const CATCHUP_RETRY: Duration = Duration::from_secs(2);
+
 /// Asks remote sites for what this site missed, one query at a time, each for at most
-/// `limits.catchup_batch` frames; a full answer is followed by the query for the next part.
+/// `limits.catchup_batch` frames; a full answer is followed by the query for the next part,
+/// and a query that ran out of time is asked again (after [`CATCHUP_RETRY`], while the
+/// site is online): nothing else would ask for a gap no later frame reveals.
 async fn ask_catchup(
     session: Session,
     shared: Arc<Shared>,
     mut requests: mpsc::Receiver<CatchupRequest>,
-    timeout: Duration,
+    qos: CatchupQos,
     stop: CancellationToken,
 ) {
+    let timeout = qos.timeout;
+    let mut retries: Vec<(Instant, String, Stream)> = Vec::new();
     let mut next: Option<CatchupRequest> = None;
     loop {
         let request = match next.take() {
             Some(r) => r,
-            None => tokio::select! {
-                () = stop.cancelled() => break,
-                r = requests.recv() => match r { Some(r) => r, None => break },
-            },
+            None => {
+                let due = retries.iter().map(|r| r.0).min();
+                tokio::select! {
+                    () = stop.cancelled() => break,
+                    r = requests.recv() => match r { Some(r) => r, None => break },
+                    () = async {
+                        match due {
+                            Some(at) => tokio::time::sleep_until(at).await,
+                            None => std::future::pending().await,
+                        }
+                    } => {
+                        let now = Instant::now();
+                        let (ready, later): (Vec<_>, Vec<_>) =
+                            retries.drain(..).partition(|r| r.0 <= now);
+                        retries = later;
+                        let mut inbound = lock(&shared.inbound);
+                        for (_, site, stream) in ready {
+                            if let Some(r) = inbound.retry_catchup(&site, stream) {
+                                match next {
+                                    None => next = Some(r),
+                                    // One at a time: the others wait their turn.
+                                    Some(_) => retries.push((now, site, stream)),
+                                }
+                            }
+                        }
+                        continue;
+                    }
+                }
+            }
+        };
+        let stream_qos = match request.stream {
+            Stream::Alarms => qos.alarms,
+            Stream::Tasks => qos.tasks,
         };
         let mut selector = format!(
             "{}?after={};limit={}",
@@ -529,9 +578,12 @@ async fn ask_catchup(
             selector.push_str(&format!(";epoch={epoch}"));
         }
         // Every reply has the same key: without this Zenoh would keep only the last.
+        let started = Instant::now();
         let replies = session
             .get(&selector)
             .consolidation(ConsolidationMode::None)
+            .priority(priority(stream_qos.priority))
+            .congestion_control(congestion(stream_qos.congestion))
             .timeout(timeout)
             .await;
         let replies = match replies {
@@ -574,6 +626,22 @@ async fn ask_catchup(
             shared.changed.send_modify(|n| *n += 1);
         }
         debug!(site = %request.site, stream = request.stream.as_str(), taken, answered, more = more.is_some(), "catch-up done");
+        // Ran out of time short of a full answer: what it did not bring is asked for again.
+        let out_of_time = started.elapsed() >= timeout.mul_f64(0.95);
+        if more.is_none()
+            && out_of_time
+            && answered < request.limit
+            && !retries
+                .iter()
+                .any(|r| r.1 == request.site && r.2 == request.stream)
+        {
+            debug!(site = %request.site, stream = request.stream.as_str(), answered, "catch-up ran out of time; asking again");
+            retries.push((
+                Instant::now() + CATCHUP_RETRY,
+                request.site.clone(),
+                request.stream,
+            ));
+        }
         next = more;
     }
 }

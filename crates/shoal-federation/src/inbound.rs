@@ -357,6 +357,20 @@ impl Inbound {
         self.request(site, stream)
     }
 
+    /// A catch-up query asked again after the last ran out of time, if the site is still
+    /// online and none is under way.
+    pub fn retry_catchup(&mut self, site: &str, stream: Stream) -> Option<CatchupRequest> {
+        let online = self
+            .picture
+            .sites()
+            .any(|(s, status)| s == site && status.online);
+        if online {
+            self.request(site, stream)
+        } else {
+            None
+        }
+    }
+
     /// A catch-up query for a stream, unless one is already under way.
     fn request(&mut self, site: &str, stream: Stream) -> Option<CatchupRequest> {
         let key = (site.to_string(), stream);

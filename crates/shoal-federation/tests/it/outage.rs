@@ -6,7 +6,8 @@
 //! port restores it. The sites' own sessions stay up throughout and reconnect by
 //! themselves.
 
-use shoal_federation::Federation;
+use shoal_federation::keys::Stream;
+use shoal_federation::{Federation, keys, wire};
 use shoal_model::TaskState;
 
 use crate::common::*;
@@ -149,4 +150,52 @@ async fn a_long_catch_up_comes_in_parts_of_the_batch_size() {
     ship.shutdown().await.unwrap();
     shore.shutdown().await.unwrap();
     link.close().await.unwrap();
+}
+
+/// A catch-up query that runs out of time is asked again: over a congested link its
+/// answer may miss the timeout, and nothing else would ask for a gap that no later frame
+/// reveals (the WAN bench's missing task transitions). The "ship" is a bare Zenoh peer
+/// that holds the first query unanswered and answers the next.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_catch_up_that_runs_out_of_time_is_asked_again() {
+    logs();
+    let port = free_port();
+    let mut config = site("shore", Some(port), &[], &["ship"]);
+    config.limits.catchup_timeout_ms = 500;
+    let shore = Federation::start(config).await.unwrap();
+    let ship = raw_peer(port).await;
+    let queryable = ship
+        .declare_queryable(keys::catchup("ship", Stream::Alarms))
+        .await
+        .unwrap();
+    let answering = tokio::spawn(async move {
+        let mut held = Vec::new();
+        let mut asked = 0u32;
+        while let Ok(query) = queryable.recv_async().await {
+            asked += 1;
+            if asked == 1 {
+                // Never answered in time: kept (not dropped, which would end it at once).
+                held.push(query);
+                continue;
+            }
+            for seq in 1..=3 {
+                let frame = wire::encode_alarm("ship", 7, seq, &alarm(&format!("a{seq}"))).unwrap();
+                query.reply(query.key_expr().clone(), frame).await.unwrap();
+            }
+            return asked;
+        }
+        asked
+    });
+    let _alive = ship
+        .liveliness()
+        .declare_token(keys::alive("ship"))
+        .await
+        .unwrap();
+    eventually("the alarms, on the second query", || {
+        alarm_ids(&shore, "ship") == ["a1", "a2", "a3"]
+    })
+    .await;
+    assert_eq!(answering.await.unwrap(), 2);
+    assert_eq!(shore.counters().inbound.lost, 0);
+    shore.shutdown().await.unwrap();
 }
