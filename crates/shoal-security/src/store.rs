@@ -369,24 +369,29 @@ impl KeyStore {
         cert_path: &Path,
         key_path: &Path,
     ) -> Result<Certificate, StoreError> {
-        let now = self.now();
         let key = PrivateKey::generate()?;
-        let ca = self.anchor.certificate();
-        // A leaf never outlives the CA that vouches for it.
-        let not_after = now
-            .saturating_add(days_ms(self.options.cert_validity_days))
-            .min(ca.not_after_ms());
+        let (not_before, not_after) = self.leaf_validity();
         let cert = issue_leaf(
-            ca,
+            self.anchor.certificate(),
             &self.ca_key,
             &key,
             identity,
-            now - BACKDATE_MS,
+            not_before,
             not_after,
         )?;
         files::write_secret(key_path, key.to_pem().as_bytes())?;
         files::write_public(cert_path, cert.to_pem().as_bytes())?;
         Ok(cert)
+    }
+
+    /// A new leaf's validity, ms since the Unix epoch: back-dated a little for clocks
+    /// behind ours, `cert_validity_days` long, and never beyond the CA that vouches for it.
+    fn leaf_validity(&self) -> (i64, i64) {
+        let now = self.now();
+        let not_after = now
+            .saturating_add(days_ms(self.options.cert_validity_days))
+            .min(self.anchor.certificate().not_after_ms());
+        (now - BACKDATE_MS, not_after)
     }
 
     /// Issues a federation site certificate (CN `site`, SANs `names`, serverAuth and
@@ -411,19 +416,15 @@ impl KeyStore {
                 "site {site:?}: name at least one DNS name or IP address it listens on"
             )));
         }
-        let now = self.now();
         let key = PrivateKey::generate()?;
-        let ca = self.anchor.certificate();
-        let not_after = now
-            .saturating_add(days_ms(self.options.cert_validity_days))
-            .min(ca.not_after_ms());
+        let (not_before, not_after) = self.leaf_validity();
         let cert = issue_site_leaf(
-            ca,
+            self.anchor.certificate(),
             &self.ca_key,
             &key,
             site,
             names,
-            now - BACKDATE_MS,
+            not_before,
             not_after,
         )?;
         if !dest.exists() {
@@ -432,7 +433,10 @@ impl KeyStore {
         }
         files::write_secret(&dest.join(format!("{site}.key")), key.to_pem().as_bytes())?;
         files::write_public(&dest.join(format!("{site}.crt")), cert.to_pem().as_bytes())?;
-        files::write_public(&dest.join(format!("{site}-ca.crt")), ca.to_pem().as_bytes())?;
+        files::write_public(
+            &dest.join(format!("{site}-ca.crt")),
+            self.anchor.certificate().to_pem().as_bytes(),
+        )?;
         info!(
             site,
             serial = cert.serial(),
