@@ -1,5 +1,6 @@
-//! `shoal bench federation`: the federation over an emulated satellite WAN. Three sites, each a real `shoal station` in its own network namespace on its
-//! own DDS domain: `ship-1`, the `shore` and `ship-2`, joined by the user-space WAN of
+//! `shoal bench federation`: the federation over an emulated satellite WAN. Three sites,
+//! each a real `shoal station` in its own network namespace on its own DDS domain:
+//! `ship-1`, the `shore` and `ship-2`, joined by the user-space WAN of
 //! [`super::wan`] (10.77.0.1, .2, .3). The shore is a Zenoh router listening on
 //! tcp/10.77.0.2:7447 with site identity; the ships are clients of it (the documented
 //! star, docs/federation.md "Topologies"), each behind the satellite profile (600 ms RTT,
