@@ -50,6 +50,7 @@ fuzz_target!(|data: &[u8]| {
         stream: Stream::Alarms,
         epoch: None,
         after: 0,
+        limit: 100,
     };
     let _ = inbound.site_alive(&keys::alive("ship"), true, 2);
     let _ = inbound.receive_catchup(&request, &key, payload, 3);
