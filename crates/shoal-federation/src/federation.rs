@@ -484,11 +484,7 @@ async fn serve_catchup(
             .and_then(|v| v.parse().ok())
             .unwrap_or(0);
         let epoch = params.get("epoch").and_then(|v| v.parse().ok());
-        // What the asker can take in one answer (a slow link), never more than ours.
-        let asked = params
-            .get("limit")
-            .and_then(|v| v.parse::<usize>().ok())
-            .map_or(limit, |n| n.clamp(1, limit));
+        let asked = crate::outbound::catchup_limit(params.get("limit"), limit);
         let frames = lock(&shared.outbound).catchup(stream, epoch, after, asked);
         debug!(
             stream = stream.as_str(),

@@ -332,6 +332,15 @@ impl Outbound {
     }
 }
 
+/// How many frames a catch-up answer carries: the `limit=` a remote site asked for (what it
+/// can take in one answer over its link), between 1 and `own`; `own` when it asked for none
+/// or for something that is not a count.
+pub fn catchup_limit(asked: Option<&str>, own: usize) -> usize {
+    asked
+        .and_then(|v| v.parse::<usize>().ok())
+        .map_or(own, |n| n.clamp(1, own))
+}
+
 /// A vehicle's offset into the period, ms: FNV-1a of its id, so the same on every run.
 fn phase(id: &str, period_ms: i64) -> i64 {
     let h = id.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
@@ -383,6 +392,24 @@ mod tests {
         l.offer(at("a", 61_000, 7.0));
         assert!(l.due(64_999).is_empty());
         assert_eq!(l.due(65_000).len(), 1);
+    }
+
+    #[test]
+    fn a_catch_up_answer_carries_what_was_asked_for_within_our_own_limit() {
+        assert_eq!(catchup_limit(Some("100"), 1000), 100);
+        assert_eq!(catchup_limit(None, 1000), 1000);
+        // Whatever a remote site sends, the answer stays within 1..=own.
+        for (asked, want) in [
+            ("0", 1),
+            ("1000000", 1000),
+            ("18446744073709551616", 1000),
+            ("-5", 1000),
+            ("ten", 1000),
+            ("", 1000),
+            (" 10", 1000),
+        ] {
+            assert_eq!(catchup_limit(Some(asked), 1000), want, "{asked:?}");
+        }
     }
 
     #[test]
