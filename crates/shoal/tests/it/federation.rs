@@ -93,6 +93,52 @@ fn federated_station(
     station(dir, name, domain, api, db, &all)
 }
 
+/// A bare Zenoh peer (no scouting) listening on and connecting to the given endpoints (JSON
+/// arrays), with `extra` settings: a site's genuine credentials, sending what no site would.
+fn raw_zenoh(
+    rt: &tokio::runtime::Runtime,
+    listen: &str,
+    connect: &str,
+    extra: &[(&str, String)],
+) -> zenoh::Session {
+    let mut z = zenoh::Config::default();
+    for (k, v) in [
+        ("mode", r#""peer""#),
+        ("listen/endpoints", listen),
+        ("connect/endpoints", connect),
+        ("scouting/multicast/enabled", "false"),
+        ("scouting/gossip/enabled", "false"),
+    ] {
+        z.insert_json5(k, v).unwrap();
+    }
+    for (k, v) in extra {
+        z.insert_json5(k, v).unwrap();
+    }
+    rt.block_on(async { zenoh::open(z).await }).unwrap()
+}
+
+/// Zenoh's mutual-TLS settings for a raw session that `role`s ("listen" or "connect") with
+/// `site`'s certificate, trusting `ca`.
+fn mtls(role: &str, ca: &Path, site: &SiteTls) -> Vec<(&'static str, String)> {
+    let quoted = |p: &Path| format!("{:?}", p.display().to_string());
+    let (cert, key) = match role {
+        "listen" => (
+            "transport/link/tls/listen_certificate",
+            "transport/link/tls/listen_private_key",
+        ),
+        _ => (
+            "transport/link/tls/connect_certificate",
+            "transport/link/tls/connect_private_key",
+        ),
+    };
+    vec![
+        ("transport/link/tls/root_ca_certificate", quoted(ca)),
+        (cert, quoted(&site.cert)),
+        (key, quoted(&site.key)),
+        ("transport/link/tls/enable_mtls", "true".into()),
+    ]
+}
+
 fn refs(env: &[(String, String)]) -> Vec<(&str, &str)> {
     env.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect()
 }
@@ -330,21 +376,15 @@ fn an_impostor_and_a_forged_site_never_reach_the_shore() {
     // under site shore2 (accepted by the shore, with its own password) is dropped by the
     // shore's access control before the federation sees it.
     let rt = tokio::runtime::Runtime::new().unwrap();
-    let mut z = zenoh::Config::default();
-    for (k, v) in [
-        ("mode", r#""peer""#.to_string()),
-        ("listen/endpoints", "[]".into()),
-        ("connect/endpoints", connect.clone()),
-        ("scouting/multicast/enabled", "false".into()),
-        ("scouting/gossip/enabled", "false".into()),
-        (
+    let raw = raw_zenoh(
+        &rt,
+        "[]",
+        &connect,
+        &[(
             "transport/auth/usrpwd",
             r#"{ user: "ship", password: "pw-ship-2" }"#.into(),
-        ),
-    ] {
-        z.insert_json5(k, &v).unwrap();
-    }
-    let raw = rt.block_on(async { zenoh::open(z).await }).unwrap();
+        )],
+    );
     let publish = || {
         rt.block_on(async {
             raw.put(
@@ -578,31 +618,12 @@ fn two_stations_federate_over_mutual_tls_and_refuse_a_foreign_ca_and_a_forged_si
     // own site arrives, what it publishes under ship2 (a site the shore accepts) is
     // dropped by the shore's access control (by the certificate's common name).
     let rt = tokio::runtime::Runtime::new().unwrap();
-    let mut z = zenoh::Config::default();
-    let quoted = |p: &Path| format!("{:?}", p.display().to_string());
-    for (k, v) in [
-        ("mode", r#""peer""#.to_string()),
-        ("listen/endpoints", "[]".into()),
-        ("connect/endpoints", endpoint.clone()),
-        ("scouting/multicast/enabled", "false".into()),
-        ("scouting/gossip/enabled", "false".into()),
-        (
-            "transport/link/tls/root_ca_certificate",
-            quoted(&shore_tls.ca),
-        ),
-        (
-            "transport/link/tls/connect_certificate",
-            quoted(&ship_tls.cert),
-        ),
-        (
-            "transport/link/tls/connect_private_key",
-            quoted(&ship_tls.key),
-        ),
-        ("transport/link/tls/enable_mtls", "true".into()),
-    ] {
-        z.insert_json5(k, &v).unwrap();
-    }
-    let raw = rt.block_on(async { zenoh::open(z).await }).unwrap();
+    let raw = raw_zenoh(
+        &rt,
+        "[]",
+        &endpoint,
+        &mtls("connect", &shore_tls.ca, &ship_tls),
+    );
     let publish = || {
         rt.block_on(async {
             raw.put(
@@ -697,31 +718,12 @@ fn a_connecting_ship_refuses_a_false_shore_and_polices_the_genuine_one() {
     // own site and under ship9's (a site the ship accepts): the ship, which connects,
     // polices what it receives by the listener's common name too.
     let rt = tokio::runtime::Runtime::new().unwrap();
-    let mut z = zenoh::Config::default();
-    let quoted = |p: &Path| format!("{:?}", p.display().to_string());
-    for (k, v) in [
-        ("mode", r#""peer""#.to_string()),
-        ("listen/endpoints", format!("[\"{genuine_ep}\"]")),
-        ("connect/endpoints", "[]".into()),
-        ("scouting/multicast/enabled", "false".into()),
-        ("scouting/gossip/enabled", "false".into()),
-        (
-            "transport/link/tls/root_ca_certificate",
-            quoted(&ship_tls.ca),
-        ),
-        (
-            "transport/link/tls/listen_certificate",
-            quoted(&shore_tls.cert),
-        ),
-        (
-            "transport/link/tls/listen_private_key",
-            quoted(&shore_tls.key),
-        ),
-        ("transport/link/tls/enable_mtls", "true".into()),
-    ] {
-        z.insert_json5(k, &v).unwrap();
-    }
-    let raw = rt.block_on(async { zenoh::open(z).await }).unwrap();
+    let raw = raw_zenoh(
+        &rt,
+        &format!("[\"{genuine_ep}\"]"),
+        "[]",
+        &mtls("listen", &ship_tls.ca, &shore_tls),
+    );
 
     let connect = format!("[\"{false_ep}\", \"{genuine_ep}\"]");
     let mut ship_env = tls_env(dir.path(), "ship", &ship_tls, &[&shore_tls.ca]);
