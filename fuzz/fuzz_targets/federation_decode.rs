@@ -22,6 +22,10 @@ fuzz_target!(|data: &[u8]| {
         let again = wire::encode_task(&t.site, t.epoch, t.seq, &t.item).expect("re-encodes");
         assert_eq!(again, data, "task re-encoding differs");
     }
+    if let Ok(r) = wire::decode_lease("auv-1", data) {
+        let again = wire::encode_lease(&r).expect("a decoded lease re-encodes");
+        assert_eq!(again, data, "lease re-encoding differs");
+    }
 
     // The first byte picks the key, the rest is the payload; the same bytes also arrive
     // as a catch-up reply.
@@ -29,12 +33,13 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     let site = if pick & 0x80 == 0 { "ship" } else { "pirate" };
-    let key = match pick % 6 {
+    let key = match pick % 7 {
         0 => keys::position(site, "auv-1"),
         1 => keys::alarms(site),
         2 => keys::task(site, "t-1"),
         3 => keys::catchup(site, Stream::Alarms),
         4 => keys::alive(site),
+        5 => keys::lease(site, "auv-1"),
         _ => String::from_utf8_lossy(payload).into_owned(),
     };
     let config = FederationConfig {

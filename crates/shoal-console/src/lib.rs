@@ -397,6 +397,10 @@ fn build(
         .route("/api/traffic", get(traffic::traffic))
         .route("/api/acoustic", get(acoustic::acoustic))
         .route("/api/federation", get(federation::federation))
+        .route(
+            "/api/federation/leases/{vehicle}",
+            post(federation::hand_over),
+        )
         .route("/api/rules", get(rules).post(create_rule))
         .route(
             "/api/rules/{id}",
@@ -918,6 +922,7 @@ impl From<DispatchError> for ApiError {
             | DispatchError::Incapable { .. }
             | DispatchError::LowBattery { .. }
             | DispatchError::DuplicateTask(_)
+            | DispatchError::Lease(_)
             | DispatchError::DuplicateMission(_) => Self::Conflict(e.to_string()),
             DispatchError::Publish(_) => Self::Internal(e.to_string()),
             DispatchError::InMission { ref error, .. }
@@ -928,6 +933,7 @@ impl From<DispatchError> for ApiError {
                         | DispatchError::Incapable { .. }
                         | DispatchError::LowBattery { .. }
                         | DispatchError::DuplicateTask(_)
+                        | DispatchError::Lease(_)
                 ) =>
             {
                 Self::Conflict(e.to_string())

@@ -77,6 +77,8 @@ pub struct FederationConfig {
     pub tasks: TasksPolicy,
     /// Environment observations.
     pub environment: EnvironmentPolicy,
+    /// The command lease: which site commands each vehicle.
+    pub lease: LeasePolicy,
     /// Bounds on what remote sites can make this site hold.
     pub limits: Limits,
 }
@@ -101,6 +103,7 @@ impl Default for FederationConfig {
             alarms: AlarmsPolicy::default(),
             tasks: TasksPolicy::default(),
             environment: EnvironmentPolicy::default(),
+            lease: LeasePolicy::default(),
             limits: Limits::default(),
         }
     }
@@ -326,6 +329,62 @@ impl Default for TasksPolicy {
     }
 }
 
+/// The command lease (`[federation.lease]`): exactly one site commands a vehicle at a time.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LeasePolicy {
+    /// In force: this station commands only the vehicles whose lease it holds. Off, every
+    /// federated station commands the vehicles it reaches, as if alone.
+    pub enabled: bool,
+    /// Claim the lease of each vehicle registered here that no site holds (this site is its
+    /// home). False for a standby that reaches another site's vehicles but must never
+    /// claim them as its own.
+    pub home: bool,
+    /// The site that takes over this site's vehicles when this site has been offline for
+    /// `failover_timeout_ms` (it must reach them); empty: none.
+    pub standby: String,
+    /// How long the holder's site must be offline before the home or the standby takes
+    /// its leases, ms.
+    pub failover_timeout_ms: u64,
+    /// After start, how long this site waits for the remote sites' leases before it
+    /// claims its own vehicles (sooner when every remote site has answered), ms.
+    pub settle_ms: u64,
+    /// Where the leases this site knows are kept across restarts (written on every
+    /// change): a path; `auto` for `shoal-data/leases-<site>.json` (`shoal station` puts
+    /// it beside its SQLite history instead); empty: not kept (a restarted site then
+    /// relearns them from the others).
+    pub state_file: PathBuf,
+}
+
+impl LeasePolicy {
+    /// The file the leases are kept in for `site`, `None` when they are not kept.
+    pub fn state_path(&self, site: &str) -> Option<PathBuf> {
+        if self.state_file.as_os_str().is_empty() {
+            None
+        } else if self.state_file == Path::new(AUTO) {
+            Some(PathBuf::from(format!("shoal-data/leases-{site}.json")))
+        } else {
+            Some(self.state_file.clone())
+        }
+    }
+}
+
+/// `lease.state_file`'s default: the place is chosen for the site.
+pub const AUTO: &str = "auto";
+
+impl Default for LeasePolicy {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            home: true,
+            standby: String::new(),
+            failover_timeout_ms: 30_000,
+            settle_ms: 10_000,
+            state_file: PathBuf::from(AUTO),
+        }
+    }
+}
+
 /// Policy for environment observations.
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -436,6 +495,22 @@ impl FederationConfig {
                 "environment.mode",
                 "aggregated is not built yet; only off is accepted",
             ));
+        }
+        let lease = &self.lease;
+        if !lease.standby.is_empty() && !self.remote_sites.contains(&lease.standby) {
+            return Err(invalid(
+                "lease.standby",
+                format!("{} is not one of remote_sites", lease.standby),
+            ));
+        }
+        if !(1_000..=86_400_000).contains(&lease.failover_timeout_ms) {
+            return Err(invalid(
+                "lease.failover_timeout_ms",
+                "must be in 1000..=86400000 (1 s to a day)",
+            ));
+        }
+        if lease.settle_ms > 600_000 {
+            return Err(invalid("lease.settle_ms", "must be at most 600000"));
         }
         let l = &self.limits;
         bounded("limits.remote_vehicles", l.remote_vehicles)?;

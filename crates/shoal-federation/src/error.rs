@@ -9,6 +9,9 @@ pub enum StartError {
     /// The configuration cannot work.
     #[error(transparent)]
     Config(#[from] ConfigError),
+    /// The lease state file (`lease.state_file`) cannot be read.
+    #[error(transparent)]
+    LeaseFile(#[from] crate::lease_keeper::LeaseFileError),
     /// Zenoh refused a step (the session, a declaration).
     #[error("zenoh: cannot {what}: {source}")]
     Zenoh {

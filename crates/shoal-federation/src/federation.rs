@@ -38,6 +38,8 @@ use crate::config::{Congestion, FederationConfig, Priority, Qos};
 use crate::error::{ShutdownError, StartError};
 use crate::inbound::{CatchupRequest, Inbound, InboundCounters};
 use crate::keys::{self, ROOT, Stream};
+use crate::lease::{HandoverError, LeaseRecord};
+use crate::lease_keeper::{self, CommandDenied, Keeper, LeaseRun};
 use crate::outbound::{Outbound, OutboundCounters, Publication, PushError};
 use crate::picture::FederatedPicture;
 use crate::types::{TaskTransition, VehiclePosition};
@@ -65,6 +67,13 @@ struct Shared {
     /// Bumped when the picture changes, so a reader can wait for news.
     changed: watch::Sender<u64>,
     catchup: mpsc::Sender<CatchupRequest>,
+    /// The lease keeper's state; locked before `inbound` when both are.
+    lease_run: Mutex<LeaseRun>,
+    /// Remote sites to ask for their lease records.
+    lease_ask: mpsc::Sender<String>,
+    site: String,
+    state_file: std::path::PathBuf,
+    outgoing: mpsc::Sender<Outgoing>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -94,6 +103,13 @@ impl Shared {
         let key = sample.key_expr().as_str();
         let requests = lock(&self.inbound).site_alive(key, online, now_ms());
         self.changed.send_modify(|n| *n += 1);
+        if online
+            && lock(&self.lease_run).policy.enabled
+            && let Some(keys::Key::Alive { site }) = keys::Key::parse(key)
+        {
+            // Queued behind the others; a full queue: the next reconnection asks again.
+            let _ = self.lease_ask.try_send(site.to_owned());
+        }
         for request in requests {
             self.ask(request);
         }
@@ -108,6 +124,96 @@ impl Shared {
             lock(&self.inbound).finish_catchup(&request, false);
         }
     }
+
+    /// Takes a lease record from a reply to a lease query.
+    fn lease_reply(&self, key: &str, payload: &[u8]) {
+        match lock(&self.inbound).receive(key, payload, now_ms()) {
+            Ok(_) => self.changed.send_modify(|n| *n += 1),
+            Err(refusal) => debug!(key, reason = %refusal, "lease reply refused"),
+        }
+    }
+
+    /// Queues a record this site made for publishing.
+    fn publish_lease(&self, record: LeaseRecord) {
+        match record.reason {
+            crate::lease::LeaseReason::Claim => {
+                debug!(vehicle = %record.vehicle_id, term = record.term, "command lease claimed");
+            }
+            reason => info!(
+                vehicle = %record.vehicle_id,
+                holder = %record.holder,
+                term = record.term,
+                reason = reason.as_str(),
+                "command lease changed here"
+            ),
+        }
+        self.changed.send_modify(|n| *n += 1);
+        if self.outgoing.try_send(Outgoing::Lease(record)).is_err() {
+            // A remote site that missed it learns it by its lease query at reconnection;
+            // one that stays connected does not: say so.
+            lock(&self.outbound).queue_full();
+            warn!(site = %self.site, "federation publishing queue full: a lease record was not sent");
+        }
+    }
+}
+
+impl Keeper for Shared {
+    fn pass(&self) -> Vec<LeaseRecord> {
+        let mut run = lock(&self.lease_run);
+        if !run.policy.enabled || !run.settled() {
+            return Vec::new();
+        }
+        let now = now_ms();
+        let timeout = i64::try_from(run.policy.failover_timeout_ms).unwrap_or(i64::MAX);
+        let started = run.started_ms();
+        let own = run.take_own();
+        let mut inbound = lock(&self.inbound);
+        let mut made: Vec<LeaseRecord> = own
+            .iter()
+            .filter_map(|v| inbound.leases_mut().claim(v, now))
+            .collect();
+        let offline: HashMap<String, Option<i64>> = inbound
+            .leases()
+            .leases()
+            .map(|r| r.holder.clone())
+            .collect::<std::collections::BTreeSet<_>>()
+            .into_iter()
+            .filter(|s| *s != self.site)
+            .map(|s| {
+                let since = inbound.offline_since(&s, started);
+                (s, since)
+            })
+            .collect();
+        let failed_over =
+            inbound
+                .leases_mut()
+                .fail_over(|s| offline.get(s).copied().flatten(), timeout, now);
+        for r in &failed_over {
+            warn!(vehicle = %r.vehicle_id, term = r.term, "command lease taken over: its holder's site has been offline for lease.failover_timeout_ms");
+        }
+        made.extend(failed_over);
+        made
+    }
+
+    fn publish(&self, record: LeaseRecord) {
+        self.publish_lease(record);
+    }
+
+    fn persist(&self) {
+        if self.state_file.as_os_str().is_empty() {
+            return;
+        }
+        let (generation, snapshot) = {
+            let inbound = lock(&self.inbound);
+            (inbound.leases().generation(), inbound.leases().snapshot())
+        };
+        if !lock(&self.lease_run).needs_saving(generation) {
+            return;
+        }
+        if let Err(e) = lease_keeper::save(&self.state_file, &snapshot) {
+            warn!(error = %e, "command leases not saved");
+        }
+    }
 }
 
 /// What the publishing task sends.
@@ -115,6 +221,7 @@ impl Shared {
 enum Outgoing {
     Alarm(Publication),
     Task(Publication),
+    Lease(LeaseRecord),
 }
 
 /// A running federation of this site with its remote sites.
@@ -150,11 +257,29 @@ impl Federation {
         // The epoch tells a remote site that sequence numbers restarted from 1.
         let epoch = u64::try_from(now_ms()).unwrap_or(0);
         let (catchup_tx, catchup_rx) = mpsc::channel(CATCHUP_QUEUE);
+        let (lease_ask_tx, lease_ask_rx) = mpsc::channel(CATCHUP_QUEUE);
+        let (outgoing, outgoing_rx) = mpsc::channel(PUBLISH_QUEUE);
+        let mut inbound = Inbound::new(&config);
+        let policy = &config.lease;
+        let state_file = policy
+            .state_path(&config.site)
+            .filter(|_| policy.enabled)
+            .unwrap_or_default();
+        if !state_file.as_os_str().is_empty() {
+            let saved = lease_keeper::load(&state_file)?;
+            let taken = inbound.leases_mut().restore(saved);
+            info!(file = %state_file.display(), leases = taken, "command leases restored");
+        }
         let shared = Arc::new(Shared {
-            inbound: Mutex::new(Inbound::new(&config)),
+            inbound: Mutex::new(inbound),
             outbound: Mutex::new(Outbound::new(&config, epoch)),
             changed: watch::Sender::new(0),
             catchup: catchup_tx,
+            lease_run: Mutex::new(LeaseRun::new(config.lease.clone(), &config.remote_sites)),
+            lease_ask: lease_ask_tx,
+            site: config.site.clone(),
+            state_file,
+            outgoing: outgoing.clone(),
         });
         let site = config.site.clone();
 
@@ -163,6 +288,7 @@ impl Federation {
             format!("{ROOT}/*/vehicles/*/position"),
             format!("{ROOT}/*/alarms"),
             format!("{ROOT}/*/tasks/*"),
+            format!("{ROOT}/*/leases/*"),
         ] {
             let shared = Arc::clone(&shared);
             let sub = session
@@ -178,6 +304,11 @@ impl Federation {
             .allowed_origin(Locality::Remote)
             .await
             .map_err(zerr("declare the catch-up queryable"))?;
+        let lease_queryable = session
+            .declare_queryable(keys::leases(&site))
+            .allowed_origin(Locality::Remote)
+            .await
+            .map_err(zerr("declare the lease queryable"))?;
         let alarm_publisher = declare(&session, keys::alarms(&site), config.alarms.qos)
             .await
             .map_err(zerr("declare the alarm publisher"))?;
@@ -204,8 +335,8 @@ impl Federation {
         subscribers.push(alive);
 
         let stop = CancellationToken::new();
-        let (outgoing, outgoing_rx) = mpsc::channel(PUBLISH_QUEUE);
-        let tasks = vec![
+        let lease_timeout = Duration::from_millis(config.limits.catchup_timeout_ms);
+        let mut tasks = vec![
             tokio::spawn(publish_positions(
                 session.clone(),
                 Arc::clone(&shared),
@@ -214,6 +345,7 @@ impl Federation {
             )),
             tokio::spawn(publish_sequenced(
                 session.clone(),
+                site.clone(),
                 alarm_publisher,
                 config.tasks.qos,
                 outgoing_rx,
@@ -237,6 +369,36 @@ impl Federation {
                 stop.clone(),
             )),
         ];
+        if config.lease.enabled {
+            let (answers, takes, done, served) = (
+                Arc::clone(&shared),
+                Arc::clone(&shared),
+                Arc::clone(&shared),
+                site.clone(),
+            );
+            tasks.push(tokio::spawn(lease_keeper::serve(
+                lease_queryable,
+                served,
+                move || {
+                    lock(&answers.inbound)
+                        .leases()
+                        .granted_here()
+                        .cloned()
+                        .collect()
+                },
+                stop.clone(),
+            )));
+            tasks.push(tokio::spawn(lease_keeper::ask(
+                session.clone(),
+                lease_ask_rx,
+                lease_timeout,
+                move |key, payload| takes.lease_reply(key, payload),
+                move |site| lock(&done.lease_run).answered(site),
+                stop.clone(),
+            )));
+            let keeper: Arc<dyn Keeper> = Arc::clone(&shared) as Arc<dyn Keeper>;
+            tasks.push(tokio::spawn(lease_keeper::keep(keeper, stop.clone())));
+        }
         let mechanisms = identity.as_ref().map_or("none", |id| id.mechanisms());
         let encrypted = identity.as_ref().is_some_and(|id| id.encrypted());
         info!(
@@ -284,9 +446,82 @@ impl Federation {
         self.epoch
     }
 
-    /// Takes a local vehicle position; it crosses when its vehicle is next due.
+    /// Takes a local vehicle position; it crosses when its vehicle is next due. The
+    /// vehicle counts as this site's own: its command lease is claimed here once settled.
     pub fn push_position(&self, position: VehiclePosition) -> Result<(), PushError> {
+        lock(&self.shared.lease_run).own(&position.vehicle_id);
         lock(&self.shared.outbound).position(position).map(|_| ())
+    }
+
+    /// Whether this station may command `vehicle` (one of its own) now: the term of the
+    /// lease it holds (0 with `lease.enabled = false`). A vehicle no site holds is claimed
+    /// here, once the site has settled.
+    pub fn may_command(&self, vehicle: &str) -> Result<u64, CommandDenied> {
+        let mut run = lock(&self.shared.lease_run);
+        if !run.policy.enabled {
+            return Ok(0);
+        }
+        let known = lock(&self.shared.inbound).leases().lease(vehicle).cloned();
+        if let Some(r) = known {
+            if r.holder == self.site {
+                return Ok(r.term);
+            }
+            return Err(CommandDenied::HeldElsewhere {
+                vehicle: vehicle.to_owned(),
+                holder: r.holder,
+                term: r.term,
+            });
+        }
+        if !run.settled() {
+            return Err(CommandDenied::NotSettled {
+                vehicle: vehicle.to_owned(),
+                waited_ms: run.waited_ms(),
+                settle_ms: run.policy.settle_ms,
+            });
+        }
+        if !run.policy.home {
+            return Err(CommandDenied::NoLease(vehicle.to_owned()));
+        }
+        drop(run);
+        let claimed = lock(&self.shared.inbound)
+            .leases_mut()
+            .claim(vehicle, now_ms());
+        match claimed {
+            Some(r) => {
+                let term = r.term;
+                self.shared.publish_lease(r);
+                Ok(term)
+            }
+            None => Err(CommandDenied::Full(vehicle.to_owned())),
+        }
+    }
+
+    /// Hands the lease of a vehicle this site holds to site `to`.
+    pub fn hand_over(&self, vehicle: &str, to: &str) -> Result<LeaseRecord, HandoverError> {
+        let record = lock(&self.shared.inbound)
+            .leases_mut()
+            .hand_over(vehicle, to, now_ms())?;
+        self.shared.publish_lease(record.clone());
+        Ok(record)
+    }
+
+    /// Every command lease this site knows.
+    pub fn leases(&self) -> Vec<LeaseRecord> {
+        lock(&self.shared.inbound)
+            .leases()
+            .leases()
+            .cloned()
+            .collect()
+    }
+
+    /// The lease counters.
+    pub fn lease_counters(&self) -> crate::lease::LeaseCounters {
+        lock(&self.shared.inbound).leases().counters().clone()
+    }
+
+    /// Whether the command lease is in force (`lease.enabled`).
+    pub fn lease_enabled(&self) -> bool {
+        lock(&self.shared.lease_run).policy.enabled
     }
 
     /// Takes a local alarm; it crosses at once (if its severity crosses).
@@ -432,6 +667,7 @@ async fn publish_positions(
 /// Publishes alarms and task transitions in the order they were numbered.
 async fn publish_sequenced(
     session: Session,
+    site: String,
     alarms: Publisher<'static>,
     task_qos: Qos,
     mut queue: mpsc::Receiver<Outgoing>,
@@ -444,6 +680,20 @@ async fn publish_sequenced(
         };
         let result = match item {
             Outgoing::Alarm(p) => alarms.put(p.frame).await,
+            Outgoing::Lease(r) => match crate::wire::encode_lease(&r) {
+                Ok(frame) => {
+                    session
+                        .put(keys::lease(&site, &r.vehicle_id), frame)
+                        .priority(priority(task_qos.priority))
+                        .congestion_control(congestion(task_qos.congestion))
+                        .allowed_destination(Locality::Remote)
+                        .await
+                }
+                Err(e) => {
+                    warn!(vehicle = %r.vehicle_id, error = %e, "lease record not encodable");
+                    Ok(())
+                }
+            },
             Outgoing::Task(p) => {
                 session
                     .put(p.key, p.frame)

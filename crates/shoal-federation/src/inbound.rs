@@ -14,6 +14,7 @@ use tracing::debug;
 
 use crate::config::{FederationConfig, Limits};
 use crate::keys::{Key, Stream};
+use crate::lease::{Applied, LeaseRefusal, LeaseTable};
 use crate::picture::{FederatedPicture, PositionRefusal};
 use crate::wire::{self, DecodeError, Sequenced};
 
@@ -59,6 +60,9 @@ pub enum Refusal {
     /// A catch-up reply for another site or stream than asked.
     #[error("catch-up reply for another site or stream")]
     CatchupKey,
+    /// A command-lease record without authority, or beyond the limit.
+    #[error("lease record refused: {0}")]
+    Lease(#[from] LeaseRefusal),
 }
 
 impl Refusal {
@@ -76,6 +80,7 @@ impl Refusal {
             Self::TooManyVehicles => "too_many_vehicles".into(),
             Self::CatchupOverflow => "catchup_overflow".into(),
             Self::CatchupKey => "catchup_key".into(),
+            Self::Lease(r) => r.reason().into(),
         }
     }
 }
@@ -104,6 +109,8 @@ pub struct InboundCounters {
     pub alarms: u64,
     /// Task transitions delivered (each once).
     pub transitions: u64,
+    /// Command-lease records taken (stale ones are in the lease counters).
+    pub leases: u64,
     /// Sequenced frames received again and suppressed.
     pub duplicates: u64,
     /// Sequence numbers given up: the sender no longer had them, or the reorder window
@@ -248,6 +255,7 @@ pub struct Inbound {
     windows: HashMap<(String, Stream), SeqWindow>,
     pending: HashMap<(String, Stream), Pending>,
     picture: FederatedPicture,
+    leases: LeaseTable,
     counters: InboundCounters,
 }
 
@@ -266,7 +274,33 @@ impl Inbound {
                 l.remote_alarms,
                 l.remote_transitions,
             ),
+            leases: LeaseTable::new(
+                &config.site,
+                &config.lease.standby,
+                &config.remote_sites,
+                l.remote_vehicles,
+            ),
             counters: InboundCounters::default(),
+        }
+    }
+
+    /// The command leases this site knows.
+    pub fn leases(&self) -> &LeaseTable {
+        &self.leases
+    }
+
+    /// The command leases, to claim, hand over or fail over.
+    pub fn leases_mut(&mut self) -> &mut LeaseTable {
+        &mut self.leases
+    }
+
+    /// Since when a remote site has been offline (`None` while online; a site never heard
+    /// counts as offline since this site started, `started_ms`).
+    pub fn offline_since(&self, site: &str, started_ms: i64) -> Option<i64> {
+        match self.picture.sites().find(|(s, _)| *s == site) {
+            Some((_, status)) if status.online => None,
+            Some((_, status)) => Some(status.since_ms),
+            None => Some(started_ms),
         }
     }
 
@@ -439,6 +473,16 @@ impl Inbound {
                 self.picture.transition(site, frame.seq, frame.item, now_ms);
                 self.counters.transitions += 1;
                 Ok(gap.then(|| self.request(site, Stream::Tasks)).flatten())
+            }
+            Key::Lease { site, vehicle } => {
+                if catchup.is_some() {
+                    return Err(Refusal::CatchupKey);
+                }
+                let record = wire::decode_lease(vehicle, payload)?;
+                if self.leases.apply(site, record)? == Applied::Changed {
+                    self.counters.leases += 1;
+                }
+                Ok(None)
             }
             Key::Alive { .. } => Err(Refusal::BadKey),
         }

@@ -11,6 +11,7 @@
 //! | `shoal/<site>/catchup/alarms` | queryable: the site's recent alarms |
 //! | `shoal/<site>/catchup/tasks` | queryable: the site's recent task transitions |
 //! | `shoal/<site>/alive` | liveliness token while the site's session is up |
+//! | `shoal/<site>/leases/<vehicle>` | a command-lease record the site made; also its queryable |
 
 use shoal_model::{MAX_ID_LEN, is_identifier};
 
@@ -61,6 +62,16 @@ pub fn catchup(site: &str, stream: Stream) -> String {
     format!("{ROOT}/{site}/catchup/{}", stream.as_str())
 }
 
+/// Key of a command-lease record `site` made for `vehicle`.
+pub fn lease(site: &str, vehicle: &str) -> String {
+    format!("{ROOT}/{site}/leases/{vehicle}")
+}
+
+/// Selector of every lease record a site made (its queryable answers it).
+pub fn leases(site: &str) -> String {
+    format!("{ROOT}/{site}/leases/*")
+}
+
 /// Key of a site's liveliness token.
 pub fn alive(site: &str) -> String {
     format!("{ROOT}/{site}/alive")
@@ -86,6 +97,13 @@ pub enum Key<'a> {
         /// The publishing site.
         site: &'a str,
     },
+    /// `shoal/<site>/leases/<vehicle>`
+    Lease {
+        /// The site that made the record.
+        site: &'a str,
+        /// The vehicle.
+        vehicle: &'a str,
+    },
     /// `shoal/<site>/alive`
     Alive {
         /// The site whose session is up.
@@ -109,6 +127,9 @@ impl<'a> Key<'a> {
             ["alarms"] | ["catchup", "alarms"] => Self::Alarms { site },
             ["tasks", task] if is_identifier(task, MAX_ID_LEN) => Self::Task { site },
             ["catchup", "tasks"] => Self::Task { site },
+            ["leases", vehicle] if is_identifier(vehicle, MAX_VEHICLE_ID) => {
+                Self::Lease { site, vehicle }
+            }
             ["alive"] => Self::Alive { site },
             _ => return None,
         };
@@ -119,6 +140,7 @@ impl<'a> Key<'a> {
     pub fn site(&self) -> &'a str {
         match *self {
             Self::Position { site, .. }
+            | Self::Lease { site, .. }
             | Self::Alarms { site }
             | Self::Task { site }
             | Self::Alive { site } => site,
@@ -153,6 +175,13 @@ mod tests {
             Some(Key::Task { site: "s" })
         );
         assert_eq!(Key::parse(&alive("s")), Some(Key::Alive { site: "s" }));
+        assert_eq!(
+            Key::parse(&lease("ship", "auv-1")),
+            Some(Key::Lease {
+                site: "ship",
+                vehicle: "auv-1"
+            })
+        );
     }
 
     #[test]
@@ -166,6 +195,8 @@ mod tests {
             "shoal/s/vehicles/a b/position",
             "shoal/s/vehicles/v",
             "shoal/s/tasks",
+            "shoal/s/leases",
+            "shoal/s/leases/*",
             "shoal/../alarms",
         ] {
             assert_eq!(Key::parse(k), None, "{k}");

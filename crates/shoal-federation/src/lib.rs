@@ -10,6 +10,8 @@
 //! - The cores, tested without a network: [`outbound`] (rate limiting per vehicle,
 //!   sequence numbers, catch-up journals) and [`inbound`] (validation, duplicate
 //!   suppression, gaps, the [`FederatedPicture`]).
+//! - [`lease`]: the command lease, which site commands each vehicle (tested without a
+//!   network like the other cores).
 //! - [`wire`]: the compact WAN encoding; [`keys`]: the key expressions. Both are
 //!   documented byte for byte in `docs/federation.md` for third-party clients.
 //!
@@ -25,6 +27,9 @@ mod error;
 mod federation;
 pub mod inbound;
 pub mod keys;
+pub mod lease;
+#[cfg(feature = "transport")]
+mod lease_keeper;
 pub mod outbound;
 pub mod picture;
 mod tls;
@@ -34,13 +39,17 @@ pub mod wire;
 mod zenoh_config;
 
 pub use config::{
-    ConfigError, FederationConfig, Identity, Secret, TlsConfig, TlsIdentity, UserPassword,
+    ConfigError, FederationConfig, Identity, LeasePolicy, Secret, TlsConfig, TlsIdentity,
+    UserPassword,
 };
 #[cfg(feature = "transport")]
 pub use error::{ShutdownError, StartError};
 #[cfg(feature = "transport")]
 pub use federation::{Counters, Federation};
 pub use inbound::{InboundCounters, Refusal};
+pub use lease::{HandoverError, LeaseCounters, LeaseReason, LeaseRecord, LeaseTable};
+#[cfg(feature = "transport")]
+pub use lease_keeper::{CommandDenied, LeaseFileError};
 pub use outbound::{OutboundCounters, PushError};
 pub use picture::{FederatedPicture, RemoteAlarm, RemoteTransition, RemoteVehicle, SiteStatus};
 pub use types::{TaskTransition, VehiclePosition};

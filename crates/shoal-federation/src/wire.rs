@@ -16,6 +16,7 @@ use shoal_model::{
     MIN_TIMESTAMP_MS, Severity, TaskState, Validate, ValidationError, VehicleKind,
 };
 
+use crate::lease::{LeaseReason, LeaseRecord};
 use crate::types::{MAX_SITE_LEN, TaskTransition, VehiclePosition, is_site_name};
 
 /// The wire version this crate writes and reads.
@@ -26,6 +27,8 @@ pub const KIND_POSITION: u8 = 1;
 pub const KIND_ALARM: u8 = 2;
 /// Kind byte of a task-transition frame.
 pub const KIND_TASK: u8 = 3;
+/// Kind byte of a command-lease frame.
+pub const KIND_LEASE: u8 = 4;
 /// Size of a position frame, bytes.
 pub const POSITION_LEN: usize = 24;
 
@@ -215,6 +218,22 @@ pub fn encode_task(
     Ok(out)
 }
 
+/// Encodes a command-lease record (checked first); the vehicle is in the key expression.
+pub fn encode_lease(r: &LeaseRecord) -> Result<Vec<u8>, ValidationError> {
+    r.check().map_err(|field| ValidationError::BadText {
+        field,
+        rule: "must be an identifier (term: at least 1, a time in 2000..2100)",
+    })?;
+    let mut out = Vec::with_capacity(24 + r.holder.len() + r.home.len() + r.standby.len());
+    out.extend([VERSION, KIND_LEASE, r.reason.code()]);
+    out.extend(r.term.to_le_bytes());
+    put_u48(&mut out, r.granted_ms);
+    put_str8(&mut out, &r.holder);
+    put_str8(&mut out, &r.home);
+    put_str8(&mut out, &r.standby);
+    Ok(out)
+}
+
 fn envelope(
     kind: u8,
     site: &str,
@@ -351,6 +370,42 @@ pub fn decode_task(bytes: &[u8]) -> Result<Sequenced<TaskTransition>, DecodeErro
         seq,
         item: t,
     })
+}
+
+/// Decodes a command-lease frame; the vehicle id comes from the key expression.
+pub fn decode_lease(vehicle_id: &str, bytes: &[u8]) -> Result<LeaseRecord, DecodeError> {
+    let mut r = Reader::open(bytes, KIND_LEASE)?;
+    let code = r.u8("reason")?;
+    let reason = LeaseReason::from_code(code).ok_or(DecodeError::Code {
+        field: "reason",
+        value: code,
+    })?;
+    let term = r.u64("term")?;
+    let granted_ms = r.timestamp()?;
+    let holder = r.str8("holder", MAX_SITE_LEN)?;
+    let home = r.str8("home", MAX_SITE_LEN)?;
+    let standby = r.str8("standby", MAX_SITE_LEN)?;
+    r.end()?;
+    if term == 0 {
+        return Err(DecodeError::Range {
+            field: "term",
+            value: 0,
+        });
+    }
+    let record = LeaseRecord {
+        vehicle_id: vehicle_id.to_string(),
+        term,
+        holder,
+        home,
+        standby,
+        reason,
+        granted_ms,
+    };
+    record.check().map_err(|field| ValidationError::BadText {
+        field,
+        rule: "must be 1..=32 of [A-Za-z0-9_.-]",
+    })?;
+    Ok(record)
 }
 
 fn range(field: &'static str, value: i64, max_abs: i64) -> Result<(), DecodeError> {

@@ -149,6 +149,9 @@ pub enum DispatchError {
     /// A task with this id exists already.
     #[error("task_id {0:?} is already in use")]
     DuplicateTask(String),
+    /// Another site commands the vehicle, or the command lease is not settled yet.
+    #[error(transparent)]
+    Lease(#[from] crate::federation::LeaseDenial),
     /// A mission with this id exists already.
     #[error("mission_id {0:?} is already in use")]
     DuplicateMission(String),

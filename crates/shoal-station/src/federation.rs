@@ -10,10 +10,105 @@ use shoal_model::{Event, TaskState, VehicleKind};
 
 use crate::core::StationHandle;
 
-/// What the station reads of a running federation.
+/// What the station reads of a running federation, and asks of its command lease.
 pub trait FederationView: Send + Sync {
     /// The remote picture at station time `now_ms`.
     fn snapshot(&self, now_ms: i64) -> FederationSnapshot;
+
+    /// Whether this station may command `vehicle` (one of its own) now: the term of the
+    /// command lease it holds (0 when the lease is not in force), or why not.
+    fn may_command(&self, vehicle: &str) -> Result<u64, LeaseDenial>;
+
+    /// Hands the lease of a vehicle this station holds to the site `to`.
+    fn hand_over(&self, vehicle: &str, to: &str) -> Result<LeaseView, HandoverRefused>;
+}
+
+/// Why this station may not command a vehicle: the command lease
+/// (`[federation.lease]`).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum LeaseDenial {
+    /// Another site holds the vehicle's lease.
+    #[error(
+        "{vehicle} is commanded by site {holder} (command lease term {term}); ask {holder} to hand it over"
+    )]
+    HeldElsewhere {
+        /// The vehicle.
+        vehicle: String,
+        /// The site that holds it.
+        holder: String,
+        /// The lease's term.
+        term: u64,
+    },
+    /// The station has just started and is still learning the other sites' leases.
+    #[error(
+        "the command lease of {vehicle} is not settled yet: this site started {waited_ms} ms ago and waits up to {settle_ms} ms (lease.settle_ms) for the other sites' leases"
+    )]
+    NotSettled {
+        /// The vehicle.
+        vehicle: String,
+        /// Time since the federation started, ms.
+        waited_ms: u64,
+        /// `lease.settle_ms`.
+        settle_ms: u64,
+    },
+    /// No lease could be had (none held anywhere and this site does not claim, or the
+    /// table is full); the text says which.
+    #[error("no command lease for {vehicle}: {why}")]
+    Unavailable {
+        /// The vehicle.
+        vehicle: String,
+        /// Why.
+        why: String,
+    },
+}
+
+/// Why a lease was not handed over.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum HandoverRefused {
+    /// The station is not federated, or the lease is not in force.
+    #[error("the command lease is not in force here ([federation] and [federation.lease] enabled)")]
+    NotInForce,
+    /// No lease is known for the vehicle.
+    #[error("no command lease is known for {0}")]
+    UnknownLease(String),
+    /// Another site holds it.
+    #[error(
+        "{vehicle} is commanded by site {holder} (term {term}); only {holder} can hand it over"
+    )]
+    NotHolder {
+        /// The vehicle.
+        vehicle: String,
+        /// Who holds it.
+        holder: String,
+        /// The term.
+        term: u64,
+    },
+    /// The receiving site is not one of this federation's.
+    #[error("{0} is not a site of this federation")]
+    UnknownSite(String),
+}
+
+/// A vehicle's command lease, as this site knows it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct LeaseView {
+    /// The vehicle.
+    pub vehicle_id: String,
+    /// The site that commands it.
+    pub holder: String,
+    /// Its home site (where it is registered).
+    pub home: String,
+    /// The site that takes over when the holder is lost; empty for none.
+    pub standby: String,
+    /// Increases with every change.
+    pub term: u64,
+    /// What made the last change: `claim`, `handover` or `failover`.
+    pub reason: &'static str,
+    /// When, ms since the Unix epoch (the granting site's clock).
+    pub granted_ms: i64,
+    /// Whether this site holds it.
+    pub held_here: bool,
 }
 
 /// The remote part of the fleet picture (`GET /api/federation`).
@@ -29,6 +124,10 @@ pub struct FederationSnapshot {
     pub alarms: Vec<RemoteAlarmView>,
     /// The latest task transitions from remote sites (bounded), oldest first.
     pub transitions: Vec<RemoteTransitionView>,
+    /// Whether the command lease is in force (`[federation.lease] enabled`).
+    pub lease_enabled: bool,
+    /// Every command lease this site knows, by vehicle.
+    pub leases: Vec<LeaseView>,
     /// Counters: what crossed each way, what was refused and why.
     pub counters: BTreeMap<String, u64>,
 }
@@ -111,5 +210,27 @@ impl StationHandle {
     pub fn federation(&self) -> Option<FederationSnapshot> {
         let view = self.core.federation.get()?;
         Some(view.snapshot(self.now()))
+    }
+
+    /// Hands the command lease of `vehicle`, which this station holds, to site `to`.
+    pub fn hand_over_lease(&self, vehicle: &str, to: &str) -> Result<LeaseView, HandoverRefused> {
+        let view = self
+            .core
+            .federation
+            .get()
+            .ok_or(HandoverRefused::NotInForce)?;
+        let lease = view.hand_over(vehicle, to)?;
+        // Logged at the station too: an operator's decision about who commands a vehicle.
+        tracing::info!(vehicle, to, term = lease.term, "command lease handed over");
+        Ok(lease)
+    }
+
+    /// Whether this station may command `vehicle` under the command lease (always when it
+    /// is not federated).
+    pub(crate) fn may_command(&self, vehicle: &str) -> Result<u64, LeaseDenial> {
+        match self.core.federation.get() {
+            Some(view) => view.may_command(vehicle),
+            None => Ok(0),
+        }
     }
 }

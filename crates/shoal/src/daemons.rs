@@ -207,10 +207,9 @@ pub async fn station(cfg: ShoalConfig, scenario: &str, exit_on_stdin_close: bool
         tokio::spawn(async move { handle.run_scenario(scenario, stop).await });
     }
     let federation = if cfg.federation.enabled {
-        Some(
-            crate::federation::start(cfg.federation.clone(), station.handle(), shutdown.clone())
-                .await?,
-        )
+        let mut fed = cfg.federation.clone();
+        fed.lease.state_file = crate::federation::lease_file(&fed, &cfg.history);
+        Some(crate::federation::start(fed, station.handle(), shutdown.clone()).await?)
     } else {
         None
     };

@@ -6,10 +6,13 @@ use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
-use shoal_federation::{Federation, FederationConfig, TaskTransition, VehiclePosition};
+use shoal_federation::{
+    CommandDenied, Federation, FederationConfig, HandoverError, LeaseRecord, TaskTransition,
+    VehiclePosition,
+};
 use shoal_station::{
-    FederationSnapshot, FederationView, LiveUpdate, RemoteAlarmView, RemoteTransitionView,
-    RemoteVehicleView, SiteView, StationHandle,
+    FederationSnapshot, FederationView, HandoverRefused, LeaseDenial, LeaseView, LiveUpdate,
+    RemoteAlarmView, RemoteTransitionView, RemoteVehicleView, SiteView, StationHandle,
 };
 use tokio::sync::broadcast::error::RecvError;
 use tokio_util::sync::CancellationToken;
@@ -24,7 +27,68 @@ const TASKS_REMEMBERED: usize = 100_000;
 /// A running federation, as the station reads it.
 struct View(Arc<Federation>);
 
+fn lease_view(r: &LeaseRecord, site: &str) -> LeaseView {
+    LeaseView {
+        vehicle_id: r.vehicle_id.clone(),
+        holder: r.holder.clone(),
+        home: r.home.clone(),
+        standby: r.standby.clone(),
+        term: r.term,
+        reason: r.reason.as_str(),
+        granted_ms: r.granted_ms,
+        held_here: r.holder == site,
+    }
+}
+
 impl FederationView for View {
+    fn may_command(&self, vehicle: &str) -> Result<u64, LeaseDenial> {
+        self.0.may_command(vehicle).map_err(|e| match e {
+            CommandDenied::HeldElsewhere {
+                vehicle,
+                holder,
+                term,
+            } => LeaseDenial::HeldElsewhere {
+                vehicle,
+                holder,
+                term,
+            },
+            CommandDenied::NotSettled {
+                vehicle,
+                waited_ms,
+                settle_ms,
+            } => LeaseDenial::NotSettled {
+                vehicle,
+                waited_ms,
+                settle_ms,
+            },
+            other => LeaseDenial::Unavailable {
+                vehicle: vehicle.to_owned(),
+                why: other.to_string(),
+            },
+        })
+    }
+
+    fn hand_over(&self, vehicle: &str, to: &str) -> Result<LeaseView, HandoverRefused> {
+        if !self.0.lease_enabled() {
+            return Err(HandoverRefused::NotInForce);
+        }
+        match self.0.hand_over(vehicle, to) {
+            Ok(r) => Ok(lease_view(&r, self.0.site())),
+            Err(HandoverError::Unknown(v)) => Err(HandoverRefused::UnknownLease(v)),
+            Err(HandoverError::UnknownSite(s)) => Err(HandoverRefused::UnknownSite(s)),
+            Err(HandoverError::NotHolder {
+                vehicle,
+                holder,
+                term,
+            }) => Err(HandoverRefused::NotHolder {
+                vehicle,
+                holder,
+                term,
+            }),
+            Err(other) => Err(HandoverRefused::UnknownLease(other.to_string())),
+        }
+    }
+
     fn snapshot(&self, now_ms: i64) -> FederationSnapshot {
         let fed = &self.0;
         let mut snap = fed.picture(|p| FederationSnapshot {
@@ -71,8 +135,15 @@ impl FederationView for View {
                     timestamp_ms: t.transition.timestamp_ms,
                 })
                 .collect(),
+            lease_enabled: fed.lease_enabled(),
+            leases: Vec::new(),
             counters: Default::default(),
         });
+        snap.leases = fed
+            .leases()
+            .iter()
+            .map(|r| lease_view(r, fed.site()))
+            .collect();
         let c = fed.counters();
         let (i, o) = (&c.inbound, &c.outbound);
         for (k, v) in [
@@ -83,6 +154,7 @@ impl FederationView for View {
             ("lost", i.lost),
             ("catchup_queries", i.catchup_queries),
             ("catchup_replies", i.catchup_replies),
+            ("received_leases", i.leases),
             ("sent_positions", o.positions_sent),
             ("coalesced_positions", o.positions_coalesced),
             ("sent_alarms", o.alarms_sent),
@@ -90,6 +162,15 @@ impl FederationView for View {
             ("sent_transitions", o.transitions_sent),
             ("catchup_served", o.catchup_served),
             ("queue_full", o.queue_full),
+        ] {
+            snap.counters.insert(k.to_owned(), v);
+        }
+        let l = fed.lease_counters();
+        for (k, v) in [
+            ("leases_stale", l.stale),
+            ("leases_granted", l.granted),
+            ("leases_failed_over", l.failovers),
+            ("leases_taken_later", l.taken_later),
         ] {
             snap.counters.insert(k.to_owned(), v);
         }
@@ -136,6 +217,22 @@ impl Sent {
             self.task_states.insert(task.to_owned(), state);
         }
         true
+    }
+}
+
+/// Where the command leases are kept: `lease.state_file` as given, except `auto`, which
+/// is `leases-<site>.json` beside a SQLite history file (so two stations run from one
+/// directory keep theirs apart, as their databases).
+pub fn lease_file(
+    fed: &FederationConfig,
+    history: &shoal_history::HistoryConfig,
+) -> std::path::PathBuf {
+    let auto = fed.lease.state_file == std::path::Path::new(shoal_federation::config::AUTO);
+    let sqlite_file =
+        history.backend == shoal_history::Backend::Sqlite && history.path.as_os_str() != ":memory:";
+    match history.path.parent() {
+        Some(dir) if auto && sqlite_file => dir.join(format!("leases-{}.json", fed.site)),
+        _ => fed.lease.state_path(&fed.site).unwrap_or_default(),
     }
 }
 

@@ -91,12 +91,71 @@ fn a_task_frame_has_the_documented_layout() {
     assert_eq!(bytes, expected);
 }
 
+fn lease(term: u64) -> LeaseRecord {
+    LeaseRecord {
+        vehicle_id: "auv-1".into(),
+        term,
+        holder: "shore".into(),
+        home: "ship".into(),
+        standby: "bk".into(),
+        reason: LeaseReason::Handover,
+        granted_ms: 1_700_000_000_456,
+    }
+}
+
+#[test]
+fn a_lease_frame_has_the_documented_layout() {
+    let bytes = encode_lease(&lease(7)).unwrap();
+    let mut expected = vec![1, 4, 2];
+    expected.extend(7u64.to_le_bytes());
+    expected.extend(&1_700_000_000_456i64.to_le_bytes()[..6]);
+    expected.push(5);
+    expected.extend(b"shore");
+    expected.push(4);
+    expected.extend(b"ship");
+    expected.push(2);
+    expected.extend(b"bk");
+    assert_eq!(bytes, expected);
+    assert_eq!(decode_lease("auv-1", &bytes), Ok(lease(7)));
+}
+
+#[test]
+fn a_lease_frame_with_term_zero_a_bad_reason_or_a_bad_site_is_refused() {
+    assert!(encode_lease(&lease(0)).is_err());
+    let good = encode_lease(&lease(1)).unwrap();
+    let mut zero = good.clone();
+    zero[3..11].copy_from_slice(&0u64.to_le_bytes());
+    assert_eq!(
+        decode_lease("auv-1", &zero),
+        Err(DecodeError::Range {
+            field: "term",
+            value: 0
+        })
+    );
+    let mut reason = good.clone();
+    reason[2] = 9;
+    assert_eq!(
+        decode_lease("auv-1", &reason),
+        Err(DecodeError::Code {
+            field: "reason",
+            value: 9
+        })
+    );
+    let mut holder = good;
+    holder[18] = b'/';
+    assert!(matches!(
+        decode_lease("auv-1", &holder),
+        Err(DecodeError::Invalid(_))
+    ));
+}
+
 #[test]
 fn every_truncation_of_every_frame_is_refused() {
     let frames = [
         encode_position(&position("auv-1")).unwrap(),
         encode_alarm("ship-1", 7, 3, &alarm("e1")).unwrap(),
         encode_task("s", 1, 1, &transition("t-9", TaskState::Done)).unwrap(),
+        encode_lease(&lease(3)).unwrap(),
     ];
     for frame in &frames {
         for len in 0..frame.len() {
@@ -104,6 +163,7 @@ fn every_truncation_of_every_frame_is_refused() {
             assert!(decode_position("v", cut).is_err(), "{len}");
             assert!(decode_alarm(cut).is_err(), "{len}");
             assert!(decode_task(cut).is_err(), "{len}");
+            assert!(decode_lease("v", cut).is_err(), "{len}");
         }
     }
 }
@@ -258,6 +318,17 @@ proptest! {
         let _ = decode_position("v", &bytes);
         let _ = decode_alarm(&bytes);
         let _ = decode_task(&bytes);
+        let _ = decode_lease("v", &bytes);
+    }
+
+    #[test]
+    fn leases_round_trip_exactly(
+        term in 1..u64::MAX, reason in 1..=3u8, standby in "([A-Za-z0-9_-]{1,32})?",
+    ) {
+        let mut r = lease(term);
+        r.reason = LeaseReason::from_code(reason).unwrap();
+        r.standby = standby;
+        prop_assert_eq!(decode_lease("auv-1", &encode_lease(&r).unwrap()).unwrap(), r);
     }
 
     #[test]

@@ -1,10 +1,11 @@
 //! Helpers shared by the integration tests.
 
+use std::path::PathBuf;
 use std::time::Duration;
 
 use shoal_federation::TaskTransition;
 use shoal_federation::config::Mode;
-use shoal_federation::{Federation, FederationConfig, VehiclePosition};
+use shoal_federation::{Federation, FederationConfig, LeasePolicy, VehiclePosition};
 use shoal_model::{Event, EventKind, Severity, TaskState, VehicleKind};
 
 /// How long any wait may take before the test fails: a bound on a hang, not a measure.
@@ -41,6 +42,18 @@ pub fn site(
         connect: connect.iter().copied().map(endpoint).collect(),
         remote_sites: remotes.iter().map(|s| s.to_string()).collect(),
         insecure_open: true,
+        ..unkept()
+    }
+}
+
+/// The defaults, except that the command leases are not kept in a file: the tests run in
+/// the crate's directory.
+pub fn unkept() -> FederationConfig {
+    FederationConfig {
+        lease: LeasePolicy {
+            state_file: PathBuf::new(),
+            ..LeasePolicy::default()
+        },
         ..FederationConfig::default()
     }
 }

@@ -7,6 +7,8 @@
 //! - `outage`: the link goes down and comes back; both sides catch up exactly.
 //! - `three_sites`: two ships and a shore (also as their router); unknown sites and bad
 //!   payloads are refused.
+//! - `lease`: the command lease claimed, handed over, refused without authority, taken
+//!   over by the standby in a partition and given up by the old holder when it heals.
 //! - `python_client`: an independent PyPI `eclipse-zenoh` client decodes from the doc.
 //! - `tls`: site identity over mutual TLS (`tls/127.0.0.1`): an expired certificate and a
 //!   common name not accepted never reach the shore; bad files stop the start.
@@ -17,6 +19,7 @@
 
 mod common;
 mod encoding_size;
+mod lease;
 mod outage;
 mod python_client;
 mod three_sites;

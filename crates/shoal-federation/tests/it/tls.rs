@@ -98,7 +98,7 @@ async fn an_expired_certificate_and_an_unknown_common_name_never_reach_the_shore
         listen: vec![format!("tls/127.0.0.1:{port}")],
         remote_sites: vec!["ship".into()],
         tls: pki.tls("shore"),
-        ..FederationConfig::default()
+        ..unkept()
     })
     .await
     .unwrap();
@@ -113,7 +113,7 @@ async fn an_expired_certificate_and_an_unknown_common_name_never_reach_the_shore
             ..Default::default()
         },
         tls: pki.tls("ship"),
-        ..FederationConfig::default()
+        ..unkept()
     })
     .await
     .unwrap();
@@ -184,7 +184,7 @@ async fn a_bad_tls_file_stops_the_start_naming_its_key() {
             private_key: pki.out.join("shore.key"),
             ..pki.tls("ship")
         },
-        ..FederationConfig::default()
+        ..unkept()
     };
     let e = Federation::start(config).await.unwrap_err().to_string();
     assert!(e.starts_with("federation.tls.private_key:"), "{e}");
@@ -199,7 +199,7 @@ async fn a_bad_tls_file_stops_the_start_naming_its_key() {
             private_key: pki.expired.join("ship.key"),
             ..pki.tls("ship")
         },
-        ..FederationConfig::default()
+        ..unkept()
     };
     let e = Federation::start(config).await.unwrap_err().to_string();
     assert!(

@@ -81,6 +81,10 @@ impl StationHandle {
         let Some(v) = fleet.vehicles.get(vehicle_id) else {
             return Err(DispatchError::UnknownVehicle(vehicle_id.to_owned()));
         };
+        // Exactly one site commands a vehicle, aborts included: a federated site that does
+        // not hold the lease asks the holder to hand it over (or takes it over when the
+        // holder is lost).
+        self.may_command(vehicle_id)?;
         if kind == K::Abort {
             // An emergency order always goes out, whatever the vehicle says it can do.
             return Ok(());

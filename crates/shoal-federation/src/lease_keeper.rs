@@ -1,0 +1,322 @@
+//! The command lease on the network: the transport's side of [`crate::lease`].
+//!
+//! - A site answers `shoal/<site>/leases/*` with the records it made that are still
+//!   current, and asks the same of every remote site whose session comes up, so that a
+//!   site that was away (or restarted) learns what changed.
+//! - The keeper, every [`TICK`]: once the site has *settled* (every remote site answered,
+//!   or `settle_ms` passed), claims the vehicles registered here that no site holds (when
+//!   `home`); takes over, as home or standby, the leases of a holder offline for
+//!   `failover_timeout_ms`; and writes the table to `state_file` when it changed.
+//!
+//! Records this site makes are published at once (reliably, with the task transitions'
+//! QoS), under `shoal/<site>/leases/<vehicle>`.
+
+use std::collections::{BTreeSet, HashSet};
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+use shoal_model::now_ms;
+use tokio::sync::mpsc;
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+use tracing::{debug, info, warn};
+use zenoh::Session;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::query::{ConsolidationMode, Query, Queryable};
+
+use crate::config::LeasePolicy;
+use crate::keys;
+use crate::lease::{Current, LeaseRecord};
+use crate::wire;
+
+/// How often the keeper looks at the leases.
+pub(crate) const TICK: Duration = Duration::from_millis(500);
+/// Own vehicles remembered for claims, at most.
+const OWN_VEHICLES: usize = 100_000;
+
+/// Why the lease state file could not be used.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LeaseFileError {
+    /// Reading or writing failed.
+    #[error("lease state file {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file is not a lease table.
+    #[error("lease state file {path} is unreadable: {source}")]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: serde_json::Error,
+    },
+}
+
+/// Reads the leases kept by an earlier run; none when the file does not exist.
+pub(crate) fn load(path: &Path) -> Result<Vec<Current>, LeaseFileError> {
+    let bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(source) => {
+            return Err(LeaseFileError::Io {
+                path: path.to_owned(),
+                source,
+            });
+        }
+    };
+    serde_json::from_slice(&bytes).map_err(|source| LeaseFileError::Corrupt {
+        path: path.to_owned(),
+        source,
+    })
+}
+
+/// Replaces the file atomically (written beside, synced, renamed): a crash leaves the old
+/// table or the new one.
+pub(crate) fn save(path: &Path, leases: &[Current]) -> Result<(), LeaseFileError> {
+    let io = |source| LeaseFileError::Io {
+        path: path.to_owned(),
+        source,
+    };
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(io)?;
+    }
+    let tmp = path.with_extension("json.tmp");
+    let bytes = serde_json::to_vec_pretty(leases).map_err(|source| LeaseFileError::Corrupt {
+        path: path.to_owned(),
+        source,
+    })?;
+    let mut f = std::fs::File::create(&tmp).map_err(io)?;
+    f.write_all(&bytes).map_err(io)?;
+    f.sync_all().map_err(io)?;
+    std::fs::rename(&tmp, path).map_err(io)
+}
+
+/// Why this station may not command a vehicle now.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum CommandDenied {
+    /// Another site holds the vehicle's lease.
+    #[error(
+        "{vehicle} is commanded by site {holder} (lease term {term}); ask {holder} to hand it over"
+    )]
+    HeldElsewhere {
+        /// The vehicle.
+        vehicle: String,
+        /// The site that holds it.
+        holder: String,
+        /// Its term.
+        term: u64,
+    },
+    /// The site has just started and is still learning the remote sites' leases.
+    #[error(
+        "the command lease of {vehicle} is not settled yet (this site started {waited_ms} ms ago and waits up to {settle_ms} ms for the remote sites' leases)"
+    )]
+    NotSettled {
+        /// The vehicle.
+        vehicle: String,
+        /// Time since start, ms.
+        waited_ms: u64,
+        /// `lease.settle_ms`.
+        settle_ms: u64,
+    },
+    /// No site holds the vehicle's lease, and this site does not claim (`lease.home =
+    /// false`).
+    #[error(
+        "no site holds the command lease of {0}, and this site does not claim leases (lease.home = false)"
+    )]
+    NoLease(String),
+    /// The lease table is full.
+    #[error("no lease can be claimed for {0}: the lease table is full")]
+    Full(String),
+}
+
+/// The keeper's own state (beside the table, which lives in the inbound core).
+#[derive(Debug)]
+pub(crate) struct LeaseRun {
+    pub(crate) policy: LeasePolicy,
+    started: Instant,
+    started_ms: i64,
+    remote_sites: Vec<String>,
+    answered: HashSet<String>,
+    settled: bool,
+    own: BTreeSet<String>,
+    saved_generation: u64,
+}
+
+impl LeaseRun {
+    pub(crate) fn new(policy: LeasePolicy, remote_sites: &[String]) -> Self {
+        Self {
+            policy,
+            started: Instant::now(),
+            started_ms: now_ms(),
+            remote_sites: remote_sites.to_vec(),
+            answered: HashSet::new(),
+            settled: false,
+            own: BTreeSet::new(),
+            saved_generation: 0,
+        }
+    }
+
+    pub(crate) fn started_ms(&self) -> i64 {
+        self.started_ms
+    }
+
+    /// Notes a vehicle registered at this site (a claim candidate).
+    pub(crate) fn own(&mut self, vehicle: &str) {
+        if self.policy.enabled
+            && self.policy.home
+            && self.own.len() < OWN_VEHICLES
+            && !self.own.contains(vehicle)
+        {
+            self.own.insert(vehicle.to_owned());
+        }
+    }
+
+    /// The vehicles to claim, forgotten here (each comes back with its next position).
+    pub(crate) fn take_own(&mut self) -> BTreeSet<String> {
+        std::mem::take(&mut self.own)
+    }
+
+    pub(crate) fn answered(&mut self, site: &str) {
+        self.answered.insert(site.to_owned());
+    }
+
+    /// Whether the site has learnt the remote leases (or waited long enough).
+    pub(crate) fn settled(&mut self) -> bool {
+        if !self.settled {
+            let waited = self.started.elapsed() >= Duration::from_millis(self.policy.settle_ms);
+            let all = self.remote_sites.iter().all(|s| self.answered.contains(s));
+            if waited || all {
+                self.settled = true;
+                info!(
+                    answered = self.answered.len(),
+                    sites = self.remote_sites.len(),
+                    "command leases settled"
+                );
+            }
+        }
+        self.settled
+    }
+
+    pub(crate) fn waited_ms(&self) -> u64 {
+        u64::try_from(self.started.elapsed().as_millis()).unwrap_or(u64::MAX)
+    }
+
+    /// Whether the table changed since it was last saved (and notes it saved).
+    pub(crate) fn needs_saving(&mut self, generation: u64) -> bool {
+        if generation == self.saved_generation {
+            return false;
+        }
+        self.saved_generation = generation;
+        true
+    }
+}
+
+/// Answers `shoal/<site>/leases/*` with the records this site made that are current.
+pub(crate) async fn serve(
+    queryable: Queryable<FifoChannelHandler<Query>>,
+    site: String,
+    records: impl Fn() -> Vec<LeaseRecord>,
+    stop: CancellationToken,
+) {
+    loop {
+        let query = tokio::select! {
+            () = stop.cancelled() => break,
+            q = queryable.recv_async() => match q { Ok(q) => q, Err(_) => break },
+        };
+        let records = records();
+        debug!(count = records.len(), "lease query served");
+        for r in records {
+            let frame = match wire::encode_lease(&r) {
+                Ok(f) => f,
+                Err(e) => {
+                    warn!(vehicle = %r.vehicle_id, error = %e, "lease record not encodable");
+                    continue;
+                }
+            };
+            if let Err(e) = query.reply(keys::lease(&site, &r.vehicle_id), frame).await {
+                warn!(error = %e, "lease reply not sent");
+                break;
+            }
+        }
+    }
+}
+
+/// Asks each remote site that comes up for its lease records, one site at a time; each
+/// reply goes to `take` (which checks it like a published record), and `done` notes the
+/// site answered.
+pub(crate) async fn ask(
+    session: Session,
+    mut sites: mpsc::Receiver<String>,
+    timeout: Duration,
+    take: impl Fn(&str, &[u8]),
+    done: impl Fn(&str),
+    stop: CancellationToken,
+) {
+    loop {
+        let site = tokio::select! {
+            () = stop.cancelled() => break,
+            s = sites.recv() => match s { Some(s) => s, None => break },
+        };
+        let replies = match session
+            .get(keys::leases(&site))
+            .consolidation(ConsolidationMode::None)
+            .timeout(timeout)
+            .await
+        {
+            Ok(r) => r,
+            Err(e) => {
+                warn!(site, error = %e, "lease query not sent");
+                continue;
+            }
+        };
+        let mut n = 0usize;
+        loop {
+            let reply = tokio::select! {
+                () = stop.cancelled() => return,
+                r = replies.recv_async() => match r { Ok(r) => r, Err(_) => break },
+            };
+            if let Ok(sample) = reply.result() {
+                n += 1;
+                take(sample.key_expr().as_str(), &sample.payload().to_bytes());
+            }
+        }
+        debug!(site, records = n, "lease query answered");
+        done(&site);
+    }
+}
+
+/// What the keeper needs of the federation, so that it can be driven by the transport.
+pub(crate) trait Keeper: Send + Sync {
+    /// One pass: settle, claim, fail over; the records made (to publish).
+    fn pass(&self) -> Vec<LeaseRecord>;
+    /// Publishes a record this site made.
+    fn publish(&self, record: LeaseRecord);
+    /// Writes the table if it changed.
+    fn persist(&self);
+}
+
+/// Runs the keeper every [`TICK`] until `stop`.
+pub(crate) async fn keep(keeper: Arc<dyn Keeper>, stop: CancellationToken) {
+    let mut interval = tokio::time::interval(TICK);
+    interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            () = stop.cancelled() => break,
+            _ = interval.tick() => {}
+        }
+        for record in keeper.pass() {
+            keeper.publish(record);
+        }
+        keeper.persist();
+    }
+    keeper.persist();
+}
