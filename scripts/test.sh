@@ -14,7 +14,7 @@
 #      document with schemathesis, inside the namespace,
 #   5. runs each cargo-fuzz target for a short smoke run.
 # Environment: SHOAL_SKIP_FUZZ=1 skips step 5; SHOAL_NETNS names the namespace;
-# SHOAL_TEST_DISK_GB is the free disk the build needs (checked first, default 12).
+# SHOAL_TEST_DISK_GB is the free disk the build needs (checked first, default 6).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 NS="${SHOAL_NETNS:-shoal-test}"
@@ -35,10 +35,15 @@ step() {
 # A one-off run gains nothing from incremental compilation, which doubles the workspace
 # crates' share of target/; set CARGO_INCREMENTAL=1 to keep it between runs.
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
+# Nor does it need debug info, which was half of what its builds wrote: a failing test's
+# panic still names its file and line (that is not debug info). A clean run peaks at about
+# 4 GB of target/ this way; with line tables (the profiles' own setting) it took 6.5 GB.
+export CARGO_PROFILE_DEV_DEBUG="${CARGO_PROFILE_DEV_DEBUG:-false}"
+export CARGO_PROFILE_RELEASE_DEBUG="${CARGO_PROFILE_RELEASE_DEBUG:-false}"
 
 # Stop at once, not at the first linker error twenty minutes in, when the disk is too
 # small for the build (debug and release binaries, clippy, the fuzz targets).
-need_gb="${SHOAL_TEST_DISK_GB:-12}"
+need_gb="${SHOAL_TEST_DISK_GB:-6}"
 target_dir="${CARGO_TARGET_DIR:-$PWD/target}"
 mkdir -p "$target_dir"
 free_gb=$(( $(df --output=avail -k "$target_dir" | tail -1) / 1024 / 1024 ))
@@ -48,6 +53,9 @@ if (( have_gb < need_gb )); then
          "${free_gb} GB are free (set SHOAL_TEST_DISK_GB to change the check)" >&2
     exit 1
 fi
+# Below this much free disk at the start, each build is removed once nothing needs it.
+roomy_gb=20
+tight=$(( free_gb < roomy_gb ))
 
 step "installing test dependencies"
 scripts/install-test-deps.sh
@@ -87,6 +95,12 @@ trap 'rm -f "$results"; scripts/postgres.sh stop >/dev/null 2>&1 || true' EXIT
 SHOAL_INTEROP_REQUIRED=1 SHOAL_TEST_POSTGRES_URL="$pg_url" SHOAL_TEST_POSTGRES_REQUIRED=1 \
     scripts/netns-run.sh "$NS" -- cargo test --workspace --locked 2>&1 | tee "$results"
 passed=$(grep -Eo 'test result: ok\. [0-9]+ passed' "$results" | awk '{s += $4} END {print s + 0}')
+# On a small disk the debug build goes once it is done with (what follows uses the release
+# binary; the fuzz targets build in fuzz/target); a larger one keeps it for the next run.
+if (( tight )); then
+    echo "disk: removing the debug build (under ${roomy_gb} GB were free at the start)"
+    rm -rf "${CARGO_TARGET_DIR:-$PWD/target}/debug"
+fi
 
 step "web console in a real browser (Playwright + Chromium against shoal up, inside $NS)"
 cargo build --release --locked -p shoal
@@ -96,6 +110,11 @@ step "the HTTP API against its OpenAPI document (schemathesis, all checks, insid
 SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" scripts/api-conformance.sh "$NS"
 
 if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
+    # So does the release build: the fuzz targets build apart, under the nightly toolchain.
+    if (( tight )); then
+        echo "disk: removing the release build before the fuzz targets build"
+        rm -rf "${CARGO_TARGET_DIR:-$PWD/target}/release"
+    fi
     step "fuzz smoke run (every cargo-fuzz target, 10 s each; scripts/fuzz-long.sh runs them for longer)"
     # cargo-fuzz needs the nightly toolchain (fuzzing only: the product builds on stable).
     if ! cargo +nightly --version >/dev/null 2>&1; then
