@@ -19,7 +19,7 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use crate::common::{free_port, http_get};
+use crate::common::{free_port, http_get, http_post};
 use crate::recorder::Proc;
 
 /// Writes a site's password file and its Zenoh dictionary (`<site>:<password>` a line)
@@ -242,6 +242,60 @@ fn a_shore_station_sees_the_ships_vehicle_over_the_federation() {
         ship.log()
     );
     assert!(ship_doc["vehicles"].as_array().unwrap().is_empty());
+
+    // The command lease: the ship, auv-f1's home, claims it; the shore learns who holds it.
+    let lease = |api: u16| {
+        json(api, "/api/federation")["leases"]
+            .as_array()
+            .and_then(|ls| ls.iter().find(|l| l["vehicle_id"] == "auv-f1").cloned())
+            .map(|l| {
+                (
+                    l["holder"].clone(),
+                    l["term"].clone(),
+                    l["held_here"].clone(),
+                )
+            })
+    };
+    let held = |holder: &str, term: u64, here: bool| {
+        Some((
+            serde_json::json!(holder),
+            serde_json::json!(term),
+            serde_json::json!(here),
+        ))
+    };
+    shore.wait_for(60, "the ship's lease of auv-f1 at the shore", || {
+        lease(shore_api) == held("ship", 1, false)
+    });
+    assert_eq!(lease(ship_api), held("ship", 1, true));
+    let hold = r#"{"vehicle_id": "auv-f1", "task": {"kind": "hold", "duration_s": 30}}"#;
+    let (code, body) = http_post(ship_api, "/api/tasks", hold).unwrap();
+    assert_eq!(code, 202, "the holder commands: {body}");
+    // The shore cannot hand over what it does not hold; the ship hands it to the shore.
+    let to = |site: &str| format!(r#"{{"to": "{site}"}}"#);
+    let (code, body) = http_post(shore_api, "/api/federation/leases/auv-f1", &to("shore")).unwrap();
+    assert_eq!(code, 409, "{body}");
+    let (code, body) =
+        http_post(ship_api, "/api/federation/leases/auv-f1", &to("nowhere")).unwrap();
+    assert_eq!(code, 400, "{body}");
+    let (code, body) = http_post(ship_api, "/api/federation/leases/auv-f1", &to("shore")).unwrap();
+    assert_eq!(code, 200, "{body}");
+    assert!(body.contains(r#""term":2"#), "{body}");
+    // The ship no longer commands auv-f1, aborts included.
+    let (code, body) = http_post(ship_api, "/api/tasks", hold).unwrap();
+    assert_eq!(code, 409, "{body}");
+    assert!(body.contains("commanded by site shore"), "{body}");
+    shore.wait_for(30, "the shore to hold auv-f1's lease", || {
+        lease(shore_api) == held("shore", 2, true)
+    });
+    // The shore hands it back, and the ship commands again.
+    let (code, body) = http_post(shore_api, "/api/federation/leases/auv-f1", &to("ship")).unwrap();
+    assert_eq!(code, 200, "{body}");
+    ship.wait_for(30, "the ship to hold auv-f1's lease again", || {
+        lease(ship_api) == held("ship", 3, true)
+    });
+    let (code, body) = http_post(ship_api, "/api/tasks", hold).unwrap();
+    assert_eq!(code, 202, "{body}");
+
     // Neither password shows in either log; both say their links are not encrypted.
     for log in [ship.log(), shore.log()] {
         assert!(
