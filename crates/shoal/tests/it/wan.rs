@@ -3,7 +3,8 @@
 //! satellite link (600 ms RTT, 64 kbit/s, 2 % loss), 50 vehicles per ship, 80 s with ship-1's
 //! link cut for 15 s. Only the hard invariants are asserted, never a timing target: every
 //! alarm and task transition ship-1 numbered is at the shore exactly once after the outage,
-//! alarms arrive, and the uplink per site count is measured.
+//! alarms arrive, the uplink per site count is measured, and ship-1 and the shore (its
+//! lease standby) agree on every command lease once the link is back.
 //!
 //! The bench makes its namespaces (`shoal-wan-<pid>-*`) inside the test's own
 //! (`scripts/netns-run.sh`) and deletes them; it needs root and /dev/net/tun, and the test
@@ -52,6 +53,8 @@ fn the_federation_over_an_emulated_satellite_link_loses_and_repeats_nothing_acro
             "64",
             "--loss-pct",
             "2",
+            "--lease-timeout",
+            "1",
             "--summary",
         ])
         .arg(&summary)
@@ -87,6 +90,28 @@ fn the_federation_over_an_emulated_satellite_link_loses_and_repeats_nothing_acro
     assert!(s["uplink_3_sites_bps"].as_f64().unwrap() > 0.0, "{s}");
     assert_eq!(n(&s["ship_vehicles_at_shore"]), 50, "{s}\n{stdout}");
     assert!(stdout.contains("| target | measured | met |"), "{stdout}");
+    // The command lease: every ship-1 vehicle had one before the cut, and once the link is
+    // back the shore (its standby, which may have taken them over in the outage) and
+    // ship-1 agree on every one; a taken-over lease is no longer held by ship-1.
+    let lease = &s["lease"];
+    assert_eq!(
+        n(&lease["leased_before"]),
+        50,
+        "{s}
+{stdout}"
+    );
+    assert_eq!(
+        n(&lease["disagreeing_at_end"]),
+        0,
+        "{s}
+{stdout}"
+    );
+    assert_eq!(
+        n(&lease["held_by_shore_at_end"]) + n(&lease["held_by_ship_at_end"]),
+        50,
+        "{s}
+{stdout}"
+    );
     // The bench deleted its namespaces.
     let list = Command::new("ip").args(["netns", "list"]).output().unwrap();
     let pid_ns = String::from_utf8_lossy(&list.stdout)

@@ -18,7 +18,10 @@
 //! emulator: the alarm latency (ship publish → first poll that shows it), the age of
 //! ship-1's positions and the uplink's queue over time, ship-1's uplink bytes/s with two
 //! sites ([D/8, D/4)) and with three ([3D/8, D/2)), and, once settled, each alarm and task
-//! transition ship-1 numbered present at the shore exactly once.
+//! transition ship-1 numbered present at the shore exactly once. The shore is ship-1's
+//! command-lease standby (`--lease-timeout`): when it sees ship-1 lost in the outage it
+//! takes its vehicles' leases over, timed from the cut and from the loss, and once the link
+//! is back both sites must agree on every lease.
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -92,6 +95,10 @@ pub struct Plan {
     /// First of the three DDS domains (one per site).
     #[arg(long, default_value_t = 10)]
     pub domain: u16,
+    /// The command lease's failover timeout, s: the shore is ship-1's standby and takes
+    /// its vehicles' leases over this long after it sees ship-1 offline in the outage.
+    #[arg(long, default_value_t = 10)]
+    pub lease_timeout: u64,
     /// Also write the figures as JSON here (what the test suite checks).
     #[arg(long)]
     pub summary: Option<PathBuf>,
@@ -107,6 +114,12 @@ impl Plan {
                 "--outage {} must be under 3/8 of --seconds {} (the run's last eighth is measured with the link up)",
                 self.outage,
                 self.seconds
+            );
+        }
+        if !(1..=86_400).contains(&self.lease_timeout) {
+            bail!(
+                "--lease-timeout {} is outside 1..=86400",
+                self.lease_timeout
             );
         }
         if !(TASK_VEHICLES + 1..=5000).contains(&self.vehicles) {
@@ -194,6 +207,42 @@ struct Summary {
     uplink_3_sites_bps: f64,
     ship_vehicles_at_shore: usize,
     settled: bool,
+    lease: LeaseFigures,
+}
+
+/// The command lease of ship-1's vehicles through the outage: the shore, its standby,
+/// takes them over; ship-1 gives way when its link is back.
+#[derive(Debug, Default, Clone, serde::Serialize)]
+struct LeaseFigures {
+    timeout_s: u64,
+    /// ship-1's vehicles with a lease at the shore before the cut.
+    leased_before: usize,
+    /// From the cut until the shore saw ship-1 offline, s.
+    detected_s: Option<f64>,
+    /// From the cut until the shore held every lease it had seen ship-1 hold, s.
+    taken_over_s: Option<f64>,
+    /// Leases the shore held at the end.
+    held_by_shore_at_end: usize,
+    /// Leases ship-1 still believed it held at the end.
+    held_by_ship_at_end: usize,
+    /// Vehicles on which the shore and ship-1 disagree at the end (holder or term).
+    disagreeing_at_end: usize,
+}
+
+/// ship-1's vehicles' leases in a site's document: vehicle → (holder, term).
+fn leases_of_ship(doc: &serde_json::Value) -> BTreeMap<String, (String, u64)> {
+    doc["leases"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter(|l| l["home"] == SITES[SHIP])
+        .filter_map(|l| {
+            Some((
+                l["vehicle_id"].as_str()?.to_owned(),
+                (l["holder"].as_str()?.to_owned(), l["term"].as_u64()?),
+            ))
+        })
+        .collect()
 }
 
 /// The shore's picture as the poller keeps it.
@@ -421,6 +470,8 @@ impl Run {
         let mut env = if site == SHORE {
             let mut env = identity(&self.dir, name, passwords, &["ship-1", "ship-2"])?;
             env.extend([
+                // ship-1's standby: takes its leases over when it is lost, never claims.
+                ("SHOAL_FEDERATION__LEASE__HOME".into(), "false".into()),
                 ("SHOAL_FEDERATION__MODE".into(), "router".into()),
                 ("SHOAL_FEDERATION__LISTEN".into(), format!("[\"{ZENOH}\"]")),
                 ("SHOAL_FEDERATION__CONNECT".into(), "[]".into()),
@@ -439,6 +490,9 @@ impl Run {
         } else {
             let other = if site == SHIP { "ship-2" } else { "ship-1" };
             let mut env = identity(&self.dir, name, passwords, &["shore", other])?;
+            if site == SHIP {
+                env.push(("SHOAL_FEDERATION__LEASE__STANDBY".into(), "shore".into()));
+            }
             env.extend([
                 ("SHOAL_FEDERATION__MODE".into(), "client".into()),
                 ("SHOAL_FEDERATION__LISTEN".into(), "[]".into()),
@@ -452,6 +506,10 @@ impl Run {
                 (plan.domain + site as u16).to_string(),
             ),
             ("SHOAL_SECURITY__ENABLED".into(), "false".into()),
+            (
+                "SHOAL_FEDERATION__LEASE__FAILOVER_TIMEOUT_MS".into(),
+                (plan.lease_timeout * 1000).to_string(),
+            ),
             // Reached only from inside the site's own namespace.
             ("SHOAL_CONSOLE__AUTH__ENABLED".into(), "false".into()),
             ("RUST_LOG".into(), "warn,cyclonedds=error".into()),
@@ -760,6 +818,11 @@ async fn measure(plan: &Plan, run: &mut Run) -> Result<()> {
     let (mut ship2_started, mut ship2_loaded) = (false, false);
     let (mut outage_on, mut outage_done) = (false, false);
     let mut reconnected: Option<Duration> = None;
+    let mut lease = LeaseFigures {
+        timeout_s: plan.lease_timeout,
+        ..LeaseFigures::default()
+    };
+    let mut leased_at_cut: BTreeMap<String, (String, u64)> = BTreeMap::new();
     let mut ticker = tokio::time::interval(POLL);
     ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     // A hundred samples a run, one every 1 to 10 s; a progress line every 10 s.
@@ -807,6 +870,32 @@ async fn measure(plan: &Plan, run: &mut Run) -> Result<()> {
         }
         match get_json(run.netns.name(SHORE), "/api/federation").await {
             Ok(doc) => {
+                let leases = leases_of_ship(&doc);
+                if !outage_on && !outage_done {
+                    leased_at_cut = leases.clone();
+                } else if outage_on {
+                    if lease.detected_s.is_none() && !online(&doc, SITES[SHIP]) {
+                        lease.detected_s = Some((t - cut).as_secs_f64());
+                        println!(
+                            "t={:>5.0}s the shore sees ship-1 offline, {:.1} s after the cut",
+                            t.as_secs_f64(),
+                            (t - cut).as_secs_f64()
+                        );
+                    }
+                    let all_taken = !leased_at_cut.is_empty()
+                        && leased_at_cut
+                            .keys()
+                            .all(|v| leases.get(v).is_some_and(|(h, _)| h == SITES[SHORE]));
+                    if lease.taken_over_s.is_none() && all_taken {
+                        lease.taken_over_s = Some((t - cut).as_secs_f64());
+                        println!(
+                            "t={:>5.0}s the shore holds the leases of ship-1's {} vehicles, {:.1} s after the cut",
+                            t.as_secs_f64(),
+                            leased_at_cut.len(),
+                            (t - cut).as_secs_f64()
+                        );
+                    }
+                }
                 if outage_done && reconnected.is_none() && online(&doc, SITES[SHIP]) {
                     reconnected = Some(t0.elapsed());
                     println!(
@@ -889,6 +978,18 @@ async fn measure(plan: &Plan, run: &mut Run) -> Result<()> {
         }
     }
     let (alarms, transitions) = tallies(&shore_doc, &ship_doc);
+    // The leases have had the whole settling time to converge after the link came back.
+    lease.leased_before = leased_at_cut.len();
+    let (at_shore, at_ship) = (leases_of_ship(&shore_doc), leases_of_ship(&ship_doc));
+    lease.held_by_shore_at_end = at_shore.values().filter(|(h, _)| h == SITES[SHORE]).count();
+    lease.held_by_ship_at_end = at_ship.values().filter(|(h, _)| h == SITES[SHIP]).count();
+    lease.disagreeing_at_end = at_shore
+        .keys()
+        .chain(at_ship.keys())
+        .collect::<std::collections::BTreeSet<_>>()
+        .into_iter()
+        .filter(|v| at_shore.get(*v) != at_ship.get(*v))
+        .count();
     println!(
         "{} {:.0} s after the loads stopped raising",
         if settled {
@@ -1027,7 +1128,32 @@ async fn measure(plan: &Plan, run: &mut Run) -> Result<()> {
         caught_up_after,
         yes(alarms.exact() && missing == 0 && alarms.sent > 0)
     );
-    println!("| lease failover | not built (item 3) | — |");
+    let secs = |v: Option<f64>| v.map_or("never".to_string(), |s| format!("{s:.1} s"));
+    let failover_s = match (lease.detected_s, lease.taken_over_s) {
+        (Some(d), Some(t)) => Some(t - d),
+        _ => None,
+    };
+    #[allow(clippy::cast_precision_loss)]
+    let failover_budget = plan.lease_timeout as f64 + 2.0;
+    println!(
+        "| lease failover ≤ configured timeout + 2 s = {:.0} s | the shore (ship-1's standby) saw ship-1 offline {} after the cut and held all {} of its leases {} after the cut: {} after it saw ship-1 lost; at the end (link back) the shore holds {}, ship-1 still believes it holds {}, they disagree on {} | {} |",
+        failover_budget,
+        secs(lease.detected_s),
+        lease.leased_before,
+        secs(lease.taken_over_s),
+        secs(failover_s),
+        lease.held_by_shore_at_end,
+        lease.held_by_ship_at_end,
+        lease.disagreeing_at_end,
+        match (failover_s, lease.taken_over_s) {
+            (Some(f), Some(t)) if t <= failover_budget => yes(f <= failover_budget).to_string(),
+            (Some(f), _) => format!(
+                "{} from the loss; not from the cut (Zenoh noticed the silent link only after its own lease)",
+                yes(f <= failover_budget)
+            ),
+            _ => "no".into(),
+        }
+    );
     println!();
     println!(
         "ship-1's uplink: {} packets ({} B) offered, {} lost at random, {} dropped by the full queue, {} in the outage; largest queue {} B",
@@ -1066,7 +1192,6 @@ async fn measure(plan: &Plan, run: &mut Run) -> Result<()> {
         counter(&ship_doc, "coalesced_positions"),
         counter(&ship_doc, "catchup_served"),
     );
-    println!("Lease failover is not built, so it is not measured.");
     if let Some(path) = &plan.summary {
         let summary = Summary {
             seconds: plan.seconds,
@@ -1083,6 +1208,7 @@ async fn measure(plan: &Plan, run: &mut Run) -> Result<()> {
             uplink_3_sites_bps: up3,
             ship_vehicles_at_shore: n_end,
             settled,
+            lease,
         };
         std::fs::write(path, serde_json::to_string_pretty(&summary)?)
             .with_context(|| format!("cannot write {}", path.display()))?;
@@ -1195,6 +1321,7 @@ mod tests {
             task_every: 10.0,
             seed: 1,
             domain: 10,
+            lease_timeout: 10,
             summary: None,
         };
         plan(1800, 300).check().unwrap();
