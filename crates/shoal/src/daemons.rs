@@ -610,6 +610,8 @@ pub struct ProxyFlags {
     pub bind: Option<String>,
     /// `--namespace`.
     pub namespace: Option<String>,
+    /// `--rmw`.
+    pub rmw: Option<crate::RmwKind>,
     /// `--proxy-config`.
     pub config_file: Option<std::path::PathBuf>,
     /// `--rate`.
@@ -662,6 +664,9 @@ pub async fn proxy(
             flags.id
         );
     }
+    if flags.rmw.is_some() && kind != crate::ProxyKind::Ros2 {
+        bail!("--rmw is for --proxy ros2");
+    }
     let options = vehicle_options(cfg, flags.rate_hz);
     let file = flags.config_file.as_deref();
     let shutdown = shutdown_signal(exit_on_stdin_close);
@@ -701,10 +706,20 @@ pub async fn proxy(
             if let Some(ns) = flags.namespace {
                 c.namespace = ns;
             }
-            info!(namespace = %c.namespace, "ROS 2 proxy starting");
+            match flags.rmw {
+                Some(crate::RmwKind::Dds) => c.rmw = ros2::Rmw::Dds,
+                Some(crate::RmwKind::Zenoh) => c.rmw = ros2::Rmw::Zenoh,
+                None => {}
+            }
+            info!(namespace = %c.namespace, rmw = ?c.rmw, "ROS 2 proxy starting");
+            // Shoal's own side is on DDS either way; over rmw_zenoh the vehicle's topics are
+            // on a Zenoh session of the adapter's.
             let participant = vehicle_dds(cfg, &flags.id)?;
-            let adapter =
-                ros2::Ros2Adapter::new(Arc::clone(&participant), c).context("ROS 2 proxy")?;
+            let adapter = match c.rmw {
+                ros2::Rmw::Dds => ros2::Ros2Adapter::new(Arc::clone(&participant), c),
+                ros2::Rmw::Zenoh => ros2::Ros2Adapter::zenoh(c).await,
+            }
+            .context("ROS 2 proxy")?;
             run_proxy(adapter, participant, options, shutdown)
                 .await
                 .context("ROS 2 proxy stopped")

@@ -147,6 +147,10 @@ enum Command {
         /// ROS 2: the vehicle's namespace (topics `rt/<namespace>/...`).
         #[arg(long)]
         namespace: Option<String>,
+        /// ROS 2: the vehicle's middleware, DDS or rmw_zenoh (default: the proxy
+        /// settings' `rmw`, else dds). rmw_zenoh's endpoints are the settings' `[zenoh]`.
+        #[arg(long, value_enum)]
+        rmw: Option<RmwKind>,
         /// The proxy's full settings as TOML (every key of its configuration; see the
         /// integrator guide); flags given here override it.
         #[arg(long, value_name = "FILE")]
@@ -256,8 +260,18 @@ pub enum ProxyKind {
     Mavlink,
     /// IMC (LSTS DUNE), static unicast UDP.
     Imc,
-    /// ROS 2 topics over DDS (NavSatFix, Odometry, BatteryState; PoseStamped goals).
+    /// ROS 2 topics over DDS or rmw_zenoh (NavSatFix, Odometry, BatteryState; PoseStamped
+    /// goals).
     Ros2,
+}
+
+/// The ROS 2 middleware of a `--proxy ros2` vehicle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum RmwKind {
+    /// DDS (rmw_cyclonedds, rmw_fastrtps): topics `rt/<ns>/<name>`.
+    Dds,
+    /// rmw_zenoh (ROS 2's Tier-1 middleware since Kilted), through a Zenoh session.
+    Zenoh,
 }
 
 /// Kinds of simulated vehicle.
@@ -476,6 +490,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             address,
             bind,
             namespace,
+            rmw,
             proxy_config,
             id,
             rate,
@@ -487,6 +502,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 address,
                 bind,
                 namespace,
+                rmw,
                 config_file: proxy_config,
                 rate_hz: rate,
             };

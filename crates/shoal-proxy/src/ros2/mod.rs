@@ -1,9 +1,14 @@
-//! The ROS 2 proxy: a vehicle whose software is a ROS 2 graph, reached over Shoal's own
-//! DDS participant, wire-compatible without ROS installed.
+//! The ROS 2 proxy: a vehicle whose software is a ROS 2 graph, reached over DDS (Shoal's
+//! own participant) or over rmw_zenoh, wire-compatible without ROS installed.
 //!
-//! ROS 2 topics are DDS topics named `rt/<namespace>/<name>` whose types are the `.msg`
-//! types as plain CDR under the names `<package>::msg::dds_::<Name>_` ([`msgs`]).
-//! [`Ros2Adapter::new`] subscribes, in the configured namespace, to
+//! Over DDS, ROS 2 topics are DDS topics named `rt/<namespace>/<name>` whose types are the
+//! `.msg` types as plain CDR under the names `<package>::msg::dds_::<Name>_` ([`msgs`]).
+//! Over rmw_zenoh (`rmw = "zenoh"`, ROS 2's Tier-1 middleware since Kilted) the same CDR
+//! travels on Zenoh key expressions with the type's REP 2016 hash ([`type_hash`]), a
+//! 33-byte attachment per sample, and liveliness tokens for the graph ([`zenoh_wire`]).
+//! Both sit behind one seam (`transport`), so everything below holds for either.
+//! [`Ros2Adapter::new`] (DDS) or [`Ros2Adapter::zenoh`] subscribes, in the configured
+//! namespace, to
 //!
 //! - `sensor_msgs/NavSatFix` (`fix`): latitude and longitude (`status` -1, no fix, and NaN
 //!   positions are counted and dropped);
@@ -37,24 +42,30 @@
 //! next published when the vehicle reaches the last), `hold` one at the current position
 //! for the duration, `surface` and `abort` one at the current position at depth 0,
 //! `return_home` one at the datum at the surface. ROS 2 goals have no acknowledgement
-//! without actions: a goal counts as taken when DDS delivered it to at least one
-//! subscriber (none matched: the task is refused), and progress and arrival come from the
-//! vehicle's fix and odometry.
+//! without actions: a goal counts as taken when the middleware delivered it to at least
+//! one subscriber (DDS's matched readers; over rmw_zenoh, the subscriptions the graph's
+//! liveliness tokens announce on the goal topic with the goal's type hash; none: the task
+//! is refused), and progress and arrival come from the vehicle's fix and odometry.
 
+pub mod config;
 pub mod mapping;
 pub mod msgs;
+#[cfg(feature = "rmw-zenoh")]
+mod rmw_zenoh;
+mod transport;
+pub mod type_hash;
+pub mod zenoh_wire;
+
+pub use config::{Datum, Rmw, Ros2Config, ZenohMode, ZenohSettings};
+pub use transport::GoalError;
 
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
-use futures::StreamExt;
-use serde::{Deserialize, Serialize};
-use shoal_dds::{
-    CreateError, Priority, PubSub, ReadError, SampleMeta, Subscription, Writer, WriterOptions,
-};
+use shoal_dds::{CreateError, Priority, PubSub, WriterOptions};
 use shoal_model::{
     EventKind, GeoPoint, LinkKind, Severity, StateVector, Task, TaskKind, TaskState, UNKNOWN,
-    Validate, VehicleAnnouncement, VehicleKind, now_ms,
+    VehicleAnnouncement, now_ms,
 };
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
@@ -66,100 +77,18 @@ use crate::adapter::{
 };
 use crate::link::{Liveness, Outputs, bump};
 use crate::sim::{distance, distance_bearing, lawnmower};
+use config::check;
 use mapping::EnuFrame;
 use msgs::{
     BatteryState, Header, Log, NavSatFix, Odometry, Point, Pose, PoseStamped, STATUS_NO_FIX, Time,
     log_level,
 };
+use transport::{DdsInbox, Goals, Inbox, Rejection, Sample, Topic};
 
 /// How often silence and goals are checked.
 const WATCH_EVERY: Duration = Duration::from_millis(200);
 /// Least progress change worth a report, percent.
 const PROGRESS_STEP: f64 = 1.0;
-
-/// A geodetic datum in a configuration.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Datum {
-    /// Latitude, degrees.
-    pub latitude_deg: f64,
-    /// Longitude, degrees.
-    pub longitude_deg: f64,
-}
-
-/// How to reach a ROS 2 vehicle; the `[proxy.ros2]` section a CLI would read.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct Ros2Config {
-    /// Shoal vehicle id the proxy announces.
-    pub vehicle_id: String,
-    /// Human-readable name.
-    pub name: String,
-    /// Kind of vehicle.
-    pub kind: VehicleKind,
-    /// Vendor or integrator.
-    pub vendor: String,
-    /// Maximum speed, m/s.
-    pub max_speed_mps: f64,
-    /// The ROS 2 namespace of the vehicle's topics (e.g. `bluerov`; empty for none).
-    pub namespace: String,
-    /// `sensor_msgs/NavSatFix` topic, relative to the namespace.
-    pub fix_topic: String,
-    /// `nav_msgs/Odometry` topic.
-    pub odom_topic: String,
-    /// `sensor_msgs/BatteryState` topic.
-    pub battery_topic: String,
-    /// `geometry_msgs/PoseStamped` goal topic.
-    pub goal_topic: String,
-    /// Turn the namespace's `/rosout` warnings and errors into events.
-    pub rosout: bool,
-    /// `frame_id` of the goals: a local ENU frame with its origin at `datum`.
-    pub goal_frame_id: String,
-    /// Origin of the goal frame; `None` takes the first fix.
-    pub datum: Option<Datum>,
-    /// Silence after which the link is reported lost, ms.
-    pub lost_after_ms: u64,
-    /// Distance at which a goal counts as reached, m.
-    pub arrival_radius_m: f64,
-    /// Depth error within which a goal's depth counts as reached, m.
-    pub depth_tolerance_m: f64,
-}
-
-impl Default for Ros2Config {
-    fn default() -> Self {
-        Self {
-            vehicle_id: "ros2-1".into(),
-            name: "ROS 2 vehicle".into(),
-            kind: VehicleKind::Auv,
-            vendor: "ROS 2".into(),
-            max_speed_mps: 2.0,
-            namespace: String::new(),
-            fix_topic: "fix".into(),
-            odom_topic: "odom".into(),
-            battery_topic: "battery".into(),
-            goal_topic: "goal_pose".into(),
-            rosout: true,
-            goal_frame_id: "map".into(),
-            datum: None,
-            lost_after_ms: 3000,
-            arrival_radius_m: 2.0,
-            depth_tolerance_m: 0.5,
-        }
-    }
-}
-
-impl Ros2Config {
-    /// The DDS name of a ROS 2 topic of this vehicle: `rt/<namespace>/<name>`.
-    pub fn dds_topic(&self, name: &str) -> String {
-        let ns = self.namespace.trim_matches('/');
-        let name = name.trim_matches('/');
-        if ns.is_empty() {
-            format!("rt/{name}")
-        } else {
-            format!("rt/{ns}/{name}")
-        }
-    }
-}
 
 /// Why the ROS 2 adapter cannot start or goes on no more.
 #[derive(Debug, thiserror::Error)]
@@ -171,6 +100,15 @@ pub enum Ros2Error {
     /// The DDS readers or the goal writer could not be created.
     #[error("ROS 2 topics could not be opened: {0}")]
     Dds(#[from] CreateError),
+    /// The rmw_zenoh session or one of its entities could not be opened.
+    #[cfg(feature = "rmw-zenoh")]
+    #[error("rmw_zenoh: cannot {what}: {source}")]
+    Zenoh {
+        /// What was being done.
+        what: &'static str,
+        /// Zenoh's error.
+        source: zenoh::Error,
+    },
     /// The link task ended.
     #[error("the ROS 2 link stopped: {0}")]
     LinkStopped(String),
@@ -193,6 +131,13 @@ crate::link::link_counters! {
         goals_sent,
         /// Goals that could not be published.
         goal_errors,
+        /// rmw_zenoh: samples whose key names another type or type hash than the topic's.
+        wrong_type,
+        /// rmw_zenoh: samples without the attachment rmw_zenoh specifies, or with a
+        /// malformed one.
+        bad_attachment,
+        /// rmw_zenoh: samples dropped because they arrived faster than the link took them.
+        flooded,
     }
 }
 
@@ -277,12 +222,13 @@ struct Command {
 /// A ROS 2 vehicle behind a DDS Proxy.
 #[derive(Debug)]
 pub struct Ros2Adapter {
-    /// Kept: the readers and the writer stop working when their participant is dropped.
-    dds: Arc<PubSub>,
+    /// Kept: DDS readers and writers stop working when their participant is dropped (none
+    /// over rmw_zenoh).
+    dds: Option<Arc<PubSub>>,
     config: Ros2Config,
     shared: Arc<Mutex<Shared>>,
     counters: Arc<Counters>,
-    goals: Arc<Writer<PoseStamped>>,
+    goals: Arc<Goals>,
     commands: mpsc::Sender<Command>,
     outputs: mpsc::Receiver<VehicleOutput>,
     link: JoinHandle<()>,
@@ -292,47 +238,6 @@ impl Drop for Ros2Adapter {
     fn drop(&mut self) {
         self.link.abort();
     }
-}
-
-fn check(c: &Ros2Config) -> Result<(), Ros2Error> {
-    let mut a = announcement_of(c);
-    a.timestamp_ms = now_ms();
-    a.validate()
-        .map_err(|e| Ros2Error::Config(format!("the vehicle cannot be announced: {e}")))?;
-    let name_ok = |s: &str| {
-        s.trim_matches('/')
-            .chars()
-            .all(|ch| ch.is_ascii_alphanumeric() || ch == '_' || ch == '/')
-    };
-    for (what, s) in [
-        ("namespace", &c.namespace),
-        ("fix_topic", &c.fix_topic),
-        ("odom_topic", &c.odom_topic),
-        ("battery_topic", &c.battery_topic),
-        ("goal_topic", &c.goal_topic),
-    ] {
-        if !name_ok(s) || (what != "namespace" && s.trim_matches('/').is_empty()) {
-            return Err(Ros2Error::Config(format!(
-                "{what} {s:?} is not a ROS 2 name (letters, digits, _ and /)"
-            )));
-        }
-    }
-    if c.lost_after_ms == 0 {
-        return Err(Ros2Error::Config("lost_after_ms must be positive".into()));
-    }
-    let positive = |v: f64| v > 0.0 && v.is_finite();
-    if !positive(c.arrival_radius_m) || !positive(c.depth_tolerance_m) {
-        return Err(Ros2Error::Config(
-            "arrival_radius_m and depth_tolerance_m must be positive".into(),
-        ));
-    }
-    if let Some(d) = c.datum
-        && !((-90.0..=90.0).contains(&d.latitude_deg)
-            && (-180.0..=180.0).contains(&d.longitude_deg))
-    {
-        return Err(Ros2Error::Config("datum is not a WGS84 position".into()));
-    }
-    Ok(())
 }
 
 fn announcement_of(c: &Ros2Config) -> VehicleAnnouncement {
@@ -359,22 +264,21 @@ fn announcement_of(c: &Ros2Config) -> VehicleAnnouncement {
     }
 }
 
-/// The link's DDS endpoints.
-struct Topics {
-    fix: Subscription<NavSatFix>,
-    odom: Subscription<Odometry>,
-    battery: Subscription<BatteryState>,
-    rosout: Option<Subscription<Log>>,
-}
-
 impl Ros2Adapter {
-    /// Subscribes to the vehicle's topics and opens its goal topic on `dds`. Must be called
+    /// Subscribes to the vehicle's topics and opens its goal topic on `dds`, for a vehicle
+    /// on DDS (`rmw = "dds"`; [`Ros2Adapter::zenoh`] is for rmw_zenoh). Must be called
     /// within a Tokio runtime (it starts the link task).
     pub fn new(dds: Arc<PubSub>, config: Ros2Config) -> Result<Self, Ros2Error> {
         check(&config)?;
+        if config.rmw != Rmw::Dds {
+            return Err(Ros2Error::Config(
+                "Ros2Adapter::new is for DDS: a vehicle on rmw_zenoh needs Ros2Adapter::zenoh"
+                    .into(),
+            ));
+        }
         let runtime = tokio::runtime::Handle::try_current()
             .map_err(|_| Ros2Error::Config("Ros2Adapter::new needs a Tokio runtime".into()))?;
-        let topics = Topics {
+        let inbox = DdsInbox {
             fix: dds.subscribe_on(&config.dds_topic(&config.fix_topic))?,
             odom: dds.subscribe_on(&config.dds_topic(&config.odom_topic))?,
             battery: dds.subscribe_on(&config.dds_topic(&config.battery_topic))?,
@@ -384,11 +288,62 @@ impl Ros2Adapter {
                 None
             },
         };
-        let goals = Arc::new(dds.writer_on::<PoseStamped>(
+        let goals = Goals::Dds(dds.writer_on::<PoseStamped>(
             &config.dds_topic(&config.goal_topic),
             WriterOptions::new(Priority::Control),
         )?);
         info!(vehicle = %config.vehicle_id, namespace = %config.namespace, "ROS 2 topics open");
+        Ok(Self::start(
+            &runtime,
+            Some(dds),
+            config,
+            Arc::new(Counters::default()),
+            Inbox::Dds(Box::new(inbox)),
+            goals,
+        ))
+    }
+
+    /// Joins a vehicle on rmw_zenoh (`rmw = "zenoh"`): opens a Zenoh session as the
+    /// configuration's `[zenoh]` table says and joins the vehicle's ROS graph as a node.
+    /// Shoal's own side stays on its DDS participant, which the caller keeps. Must be
+    /// called within a Tokio runtime.
+    #[cfg(feature = "rmw-zenoh")]
+    pub async fn zenoh(config: Ros2Config) -> Result<Self, Ros2Error> {
+        check(&config)?;
+        if config.rmw != Rmw::Zenoh {
+            return Err(Ros2Error::Config(
+                "Ros2Adapter::zenoh is for rmw_zenoh: set rmw = \"zenoh\"".into(),
+            ));
+        }
+        let runtime = tokio::runtime::Handle::try_current()
+            .map_err(|_| Ros2Error::Config("Ros2Adapter::zenoh needs a Tokio runtime".into()))?;
+        let counters = Arc::new(Counters::default());
+        let (inbox, goals) = rmw_zenoh::open(&config, &counters).await?;
+        info!(
+            vehicle = %config.vehicle_id,
+            namespace = %config.namespace,
+            domain = config.zenoh.domain_id,
+            "ROS 2 topics open over rmw_zenoh"
+        );
+        Ok(Self::start(
+            &runtime,
+            None,
+            config,
+            counters,
+            Inbox::Zenoh(inbox),
+            Goals::Zenoh(goals),
+        ))
+    }
+
+    fn start(
+        runtime: &tokio::runtime::Handle,
+        dds: Option<Arc<PubSub>>,
+        config: Ros2Config,
+        counters: Arc<Counters>,
+        inbox: Inbox,
+        goals: Goals,
+    ) -> Self {
+        let goals = Arc::new(goals);
         let shared = Arc::new(Mutex::new(Shared {
             datum: config.datum.map(|d| {
                 EnuFrame::new(GeoPoint {
@@ -398,7 +353,6 @@ impl Ros2Adapter {
             }),
             ..Shared::default()
         }));
-        let counters = Arc::new(Counters::default());
         let (commands, command_rx) = mpsc::channel(crate::adapter::COMMAND_QUEUE);
         let (output_tx, outputs) = Outputs::channel(Arc::clone(&counters.outputs_dropped));
         let link = Link {
@@ -411,8 +365,8 @@ impl Ros2Adapter {
             liveness: Liveness::new(config.lost_after_ms),
             job: None,
         };
-        let link = runtime.spawn(link.run(topics, command_rx));
-        Ok(Self {
+        let link = runtime.spawn(link.run(inbox, command_rx));
+        Self {
             dds,
             config,
             shared,
@@ -421,7 +375,17 @@ impl Ros2Adapter {
             commands,
             outputs,
             link,
-        })
+        }
+    }
+
+    /// The goal topic as the vehicle's middleware names it, for messages.
+    fn goal_topic_name(&self) -> String {
+        match self.config.rmw {
+            Rmw::Dds => self.config.dds_topic(&self.config.goal_topic),
+            Rmw::Zenoh => {
+                zenoh_wire::fully_qualified(&self.config.namespace, &self.config.goal_topic)
+            }
+        }
     }
 
     /// Sample and error counts so far.
@@ -435,9 +399,9 @@ impl Ros2Adapter {
         s.heard && !s.lost
     }
 
-    /// The DDS participant the adapter's topics live on.
-    pub fn dds(&self) -> &Arc<PubSub> {
-        &self.dds
+    /// The DDS participant the vehicle's topics live on; `None` over rmw_zenoh.
+    pub fn dds(&self) -> Option<&Arc<PubSub>> {
+        self.dds.as_ref()
     }
 
     /// The goal frame's origin, once known.
@@ -547,11 +511,11 @@ impl VehicleAdapter for Ros2Adapter {
         if !abort && !self.is_connected() {
             return Err(Refusal::new("no data from the vehicle's ROS 2 topics"));
         }
-        let subscribers = self.goals.matched_readers();
+        let subscribers = self.goals.subscribers();
         if subscribers == 0 {
             return Err(Refusal::new(format!(
                 "nothing subscribes to {}",
-                self.config.dds_topic(&self.config.goal_topic)
+                self.goal_topic_name()
             )));
         }
         let job = self.job_for(&order)?;
@@ -570,7 +534,7 @@ struct Link {
     config: Ros2Config,
     shared: Arc<Mutex<Shared>>,
     counters: Arc<Counters>,
-    goals: Arc<Writer<PoseStamped>>,
+    goals: Arc<Goals>,
     outputs: Outputs,
     logger_prefix: String,
     liveness: Liveness,
@@ -578,31 +542,15 @@ struct Link {
 }
 
 impl Link {
-    async fn run(mut self, mut t: Topics, mut commands: mpsc::Receiver<Command>) {
+    async fn run(mut self, mut inbox: Inbox, mut commands: mpsc::Receiver<Command>) {
         let mut watch = tokio::time::interval(WATCH_EVERY);
         watch.set_missed_tick_behavior(MissedTickBehavior::Delay);
         loop {
             tokio::select! {
-                Some(s) = t.fix.next() => {
-                    if let Some(fix) = self.sample(s) {
-                        self.on_fix(&fix).await;
-                    }
-                }
-                Some(s) = t.odom.next() => {
-                    if let Some(odom) = self.sample(s) {
-                        self.on_odom(&odom).await;
-                    }
-                }
-                Some(s) = t.battery.next() => {
-                    if let Some(b) = self.sample(s) {
-                        self.on_battery(&b);
-                    }
-                }
-                Some(s) = next_or_pending(t.rosout.as_mut()) => {
-                    if let Ok((log, _)) = s {
-                        self.on_log(&log);
-                    }
-                }
+                Some((topic, received)) = inbox.next() => match received {
+                    Ok(sample) => self.on_sample(sample).await,
+                    Err(why) => self.rejected(topic, &why),
+                },
                 command = commands.recv() => match command {
                     Some(c) => self.on_command(c).await,
                     None => return,
@@ -612,23 +560,38 @@ impl Link {
         }
     }
 
-    fn sample<T>(&mut self, s: Result<(T, SampleMeta), ReadError>) -> Option<T> {
-        match s {
-            Ok((v, _)) => {
+    async fn on_sample(&mut self, sample: Sample) {
+        match sample {
+            Sample::Fix(fix) => {
                 bump(&self.counters.samples);
-                Some(v)
+                self.on_fix(&fix).await;
             }
-            Err(ReadError::Malformed { detail, .. }) => {
-                bump(&self.counters.malformed);
-                debug!(%detail, "malformed ROS 2 sample dropped");
-                None
+            Sample::Odom(odom) => {
+                bump(&self.counters.samples);
+                self.on_odom(&odom).await;
             }
-            Err(e) => {
-                bump(&self.counters.invalid);
-                debug!(error = %e, "invalid ROS 2 sample dropped");
-                None
+            Sample::Battery(b) => {
+                bump(&self.counters.samples);
+                self.on_battery(&b);
             }
+            Sample::Log(log) => self.on_log(&log),
         }
+    }
+
+    fn rejected(&self, topic: Topic, why: &Rejection) {
+        let counter = match why {
+            // `/rosout` carries every node's logs and Shoal only peeks at them: one that
+            // does not decode is no fault of the vehicle's telemetry, and is not counted.
+            Rejection::Malformed(_) | Rejection::Invalid(_) if topic == Topic::Rosout => None,
+            Rejection::Malformed(_) => Some(&self.counters.malformed),
+            Rejection::Invalid(_) => Some(&self.counters.invalid),
+            Rejection::WrongType(_) => Some(&self.counters.wrong_type),
+            Rejection::BadAttachment(_) => Some(&self.counters.bad_attachment),
+        };
+        if let Some(c) = counter {
+            bump(c);
+        }
+        debug!(?topic, reason = %why, "ROS 2 sample dropped");
     }
 
     fn heard(&mut self) {
@@ -749,7 +712,7 @@ impl Link {
                     0.0,
                     &format!(
                         "goal 1 of {n} published to {} subscriber(s)",
-                        self.goals.matched_readers()
+                        self.goals.subscribers()
                     ),
                 );
             }
@@ -801,7 +764,7 @@ impl Link {
                 orientation: mapping::heading_quaternion(facing),
             },
         };
-        match self.goals.write(goal).await {
+        match self.goals.publish(goal).await {
             Ok(()) => {
                 bump(&self.counters.goals_sent);
                 debug!(east, north, depth = leg.depth, "ROS 2 goal published");
@@ -937,53 +900,10 @@ impl Link {
     }
 }
 
-/// The next item of an optional stream; pending for ever when there is none.
-async fn next_or_pending<S: futures::Stream + Unpin>(s: Option<&mut S>) -> Option<S::Item> {
-    match s {
-        Some(s) => s.next().await,
-        None => std::future::pending().await,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn topic_names_follow_ros_2() {
-        let c = Ros2Config {
-            namespace: "/bluerov/".into(),
-            ..Ros2Config::default()
-        };
-        assert_eq!(c.dds_topic("fix"), "rt/bluerov/fix");
-        assert_eq!(c.dds_topic("/goal_pose"), "rt/bluerov/goal_pose");
-        assert_eq!(Ros2Config::default().dds_topic("odom"), "rt/odom");
-    }
-
-    #[test]
-    fn the_config_has_defaults_and_rejects_unknown_fields() {
-        let c: Ros2Config = serde_json::from_str(
-            r#"{"namespace": "auv1", "datum": {"latitude_deg": 59.9, "longitude_deg": 10.7}}"#,
-        )
-        .unwrap();
-        assert_eq!(c.namespace, "auv1");
-        assert_eq!(c.goal_topic, "goal_pose");
-        assert!(check(&c).is_ok());
-        assert!(serde_json::from_str::<Ros2Config>(r#"{"name_space": "x"}"#).is_err());
-        let bad = Ros2Config {
-            namespace: "bad ns".into(),
-            ..Ros2Config::default()
-        };
-        assert!(matches!(check(&bad), Err(Ros2Error::Config(_))));
-        let bad = Ros2Config {
-            datum: Some(Datum {
-                latitude_deg: 100.0,
-                longitude_deg: 0.0,
-            }),
-            ..Ros2Config::default()
-        };
-        assert!(check(&bad).is_err());
-    }
+    use shoal_model::Validate;
 
     #[test]
     fn a_state_needs_fix_odometry_and_battery() {
