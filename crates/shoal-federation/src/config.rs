@@ -66,6 +66,10 @@ pub struct FederationConfig {
     /// Zenoh's user-password dictionary (`<site>:<password>` a line) of the remote sites
     /// this site accepts connections from; empty: none.
     pub credentials_file: PathBuf,
+    /// How long a silent link to a remote site lives before the site is seen lost, ms
+    /// (Zenoh's link lease; a keep-alive crosses every quarter of it). The command lease's
+    /// failover starts counting then.
+    pub link_lease_ms: u64,
     /// Mutual TLS between sites: encryption, and each side of a link checks the other's
     /// certificate.
     pub tls: TlsConfig,
@@ -104,6 +108,7 @@ impl Default for FederationConfig {
             tasks: TasksPolicy::default(),
             environment: EnvironmentPolicy::default(),
             lease: LeasePolicy::default(),
+            link_lease_ms: 10_000,
             limits: Limits::default(),
         }
     }
@@ -495,6 +500,9 @@ impl FederationConfig {
                 "environment.mode",
                 "aggregated is not built yet; only off is accepted",
             ));
+        }
+        if !(1_000..=600_000).contains(&self.link_lease_ms) {
+            return Err(invalid("link_lease_ms", "must be in 1000..=600000"));
         }
         let lease = &self.lease;
         if !lease.standby.is_empty() && !self.remote_sites.contains(&lease.standby) {

@@ -60,6 +60,10 @@ pub fn zenoh_config(
         ("connect/exit_on_failure", json(false.into())),
         // Listening on a configured endpoint must work, or the site is misconfigured.
         ("listen/exit_on_failure", json(true.into())),
+        // How long a silent link lives: a remote site is seen lost (its liveliness token
+        // gone, the command lease's failover clock started) this long after it fell
+        // silent. Zenoh sends a keep-alive every quarter of it.
+        ("transport/link/tx/lease", json(c.link_lease_ms.into())),
     ];
     if let Some(id) = identity {
         if polices(c, id) {

@@ -99,6 +99,10 @@ pub struct Plan {
     /// its vehicles' leases over this long after it sees ship-1 offline in the outage.
     #[arg(long, default_value_t = 10)]
     pub lease_timeout: u64,
+    /// Zenoh's link lease on every site, ms (`[federation] link_lease_ms`): how long a
+    /// silent link lives, so how soon the shore sees ship-1 lost in the outage.
+    #[arg(long, default_value_t = 10_000)]
+    pub link_lease_ms: u64,
     /// Also write the figures as JSON here (what the test suite checks).
     #[arg(long)]
     pub summary: Option<PathBuf>,
@@ -114,6 +118,12 @@ impl Plan {
                 "--outage {} must be under 3/8 of --seconds {} (the run's last eighth is measured with the link up)",
                 self.outage,
                 self.seconds
+            );
+        }
+        if !(1_000..=600_000).contains(&self.link_lease_ms) {
+            bail!(
+                "--link-lease-ms {} is outside 1000..=600000",
+                self.link_lease_ms
             );
         }
         if !(1..=86_400).contains(&self.lease_timeout) {
@@ -509,6 +519,10 @@ impl Run {
             (
                 "SHOAL_FEDERATION__LEASE__FAILOVER_TIMEOUT_MS".into(),
                 (plan.lease_timeout * 1000).to_string(),
+            ),
+            (
+                "SHOAL_FEDERATION__LINK_LEASE_MS".into(),
+                plan.link_lease_ms.to_string(),
             ),
             // Reached only from inside the site's own namespace.
             ("SHOAL_CONSOLE__AUTH__ENABLED".into(), "false".into()),
@@ -1136,8 +1150,9 @@ async fn measure(plan: &Plan, run: &mut Run) -> Result<()> {
     #[allow(clippy::cast_precision_loss)]
     let failover_budget = plan.lease_timeout as f64 + 2.0;
     println!(
-        "| lease failover ≤ configured timeout + 2 s = {:.0} s | the shore (ship-1's standby) saw ship-1 offline {} after the cut and held all {} of its leases {} after the cut: {} after it saw ship-1 lost; at the end (link back) the shore holds {}, ship-1 still believes it holds {}, they disagree on {} | {} |",
+        "| lease failover ≤ configured timeout + 2 s = {:.0} s | link lease {} ms: the shore (ship-1's standby) saw ship-1 offline {} after the cut and held all {} of its leases {} after the cut: {} after it saw ship-1 lost; at the end (link back) the shore holds {}, ship-1 still believes it holds {}, they disagree on {} | {} |",
         failover_budget,
+        plan.link_lease_ms,
         secs(lease.detected_s),
         lease.leased_before,
         secs(lease.taken_over_s),
@@ -1322,6 +1337,7 @@ mod tests {
             seed: 1,
             domain: 10,
             lease_timeout: 10,
+            link_lease_ms: 10_000,
             summary: None,
         };
         plan(1800, 300).check().unwrap();
