@@ -53,8 +53,9 @@ if (( have_gb < need_gb )); then
          "${free_gb} GB are free (set SHOAL_TEST_DISK_GB to change the check)" >&2
     exit 1
 fi
-# Below this much free disk at the start, each build is removed once nothing needs it.
-roomy_gb=20
+# Below this much free disk at the start (SHOAL_TEST_ROOMY_GB, default 20), each build is
+# removed once nothing needs it.
+roomy_gb="${SHOAL_TEST_ROOMY_GB:-20}"
 tight=$(( free_gb < roomy_gb ))
 
 step "installing test dependencies"

@@ -644,7 +644,7 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 26]>([
+        rows.extend::<[(&str, &str, &str, Check); 27]>([
             ("foxglove", "SHOAL_FOXGLOVE__ENABLED", "true", |c| {
                 c.foxglove.enabled && c.foxglove.max_clients == 8
             }),
@@ -720,6 +720,12 @@ mod tests {
                 "SHOAL_FEDERATION__LIMITS__REMOTE_VEHICLES",
                 "99",
                 |c| c.federation.limits.remote_vehicles == 99,
+            ),
+            (
+                "federation.lease",
+                "SHOAL_FEDERATION__LEASE__FAILOVER_TIMEOUT_MS",
+                "4500",
+                |c| c.federation.lease.failover_timeout_ms == 4500,
             ),
             ("station", "SHOAL_STATION__LOST_AFTER_S", "45", |c| {
                 c.station.lost_after_s == 45.0
