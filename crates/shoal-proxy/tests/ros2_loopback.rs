@@ -14,7 +14,7 @@ mod common;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use common::eventually;
+use common::{eventually, order};
 use futures::StreamExt;
 use shoal_dds::{DdsConfig, Priority, PubSub, WriterOptions};
 use shoal_model::{EventKind, GeoPoint, Severity, Task, TaskState, Validate, now_ms};
@@ -23,7 +23,7 @@ use shoal_proxy::ros2::msgs::{
     BatteryState, Header, NavSatFix, NavSatStatus, Odometry, PoseStamped, Time,
 };
 use shoal_proxy::ros2::{Datum, Ros2Adapter, Ros2Config};
-use shoal_proxy::{Refusal, TaskOrder, VehicleAdapter, VehicleEvent, VehicleOutput};
+use shoal_proxy::{Refusal, VehicleAdapter, VehicleEvent, VehicleOutput};
 use tokio_util::sync::CancellationToken;
 
 const DOMAIN: u16 = 172;
@@ -92,15 +92,6 @@ fn spawn_vehicle(stop: CancellationToken) -> Arc<Mutex<Vec<PoseStamped>>> {
         }
     });
     goals
-}
-
-fn order(id: &str, task: Task) -> TaskOrder {
-    TaskOrder {
-        task_id: id.into(),
-        mission_id: String::new(),
-        issued_ms: now_ms(),
-        task,
-    }
 }
 
 async fn submit_when_matched(adapter: &mut Ros2Adapter, id: &str, task: Task) {

@@ -16,42 +16,15 @@ mod common;
 use std::sync::Arc;
 use std::time::Duration;
 
-use common::{Peer, eventually, restart_peer, start_peer};
+use common::{Peer, eventually, order, restart_peer, run_to_end, start_peer};
 use shoal_dds::{DdsConfig, PubSub};
-use shoal_model::{EventKind, GeoPoint, Severity, Task, TaskState, Validate, now_ms};
+use shoal_model::{EventKind, GeoPoint, Severity, Task, TaskState, Validate};
 use shoal_proxy::ros2::mapping::EnuFrame;
 use shoal_proxy::ros2::{Datum, Ros2Adapter, Ros2Config};
-use shoal_proxy::{Refusal, TaskOrder, VehicleAdapter, VehicleEvent, VehicleOutput};
+use shoal_proxy::{Refusal, VehicleAdapter, VehicleEvent, VehicleOutput};
 
 const DOMAIN: u16 = 171;
 const DATUM: (f64, f64) = (59.9, 10.7);
-
-fn order(id: &str, task: Task) -> TaskOrder {
-    TaskOrder {
-        task_id: id.into(),
-        mission_id: String::new(),
-        issued_ms: now_ms(),
-        task,
-    }
-}
-
-async fn run_to_end(adapter: &mut Ros2Adapter, task_id: &str) -> Vec<(TaskState, f64, String)> {
-    let mut states = Vec::new();
-    loop {
-        let out = tokio::time::timeout(Duration::from_secs(30), adapter.next_output())
-            .await
-            .unwrap_or_else(|_| panic!("{task_id} did not end within 30 s: {states:?}"))
-            .unwrap();
-        if let VehicleOutput::Task(u) = out
-            && u.task_id == task_id
-        {
-            states.push((u.state, u.progress_pct, u.message.clone()));
-            if u.state.is_final() {
-                return states;
-            }
-        }
-    }
-}
 
 async fn next_event(adapter: &mut Ros2Adapter, kind: EventKind, secs: u64) -> VehicleEvent {
     loop {

@@ -22,12 +22,12 @@ mod common;
 
 use std::time::Duration;
 
-use common::{Peer, eventually, start_peer};
-use shoal_model::{EventKind, GeoPoint, Severity, Task, TaskState, Validate, now_ms};
+use common::{Peer, eventually, order, run_to_end, start_peer};
+use shoal_model::{EventKind, GeoPoint, Severity, Task, TaskState, Validate};
 use shoal_proxy::ros2::mapping::EnuFrame;
 use shoal_proxy::ros2::type_hash::type_hash;
 use shoal_proxy::ros2::{Datum, Rmw, Ros2Adapter, Ros2Config, ZenohMode, ZenohSettings};
-use shoal_proxy::{Refusal, TaskOrder, VehicleAdapter, VehicleOutput};
+use shoal_proxy::{Refusal, VehicleAdapter, VehicleOutput};
 
 const DATUM: (f64, f64) = (59.9, 10.7);
 /// The robot peer, from `tests/peers/` (where `common` looks).
@@ -39,15 +39,6 @@ fn free_port() -> u16 {
         .local_addr()
         .unwrap()
         .port()
-}
-
-fn order(id: &str, task: Task) -> TaskOrder {
-    TaskOrder {
-        task_id: id.into(),
-        mission_id: String::new(),
-        issued_ms: now_ms(),
-        task,
-    }
 }
 
 fn config(domain_id: u32, zenoh: ZenohSettings) -> Ros2Config {
@@ -89,24 +80,6 @@ async fn submit_when_matched(adapter: &mut Ros2Adapter, id: &str, task: Task) ->
                 tokio::time::sleep(Duration::from_millis(100)).await;
             }
             Err(r) => panic!("refused: {r}"),
-        }
-    }
-}
-
-async fn run_to_end(adapter: &mut Ros2Adapter, task_id: &str) -> Vec<(TaskState, f64, String)> {
-    let mut states = Vec::new();
-    loop {
-        let out = tokio::time::timeout(Duration::from_secs(30), adapter.next_output())
-            .await
-            .unwrap_or_else(|_| panic!("{task_id} did not end within 30 s: {states:?}"))
-            .unwrap();
-        if let VehicleOutput::Task(u) = out
-            && u.task_id == task_id
-        {
-            states.push((u.state, u.progress_pct, u.message.clone()));
-            if u.state.is_final() {
-                return states;
-            }
         }
     }
 }

@@ -160,3 +160,36 @@ pub async fn eventually<T>(secs: u64, what: &str, mut f: impl FnMut() -> Option<
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
 }
+
+/// A task order outside any mission.
+pub fn order(id: &str, task: shoal_model::Task) -> shoal_proxy::TaskOrder {
+    shoal_proxy::TaskOrder {
+        task_id: id.into(),
+        mission_id: String::new(),
+        issued_ms: shoal_model::now_ms(),
+        task,
+    }
+}
+
+/// Reads an adapter's outputs until `task_id` ends; the states it went through, with
+/// progress and message.
+pub async fn run_to_end<A: shoal_proxy::VehicleAdapter>(
+    adapter: &mut A,
+    task_id: &str,
+) -> Vec<(shoal_model::TaskState, f64, String)> {
+    let mut states = Vec::new();
+    loop {
+        let out = tokio::time::timeout(Duration::from_secs(30), adapter.next_output())
+            .await
+            .unwrap_or_else(|_| panic!("{task_id} did not end within 30 s: {states:?}"))
+            .unwrap();
+        if let shoal_proxy::VehicleOutput::Task(u) = out
+            && u.task_id == task_id
+        {
+            states.push((u.state, u.progress_pct, u.message.clone()));
+            if u.state.is_final() {
+                return states;
+            }
+        }
+    }
+}
