@@ -2,7 +2,9 @@
 // (docs/federation.md): polled from GET /api/federation, drawn on the map apart from the
 // own fleet and listed under "Other sites" in the fleet panel (each site's vehicles, then
 // its latest tasks). They are read-only here: this station cannot
-// command another site's vehicles, so nothing offers them for a task.
+// command another site's vehicles, so nothing offers them for a task. The command leases
+// (which site commands each vehicle) are listed too, and an operator hands over a lease
+// this site holds.
 
 import Overlay from 'ol/Overlay.js';
 import { api, describe } from './api.js';
@@ -85,6 +87,8 @@ async function poll(gen) {
       vehicles: doc.vehicles,
       alarms: doc.alarms,
       transitions: doc.transitions || [],
+      leases: doc.leases || [],
+      leaseEnabled: Boolean(doc.lease_enabled),
       receivedMs: Date.now(),
       error: null,
     });
@@ -309,7 +313,58 @@ export function remoteSection() {
         remoteTasks(site, f.transitions, now),
       );
     }),
+    leaseSection(f),
   );
+}
+
+/** Hands the lease of `vehicle` to `to` (POST /api/federation/leases/{vehicle}). */
+async function handOver(vehicle, to) {
+  try {
+    const lease = await api('POST', `/api/federation/leases/${encodeURIComponent(vehicle)}`, { to });
+    toast(`${vehicle} is now commanded by ${lease.holder} (lease term ${lease.term})`);
+    const i = fed().leases.findIndex((l) => l.vehicle_id === vehicle);
+    if (i >= 0) fed().leases[i] = lease;
+    emit('federation', fed());
+  } catch (e) {
+    toast(`hand-over of ${vehicle} refused: ${describe(e)}`, 'error');
+  }
+}
+
+/** The site picked to hand each vehicle's lease to: kept across the list's redraws. */
+const handTo = new Map();
+
+/** The command leases: who commands each vehicle; a lease held here can be handed over. */
+function leaseSection(f) {
+  if (!f.leaseEnabled) return null;
+  const leases = [...f.leases].sort((a, b) => a.vehicle_id.localeCompare(b.vehicle_id));
+  const others = [f.site, ...f.sites.map((s) => s.site)];
+  return h('div', { id: 'leases', class: 'leases' },
+    h('h4', {}, 'Command leases ', h('small', { class: 'muted' }, 'one site commands each vehicle')),
+    leases.length === 0
+      ? h('p', { class: 'muted' }, 'No lease known yet.')
+      : h('table', { class: 'grid compact' },
+        h('thead', {}, h('tr', {}, ['vehicle', 'commanded by', 'term', 'home', ''].map((t) => h('th', {}, t)))),
+        h('tbody', {}, leases.map((l) => {
+          const targets = others.filter((s) => s !== l.holder);
+          const picked = targets.includes(handTo.get(l.vehicle_id)) ? handTo.get(l.vehicle_id) : targets[0];
+          const select = h('select', {
+            class: 'lease-to',
+            'aria-label': `hand ${l.vehicle_id} to`,
+            onchange: (e) => handTo.set(l.vehicle_id, e.target.value),
+          }, targets.map((s) => h('option', { value: s, selected: s === picked }, s)));
+          return h('tr', { class: 'lease', dataset: { vehicle: l.vehicle_id, holder: l.holder, held: String(l.held_here) } },
+            h('td', {}, h('strong', {}, l.vehicle_id)),
+            h('td', {}, l.held_here ? h('span', { class: 'pill site-online' }, `${l.holder} (here)`) : l.holder),
+            h('td', { class: 'num' }, String(l.term)),
+            h('td', {}, l.home),
+            h('td', {}, l.held_here && targets.length
+              ? h('span', {}, select, ' ', h('button', {
+                type: 'button',
+                class: 'link-button needs-operator hand-over',
+                onclick: () => handOver(l.vehicle_id, select.value),
+              }, 'Hand over'))
+              : null));
+        }))));
 }
 
 /** A site's latest tasks under its vehicles, or nothing before the first transition. */

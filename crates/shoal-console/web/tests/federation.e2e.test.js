@@ -2,7 +2,8 @@
 // scripts/console-e2e.sh federates the `shoal up` station (site "shore") over Zenoh with a
 // second station (site "ship", DDS domain 147) that has one simulated AUV, ship-auv-1.
 // The shore's console must show it on the map and under "Other sites", as the ship's,
-// with the ship's task transitions, and never offer it for a task.
+// with the ship's task transitions, and never offer it for a task; it lists who holds
+// each command lease and hands back a lease it was handed.
 
 import { after, before, describe, test } from 'node:test';
 import assert from 'node:assert/strict';
@@ -192,6 +193,38 @@ describe('Another site in the console', { concurrency: false }, () => {
     assert.match(text, /sent|accepted|running|done/);
     // Not among the shore's own missions or tasks.
     assert.equal((await admin('GET', `/api/missions/${mission}`)).status, 404);
+  });
+
+  test('the command leases: the ship commands its vehicle; a lease handed to the shore is handed back from its console', async () => {
+    assert.ok(SHIP, 'SHOAL_SHIP_URL is not set (scripts/console-e2e.sh sets it)');
+    await page.click('#tabs button[data-tab=fleet]');
+    const row = () => page.locator('#leases tr.lease[data-vehicle="ship-auv-1"]');
+    await row().waitFor({ timeout: 30000 });
+    assert.equal(await row().getAttribute('data-holder'), 'ship');
+    assert.equal(await row().locator('button.hand-over').count(), 0, 'a lease held elsewhere offers no hand-over');
+
+    // The ship's operator hands it to the shore (the ship's API).
+    const res = await fetch(`${SHIP}/api/federation/leases/ship-auv-1`, {
+      method: 'POST',
+      headers: { 'Content-Type': 'application/json' },
+      body: JSON.stringify({ to: 'shore' }),
+    });
+    const body = await res.text();
+    assert.equal(res.status, 200, body);
+    const handed = JSON.parse(body);
+    await page.locator('#leases tr.lease[data-vehicle="ship-auv-1"][data-held="true"]').waitFor({ timeout: 30000 });
+
+    // The shore's operator hands it back to the ship from the console.
+    await row().locator('select.lease-to').selectOption('ship');
+    await row().locator('button.hand-over').click();
+    await page.locator('#leases tr.lease[data-vehicle="ship-auv-1"][data-holder="ship"]').waitFor({ timeout: 30000 });
+    let back = null;
+    for (let i = 0; i < 30 && !back; i++) {
+      const doc = await (await fetch(`${SHIP}/api/federation`)).json();
+      back = doc.leases.find((l) => l.vehicle_id === 'ship-auv-1' && l.held_here && l.term === handed.term + 1) || null;
+      if (!back) await new Promise((resolve) => setTimeout(resolve, 1000));
+    }
+    assert.ok(back, 'the ship did not get the lease back');
   });
 
   test('no request left this host', async () => {
