@@ -320,3 +320,31 @@ pub(crate) async fn keep(keeper: Arc<dyn Keeper>, stop: CancellationToken) {
     }
     keeper.persist();
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_missing_file_is_no_leases_and_a_corrupt_one_is_an_error_naming_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("leases-ship.json");
+        assert!(load(&path).unwrap().is_empty());
+        std::fs::write(&path, b"{not json").unwrap();
+        let err = load(&path).unwrap_err();
+        assert!(matches!(err, LeaseFileError::Corrupt { .. }), "{err}");
+        assert!(err.to_string().contains("leases-ship.json"), "{err}");
+        // The file is left as it was: nothing is overwritten before someone looks.
+        assert_eq!(std::fs::read(&path).unwrap(), b"{not json");
+    }
+
+    #[test]
+    fn what_is_saved_loads_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("sub/leases.json");
+        let mut table = crate::lease::LeaseTable::new("ship", "", &[], 10);
+        table.claim("auv-1", 1_800_000_000_000).unwrap();
+        save(&path, &table.snapshot()).unwrap();
+        assert_eq!(load(&path).unwrap(), table.snapshot());
+    }
+}
