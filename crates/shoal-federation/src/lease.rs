@@ -429,9 +429,12 @@ impl LeaseTable {
             }
             Ok(Applied::Stale) => self.counters.stale += 1,
             Err(LeaseRefusal::NoAuthority { .. }) => {
-                // Bounded by vehicles × sites; a vehicle unknown here is never refused for
-                // authority, so the table's own limit bounds the vehicles.
-                self.aside.insert((vehicle, grantor.to_string()), record);
+                // Only for a vehicle the table holds, one per configured grantor: bounded
+                // by the table's limit × the sites. A refused record for a vehicle not
+                // known here is forgotten (else a site could fill this with made-up ids).
+                if self.leases.contains_key(&vehicle) {
+                    self.aside.insert((vehicle, grantor.to_string()), record);
+                }
             }
             Err(_) => {}
         }

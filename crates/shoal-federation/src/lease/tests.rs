@@ -270,3 +270,26 @@ fn a_restarted_site_remembers_the_leases_it_had_learnt() {
     let (mut again, _, _) = three();
     assert_eq!(again.restore(bad), 0);
 }
+
+#[test]
+fn refused_records_for_unknown_vehicles_are_not_kept() {
+    let (_, _, mut shore) = three();
+    for n in 0..1000 {
+        let forged = LeaseRecord {
+            vehicle_id: format!("ghost-{n}"),
+            term: 1,
+            holder: "ship".into(),
+            home: "ship".into(),
+            standby: String::new(),
+            reason: LeaseReason::Claim,
+            granted_ms: T,
+        };
+        // backup claims ship's vehicles: no authority, and nothing is remembered of it.
+        assert_eq!(
+            shore.apply("backup", forged).unwrap_err().reason(),
+            "lease_authority"
+        );
+    }
+    assert!(shore.aside.is_empty());
+    assert_eq!(shore.leases().count(), 0);
+}
