@@ -97,7 +97,7 @@ impl LeaseRecord {
     /// holder whose name sorts first (how sites that claimed one term in a partition
     /// agree).
     pub fn supersedes(&self, other: &Self) -> bool {
-        self.term > other.term || (self.term == other.term && self.holder < other.holder)
+        shoal_model::lease_supersedes(self.term, &self.holder, other.term, &other.holder)
     }
 
     /// Checks identifiers, the term and the time (the codec calls this on every frame);

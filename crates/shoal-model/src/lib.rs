@@ -39,7 +39,10 @@ pub use environment::EnvironmentObservation;
 pub use event::{Event, EventKind, Severity};
 pub use link::{EVENT_ID_PREFIX as LINK_EVENT_PREFIX, LinkStatus};
 pub use state::StateVector;
-pub use task::{GeoPoint, Task, TaskAssignment, TaskKind, TaskState, TaskStatus};
+pub use task::{
+    GeoPoint, MAX_LEASE_HOLDER_LEN, Task, TaskAssignment, TaskKind, TaskState, TaskStatus,
+    lease_supersedes,
+};
 pub use validate::{Reason, Validate, Validated, ValidationError, is_identifier};
 pub use vehicle::{Availability, LinkKind, VehicleAnnouncement, VehicleKind};
 pub use warp::{MAX_WARP, Warp, WarpError};

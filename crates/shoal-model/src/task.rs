@@ -149,6 +149,21 @@ pub struct TaskAssignment {
     /// that arrives later is refused as expired (one already started is not stopped).
     /// 0 when the issuer set none: the vehicle then applies its own maximum task age.
     pub expires_ms: i64,
+    /// The term of the command lease the issuing station held for the vehicle; 0 when the
+    /// station commands without a lease (not federated, or the lease is off). A vehicle
+    /// refuses a task whose lease is older than one it has already obeyed.
+    pub lease_term: u64,
+    /// The site that held that lease (1..=32 of `[A-Za-z0-9_.-]`); empty when
+    /// `lease_term` is 0.
+    pub lease_holder: String,
+}
+
+/// Whether the command lease `(term, holder)` is newer than `(other_term, other_holder)`:
+/// a higher term, or the same term held by a site whose name sorts first. Every site and
+/// every vehicle orders leases so, which is how they agree after a partition in which two
+/// sites took the same term.
+pub fn lease_supersedes(term: u64, holder: &str, other_term: u64, other_holder: &str) -> bool {
+    term > other_term || (term == other_term && holder < other_holder)
 }
 
 /// The typed view of a [`TaskAssignment`]'s kind and parameters.
@@ -209,6 +224,9 @@ fn some_unless_unknown(v: f64) -> Option<f64> {
     if v == UNKNOWN { None } else { Some(v) }
 }
 
+/// Longest command lease holder (a site name) a task carries.
+pub const MAX_LEASE_HOLDER_LEN: usize = 32;
+
 impl TaskAssignment {
     /// Most polygon corners a survey may have.
     pub const MAX_AREA: usize = 256;
@@ -236,6 +254,8 @@ impl TaskAssignment {
             rate_hz: 0.0,
             issue_seq: 0,
             expires_ms: 0,
+            lease_term: 0,
+            lease_holder: String::new(),
         };
         match task {
             Task::GotoWaypoint {
@@ -369,6 +389,13 @@ impl Validate for TaskAssignment {
                     rule: "a task cannot expire before it is issued (0 means no expiry)",
                 });
             }
+        }
+        optional_identifier("lease_holder", &self.lease_holder, MAX_LEASE_HOLDER_LEN)?;
+        if (self.lease_term == 0) != self.lease_holder.is_empty() {
+            return Err(ValidationError::Inconsistent {
+                field: "lease_holder",
+                rule: "a lease holder goes with a lease term above 0, and no holder with term 0",
+            });
         }
         let moves = matches!(self.kind, TaskKind::GotoWaypoint | TaskKind::SurveyArea);
         if moves && (self.depth_m == UNKNOWN) == (self.altitude_m == UNKNOWN) {

@@ -13,6 +13,12 @@
 //!   the later of its expiry and its end, against clock skew), and the ledger holds at most
 //!   [`MAX_ENTRIES`], so the file stays small over a deployment of any length.
 //!
+//! - It also keeps the newest command lease the vehicle has obeyed (the issuing site and
+//!   the lease's term, which every task carries): a new task under an older lease is
+//!   refused, so two stations that both believe they command the vehicle (a partition
+//!   between them) cannot both have it obeyed. The lease moves on only with a task that
+//!   is started, and is written down with it.
+//!
 //! The file is JSON, replaced atomically (written beside, synced, renamed), so a crash or
 //! power cut leaves either the old or the new ledger, never a torn one.
 
@@ -79,15 +85,36 @@ struct Entry {
     updated_ms: i64,
 }
 
+/// The newest command lease a vehicle has obeyed.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ObeyedLease {
+    /// The lease's term.
+    pub term: u64,
+    /// The site that held it.
+    pub holder: String,
+}
+
+impl ObeyedLease {
+    /// Whether a task issued under `a`'s lease may still be obeyed: its lease is this one
+    /// or a newer one.
+    fn admits(&self, a: &TaskAssignment) -> bool {
+        (a.lease_term == self.term && a.lease_holder == self.holder)
+            || shoal_model::lease_supersedes(a.lease_term, &a.lease_holder, self.term, &self.holder)
+    }
+}
+
 #[derive(Debug, Serialize, Deserialize)]
 struct File1 {
     version: u32,
     vehicle_id: String,
     tasks: BTreeMap<String, Entry>,
+    /// Absent in a ledger written before leases, or by a vehicle never commanded under one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    lease: Option<ObeyedLease>,
 }
 
 /// What to do with a task assignment addressed to this vehicle.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Admission {
     /// New and still in time: start it (the ledger has it as started).
     Start,
@@ -99,6 +126,9 @@ pub enum Admission {
     Ended(TaskState),
     /// New but past its expiry (or too old): refuse it as expired.
     Expired,
+    /// Issued under an older command lease than one the vehicle has obeyed (the lease
+    /// named): refuse it. A task under way from an earlier run is ended as failed.
+    Fenced(ObeyedLease),
 }
 
 /// The ledger of one vehicle, in memory or backed by a file.
@@ -113,6 +143,8 @@ pub struct TaskLedger {
     max_age_ms: Option<i64>,
     /// When entries were last checked for forgetting (the check is a full pass).
     pruned_ms: i64,
+    /// The newest command lease obeyed.
+    lease: Option<ObeyedLease>,
 }
 
 /// How often, at most, the ledger looks for entries to forget.
@@ -128,6 +160,7 @@ impl TaskLedger {
             this_run: std::collections::HashSet::new(),
             max_age_ms,
             pruned_ms: i64::MIN,
+            lease: None,
         }
     }
 
@@ -148,7 +181,7 @@ impl TaskLedger {
             path: dir.to_path_buf(),
             source,
         })?;
-        let tasks = match fs::read(&path) {
+        let (tasks, lease) = match fs::read(&path) {
             Ok(bytes) => {
                 let file: File1 =
                     serde_json::from_slice(&bytes).map_err(|e| LedgerError::Corrupt {
@@ -164,9 +197,9 @@ impl TaskLedger {
                         ),
                     });
                 }
-                file.tasks
+                (file.tasks, file.lease)
             }
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => BTreeMap::new(),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => (BTreeMap::new(), None),
             Err(e) => return Err(io(e)),
         };
         Ok(Self {
@@ -176,7 +209,13 @@ impl TaskLedger {
             this_run: std::collections::HashSet::new(),
             max_age_ms,
             pruned_ms: i64::MIN,
+            lease,
         })
+    }
+
+    /// The newest command lease this vehicle has obeyed, if any.
+    pub fn lease(&self) -> Option<&ObeyedLease> {
+        self.lease.as_ref()
     }
 
     /// How many tasks it remembers.
@@ -212,11 +251,29 @@ impl TaskLedger {
                 Ok(Admission::Duplicate)
             }
             Some(Progress::Started) => {
+                if let Some(fence) = self.fence(a) {
+                    // Left under way by an earlier run, and another site has commanded
+                    // the vehicle since: not resumed, and ended so it is not kept forever.
+                    self.end(&a.task_id, TaskState::Failed, now_ms)?;
+                    return Ok(Admission::Fenced(fence));
+                }
+                let previous = self.obey(a);
+                if self.lease != previous
+                    && let Err(e) = self.save(now_ms)
+                {
+                    self.lease = previous;
+                    return Err(e);
+                }
                 self.this_run.insert(a.task_id.clone());
                 Ok(Admission::Resume)
             }
             None if !a.may_start(now_ms, self.max_age_ms) => Ok(Admission::Expired),
             None => {
+                if let Some(fence) = self.fence(a) {
+                    // Not written down: a task refused so stays refused (the lease only
+                    // moves on), and a flood of them must not fill the ledger.
+                    return Ok(Admission::Fenced(fence));
+                }
                 // Room for one more: the oldest ended entries go first.
                 self.prune(now_ms, MAX_ENTRIES - 1);
                 if self.tasks.len() >= MAX_ENTRIES && !self.tasks.contains_key(&a.task_id) {
@@ -232,14 +289,39 @@ impl TaskLedger {
                         updated_ms: now_ms,
                     },
                 );
+                let previous = self.obey(a);
                 if let Err(e) = self.save(now_ms) {
                     self.tasks.remove(&a.task_id);
+                    self.lease = previous;
                     return Err(e);
                 }
                 self.this_run.insert(a.task_id.clone());
                 Ok(Admission::Start)
             }
         }
+    }
+
+    /// The lease that refuses `a`: the one obeyed, when `a`'s is older.
+    fn fence(&self, a: &TaskAssignment) -> Option<ObeyedLease> {
+        self.lease.as_ref().filter(|l| !l.admits(a)).cloned()
+    }
+
+    /// Takes `a`'s lease as the one obeyed if it is newer (`a` passed [`Self::fence`]);
+    /// returns the previous one, to restore if the ledger cannot be written.
+    fn obey(&mut self, a: &TaskAssignment) -> Option<ObeyedLease> {
+        let previous = self.lease.clone();
+        if a.lease_term > 0
+            && self
+                .lease
+                .as_ref()
+                .is_none_or(|l| l.term != a.lease_term || l.holder != a.lease_holder)
+        {
+            self.lease = Some(ObeyedLease {
+                term: a.lease_term,
+                holder: a.lease_holder.clone(),
+            });
+        }
+        previous
     }
 
     /// Records that a task ended (a final state); unknown tasks are ignored.
@@ -309,6 +391,7 @@ impl TaskLedger {
             version: VERSION,
             vehicle_id: self.vehicle_id.clone(),
             tasks: self.tasks.clone(),
+            lease: self.lease.clone(),
         };
         let io = |source| LedgerError::Io {
             path: path.clone(),
@@ -512,5 +595,133 @@ mod tests {
         .unwrap();
         let err = TaskLedger::open(dir.path(), "auv-9", None).unwrap_err();
         assert!(err.to_string().contains("\"auv-8\""), "{err}");
+    }
+
+    fn leased(id: &str, seq: u64, term: u64, holder: &str) -> TaskAssignment {
+        let mut a = task(id, seq, T + 45_000);
+        a.lease_term = term;
+        a.lease_holder = holder.to_owned();
+        a
+    }
+
+    fn obeyed(term: u64, holder: &str) -> ObeyedLease {
+        ObeyedLease {
+            term,
+            holder: holder.to_owned(),
+        }
+    }
+
+    #[test]
+    fn a_task_under_an_older_lease_is_refused_and_the_lease_survives_a_restart() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        assert_eq!(
+            l.admit(&leased("s-1", 1, 1, "ship"), T).unwrap(),
+            Admission::Start
+        );
+        assert_eq!(l.lease(), Some(&obeyed(1, "ship")));
+        // The shore took over (term 2) and commands the vehicle.
+        assert_eq!(
+            l.admit(&leased("h-1", 1, 2, "shore"), T + 1).unwrap(),
+            Admission::Start
+        );
+        drop(l);
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        assert_eq!(l.lease(), Some(&obeyed(2, "shore")));
+        // The ship, cut off from the shore, still believes it holds term 1.
+        assert_eq!(
+            l.admit(&leased("s-2", 2, 1, "ship"), T + 2).unwrap(),
+            Admission::Fenced(obeyed(2, "shore"))
+        );
+        assert_eq!(
+            l.progress("s-2"),
+            None,
+            "a refused task is not written down"
+        );
+        // The holder's own tasks still go, and so does a newer lease's.
+        assert_eq!(
+            l.admit(&leased("h-2", 2, 2, "shore"), T + 3).unwrap(),
+            Admission::Start
+        );
+        assert_eq!(
+            l.admit(&leased("s-3", 3, 3, "ship"), T + 4).unwrap(),
+            Admission::Start
+        );
+        assert_eq!(
+            l.admit(&leased("h-3", 3, 2, "shore"), T + 5).unwrap(),
+            Admission::Fenced(obeyed(3, "ship"))
+        );
+    }
+
+    #[test]
+    fn the_same_term_from_two_sites_goes_to_the_name_that_sorts_first() {
+        // Two sites that both took term 2 in a partition: every site and vehicle agrees
+        // that "alpha" wins.
+        let mut l = TaskLedger::in_memory("auv-9", None);
+        assert_eq!(
+            l.admit(&leased("b-1", 1, 2, "bravo"), T).unwrap(),
+            Admission::Start
+        );
+        assert_eq!(
+            l.admit(&leased("a-1", 1, 2, "alpha"), T + 1).unwrap(),
+            Admission::Start
+        );
+        assert_eq!(
+            l.admit(&leased("b-2", 2, 2, "bravo"), T + 2).unwrap(),
+            Admission::Fenced(obeyed(2, "alpha"))
+        );
+    }
+
+    #[test]
+    fn a_task_without_a_lease_goes_only_to_a_vehicle_never_commanded_under_one() {
+        let mut l = TaskLedger::in_memory("auv-9", None);
+        assert_eq!(
+            l.admit(&leased("t-1", 1, 0, ""), T).unwrap(),
+            Admission::Start
+        );
+        assert_eq!(l.lease(), None, "no lease, nothing to obey");
+        assert_eq!(
+            l.admit(&leased("s-1", 2, 1, "ship"), T + 1).unwrap(),
+            Admission::Start
+        );
+        assert_eq!(
+            l.admit(&leased("t-2", 3, 0, ""), T + 2).unwrap(),
+            Admission::Fenced(obeyed(1, "ship"))
+        );
+    }
+
+    #[test]
+    fn a_task_under_way_under_an_older_lease_is_not_resumed_and_ends() {
+        let dir = tempfile::tempdir().unwrap();
+        let old = leased("s-1", 1, 1, "ship");
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        assert_eq!(l.admit(&old, T).unwrap(), Admission::Start);
+        assert_eq!(
+            l.admit(&leased("h-1", 1, 2, "shore"), T + 1).unwrap(),
+            Admission::Start
+        );
+        drop(l);
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        assert_eq!(
+            l.admit(&old, T + 2).unwrap(),
+            Admission::Fenced(obeyed(2, "shore"))
+        );
+        assert_eq!(l.progress("s-1"), Some(Progress::Ended(TaskState::Failed)));
+        assert_eq!(
+            l.admit(&old, T + 3).unwrap(),
+            Admission::Ended(TaskState::Failed)
+        );
+    }
+
+    #[test]
+    fn a_ledger_written_before_leases_still_opens() {
+        let dir = tempfile::tempdir().unwrap();
+        fs::write(
+            dir.path().join("auv-9.tasks.json"),
+            r#"{"version":1,"vehicle_id":"auv-9","tasks":{}}"#,
+        )
+        .unwrap();
+        let l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        assert_eq!(l.lease(), None);
     }
 }

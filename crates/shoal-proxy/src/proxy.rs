@@ -417,6 +417,31 @@ async fn on_assignment<A: VehicleAdapter, O: Outbox>(
                 .await;
             return None;
         }
+        Ok(Admission::Fenced(obeyed)) => {
+            // Counted where it is reported: the station that sent it sees it fail, with why.
+            warn!(
+                vehicle = %vehicle, task = id,
+                task_lease_term = a.lease_term, task_lease_holder = %a.lease_holder,
+                obeyed_term = obeyed.term, obeyed_holder = %obeyed.holder,
+                "task refused: issued under an older command lease"
+            );
+            let issued = if a.lease_term == 0 {
+                "without a command lease".to_owned()
+            } else {
+                format!(
+                    "under command lease term {} of site {}",
+                    a.lease_term, a.lease_holder
+                )
+            };
+            let msg = format!(
+                "refused: issued {issued}, but this vehicle obeys site {} (command lease term {})",
+                obeyed.holder, obeyed.term
+            );
+            outbox
+                .publish(proxy.status(id, TaskState::Failed, 0.0, &msg))
+                .await;
+            return None;
+        }
         Err(e) => {
             warn!(vehicle = %vehicle, task = id, error = %e, "task refused: the ledger cannot record it");
             let msg = format!("not started: the task ledger cannot record it ({e})");
@@ -1119,6 +1144,35 @@ mod tests {
             st.iter().filter(|s| s.state == TaskState::Accepted).count(),
             1,
             "the duplicate delivery ran it twice: {st:?}"
+        );
+        p.stop().await.unwrap();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_task_from_a_station_that_lost_the_lease_is_refused_and_says_who_commands() {
+        let p = start(sim(100.0, &quiet()), ProxyOptions::default());
+        let under = |id: &str, term: u64, holder: &str| {
+            let mut a = assign(id, "auv-1", &Task::Hold { duration_s: 0.0 });
+            a.lease_term = term;
+            a.lease_holder = holder.to_owned();
+            a
+        };
+        p.send(under("ship-1", 1, "ship"));
+        sleep_s(1.0).await;
+        p.send(under("shore-1", 2, "shore"));
+        sleep_s(1.0).await;
+        // The ship, partitioned from the shore, still believes it holds term 1.
+        p.send(under("ship-2", 1, "ship"));
+        sleep_s(1.0).await;
+        assert_eq!(
+            p.out.statuses("shore-1").first().map(|s| s.state),
+            Some(TaskState::Accepted)
+        );
+        let st = p.out.statuses("ship-2");
+        assert_eq!(states_of(&st), [TaskState::Failed], "{st:?}");
+        assert_eq!(
+            st[0].message,
+            "refused: issued under command lease term 1 of site ship, but this vehicle obeys site shore (command lease term 2)"
         );
         p.stop().await.unwrap();
     }
