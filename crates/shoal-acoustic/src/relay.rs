@@ -46,7 +46,7 @@ use crate::driver::{
 };
 use crate::pdu::{BitReader, BitWriter, DecodeError, EncodeError, MAX_FRAME};
 
-/// First byte of an enveloped frame. Outside the compact PDUs' ids (1..=10), so a build
+/// First byte of an enveloped frame. Outside the compact PDUs' ids (1..=11), so a build
 /// without relays refuses an envelope as an unknown message instead of misreading it; a
 /// test keeps the PDU codec from ever taking it.
 pub const ENVELOPE_ID: u8 = 127;

@@ -3,8 +3,8 @@
 //! What the compact forms lose, on purpose (docs/acoustic.md#compact-messages):
 //! - vehicle ids become 4-bit acoustic addresses through an [`AddressBook`] the caller
 //!   supplies; event ids become 8-bit numbers the caller maps; a task keeps its station
-//!   task id, issue sequence and expiry ([`IdentifiedTask`]) but not its mission id or
-//!   issue time;
+//!   task id, issue sequence, expiry and command lease ([`IdentifiedTask`]) but not its
+//!   mission id or issue time;
 //! - timestamps keep only the second of the UTC day; the receiver restores the date as the
 //!   one nearest its own clock ([`time_from_seconds_of_day`]), and sub-second parts are lost;
 //! - each number is quantised to its field's resolution (1e-5° ≈ 1.1 m, depth 0.1 m, speed
@@ -23,8 +23,8 @@ use shoal_model::{
 
 use super::{
     CompactAnnouncement, CompactEnvironment, CompactEvent, CompactTask, CompactTaskStatus,
-    ENVIRONMENT_PROPERTIES, EncodeError, IdentifiedTask, MAX_ISSUE_SEQ, Motion, Point,
-    StateKeyframe, TaskAction,
+    ENVIRONMENT_PROPERTIES, EncodeError, IdentifiedTask, MAX_ISSUE_SEQ, MAX_LEASE_HOLDER_LEN,
+    MAX_LEASE_TERM, Motion, Point, StateKeyframe, TaskAction, TaskLease,
 };
 
 /// Capabilities an announcement can carry, by bit position.
@@ -326,9 +326,11 @@ impl CompactTask {
 }
 
 impl IdentifiedTask {
-    /// Compact form of a task assignment, with its station identity, as task number
-    /// `task_no`. Refused: an issue sequence above [`MAX_ISSUE_SEQ`], and an expiry 12 h or
-    /// more after the issue time (a second of the day could not name it unambiguously).
+    /// Compact form of a task assignment, with its station identity and command lease, as
+    /// task number `task_no`. Refused: an issue sequence above [`MAX_ISSUE_SEQ`], a lease
+    /// term above [`MAX_LEASE_TERM`] (a lease holder longer than [`MAX_LEASE_HOLDER_LEN`]
+    /// too), and an expiry 12 h or more after the issue time (a second of the day could not
+    /// name it unambiguously).
     pub fn from_model(
         a: &TaskAssignment,
         book: &AddressBook,
@@ -341,6 +343,26 @@ impl IdentifiedTask {
                 value: a.issue_seq.to_string(),
             });
         }
+        // Validated above (by `CompactTask::from_model`): a holder iff the term is above 0.
+        let lease = if a.lease_term == 0 {
+            None
+        } else if a.lease_term > MAX_LEASE_TERM {
+            // Never wrapped or clamped: a smaller term would order as an older lease.
+            return Err(ConvertError::Unsupported {
+                field: "lease_term",
+                value: a.lease_term.to_string(),
+            });
+        } else if a.lease_holder.len() > MAX_LEASE_HOLDER_LEN {
+            return Err(ConvertError::Unsupported {
+                field: "lease_holder",
+                value: a.lease_holder.clone(),
+            });
+        } else {
+            Some(TaskLease {
+                term: a.lease_term,
+                holder: a.lease_holder.clone(),
+            })
+        };
         let expires_s_of_day = if a.expires_ms == 0 {
             None
         } else if a.expires_ms.saturating_sub(a.issued_ms) >= DAY_MS / 2 {
@@ -360,11 +382,12 @@ impl IdentifiedTask {
             task_id: a.task_id.clone(),
             issue_seq: a.issue_seq,
             expires_s_of_day,
+            lease,
             action: c.action,
         })
     }
 
-    /// The task assignment as the station issued it (same task id, issue sequence and
+    /// The task assignment as the station issued it (same task id, issue sequence, lease and
     /// expiry, the expiry to the second), received at `received_ms`: that is its issue
     /// time on the vehicle side, or the expiry if that is earlier (a late re-delivery must
     /// still reach the vehicle's ledger, to be answered, not fail validation). The mission
@@ -390,6 +413,10 @@ impl IdentifiedTask {
         let mut a = plain.to_model(book, &self.task_id, issued_ms)?;
         a.issue_seq = self.issue_seq;
         a.expires_ms = expires_ms;
+        if let Some(lease) = &self.lease {
+            a.lease_term = lease.term;
+            a.lease_holder.clone_from(&lease.holder);
+        }
         a.validate()?;
         Ok(a)
     }
@@ -805,6 +832,50 @@ mod tests {
                 field: "expires_ms",
                 ..
             })
+        ));
+    }
+
+    #[test]
+    fn a_task_keeps_its_command_lease_across_the_water() {
+        let through = |a: &TaskAssignment| {
+            let c = IdentifiedTask::from_model(a, &book(), 9).unwrap();
+            let bytes = super::super::encode(&super::super::Pdu::IdentifiedTask(c)).unwrap();
+            let super::super::Pdu::IdentifiedTask(c) = super::super::decode(&bytes).unwrap() else {
+                panic!("wrong message")
+            };
+            (bytes[0], c.to_model(&book(), T).unwrap())
+        };
+        let mut a = TaskAssignment::new("m-7-2", "m-7", "auv-1", T, &Task::Surface);
+        a.issue_seq = 1_780_000_000_000_123;
+        // No lease: layout 2, and none on arrival.
+        let (layout, out) = through(&a);
+        assert_eq!(layout, super::super::id::IDENTIFIED_TASK);
+        assert_eq!((out.lease_term, out.lease_holder.as_str()), (0, ""));
+        // A lease, up to the largest term: layout 3, the very lease on arrival.
+        for term in [1, 42, MAX_LEASE_TERM] {
+            a.lease_term = term;
+            a.lease_holder = "ship_2.north-sea".into();
+            let (layout, out) = through(&a);
+            assert_eq!(layout, super::super::id::LEASED_TASK);
+            assert_eq!(
+                (out.lease_term, out.lease_holder.as_str(), out.issue_seq),
+                (term, "ship_2.north-sea", a.issue_seq)
+            );
+        }
+        // A term the layout cannot carry is refused at the sender, never wrapped.
+        a.lease_term = MAX_LEASE_TERM + 1;
+        assert!(matches!(
+            IdentifiedTask::from_model(&a, &book(), 9),
+            Err(ConvertError::Unsupported {
+                field: "lease_term",
+                ..
+            })
+        ));
+        // A holder without a term (or the reverse) is an invalid assignment, not a lease.
+        a.lease_term = 0;
+        assert!(matches!(
+            IdentifiedTask::from_model(&a, &book(), 9),
+            Err(ConvertError::Invalid(_))
         ));
     }
 

@@ -7,7 +7,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::predict::PredictedDelta;
-use super::schema::{BitReader, BitWriter, Field, Schema};
+use super::schema::{BitReader, BitWriter, Field, Schema, bits_for_values};
 use super::{DecodeError, EncodeError};
 
 /// Message ids (the 1-byte DCCL id, docs/acoustic.md#compact-messages). 0 is reserved: a
@@ -39,6 +39,10 @@ pub mod id {
     /// prediction (docs/acoustic.md#predicted-deltas). A build that predates it refuses it
     /// as an unknown message id; [`STATE_DELTA`] stays readable and writable.
     pub const PREDICTED_DELTA: u8 = 10;
+    /// [`super::IdentifiedTask`] with a command lease: task layout 3, layout 2 plus the
+    /// lease's term and holder (docs/acoustic.md#task-identity). Only a leased task takes
+    /// it; a task without a lease still goes as [`IDENTIFIED_TASK`], bit for bit.
+    pub const LEASED_TASK: u8 = 11;
 }
 
 const VEHICLE: Field = Field::new("vehicle", 0.0, 15.0, 1.0);
@@ -778,36 +782,115 @@ const EXPIRES_FIELD: Field = Field::new("expires_s_of_day", 0.0, 86_399.0, 1.0).
 /// the characters in base 65, three to 19 bits (65³ ≤ 2¹⁹), a last pair in 13, a last
 /// single in 7 — about 6.3 bits a character.
 pub fn task_id_bits(len: usize) -> usize {
-    6 + len / 3 * 19
-        + match len % 3 {
-            0 => 0,
-            1 => 7,
-            _ => 13,
-        }
+    TASK_ID.bits(len)
 }
 
-fn write_task_id(w: &mut BitWriter, id: &str) -> Result<(), EncodeError> {
-    let bad = EncodeError::Inconsistent {
-        field: "task_id",
-        rule: "1..=64 characters of [A-Za-z0-9_.-]",
-    };
-    if id.is_empty() || id.len() > MAX_TASK_ID_LEN {
-        return Err(bad);
+/// Bits of a command lease's term in a leased [`IdentifiedTask`]. A term grows by one per
+/// claim, hand-over or take-over of one vehicle, so 2^20 leaves room for years of
+/// hand-overs every few minutes; a term beyond it is refused, never wrapped (a wrapped
+/// term would order as older, and the vehicle would refuse the newest lease's tasks).
+pub const LEASE_TERM_BITS: u32 = 20;
+/// Largest lease term a leased [`IdentifiedTask`] can carry (term 0 means no lease, and
+/// travels as layout 2).
+pub const MAX_LEASE_TERM: u64 = (1 << LEASE_TERM_BITS) - 1;
+/// Longest lease holder (a site name) an [`IdentifiedTask`] carries: the model's
+/// `shoal_model::MAX_LEASE_HOLDER_LEN`, fixed here because it sets the width of the
+/// holder's length field on the wire.
+pub const MAX_LEASE_HOLDER_LEN: usize = 32;
+
+/// Bits a command lease whose holder has `holder_len` characters adds to an
+/// [`IdentifiedTask`]: the term in [`LEASE_TERM_BITS`], the holder's length − 1 in 5 bits,
+/// then its characters as a task id's — 57 bits for a five-character site name.
+pub fn lease_bits(holder_len: usize) -> usize {
+    LEASE_TERM_BITS as usize + LEASE_HOLDER.bits(holder_len)
+}
+
+/// How an identifier (task id, lease holder) travels: its length − 1 in just enough bits
+/// for `max_len`, then its characters from [`ID_ALPHABET`] in base 65, three at a time.
+struct IdCode {
+    field: &'static str,
+    max_len: usize,
+    rule: &'static str,
+}
+
+const TASK_ID: IdCode = IdCode {
+    field: "task_id",
+    max_len: MAX_TASK_ID_LEN,
+    rule: "1..=64 characters of [A-Za-z0-9_.-]",
+};
+const LEASE_HOLDER: IdCode = IdCode {
+    field: "lease_holder",
+    max_len: MAX_LEASE_HOLDER_LEN,
+    rule: "1..=32 characters of [A-Za-z0-9_.-]",
+};
+
+impl IdCode {
+    /// Width of the length field: 6 bits for 1..=64, 5 for 1..=32. Every code of it is a
+    /// valid length, so a length of 0 or above the maximum cannot even be written.
+    fn len_bits(&self) -> u32 {
+        bits_for_values(u64::try_from(self.max_len).unwrap_or(u64::MAX))
     }
-    let mut codes = Vec::with_capacity(id.len());
-    for b in id.bytes() {
-        let i = ID_ALPHABET
-            .iter()
-            .position(|&c| c == b)
-            .ok_or(bad.clone())?;
-        codes.push(u64::try_from(i).unwrap_or(0));
+
+    fn bits(&self, len: usize) -> usize {
+        self.len_bits() as usize
+            + len / 3 * 19
+            + match len % 3 {
+                0 => 0,
+                1 => 7,
+                _ => 13,
+            }
     }
-    w.write(u64::try_from(id.len() - 1).unwrap_or(0), 6);
-    for chunk in codes.chunks(3) {
-        let v = chunk.iter().fold(0, |acc, c| acc * 65 + c);
-        w.write(v, chunk_bits(chunk.len()));
+
+    fn write(&self, w: &mut BitWriter, id: &str) -> Result<(), EncodeError> {
+        let bad = EncodeError::Inconsistent {
+            field: self.field,
+            rule: self.rule,
+        };
+        if id.is_empty() || id.len() > self.max_len {
+            return Err(bad);
+        }
+        let mut codes = Vec::with_capacity(id.len());
+        for b in id.bytes() {
+            let i = ID_ALPHABET
+                .iter()
+                .position(|&c| c == b)
+                .ok_or(bad.clone())?;
+            codes.push(u64::try_from(i).unwrap_or(0));
+        }
+        w.write(u64::try_from(id.len() - 1).unwrap_or(0), self.len_bits());
+        for chunk in codes.chunks(3) {
+            let v = chunk.iter().fold(0, |acc, c| acc * 65 + c);
+            w.write(v, chunk_bits(chunk.len()));
+        }
+        Ok(())
     }
-    Ok(())
+
+    fn read(&self, r: &mut BitReader<'_>) -> Result<String, DecodeError> {
+        let len = usize::try_from(r.read(self.len_bits())?).unwrap_or(0) + 1;
+        let mut id = String::with_capacity(len);
+        let mut left = len;
+        while left > 0 {
+            let n = left.min(3);
+            let mut v = r.read(chunk_bits(n))?;
+            // 65^n codes are valid; anything above is garbage, never guessed at.
+            let limit = 65u64.pow(u32::try_from(n).unwrap_or(3));
+            if v >= limit {
+                return Err(DecodeError::InvalidCode {
+                    field: self.field,
+                    code: v,
+                });
+            }
+            let mut chars = [0u8; 3];
+            for slot in chars[..n].iter_mut().rev() {
+                let i = usize::try_from(v % 65).unwrap_or(0);
+                *slot = ID_ALPHABET.get(i).copied().unwrap_or(b'-');
+                v /= 65;
+            }
+            id.extend(chars[..n].iter().map(|&c| char::from(c)));
+            left -= n;
+        }
+        Ok(id)
+    }
 }
 
 fn chunk_bits(n: usize) -> u32 {
@@ -818,42 +901,68 @@ fn chunk_bits(n: usize) -> u32 {
     }
 }
 
-fn read_task_id(r: &mut BitReader<'_>) -> Result<String, DecodeError> {
-    let len = usize::try_from(r.read(6)?).unwrap_or(0) + 1;
-    let mut id = String::with_capacity(len);
-    let mut left = len;
-    while left > 0 {
-        let n = left.min(3);
-        let mut v = r.read(chunk_bits(n))?;
-        // 65^n codes are valid; anything above is garbage, never guessed at.
-        let limit = 65u64.pow(u32::try_from(n).unwrap_or(3));
-        if v >= limit {
-            return Err(DecodeError::InvalidCode {
-                field: "task_id",
-                code: v,
+/// The command lease a task was issued under (`shoal_model::TaskAssignment::lease_term`
+/// and `lease_holder`): a vehicle refuses a task under a lease older than one it has
+/// obeyed, so the lease must cross the water with the task.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TaskLease {
+    /// The lease's term, 1..=[`MAX_LEASE_TERM`].
+    pub term: u64,
+    /// The site that held it, 1..=[`MAX_LEASE_HOLDER_LEN`] of `[A-Za-z0-9_.-]`.
+    pub holder: String,
+}
+
+impl TaskLease {
+    fn write(&self, w: &mut BitWriter) -> Result<(), EncodeError> {
+        if self.term == 0 || self.term > MAX_LEASE_TERM {
+            #[allow(clippy::cast_precision_loss)]
+            return Err(EncodeError::OutOfRange {
+                field: "lease_term",
+                value: self.term as f64,
+                min: 1.0,
+                max: MAX_LEASE_TERM as f64,
             });
         }
-        let mut chars = [0u8; 3];
-        for slot in chars[..n].iter_mut().rev() {
-            let i = usize::try_from(v % 65).unwrap_or(0);
-            *slot = ID_ALPHABET.get(i).copied().unwrap_or(b'-');
-            v /= 65;
-        }
-        id.extend(chars[..n].iter().map(|&c| char::from(c)));
-        left -= n;
+        w.write(self.term, LEASE_TERM_BITS);
+        LEASE_HOLDER.write(w, &self.holder)
     }
-    Ok(id)
+
+    fn read(r: &mut BitReader<'_>) -> Result<Self, DecodeError> {
+        let term = r.read(LEASE_TERM_BITS)?;
+        // Term 0 is "no lease", which travels as layout 2: here it is garbage.
+        if term == 0 {
+            return Err(DecodeError::InvalidCode {
+                field: "lease_term",
+                code: term,
+            });
+        }
+        Ok(Self {
+            term,
+            holder: LEASE_HOLDER.read(r)?,
+        })
+    }
 }
 
 /// A task for one vehicle with the station's identity: task layout 2 (message id
-/// [`id::IDENTIFIED_TASK`], docs/acoustic.md#task-identity). The vehicle receives it under
-/// the station's own task id, issue sequence and expiry, so its task ledger recognises a
-/// re-delivery over any link, after any restart, exactly as over IP.
+/// [`id::IDENTIFIED_TASK`], docs/acoustic.md#task-identity), or layout 3
+/// ([`id::LEASED_TASK`]) when it carries a command lease. The vehicle receives it under
+/// the station's own task id, issue sequence, expiry and lease, so its task ledger
+/// recognises a re-delivery over any link, after any restart, exactly as over IP, and
+/// refuses a task under a superseded lease.
 ///
 /// Layout: the task header (vehicle 4, task number 8, kind 3 bits), the issue sequence in
 /// [`ISSUE_SEQ_BITS`], the expiry as an optional second of the day (17 bits), the task id
-/// ([`task_id_bits`]), then the kind's fields as in [`CompactTask`]. The identity costs
-/// 75 bits plus about 6.3 a character of the id: 107 bits for `m-1-1`.
+/// ([`task_id_bits`]), in layout 3 the lease ([`lease_bits`]), then the kind's fields as in
+/// [`CompactTask`]. The identity costs 75 bits plus about 6.3 a character of the id: 107
+/// bits for `m-1-1`; a lease adds 25 bits plus about 6.3 a character of its holder.
+///
+/// The lease's presence is the message id, not a flag bit: a flag inside layout 2 would
+/// make a build that predates leases misread every leased task (the lease bits taken for
+/// the action, or for the next PDU of the frame), and a new id for every task would make
+/// such a build refuse unleased tasks too. So a task without a lease stays layout 2, bit for
+/// bit, and costs nothing more; a leased one is layout 3, which an older build refuses as
+/// an unknown message instead of running it without the lease check.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct IdentifiedTask {
@@ -868,11 +977,25 @@ pub struct IdentifiedTask {
     /// The last second (of the UTC day) the vehicle may start the task, rounded down; `None`
     /// when the station set no expiry.
     pub expires_s_of_day: Option<u32>,
+    /// The command lease the station issued the task under; `None` when it holds none
+    /// (then the task travels as layout 2). Absent from JSON when `None`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lease: Option<TaskLease>,
     /// What to do.
     pub action: TaskAction,
 }
 
 impl IdentifiedTask {
+    /// The message id this task travels under: [`id::LEASED_TASK`] with a lease,
+    /// [`id::IDENTIFIED_TASK`] without.
+    pub fn msg_id(&self) -> u8 {
+        if self.lease.is_some() {
+            id::LEASED_TASK
+        } else {
+            id::IDENTIFIED_TASK
+        }
+    }
+
     fn write(&self, w: &mut BitWriter) -> Result<(), EncodeError> {
         write_task_header(w, self.vehicle, self.task_no, &self.action)?;
         if self.issue_seq > MAX_ISSUE_SEQ {
@@ -886,21 +1009,31 @@ impl IdentifiedTask {
         }
         w.write(self.issue_seq, ISSUE_SEQ_BITS);
         EXPIRES_FIELD.encode(w, self.expires_s_of_day.map(f64::from))?;
-        write_task_id(w, &self.task_id)?;
+        TASK_ID.write(w, &self.task_id)?;
+        if let Some(lease) = &self.lease {
+            lease.write(w)?;
+        }
         self.action.write(w)
     }
 
-    fn read(r: &mut BitReader<'_>) -> Result<Self, DecodeError> {
+    /// Reads layout 2, or layout 3 when `leased` (the message id says which).
+    fn read(r: &mut BitReader<'_>, leased: bool) -> Result<Self, DecodeError> {
         let (vehicle, task_no, kind) = read_task_header(r)?;
         let issue_seq = r.read(ISSUE_SEQ_BITS)?;
         let expires = EXPIRES_FIELD.decode(r)?;
-        let task_id = read_task_id(r)?;
+        let task_id = TASK_ID.read(r)?;
+        let lease = if leased {
+            Some(TaskLease::read(r)?)
+        } else {
+            None
+        };
         Ok(Self {
             vehicle,
             task_no,
             task_id,
             issue_seq,
             expires_s_of_day: expires.map(|v| int(Some(v))),
+            lease,
             action: TaskAction::read(kind, r)?,
         })
     }
@@ -1165,7 +1298,8 @@ pub enum Pdu {
     PredictedDelta(PredictedDelta),
     /// Task assignment without the station's identity (task layout 1).
     Task(CompactTask),
-    /// Task assignment with the station's identity (task layout 2).
+    /// Task assignment with the station's identity (task layout 2), and its command lease
+    /// if any (task layout 3).
     IdentifiedTask(IdentifiedTask),
     /// Task status.
     TaskStatus(CompactTaskStatus),
@@ -1187,7 +1321,7 @@ impl Pdu {
             Self::StateDelta(_) => id::STATE_DELTA,
             Self::PredictedDelta(_) => id::PREDICTED_DELTA,
             Self::Task(_) => id::TASK,
-            Self::IdentifiedTask(_) => id::IDENTIFIED_TASK,
+            Self::IdentifiedTask(m) => m.msg_id(),
             Self::TaskStatus(_) => id::TASK_STATUS,
             Self::Event(_) => id::EVENT,
             Self::Announcement(_) => id::ANNOUNCEMENT,
@@ -1238,7 +1372,8 @@ impl Pdu {
             id::STATE_DELTA => Self::StateDelta(StateDelta::read(r)?),
             id::PREDICTED_DELTA => Self::PredictedDelta(PredictedDelta::read(r)?),
             id::TASK => Self::Task(CompactTask::read(r)?),
-            id::IDENTIFIED_TASK => Self::IdentifiedTask(IdentifiedTask::read(r)?),
+            id::IDENTIFIED_TASK => Self::IdentifiedTask(IdentifiedTask::read(r, false)?),
+            id::LEASED_TASK => Self::IdentifiedTask(IdentifiedTask::read(r, true)?),
             id::TASK_STATUS => Self::TaskStatus(CompactTaskStatus::read(r)?),
             id::EVENT => Self::Event(CompactEvent::read(r)?),
             id::ANNOUNCEMENT => Self::Announcement(CompactAnnouncement::read(r)?),

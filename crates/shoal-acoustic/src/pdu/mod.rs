@@ -3,7 +3,7 @@
 //! - [`schema`]: [`Field`] / [`Schema`] and the bit writer/reader
 //!   (docs/acoustic.md#compact-messages).
 //! - [`Pdu`]: the compact messages (keyframe and delta State Vector, task with the
-//!   station's identity, task status, event, announcement, environment observation, ack);
+//!   station's identity and command lease, task status, event, announcement, environment observation, ack);
 //!   `serde` gives their JSON form.
 //! - [`encode`] / [`decode`]: one PDU ↔ bytes; [`pack_frame`] / [`unpack_frame`]: several
 //!   PDUs in one modem frame of at most [`MAX_FRAME`] bytes (an instant message).
@@ -382,6 +382,7 @@ pub fn samples() -> Vec<(&'static str, Pdu)> {
             task_id: "m-1-1".into(),
             issue_seq: 1_780_000_000_000_000,
             expires_s_of_day: Some(43_875),
+            lease: None,
             action,
         })
     };
@@ -443,6 +444,25 @@ pub fn samples() -> Vec<(&'static str, Pdu)> {
             identified(TaskAction::Goto {
                 target: p(43.1, 5.9),
                 motion,
+            }),
+        ),
+        (
+            // Layout 3: the same goto, issued under the command lease "shore" took at term 3.
+            "identified_task_goto_leased",
+            Pdu::IdentifiedTask(IdentifiedTask {
+                vehicle: 3,
+                task_no: 7,
+                task_id: "m-1-1".into(),
+                issue_seq: 1_780_000_000_000_000,
+                expires_s_of_day: Some(43_875),
+                lease: Some(TaskLease {
+                    term: 3,
+                    holder: "shore".into(),
+                }),
+                action: TaskAction::Goto {
+                    target: p(43.1, 5.9),
+                    motion,
+                },
             }),
         ),
         (

@@ -163,6 +163,190 @@ fn an_identified_task_with_an_impossible_id_code_is_refused() {
 }
 
 #[test]
+fn a_lease_costs_57_bits_for_a_five_character_holder_and_nothing_when_absent() {
+    let plain = encode_sized(&sample("identified_task_goto")).unwrap();
+    let leased = encode_sized(&sample("identified_task_goto_leased")).unwrap();
+    // shore at term 3: 20 (term) + 5 (length) + 19 + 13 (five characters).
+    assert_eq!(leased.bits - plain.bits, 57);
+    assert_eq!(lease_bits(5), 57);
+    assert_eq!((leased.bits, leased.bytes.len()), (263, 33));
+    assert_eq!(leased.bytes[0], id::LEASED_TASK);
+    // Without a lease the task is layout 2, as before leases existed.
+    assert_eq!((plain.bits, plain.bytes[0]), (206, id::IDENTIFIED_TASK));
+    // The longest holder and term still fit a frame with the sample's id (a 64-character
+    // id alone takes 61 bytes).
+    assert_eq!(lease_bits(MAX_LEASE_HOLDER_LEN), 20 + 5 + 10 * 19 + 13);
+    let Pdu::IdentifiedTask(mut t) = sample("identified_task_abort") else {
+        panic!()
+    };
+    t.lease = Some(TaskLease {
+        term: MAX_LEASE_TERM,
+        holder: "y".repeat(MAX_LEASE_HOLDER_LEN),
+    });
+    let e = encode_sized(&Pdu::IdentifiedTask(t.clone())).unwrap();
+    assert_eq!((e.bits, e.bytes.len()), (358, 45));
+    assert_eq!(decode(&e.bytes).unwrap(), Pdu::IdentifiedTask(t));
+}
+
+/// The wire holder length is fixed by this layout; a longer model holder needs a new one.
+#[test]
+fn the_wire_lease_holder_limit_is_the_models() {
+    assert_eq!(MAX_LEASE_HOLDER_LEN, shoal_model::MAX_LEASE_HOLDER_LEN);
+}
+
+/// Layout 2 is read as before leases existed: a task built bit by bit from the docs' table
+/// decodes with no lease, and re-encodes to the same bytes.
+#[test]
+fn a_layout_2_task_from_an_older_station_decodes_without_a_lease() {
+    // Abort to auv 3, task 7, seq 5, no expiry, the one-character id "a" (index 39).
+    let mut w = BitWriter::new();
+    w.write(u64::from(id::IDENTIFIED_TASK), 8);
+    w.write(3, 4);
+    w.write(7, 8);
+    w.write(5, 3);
+    w.write(5, 52);
+    w.write(0, 17);
+    w.write(0, 6);
+    w.write(39, 7);
+    let bytes = w.finish();
+    let Pdu::IdentifiedTask(t) = decode(&bytes).unwrap() else {
+        panic!()
+    };
+    assert_eq!(
+        (t.task_id.as_str(), t.issue_seq, t.lease.as_ref()),
+        ("a", 5, None)
+    );
+    assert_eq!(encode(&Pdu::IdentifiedTask(t)).unwrap(), bytes);
+}
+
+#[test]
+fn an_identified_task_refuses_a_lease_it_cannot_carry_exactly() {
+    let Pdu::IdentifiedTask(t) = sample("identified_task_goto_leased") else {
+        panic!()
+    };
+    for term in [0, MAX_LEASE_TERM + 1] {
+        let mut u = t.clone();
+        u.lease = Some(TaskLease {
+            term,
+            holder: "shore".into(),
+        });
+        assert!(
+            matches!(
+                encode(&Pdu::IdentifiedTask(u)),
+                Err(EncodeError::OutOfRange {
+                    field: "lease_term",
+                    ..
+                })
+            ),
+            "{term}"
+        );
+    }
+    for bad in ["", "a b", "é", &"x".repeat(MAX_LEASE_HOLDER_LEN + 1)] {
+        let mut u = t.clone();
+        u.lease = Some(TaskLease {
+            term: 3,
+            holder: bad.into(),
+        });
+        assert!(
+            matches!(
+                encode(&Pdu::IdentifiedTask(u)),
+                Err(EncodeError::Inconsistent {
+                    field: "lease_holder",
+                    ..
+                })
+            ),
+            "{bad:?}"
+        );
+    }
+}
+
+/// A leased task (layout 3) whose lease is garbage is refused, never read as some lease.
+#[test]
+fn a_leased_task_with_a_malformed_lease_is_refused() {
+    // Abort to auv 3, task 7, seq 0, no expiry, task id "a", then the lease.
+    let leased = |term: u64, holder: &[(u64, u32)]| {
+        let mut w = BitWriter::new();
+        w.write(u64::from(id::LEASED_TASK), 8);
+        w.write(3, 4);
+        w.write(7, 8);
+        w.write(5, 3);
+        w.write(0, 52);
+        w.write(0, 17);
+        w.write(0, 6);
+        w.write(39, 7);
+        w.write(term, 20);
+        for &(v, bits) in holder {
+            w.write(v, bits);
+        }
+        w.finish()
+    };
+    // "s" at term 1 decodes: the frame is right.
+    let Pdu::IdentifiedTask(t) = decode(&leased(1, &[(0, 5), (57, 7)])).unwrap() else {
+        panic!()
+    };
+    assert_eq!(
+        t.lease,
+        Some(TaskLease {
+            term: 1,
+            holder: "s".into()
+        })
+    );
+    // Term 0 is "no lease", which layout 3 never carries.
+    assert_eq!(
+        decode(&leased(0, &[(0, 5), (57, 7)])),
+        Err(DecodeError::InvalidCode {
+            field: "lease_term",
+            code: 0
+        })
+    );
+    // A character code beyond the alphabet (65 values in 7 bits).
+    assert_eq!(
+        decode(&leased(1, &[(0, 5), (127, 7)])),
+        Err(DecodeError::InvalidCode {
+            field: "lease_holder",
+            code: 127
+        })
+    );
+    // A pair beyond 65² in 13 bits, in a two-character holder.
+    assert_eq!(
+        decode(&leased(1, &[(1, 5), (65 * 65, 13)])),
+        Err(DecodeError::InvalidCode {
+            field: "lease_holder",
+            code: 65 * 65
+        })
+    );
+    // A holder length (32) whose characters are missing.
+    assert!(matches!(
+        decode(&leased(1, &[(31, 5)])),
+        Err(DecodeError::Truncated { .. })
+    ));
+}
+
+#[test]
+fn every_truncation_of_a_leased_task_is_refused() {
+    let bytes = encode(&sample("identified_task_goto_leased")).unwrap();
+    for n in 0..bytes.len() {
+        assert!(decode(&bytes[..n]).is_err(), "prefix of {n} bytes decoded");
+        assert!(
+            n == 0 || unpack_frame(&bytes[..n]).is_err(),
+            "prefix of {n} bytes unpacked"
+        );
+    }
+}
+
+#[test]
+fn a_lease_travels_in_json_only_when_present() {
+    let leased = decode_to_json(&encode(&sample("identified_task_goto_leased")).unwrap()).unwrap();
+    assert!(leased.contains("\"holder\": \"shore\""), "{leased}");
+    let plain = decode_to_json(&encode(&sample("identified_task_goto")).unwrap()).unwrap();
+    assert!(!plain.contains("lease"), "{plain}");
+    // JSON written before leases existed still encodes, as layout 2.
+    let json = r#"{"type":"identified_task","vehicle":3,"task_no":7,"task_id":"m-1-1",
+        "issue_seq":1,"expires_s_of_day":null,"action":{"kind":"abort"}}"#;
+    assert_eq!(encode_json(json).unwrap().bytes[0], id::IDENTIFIED_TASK);
+}
+
+#[test]
 fn out_of_range_values_are_refused_by_the_encoder() {
     let Pdu::StateKeyframe(mut k) = sample("state_keyframe") else {
         panic!()
@@ -887,20 +1071,30 @@ proptest! {
         vehicle in 0u8..16, task_no in any::<u8>(), action in arb_action(),
         task_id in "[A-Za-z0-9_.-]{1,64}", issue_seq in 0..=MAX_ISSUE_SEQ,
         expires in prop::option::of(0u32..86_400),
+        lease in prop::option::of((1..=MAX_LEASE_TERM, "[A-Za-z0-9_.-]{1,32}")),
     ) {
-        let t = IdentifiedTask { vehicle, task_no, task_id, issue_seq, expires_s_of_day: expires, action };
+        let lease = lease.map(|(term, holder)| TaskLease { term, holder });
+        let t = IdentifiedTask { vehicle, task_no, task_id, issue_seq, expires_s_of_day: expires, lease, action };
         let e = encode_sized(&Pdu::IdentifiedTask(t.clone())).unwrap();
         let Pdu::IdentifiedTask(b) = decode(&e.bytes).unwrap() else { panic!() };
         prop_assert_eq!(
-            (&b.task_id, b.issue_seq, b.expires_s_of_day, b.vehicle, b.task_no),
-            (&t.task_id, t.issue_seq, t.expires_s_of_day, t.vehicle, t.task_no)
+            (&b.task_id, b.issue_seq, b.expires_s_of_day, b.vehicle, b.task_no, &b.lease),
+            (&t.task_id, t.issue_seq, t.expires_s_of_day, t.vehicle, t.task_no, &t.lease)
         );
-        // The action travels exactly as in layout 1; the identity costs what
+        // Layout 3 exactly when there is a lease.
+        let layout = if t.lease.is_some() { id::LEASED_TASK } else { id::IDENTIFIED_TASK };
+        prop_assert_eq!(e.bytes[0], layout);
+        // The action travels exactly as in layout 1; the identity and the lease cost what
         // docs/acoustic.md#task-identity says.
         let plain = encode_sized(&Pdu::Task(CompactTask { vehicle, task_no, action: t.action.clone() })).unwrap();
         let Pdu::Task(p) = decode(&plain.bytes).unwrap() else { panic!() };
         prop_assert_eq!(&b.action, &p.action);
-        prop_assert_eq!(e.bits - plain.bits, 52 + 17 + task_id_bits(t.task_id.len()));
+        let lease_cost = t.lease.as_ref().map_or(0, |l| lease_bits(l.holder.len()));
+        prop_assert_eq!(e.bits - plain.bits, 52 + 17 + task_id_bits(t.task_id.len()) + lease_cost);
+        // Every truncation is refused, also inside the lease.
+        for n in 0..e.bytes.len() {
+            prop_assert!(decode(&e.bytes[..n]).is_err(), "prefix of {} bytes decoded", n);
+        }
     }
 
     #[test]
@@ -942,7 +1136,7 @@ proptest! {
     }
 
     #[test]
-    fn arbitrary_bytes_after_a_valid_id_never_panic(id in 1u8..=10, rest in prop::collection::vec(any::<u8>(), 0..70)) {
+    fn arbitrary_bytes_after_a_valid_id_never_panic(id in 1u8..=11, rest in prop::collection::vec(any::<u8>(), 0..70)) {
         let mut bytes = vec![id];
         bytes.extend(rest);
         if let Ok(pdus) = unpack_frame(&bytes) {
