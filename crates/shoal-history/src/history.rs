@@ -361,6 +361,8 @@ mod tests {
             let mut task = TaskAssignment::new("t-1", "m-1", "auv-1", T, &survey);
             task.issue_seq = 41;
             task.expires_ms = T + 60_000;
+            task.lease_term = 3;
+            task.lease_holder = "shore".into();
             let status = TaskStatus {
                 task_id: "t-1".into(),
                 vehicle_id: "auv-1".into(),

@@ -185,6 +185,8 @@ fn task_row(r: &dyn Fields) -> Result<TaskAssignment, HistoryError> {
         // The schema refuses negative sequences.
         issue_seq: u64::try_from(r.int(12)?).unwrap_or(0),
         expires_ms: r.int(13)?,
+        lease_term: u64::try_from(r.int(14)?).unwrap_or(0),
+        lease_holder: r.text(15)?,
     })
 }
 
@@ -383,7 +385,7 @@ impl HistoryReader {
             .collect(
                 "SELECT task_id, mission_id, vehicle_id, issued_ms, kind, area, depth_m, \
                  altitude_m, speed_mps, line_spacing_m, duration_s, rate_hz, issue_seq, \
-                 expires_ms FROM task_assignment WHERE task_id = ?1",
+                 expires_ms, lease_term, lease_holder FROM task_assignment WHERE task_id = ?1",
                 vec![task_id.into()],
                 task_row,
             )?
@@ -412,8 +414,8 @@ impl HistoryReader {
     ) -> Result<Vec<TaskHistory>, HistoryError> {
         let assignments = self.collect(
             "SELECT task_id, mission_id, vehicle_id, issued_ms, kind, area, depth_m, \
-             altitude_m, speed_mps, line_spacing_m, duration_s, rate_hz, issue_seq, expires_ms \
-             FROM task_assignment WHERE issued_ms >= ?1 ORDER BY issued_ms, task_id LIMIT ?2",
+             altitude_m, speed_mps, line_spacing_m, duration_s, rate_hz, issue_seq, expires_ms, \
+             lease_term, lease_holder FROM task_assignment WHERE issued_ms >= ?1 ORDER BY issued_ms, task_id LIMIT ?2",
             vec![since_ms.into(), sql_limit(limit)],
             task_row,
         )?;

@@ -130,6 +130,12 @@ const MIGRATIONS: &[&str] = &[
         ADD COLUMN issue_seq INTEGER NOT NULL DEFAULT 0 CHECK (issue_seq >= 0);
     ALTER TABLE task_assignment ADD COLUMN expires_ms INTEGER NOT NULL DEFAULT 0;
     ",
+    // Version 3: tasks carry the command lease they were sent under (0 and '' = none).
+    "
+    ALTER TABLE task_assignment
+        ADD COLUMN lease_term INTEGER NOT NULL DEFAULT 0 CHECK (lease_term >= 0);
+    ALTER TABLE task_assignment ADD COLUMN lease_holder TEXT NOT NULL DEFAULT '';
+    ",
 ];
 
 /// The schema version this build writes.
@@ -307,6 +313,14 @@ mod tests {
             )
             .unwrap();
         assert_eq!((seq, expires), (0, 0));
+        let (term, holder): (i64, String) = conn
+            .query_row(
+                "SELECT lease_term, lease_holder FROM task_assignment WHERE task_id = 't-1'",
+                [],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .unwrap();
+        assert_eq!((term, holder.as_str()), (0, ""), "no lease before leases");
         // The new column keeps its sanity bound.
         let negative = conn.execute(
             "UPDATE task_assignment SET issue_seq = -1 WHERE task_id = 't-1'",

@@ -41,8 +41,8 @@ const UPSERT_VEHICLE: &str = "INSERT INTO vehicle (vehicle_id, name, kind, vendo
 
 const INSERT_TASK: &str = "INSERT OR REPLACE INTO task_assignment (task_id, mission_id, \
     vehicle_id, issued_ms, kind, area, depth_m, altitude_m, speed_mps, line_spacing_m, \
-    duration_s, rate_hz, issue_seq, expires_ms) \
-    VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14)";
+    duration_s, rate_hz, issue_seq, expires_ms, lease_term, lease_holder) \
+    VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16)";
 
 const INSERT_TASK_STATUS: &str = "INSERT OR REPLACE INTO task_status (task_id, timestamp_ms, \
     state, progress_pct, message, vehicle_id) VALUES (?1, ?2, ?3, ?4, ?5, ?6)";
@@ -163,6 +163,8 @@ pub(crate) fn insert(conn: &Connection, record: &Record) -> Result<(), StoreErro
                 t.rate_hz,
                 seq_column(t.issue_seq),
                 t.expires_ms,
+                seq_column(t.lease_term),
+                t.lease_holder,
             ])?;
         }
         Record::TaskStatus(s) => {

@@ -15,12 +15,30 @@ pub trait FederationView: Send + Sync {
     /// The remote picture at station time `now_ms`.
     fn snapshot(&self, now_ms: i64) -> FederationSnapshot;
 
-    /// Whether this station may command `vehicle` (one of its own) now: the term of the
-    /// command lease it holds (0 when the lease is not in force), or why not.
-    fn may_command(&self, vehicle: &str) -> Result<u64, LeaseDenial>;
+    /// Whether this station may command `vehicle` (one of its own) now: the command lease
+    /// it holds ([`LeaseGrant::NONE`] when the lease is not in force), or why not.
+    fn may_command(&self, vehicle: &str) -> Result<LeaseGrant, LeaseDenial>;
 
     /// Hands the lease of a vehicle this station holds to the site `to`.
     fn hand_over(&self, vehicle: &str, to: &str) -> Result<LeaseView, HandoverRefused>;
+}
+
+/// The command lease a station sends a vehicle's tasks under; every task carries it, and
+/// the vehicle refuses one under a lease older than one it has obeyed.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LeaseGrant {
+    /// The lease's term; 0 when no lease is in force.
+    pub term: u64,
+    /// The site that holds it (this one); empty when no lease is in force.
+    pub holder: String,
+}
+
+impl LeaseGrant {
+    /// No lease: a station that is not federated, or whose lease is off.
+    pub const NONE: Self = Self {
+        term: 0,
+        holder: String::new(),
+    };
 }
 
 /// Why this station may not command a vehicle: the command lease
@@ -227,10 +245,10 @@ impl StationHandle {
 
     /// Whether this station may command `vehicle` under the command lease (always when it
     /// is not federated).
-    pub(crate) fn may_command(&self, vehicle: &str) -> Result<u64, LeaseDenial> {
+    pub(crate) fn may_command(&self, vehicle: &str) -> Result<LeaseGrant, LeaseDenial> {
         match self.core.federation.get() {
             Some(view) => view.may_command(vehicle),
-            None => Ok(0),
+            None => Ok(LeaseGrant::NONE),
         }
     }
 }

@@ -47,8 +47,8 @@ pub use error::{
     ConfigError, DispatchError, Rejection, RuleChangeError, StationError, SubscriptionError,
 };
 pub use federation::{
-    FederationSnapshot, FederationView, HandoverRefused, LeaseDenial, LeaseView, RemoteAlarmView,
-    RemoteTransitionView, RemoteVehicleView, SiteView,
+    FederationSnapshot, FederationView, HandoverRefused, LeaseDenial, LeaseGrant, LeaseView,
+    RemoteAlarmView, RemoteTransitionView, RemoteVehicleView, SiteView,
 };
 pub use health::{
     DdsHealth, HealthThresholds, HealthVerdict, HistoryHealth, SemanticHealth, StationHealth,

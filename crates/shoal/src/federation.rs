@@ -11,8 +11,8 @@ use shoal_federation::{
     VehiclePosition,
 };
 use shoal_station::{
-    FederationSnapshot, FederationView, HandoverRefused, LeaseDenial, LeaseView, LiveUpdate,
-    RemoteAlarmView, RemoteTransitionView, RemoteVehicleView, SiteView, StationHandle,
+    FederationSnapshot, FederationView, HandoverRefused, LeaseDenial, LeaseGrant, LeaseView,
+    LiveUpdate, RemoteAlarmView, RemoteTransitionView, RemoteVehicleView, SiteView, StationHandle,
 };
 use tokio::sync::broadcast::error::RecvError;
 use tokio_util::sync::CancellationToken;
@@ -41,8 +41,8 @@ fn lease_view(r: &LeaseRecord, site: &str) -> LeaseView {
 }
 
 impl FederationView for View {
-    fn may_command(&self, vehicle: &str) -> Result<u64, LeaseDenial> {
-        self.0.may_command(vehicle).map_err(|e| match e {
+    fn may_command(&self, vehicle: &str) -> Result<LeaseGrant, LeaseDenial> {
+        let term = self.0.may_command(vehicle).map_err(|e| match e {
             CommandDenied::HeldElsewhere {
                 vehicle,
                 holder,
@@ -65,6 +65,14 @@ impl FederationView for View {
                 vehicle: vehicle.to_owned(),
                 why: other.to_string(),
             },
+        })?;
+        Ok(if term == 0 {
+            LeaseGrant::NONE
+        } else {
+            LeaseGrant {
+                term,
+                holder: self.0.site().to_owned(),
+            }
         })
     }
 

@@ -119,6 +119,13 @@ pub(crate) const MIGRATIONS: &[&str] = &[
         ADD COLUMN IF NOT EXISTS issue_seq BIGINT NOT NULL DEFAULT 0 CHECK (issue_seq >= 0);
     ALTER TABLE task_assignment ADD COLUMN IF NOT EXISTS expires_ms BIGINT NOT NULL DEFAULT 0;
     "#,
+    // Version 3: tasks carry the command lease they were sent under (0 and '' = none).
+    r#"
+    ALTER TABLE task_assignment
+        ADD COLUMN IF NOT EXISTS lease_term BIGINT NOT NULL DEFAULT 0 CHECK (lease_term >= 0);
+    ALTER TABLE task_assignment
+        ADD COLUMN IF NOT EXISTS lease_holder TEXT COLLATE "C" NOT NULL DEFAULT '';
+    "#,
 ];
 
 /// The schema version this build writes; the same number as SQLite's.

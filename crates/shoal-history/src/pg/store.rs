@@ -70,16 +70,17 @@ const UPSERT_VEHICLE: &str = "INSERT INTO vehicle (vehicle_id, name, kind, vendo
 
 const UPSERT_TASK: &str = "INSERT INTO task_assignment (task_id, mission_id, vehicle_id, \
     issued_ms, kind, area, depth_m, altitude_m, speed_mps, line_spacing_m, duration_s, rate_hz, \
-    issue_seq, expires_ms) \
+    issue_seq, expires_ms, lease_term, lease_holder) \
     SELECT * FROM unnest($1::text[], $2::text[], $3::text[], $4::int8[], $5::text[], \
     $6::text[], $7::float8[], $8::float8[], $9::float8[], $10::float8[], $11::float8[], \
-    $12::float8[], $13::int8[], $14::int8[]) \
+    $12::float8[], $13::int8[], $14::int8[], $15::int8[], $16::text[]) \
     ON CONFLICT (task_id) DO UPDATE SET mission_id = excluded.mission_id, \
     vehicle_id = excluded.vehicle_id, issued_ms = excluded.issued_ms, kind = excluded.kind, \
     area = excluded.area, depth_m = excluded.depth_m, altitude_m = excluded.altitude_m, \
     speed_mps = excluded.speed_mps, line_spacing_m = excluded.line_spacing_m, \
     duration_s = excluded.duration_s, rate_hz = excluded.rate_hz, \
-    issue_seq = excluded.issue_seq, expires_ms = excluded.expires_ms";
+    issue_seq = excluded.issue_seq, expires_ms = excluded.expires_ms, \
+    lease_term = excluded.lease_term, lease_holder = excluded.lease_holder";
 
 const UPSERT_TASK_STATUS: &str = "INSERT INTO task_status (task_id, timestamp_ms, state, \
     progress_pct, message, vehicle_id) \
@@ -571,6 +572,8 @@ impl<'a> Columns<'a> {
                     &t.column(|r| r.task.rate_hz),
                     &t.column(|r| crate::store::seq_column(r.task.issue_seq)),
                     &t.column(|r| r.task.expires_ms),
+                    &t.column(|r| crate::store::seq_column(r.task.lease_term)),
+                    &t.column(|r| r.task.lease_holder.as_str()),
                 ],
             )
             .await?;

@@ -20,6 +20,7 @@ use crate::config::ms;
 const PRUNE_EVERY_MS: i64 = 1_000;
 use crate::core::{StationHandle, blocking, lock};
 use crate::error::DispatchError;
+use crate::federation::LeaseGrant;
 use crate::register::Contact;
 use crate::reporters::LiveUpdate;
 pub use preview::{MissionPreview, VehiclePreview};
@@ -52,7 +53,7 @@ impl StationHandle {
     /// Checks a task can go to its vehicle now: well-formed, the vehicle registered and
     /// in contact, able to do it (its announced capabilities, the register's part of the
     /// information model) and with battery enough for anything but going home or up.
-    fn check_task(&self, task: &TaskAssignment) -> Result<(), DispatchError> {
+    fn check_task(&self, task: &TaskAssignment) -> Result<LeaseGrant, DispatchError> {
         let moves = matches!(task.kind, TaskKind::GotoWaypoint | TaskKind::SurveyArea);
         if moves && task.depth_m == shoal_model::UNKNOWN && task.altitude_m == shoal_model::UNKNOWN
         {
@@ -68,7 +69,7 @@ impl StationHandle {
         }
         shoal_model::Validate::validate(task).map_err(DispatchError::Invalid)?;
         task.task().map_err(DispatchError::Invalid)?;
-        self.check_dispatch(&task.vehicle_id, task.kind)
+        self.dispatch_lease(&task.vehicle_id, task.kind)
     }
 
     /// Whether a task of `kind` would go to `vehicle_id` now, as far as the vehicle is
@@ -76,6 +77,15 @@ impl StationHandle {
     /// same check dispatching makes, so that a console can say beforehand what the station
     /// would refuse.
     pub fn check_dispatch(&self, vehicle_id: &str, kind: TaskKind) -> Result<(), DispatchError> {
+        self.dispatch_lease(vehicle_id, kind).map(|_| ())
+    }
+
+    /// [`Self::check_dispatch`], returning the command lease the task would go under.
+    fn dispatch_lease(
+        &self,
+        vehicle_id: &str,
+        kind: TaskKind,
+    ) -> Result<LeaseGrant, DispatchError> {
         use shoal_model::TaskKind as K;
         let fleet = lock(&self.core.fleet);
         let Some(v) = fleet.vehicles.get(vehicle_id) else {
@@ -84,10 +94,10 @@ impl StationHandle {
         // Exactly one site commands a vehicle, aborts included: a federated site that does
         // not hold the lease asks the holder to hand it over (or takes it over when the
         // holder is lost).
-        self.may_command(vehicle_id)?;
+        let lease = self.may_command(vehicle_id)?;
         if kind == K::Abort {
             // An emergency order always goes out, whatever the vehicle says it can do.
-            return Ok(());
+            return Ok(lease);
         }
         if v.contact == Contact::Lost {
             return Err(DispatchError::VehicleLost(vehicle_id.to_owned()));
@@ -115,7 +125,7 @@ impl StationHandle {
                 min_pct: min,
             });
         }
-        Ok(())
+        Ok(lease)
     }
 
     /// Validates a single task, registers it and sends it at once. Aborts go out on the
@@ -161,18 +171,22 @@ impl StationHandle {
         else {
             return Err(DispatchError::UnknownTask(task_id.to_owned()));
         };
-        // Checked again when a mission's next task comes due: things change.
-        if let Err(e) = self.check_task(&task) {
-            warn!(task = task_id, error = %e, "task not sent");
-            self.task_ended(task_id, TaskState::Failed, &format!("not sent: {e}"));
-            return Err(e);
-        }
+        // Checked again when a mission's next task comes due: things change (the lease
+        // too, so the task carries the one in force now).
+        let lease = match self.check_task(&task) {
+            Ok(lease) => lease,
+            Err(e) => {
+                warn!(task = task_id, error = %e, "task not sent");
+                self.task_ended(task_id, TaskState::Failed, &format!("not sent: {e}"));
+                return Err(e);
+            }
+        };
         let link = lock(&self.core.fleet)
             .vehicles
             .get(&task.vehicle_id)
             .map_or(LinkKind::Ip, |v| v.link);
         let Some(task) =
-            lock(&self.core.tasks).stamp(task_id, self.now(), self.start_window_ms(link))
+            lock(&self.core.tasks).stamp(task_id, self.now(), self.start_window_ms(link), &lease)
         else {
             return Err(DispatchError::UnknownTask(task_id.to_owned()));
         };

@@ -19,6 +19,8 @@ use std::collections::{BTreeMap, HashMap, HashSet};
 
 use shoal_model::{LinkKind, TaskAssignment, TaskState, TaskStatus};
 
+use crate::federation::LeaseGrant;
+
 use super::views::{MissionState, MissionView, TaskView};
 
 #[derive(Debug, Clone)]
@@ -156,15 +158,19 @@ impl TaskRegister {
     }
 
     /// Stamps a task about to be published: its issue sequence (the next one, unless it
-    /// has one from an earlier send) and an expiry `start_window_ms` from now. Returns the
-    /// assignment to publish, or `None` for an unknown task.
+    /// has one from an earlier send), an expiry `start_window_ms` from now and the command
+    /// lease it goes under. Returns the assignment to publish, or `None` for an unknown
+    /// task.
     pub(crate) fn stamp(
         &mut self,
         task_id: &str,
         now_ms: i64,
         start_window_ms: i64,
+        lease: &LeaseGrant,
     ) -> Option<TaskAssignment> {
         let t = self.tasks.get_mut(task_id)?;
+        t.assignment.lease_term = lease.term;
+        t.assignment.lease_holder.clone_from(&lease.holder);
         if t.assignment.issue_seq == 0 {
             self.last_seq += 1;
             t.assignment.issue_seq = self.last_seq;

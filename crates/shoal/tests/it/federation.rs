@@ -52,7 +52,7 @@ fn identity(
 
 /// A station process with no scenario, its API on `api`, its history in `db`, and `env`
 /// in its environment.
-fn station(
+pub(crate) fn station(
     dir: &Path,
     name: &'static str,
     domain: u16,
@@ -80,7 +80,7 @@ fn station(
 }
 
 /// [`station`] with the federation on; `env` configures the federation.
-fn federated_station(
+pub(crate) fn federated_station(
     dir: &Path,
     name: &'static str,
     domain: u16,
@@ -143,7 +143,7 @@ fn refs(env: &[(String, String)]) -> Vec<(&str, &str)> {
     env.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect()
 }
 
-fn json(port: u16, path: &str) -> serde_json::Value {
+pub(crate) fn json(port: u16, path: &str) -> serde_json::Value {
     http_get(port, path)
         .ok()
         .and_then(|b| serde_json::from_str(&b).ok())

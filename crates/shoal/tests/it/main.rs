@@ -11,6 +11,8 @@
 //! - `demo`: `shoal up`'s default scenario seen through the API (vehicles move, tasks run).
 //! - `faults`: the station killed with SIGKILL and restarted.
 //! - `federation`: two stations (ship and shore) federated over Zenoh on loopback.
+//! - `lease`: the command lease at the vehicle: two federated stations that both reach it,
+//!   a partition between them and its heal.
 //! - `cli`: the `shoal` binary itself (`up`, configuration errors).
 //! - `console`: the console's logins through the binary (on by default, the first admin
 //!   shown once, `shoal query --token`).
@@ -36,6 +38,7 @@ mod demo;
 mod faults;
 mod federation;
 mod interop;
+mod lease;
 mod proxies;
 mod recorder;
 mod scenario;

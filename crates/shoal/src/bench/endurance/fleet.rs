@@ -247,6 +247,14 @@ impl Fleet {
                     .await;
             }
             Admission::Expired => self.status(a, TaskState::Expired, "expired").await,
+            // One station commands this fleet: a refusal would be a fault of the bench.
+            Admission::Fenced(obeyed) => {
+                let msg = format!(
+                    "refused: obeys site {} (term {})",
+                    obeyed.holder, obeyed.term
+                );
+                self.status(a, TaskState::Failed, &msg).await;
+            }
             // Tasks here end as they start: nothing is ever left under way to resume.
             Admission::Resume | Admission::Duplicate => {}
         }
