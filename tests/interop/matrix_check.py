@@ -16,7 +16,8 @@ STATE_FIELDS = ["vehicle_id", "timestamp_ms", "latitude_deg", "longitude_deg", "
 ANN_FIELDS = ["vehicle_id", "name", "kind", "vendor", "capabilities", "sensors", "links",
               "max_speed_mps", "timestamp_ms"]
 TASK_FIELDS = ["task_id", "mission_id", "vehicle_id", "issued_ms", "kind", "area", "depth_m",
-               "altitude_m", "speed_mps", "line_spacing_m", "duration_s", "rate_hz", "issue_seq", "expires_ms"]
+               "altitude_m", "speed_mps", "line_spacing_m", "duration_s", "rate_hz", "issue_seq", "expires_ms",
+               "lease_term", "lease_holder"]
 
 
 class Fail(Exception):
@@ -81,6 +82,9 @@ def check_task(lines, a):
             "duration_s": 0.0, "rate_hz": 0.0}
     for k, v in want.items():
         expect(close(t[k], v), f"{k} = {t[k]!r}, expected {v!r}")
+    # The peers publish as a station without a command lease.
+    expect(t["lease_term"] == 0, f"lease_term {t['lease_term']!r}, expected 0")
+    expect(t["lease_holder"] == "", f"lease_holder {t['lease_holder']!r}, expected ''")
     return f"task {t['task_id']} ({t['kind']})"
 
 

@@ -162,6 +162,26 @@ mod tests {
     }
 
     #[test]
+    fn a_task_cut_short_of_its_lease_is_refused_not_defaulted() {
+        // The lease members default when absent from JSON; on the wire a @final struct's
+        // members are all there, and a sample without them must not pass as "no lease".
+        let mut a = TaskAssignment::new(
+            "t-1",
+            "",
+            "auv-1",
+            1_800_000_000_000,
+            &shoal_model::Task::Surface,
+        );
+        a.lease_term = 2;
+        a.lease_holder = "shore".into();
+        let bytes = crate::to_cdr_le(&a).unwrap();
+        assert_eq!(crate::from_cdr::<TaskAssignment>(&bytes).unwrap(), a);
+        // Without the holder (4-byte length + "shore\0") and the term.
+        let short = &bytes[..bytes.len() - 10 - 8];
+        assert!(crate::from_cdr::<TaskAssignment>(short).is_err());
+    }
+
+    #[test]
     fn a_key_field_the_type_lacks_is_an_error() {
         assert!(Shape::of::<StateVector>("shoal::StateVector", &["nope"]).is_err());
     }

@@ -151,10 +151,13 @@ pub struct TaskAssignment {
     pub expires_ms: i64,
     /// The term of the command lease the issuing station held for the vehicle; 0 when the
     /// station commands without a lease (not federated, or the lease is off). A vehicle
-    /// refuses a task whose lease is older than one it has already obeyed.
+    /// refuses a task whose lease is older than one it has already obeyed. Absent from a
+    /// JSON body is 0 (a station stamps its own lease on every task it sends anyway).
+    #[serde(default)]
     pub lease_term: u64,
     /// The site that held that lease (1..=32 of `[A-Za-z0-9_.-]`); empty when
     /// `lease_term` is 0.
+    #[serde(default)]
     pub lease_holder: String,
 }
 

@@ -296,6 +296,8 @@ static char *task_json(const shoal_TaskAssignment *t)
   field_num(&b, "rate_hz", t->rate_hz);
   bprintf(&b, ",\"issue_seq\":%llu", (unsigned long long)t->issue_seq);
   field_i64(&b, "expires_ms", (long long)t->expires_ms);
+  bprintf(&b, ",\"lease_term\":%llu", (unsigned long long)t->lease_term);
+  field_str(&b, "lease_holder", t->lease_holder, false);
   bput(&b, "}", 1);
   return b.p;
 }
@@ -351,6 +353,9 @@ static void make_task(shoal_TaskAssignment *t, const char *task_id, const char *
   t->speed_mps = 1.5;
   t->issue_seq = 1;
   t->expires_ms = t->issued_ms + 600000;
+  /* As a station without a command lease sends it (no federation, or the lease off). */
+  t->lease_term = 0;
+  t->lease_holder[0] = 0;
 }
 
 /* ------------------------------------------------------------ arguments */

@@ -387,6 +387,8 @@ struct TaskAssignment {
     double depth_m = 0, altitude_m = 0, speed_mps = 0, line_spacing_m = 0, duration_s = 0, rate_hz = 0;
     uint64_t issue_seq = 0;
     int64_t expires_ms = 0;
+    uint64_t lease_term = 0;   // 0 = issued without a command lease
+    std::string lease_holder;  // string<32>; empty when lease_term is 0
 
     template <class W> void write(W& w) const
     {
@@ -409,6 +411,8 @@ struct TaskAssignment {
         w.f64(rate_hz);
         w.u64(issue_seq);
         w.i64(expires_ms);
+        w.u64(lease_term);  // aligned to 8 like issue_seq (it follows an int64: no padding)
+        w.str(lease_holder, 32);
     }
     template <class W> void write_key(W& w) const { w.str(task_id, 64); }
     void read(CdrIn& r)
@@ -431,6 +435,8 @@ struct TaskAssignment {
         rate_hz = r.f64();
         issue_seq = r.u64();
         expires_ms = r.i64();
+        lease_term = r.u64();
+        lease_holder = r.str(32);
     }
     static TaskAssignment max_sample()
     {
@@ -439,6 +445,7 @@ struct TaskAssignment {
         s.mission_id.assign(64, 'x');
         s.vehicle_id.assign(32, 'x');
         s.area.assign(256, GeoPoint{});
+        s.lease_holder.assign(32, 'x');
         return s;
     }
     std::string json() const
@@ -453,7 +460,8 @@ struct TaskAssignment {
         o << "],\"depth_m\":" << json_num(depth_m) << ",\"altitude_m\":" << json_num(altitude_m)
           << ",\"speed_mps\":" << json_num(speed_mps) << ",\"line_spacing_m\":" << json_num(line_spacing_m)
           << ",\"duration_s\":" << json_num(duration_s) << ",\"rate_hz\":" << json_num(rate_hz)
-          << ",\"issue_seq\":" << issue_seq << ",\"expires_ms\":" << expires_ms << "}";
+          << ",\"issue_seq\":" << issue_seq << ",\"expires_ms\":" << expires_ms
+          << ",\"lease_term\":" << lease_term << ",\"lease_holder\":" << json_str(lease_holder) << "}";
         return o.str();
     }
 };
@@ -783,6 +791,9 @@ static TaskAssignment make_task(const std::string& task_id, const std::string& v
     t.speed_mps = 1.5;
     t.issue_seq = 1;
     t.expires_ms = t.issued_ms + 600000;
+    // As a station without a command lease sends it (no federation, or the lease off).
+    t.lease_term = 0;
+    t.lease_holder = "";
     return t;
 }
 
@@ -1144,6 +1155,9 @@ static int cmd_encode_demo(const Args& a)
         s.kind = 1;
         s.area = {GeoPoint{43.0, 5.9}, GeoPoint{43.001, 5.9}, GeoPoint{43.001, 5.901}};
         s.line_spacing_m = 25.0;
+        // A leased task, so the codec check covers a non-empty holder after the u64.
+        s.lease_term = 3;
+        s.lease_holder = "ship-1";
         emit(s.json());
         emit(encode_hex(s));
     } else {

@@ -159,6 +159,8 @@ class TaskAssignment(IdlStruct, typename="shoal::TaskAssignment"):
     rate_hz: t.float64
     issue_seq: t.uint64
     expires_ms: t.int64
+    lease_term: t.uint64
+    lease_holder: t.bounded_str[32]
 
 
 @final

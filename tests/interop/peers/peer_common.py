@@ -97,6 +97,9 @@ def goto_task(task_id: str, vehicle_id: str) -> dict:
         "rate_hz": 0.0,
         "issue_seq": 1,
         "expires_ms": now_ms() + 600_000,
+        # Sent as a station without a command lease would (no federation, or the lease off).
+        "lease_term": 0,
+        "lease_holder": "",
     }
 
 
