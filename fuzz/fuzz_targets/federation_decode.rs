@@ -26,6 +26,14 @@ fuzz_target!(|data: &[u8]| {
         let again = wire::encode_lease(&r).expect("a decoded lease re-encodes");
         assert_eq!(again, data, "lease re-encoding differs");
     }
+    if let Ok(o) = wire::decode_order("auv-1", data) {
+        assert_eq!(
+            o.item.lease_holder, o.site,
+            "the holder is the envelope's site"
+        );
+        let again = wire::encode_order(&o.site, o.epoch, o.seq, &o.item).expect("re-encodes");
+        assert_eq!(again, data, "order re-encoding differs");
+    }
 
     // The first byte picks the key, the rest is the payload; the same bytes also arrive
     // as a catch-up reply.
@@ -33,13 +41,14 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     let site = if pick & 0x80 == 0 { "ship" } else { "pirate" };
-    let key = match pick % 7 {
+    let key = match pick % 8 {
         0 => keys::position(site, "auv-1"),
         1 => keys::alarms(site),
         2 => keys::task(site, "t-1"),
         3 => keys::catchup(site, Stream::Alarms),
         4 => keys::alive(site),
         5 => keys::lease(site, "auv-1"),
+        6 => keys::order(site, "auv-1"),
         _ => String::from_utf8_lossy(payload).into_owned(),
     };
     let config = FederationConfig {
@@ -61,4 +70,22 @@ fuzz_target!(|data: &[u8]| {
     let _ = inbound.receive_catchup(&request, &key, payload, 3);
     inbound.finish_catchup(&request, true);
     assert!(inbound.counters().alarms <= 2);
+
+    // Orders, at the home of `auv-1` whose lease it handed to `ship` (term 2): one may be
+    // delivered, never twice (the same bytes come again as a resend).
+    let mut home = Inbound::new(&config);
+    let t = 1_800_000_000_000;
+    let _ = home.leases_mut().claim("auv-1", t);
+    let _ = home.leases_mut().hand_over("auv-1", "ship", t);
+    for now in [4, 5] {
+        let _ = home.receive_order(&key, payload, now, |o| {
+            assert_eq!(o.from_site, "ship", "only the holder's order is delivered");
+            assert_eq!(
+                (o.task.lease_term, o.task.vehicle_id.as_str()),
+                (2, "auv-1")
+            );
+            Ok(())
+        });
+    }
+    assert!(home.counters().orders_accepted <= 1);
 });

@@ -3,11 +3,17 @@
 //! [`Federation::start`] opens the session and declares, for this site `S`:
 //! - a liveliness token `shoal/S/alive`, and a liveliness subscriber on `shoal/*/alive`
 //!   (a remote site coming up is asked what it published while it was away);
-//! - subscribers on `shoal/*/vehicles/*/position`, `shoal/*/alarms` and `shoal/*/tasks/*`
-//!   (every site, so that data from unknown sites is seen, refused and counted);
+//! - subscribers on `shoal/*/vehicles/*/position`, `shoal/*/alarms`, `shoal/*/tasks/*`,
+//!   `shoal/*/leases/*` and `shoal/*/orders/*` (every site, so that data from unknown sites
+//!   is seen, refused and counted);
 //! - a queryable on `shoal/S/catchup/*` answering from the outbound journals;
-//! - tasks: one publishing positions as their vehicles fall due, one publishing alarms
-//!   and task transitions from a bounded queue, one asking catch-up queries.
+//! - tasks: one publishing positions as their vehicles fall due, one publishing alarms,
+//!   task transitions, lease records and orders from a bounded queue, one asking catch-up
+//!   queries.
+//!
+//! Orders this site accepts (it is the vehicle's home, the sender holds the lease) wait in
+//! a bounded queue for the station, which takes its receiver with
+//! [`Federation::take_orders`].
 //!
 //! With site identity (the default), the session authenticates as its site (TLS client
 //! certificates and/or user-password) and Zenoh's access control lets each remote site
@@ -22,7 +28,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
-use shoal_model::{Event, now_ms};
+use shoal_model::{Event, TaskAssignment, now_ms};
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
@@ -40,6 +46,7 @@ use crate::inbound::{CatchupRequest, Inbound, InboundCounters};
 use crate::keys::{self, ROOT, Stream};
 use crate::lease::{HandoverError, LeaseRecord};
 use crate::lease_keeper::{self, CommandDenied, Keeper, LeaseRun};
+use crate::orders::{self, OrderError, OrderRefusal, RelayedOrder};
 use crate::outbound::{Outbound, OutboundCounters, Publication, PushError};
 use crate::picture::FederatedPicture;
 use crate::types::{TaskTransition, VehiclePosition};
@@ -49,6 +56,10 @@ use crate::zenoh_config::{polices, zenoh_config};
 const PUBLISH_QUEUE: usize = 1024;
 /// Catch-up queries waiting to be asked; beyond, the next gap or reconnection asks again.
 const CATCHUP_QUEUE: usize = 64;
+/// Accepted orders waiting for the station; beyond, an order is refused
+/// (`order_queue_full`) and its sender sees no task transition. Also what a station that
+/// never takes the receiver holds at most.
+const ORDER_QUEUE: usize = 256;
 
 /// Both sides' counters.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -74,6 +85,8 @@ struct Shared {
     site: String,
     state_file: std::path::PathBuf,
     outgoing: mpsc::Sender<Outgoing>,
+    /// Accepted orders, to the station.
+    orders: mpsc::Sender<RelayedOrder>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -95,6 +108,23 @@ impl Shared {
                 }
             }
             Err(refusal) => debug!(key, reason = %refusal, "refused"),
+        }
+    }
+
+    /// Takes an order sample: checked, and delivered to the station's queue if new.
+    fn order(&self, sample: &Sample) {
+        let key = sample.key_expr().as_str();
+        let payload = sample.payload().to_bytes();
+        // Under the inbound lock: `try_send` never waits, and an order is remembered as
+        // delivered only once it is in the queue.
+        let result = lock(&self.inbound).receive_order(key, &payload, now_ms(), |order| {
+            self.orders.try_send(order).map_err(|e| match e {
+                mpsc::error::TrySendError::Full(_) => OrderRefusal::QueueFull,
+                mpsc::error::TrySendError::Closed(_) => OrderRefusal::ReceiverClosed,
+            })
+        });
+        if result.is_ok() {
+            debug!(key, "order accepted");
         }
     }
 
@@ -222,6 +252,7 @@ enum Outgoing {
     Alarm(Publication),
     Task(Publication),
     Lease(LeaseRecord),
+    Order(Publication),
 }
 
 /// A running federation of this site with its remote sites.
@@ -241,6 +272,8 @@ pub struct Federation {
     // Held for their lifetime: dropping one undeclares it.
     token: Option<LivelinessToken>,
     subscribers: Vec<Subscriber<()>>,
+    /// The receiving end of the accepted orders, until the station takes it.
+    orders: Mutex<Option<mpsc::Receiver<RelayedOrder>>>,
 }
 
 impl Federation {
@@ -259,6 +292,7 @@ impl Federation {
         let (catchup_tx, catchup_rx) = mpsc::channel(CATCHUP_QUEUE);
         let (lease_ask_tx, lease_ask_rx) = mpsc::channel(CATCHUP_QUEUE);
         let (outgoing, outgoing_rx) = mpsc::channel(PUBLISH_QUEUE);
+        let (orders_tx, orders_rx) = mpsc::channel(ORDER_QUEUE);
         let mut inbound = Inbound::new(&config);
         let policy = &config.lease;
         let state_file = policy
@@ -280,6 +314,7 @@ impl Federation {
             site: config.site.clone(),
             state_file,
             outgoing: outgoing.clone(),
+            orders: orders_tx,
         });
         let site = config.site.clone();
 
@@ -299,6 +334,16 @@ impl Federation {
                 .map_err(zerr("declare a subscriber"))?;
             subscribers.push(sub);
         }
+        let orders_sub = {
+            let shared = Arc::clone(&shared);
+            session
+                .declare_subscriber(format!("{ROOT}/*/orders/*"))
+                .allowed_origin(Locality::Remote)
+                .callback(move |sample| shared.order(&sample))
+                .await
+                .map_err(zerr("declare the order subscriber"))?
+        };
+        subscribers.push(orders_sub);
         let queryable = session
             .declare_queryable(format!("{ROOT}/{site}/catchup/*"))
             .allowed_origin(Locality::Remote)
@@ -422,6 +467,7 @@ impl Federation {
             tasks,
             token: Some(token),
             subscribers,
+            orders: Mutex::new(Some(orders_rx)),
         })
     }
 
@@ -522,6 +568,44 @@ impl Federation {
     /// Whether the command lease is in force (`lease.enabled`).
     pub fn lease_enabled(&self) -> bool {
         lock(&self.shared.lease_run).policy.enabled
+    }
+
+    /// Sends `task` to the home site of its vehicle, another site's vehicle whose command
+    /// lease this site holds, for that site's station to publish to the vehicle as it is.
+    /// The task must carry this site's lease (`lease_term` = the term held,
+    /// `lease_holder` = this site). Published at once, reliably; not caught up after an
+    /// outage (the sender follows the task through the home site's task transitions).
+    pub fn relay_order(&self, task: &TaskAssignment) -> Result<(), OrderError> {
+        let enabled = lock(&self.shared.lease_run).policy.enabled;
+        let lease = lock(&self.shared.inbound)
+            .leases()
+            .lease(&task.vehicle_id)
+            .cloned();
+        orders::check_relay(&self.site, enabled, lease.as_ref(), task)?;
+        // A place in the queue first, so that an order with no room uses no number.
+        let permit = self.outgoing.try_reserve().map_err(|e| match e {
+            mpsc::error::TrySendError::Full(()) => {
+                lock(&self.shared.outbound).queue_full();
+                OrderError::QueueFull
+            }
+            mpsc::error::TrySendError::Closed(()) => OrderError::Stopped,
+        })?;
+        let publication = lock(&self.shared.outbound)
+            .order(task)
+            .map_err(|e| match e {
+                PushError::Invalid(e) => OrderError::Invalid(e),
+            })?;
+        info!(task = %task.task_id, vehicle = %task.vehicle_id, term = task.lease_term, "order sent to the vehicle's home site");
+        permit.send(Outgoing::Order(publication));
+        Ok(())
+    }
+
+    /// The orders this site accepted, as the vehicle's home, from the sites holding its
+    /// vehicles' leases: the first call gets the receiver, later ones `None`. Until it is
+    /// taken (and whenever it is not read) at most 256 wait; further ones are refused and
+    /// counted (`order_queue_full`).
+    pub fn take_orders(&self) -> Option<mpsc::Receiver<RelayedOrder>> {
+        lock(&self.orders).take()
     }
 
     /// Takes a local alarm; it crosses at once (if its severity crosses).
@@ -703,10 +787,21 @@ async fn publish_sequenced(
                     .allowed_destination(Locality::Remote)
                     .await
             }
+            // The tasks' priority, but never dropped on congestion whatever `tasks.qos`
+            // says: an order is not caught up, so a dropped one would be lost unseen.
+            Outgoing::Order(p) => {
+                session
+                    .put(p.key, p.frame)
+                    .priority(priority(task_qos.priority))
+                    .congestion_control(zenoh::qos::CongestionControl::Block)
+                    .express(task_qos.express)
+                    .allowed_destination(Locality::Remote)
+                    .await
+            }
         };
         if let Err(e) = result {
-            // Still in the journal: a remote site catches up on it.
-            warn!(error = %e, "alarm or transition not published");
+            // Still in the journal (except an order): a remote site catches up on it.
+            warn!(error = %e, "alarm, transition, lease record or order not published");
         }
     }
 }

@@ -7,14 +7,18 @@
 //! numbers above it. A number seen twice is a duplicate; a number past a gap asks for a
 //! catch-up query (the transport sends it). A new epoch means the sender restarted and
 //! numbers from 1 again; one of the few epochs heard before it is stale.
+//!
+//! Orders ([`crate::orders`]) come through [`Inbound::receive_order`], which checks them
+//! against the command leases kept here and hands each new one to a delivery function.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
-use tracing::debug;
+use tracing::{debug, warn};
 
 use crate::config::{FederationConfig, Limits};
 use crate::keys::{Key, Stream};
 use crate::lease::{Applied, LeaseRefusal, LeaseTable};
+use crate::orders::{self, OrderLedger, OrderRefusal, RelayedOrder, WarnGate};
 use crate::picture::{FederatedPicture, PositionRefusal};
 use crate::wire::{self, DecodeError, Sequenced};
 
@@ -63,6 +67,10 @@ pub enum Refusal {
     /// A command-lease record without authority, or beyond the limit.
     #[error("lease record refused: {0}")]
     Lease(#[from] LeaseRefusal),
+    /// An order not delivered: malformed, not from the vehicle's lease holder, not for a
+    /// vehicle of this site, already delivered, or no room.
+    #[error("order refused: {0}")]
+    Order(#[from] OrderRefusal),
 }
 
 impl Refusal {
@@ -81,6 +89,7 @@ impl Refusal {
             Self::CatchupOverflow => "catchup_overflow".into(),
             Self::CatchupKey => "catchup_key".into(),
             Self::Lease(r) => r.reason().into(),
+            Self::Order(r) => r.reason(),
         }
     }
 }
@@ -111,6 +120,12 @@ pub struct InboundCounters {
     pub transitions: u64,
     /// Command-lease records taken (stale ones are in the lease counters).
     pub leases: u64,
+    /// Order samples received (whatever became of them).
+    pub orders_received: u64,
+    /// Orders accepted and delivered to the station (each once).
+    pub orders_accepted: u64,
+    /// Orders received again (the same frame, or the same task sent again) and dropped.
+    pub order_duplicates: u64,
     /// Sequenced frames received again and suppressed.
     pub duplicates: u64,
     /// Sequence numbers given up: the sender no longer had them, or the reorder window
@@ -256,6 +271,10 @@ pub struct Inbound {
     pending: HashMap<(String, Stream), Pending>,
     picture: FederatedPicture,
     leases: LeaseTable,
+    /// Whether the command lease is in force here: orders are checked against it.
+    lease_enabled: bool,
+    orders: OrderLedger,
+    order_warnings: WarnGate,
     counters: InboundCounters,
 }
 
@@ -280,6 +299,9 @@ impl Inbound {
                 &config.remote_sites,
                 l.remote_vehicles,
             ),
+            lease_enabled: config.lease.enabled,
+            orders: OrderLedger::default(),
+            order_warnings: WarnGate::default(),
             counters: InboundCounters::default(),
         }
     }
@@ -324,6 +346,80 @@ impl Inbound {
         let result = self.take(key, payload, now_ms, None);
         self.count(key, result.as_ref().err());
         result
+    }
+
+    /// Takes one order sample: checks it against the vehicle's lease as this site knows it
+    /// and, when it is new, hands it to `deliver` (the station's bounded queue, which
+    /// refuses when full). Only a delivered order is remembered, so one refused for want
+    /// of room is taken when it is sent again.
+    pub fn receive_order(
+        &mut self,
+        key: &str,
+        payload: &[u8],
+        now_ms: i64,
+        deliver: impl FnOnce(RelayedOrder) -> Result<(), OrderRefusal>,
+    ) -> Result<(), Refusal> {
+        self.counters.orders_received += 1;
+        let result = self.take_order(key, payload, deliver);
+        match &result {
+            Ok(()) => self.counters.orders_accepted += 1,
+            Err(Refusal::Order(OrderRefusal::Duplicate)) => {
+                self.counters.order_duplicates += 1;
+                debug!(key, "order already delivered");
+            }
+            Err(refusal) => {
+                *self.counters.refused.entry(refusal.reason()).or_default() += 1;
+                let routine = matches!(refusal, Refusal::Order(r) if r.routine());
+                if routine {
+                    debug!(key, reason = %refusal, "order not for this site");
+                } else if let Some(quiet) = self.order_warnings.admit(&refusal.reason(), now_ms) {
+                    warn!(key, reason = %refusal, not_logged_since = quiet, "order refused");
+                }
+            }
+        }
+        result
+    }
+
+    fn take_order(
+        &mut self,
+        key: &str,
+        payload: &[u8],
+        deliver: impl FnOnce(RelayedOrder) -> Result<(), OrderRefusal>,
+    ) -> Result<(), Refusal> {
+        let Some(Key::Order { site, vehicle }) = Key::parse(key) else {
+            return Err(Refusal::BadKey);
+        };
+        self.check_site(site)?;
+        let frame = wire::decode_order(vehicle, payload).map_err(OrderRefusal::Malformed)?;
+        // The key's site is the authenticated sender; the envelope's is the lease holder
+        // the task carries: they must be one.
+        if frame.site != site {
+            return Err(OrderRefusal::SiteMismatch {
+                key: site.to_string(),
+                frame: frame.site,
+            }
+            .into());
+        }
+        let admitted = self.orders.admit(
+            site,
+            frame.epoch,
+            frame.seq,
+            &frame.item,
+            self.limits.reorder_window,
+        )?;
+        orders::check_received(
+            &self.site,
+            self.lease_enabled,
+            self.leases.lease(vehicle),
+            site,
+            &frame.item,
+        )?;
+        deliver(RelayedOrder {
+            from_site: frame.site,
+            task: frame.item,
+        })?;
+        self.orders.delivered(admitted);
+        Ok(())
     }
 
     /// Takes one reply to the catch-up query `request`.
@@ -484,7 +580,9 @@ impl Inbound {
                 }
                 Ok(None)
             }
-            Key::Alive { .. } => Err(Refusal::BadKey),
+            // Not data of the picture: liveliness comes through `site_alive`, orders through
+            // `receive_order` (and never in a catch-up reply).
+            Key::Alive { .. } | Key::Order { .. } => Err(Refusal::BadKey),
         }
     }
 

@@ -12,6 +12,7 @@
 //! | `shoal/<site>/catchup/tasks` | queryable: the site's recent task transitions |
 //! | `shoal/<site>/alive` | liveliness token while the site's session is up |
 //! | `shoal/<site>/leases/<vehicle>` | a command-lease record the site made; also its queryable |
+//! | `shoal/<site>/orders/<vehicle>` | a task the site, holding the vehicle's lease, sends to the vehicle's home |
 
 use shoal_model::{MAX_ID_LEN, is_identifier};
 
@@ -72,6 +73,14 @@ pub fn leases(site: &str) -> String {
     format!("{ROOT}/{site}/leases/*")
 }
 
+/// Key of an order: a task `site` (the sender, holding `vehicle`'s command lease) sends
+/// to the vehicle's home site to publish to it. The key names the sender, not the home,
+/// because a site may publish only under its own `shoal/<site>/**`: that is what
+/// authenticates the sender.
+pub fn order(site: &str, vehicle: &str) -> String {
+    format!("{ROOT}/{site}/orders/{vehicle}")
+}
+
 /// Key of a site's liveliness token.
 pub fn alive(site: &str) -> String {
     format!("{ROOT}/{site}/alive")
@@ -104,6 +113,13 @@ pub enum Key<'a> {
         /// The vehicle.
         vehicle: &'a str,
     },
+    /// `shoal/<site>/orders/<vehicle>`
+    Order {
+        /// The sending site (the lease holder).
+        site: &'a str,
+        /// The vehicle the task is for.
+        vehicle: &'a str,
+    },
     /// `shoal/<site>/alive`
     Alive {
         /// The site whose session is up.
@@ -130,6 +146,9 @@ impl<'a> Key<'a> {
             ["leases", vehicle] if is_identifier(vehicle, MAX_VEHICLE_ID) => {
                 Self::Lease { site, vehicle }
             }
+            ["orders", vehicle] if is_identifier(vehicle, MAX_VEHICLE_ID) => {
+                Self::Order { site, vehicle }
+            }
             ["alive"] => Self::Alive { site },
             _ => return None,
         };
@@ -141,6 +160,7 @@ impl<'a> Key<'a> {
         match *self {
             Self::Position { site, .. }
             | Self::Lease { site, .. }
+            | Self::Order { site, .. }
             | Self::Alarms { site }
             | Self::Task { site }
             | Self::Alive { site } => site,
@@ -182,6 +202,17 @@ mod tests {
                 vehicle: "auv-1"
             })
         );
+        assert_eq!(
+            Key::parse(&order("shore", "auv-1")),
+            Some(Key::Order {
+                site: "shore",
+                vehicle: "auv-1"
+            })
+        );
+        assert_eq!(
+            Key::parse(&order("shore", "auv-1")).unwrap().site(),
+            "shore"
+        );
     }
 
     #[test]
@@ -197,6 +228,11 @@ mod tests {
             "shoal/s/tasks",
             "shoal/s/leases",
             "shoal/s/leases/*",
+            "shoal/s/orders",
+            "shoal/s/orders/*",
+            "shoal/s/orders/a b",
+            "shoal/s/orders/auv-1/x",
+            "shoal/*/orders/auv-1",
             "shoal/../alarms",
         ] {
             assert_eq!(Key::parse(k), None, "{k}");

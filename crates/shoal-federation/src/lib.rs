@@ -12,6 +12,9 @@
 //!   suppression, gaps, the [`FederatedPicture`]).
 //! - [`lease`]: the command lease, which site commands each vehicle (tested without a
 //!   network like the other cores).
+//! - [`orders`]: a task the lease holder sends to the vehicle's home site
+//!   ([`Federation::relay_order`]), which delivers it to its station
+//!   ([`Federation::take_orders`]) once it has checked the lease.
 //! - [`wire`]: the compact WAN encoding; [`keys`]: the key expressions. Both are
 //!   documented byte for byte in `docs/federation.md` for third-party clients.
 //!
@@ -30,6 +33,7 @@ pub mod keys;
 pub mod lease;
 #[cfg(feature = "transport")]
 mod lease_keeper;
+pub mod orders;
 pub mod outbound;
 pub mod picture;
 mod tls;
@@ -50,6 +54,7 @@ pub use inbound::{InboundCounters, Refusal};
 pub use lease::{HandoverError, LeaseCounters, LeaseReason, LeaseRecord, LeaseTable};
 #[cfg(feature = "transport")]
 pub use lease_keeper::{CommandDenied, LeaseFileError};
+pub use orders::{OrderError, OrderRefusal, RelayedOrder};
 pub use outbound::{OutboundCounters, PushError};
 pub use picture::{FederatedPicture, RemoteAlarm, RemoteTransition, RemoteVehicle, SiteStatus};
 pub use types::{TaskTransition, VehiclePosition};

@@ -4,13 +4,14 @@
 //!   period has passed since its last one was sent (coalescing, latest value wins).
 //! - [`Journal`]: numbers one stream (alarms or task transitions) from 1 under this run's
 //!   epoch and keeps the last frames, so a remote site can catch up after an outage.
-//! - [`Outbound`]: both, for one site, applying the configured policy.
+//! - [`Outbound`]: both, for one site, applying the configured policy, and the numbering
+//!   of the orders this site sends (kept for nothing: orders are not caught up).
 //!
 //! Times are in ms of any monotonic clock the caller keeps; the transport uses tokio's.
 
 use std::collections::{HashMap, VecDeque};
 
-use shoal_model::{Event, Validate as _, ValidationError};
+use shoal_model::{Event, TaskAssignment, Validate as _, ValidationError};
 
 use crate::config::FederationConfig;
 use crate::keys::{self, Stream};
@@ -198,6 +199,8 @@ pub struct OutboundCounters {
     pub transitions_sent: u64,
     /// Frames sent in answer to catch-up queries.
     pub catchup_served: u64,
+    /// Orders numbered and queued for publishing.
+    pub orders_sent: u64,
     /// Frames the publishing queue had no room for (remote sites catch up on them).
     pub queue_full: u64,
 }
@@ -210,6 +213,7 @@ pub struct Outbound {
     positions: PositionLimiter,
     alarms: Journal,
     tasks: Journal,
+    orders: Journal,
     counters: OutboundCounters,
 }
 
@@ -231,6 +235,8 @@ impl Outbound {
             positions: PositionLimiter::new(config.positions.max_rate_hz),
             alarms: Journal::new(epoch, keep(config.alarms.reliable, config.alarms.catchup)),
             tasks: Journal::new(epoch, keep(config.tasks.reliable, config.tasks.catchup)),
+            // Numbers only: an order that did not arrive is not delivered late.
+            orders: Journal::new(epoch, 0),
             config: config.clone(),
             counters: OutboundCounters::default(),
         }
@@ -303,6 +309,20 @@ impl Outbound {
             key: keys::task(site, &t.task_id),
             frame,
         }))
+    }
+
+    /// Numbers an order (a task under this site's lease for another site's vehicle; the
+    /// caller checked the lease) and returns it to publish.
+    pub fn order(&mut self, task: &TaskAssignment) -> Result<Publication, PushError> {
+        let site = &self.site;
+        let frame = self
+            .orders
+            .append(|epoch, seq| wire::encode_order(site, epoch, seq, task))?;
+        self.counters.orders_sent += 1;
+        Ok(Publication {
+            key: keys::order(site, &task.vehicle_id),
+            frame,
+        })
     }
 
     /// Answers a catch-up query: the kept frames after `after` of `epoch`.

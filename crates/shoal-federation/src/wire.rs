@@ -9,11 +9,14 @@
 //! Positions carry no site or vehicle name: both are in the key expression, and a
 //! position crosses every few seconds for every vehicle. Alarms and task transitions
 //! carry their site, the sender's epoch and a sequence number, which the receiver uses to
-//! suppress duplicates and to ask for what it missed.
+//! suppress duplicates and to ask for what it missed. Orders (a task the lease holder
+//! sends to the vehicle's home site) carry the same envelope; they are rare, so their
+//! numbers are plain `f64`s, exact, rather than fixed point.
 
 use shoal_model::{
-    Event, EventKind, MAX_ID_LEN, MAX_TEXT_LEN, MAX_TIMESTAMP_MS, MAX_VEHICLE_ID_LEN,
-    MIN_TIMESTAMP_MS, Severity, TaskState, Validate, ValidationError, VehicleKind,
+    Event, EventKind, GeoPoint, MAX_ID_LEN, MAX_TEXT_LEN, MAX_TIMESTAMP_MS, MAX_VEHICLE_ID_LEN,
+    MIN_TIMESTAMP_MS, Severity, TaskAssignment, TaskKind, TaskState, Validate, ValidationError,
+    VehicleKind,
 };
 
 use crate::lease::{LeaseReason, LeaseRecord};
@@ -29,6 +32,8 @@ pub const KIND_ALARM: u8 = 2;
 pub const KIND_TASK: u8 = 3;
 /// Kind byte of a command-lease frame.
 pub const KIND_LEASE: u8 = 4;
+/// Kind byte of an order frame (a task relayed through the vehicle's home site).
+pub const KIND_ORDER: u8 = 5;
 /// Size of a position frame, bytes.
 pub const POSITION_LEN: usize = 24;
 
@@ -67,6 +72,16 @@ const EVENT_KINDS: [EventKind; 9] = [
     EventKind::Rule,
     EventKind::DataRejected,
     EventKind::Other,
+];
+const TASK_KINDS: [TaskKind; 8] = [
+    TaskKind::GotoWaypoint,
+    TaskKind::SurveyArea,
+    TaskKind::Hold,
+    TaskKind::Surface,
+    TaskKind::ReturnHome,
+    TaskKind::Abort,
+    TaskKind::RequestState,
+    TaskKind::SetReportingRate,
 ];
 const TASK_STATES: [TaskState; 8] = [
     TaskState::Pending,
@@ -158,7 +173,7 @@ pub struct Sequenced<T> {
     pub epoch: u64,
     /// Position in the sender's stream, from 1, without gaps.
     pub seq: u64,
-    /// The alarm or transition.
+    /// The alarm, transition or order.
     pub item: T,
 }
 
@@ -231,6 +246,58 @@ pub fn encode_lease(r: &LeaseRecord) -> Result<Vec<u8>, ValidationError> {
     put_str8(&mut out, &r.holder);
     put_str8(&mut out, &r.home);
     put_str8(&mut out, &r.standby);
+    Ok(out)
+}
+
+/// Encodes an order: a task `site` sends, under the command lease it holds, to the
+/// vehicle's home site (validated first). The vehicle is in the key expression and the
+/// lease holder is the envelope's site, so neither is repeated; `issue_seq` and
+/// `expires_ms` are not carried (the home station stamps its own).
+pub fn encode_order(
+    site: &str,
+    epoch: u64,
+    seq: u64,
+    task: &TaskAssignment,
+) -> Result<Vec<u8>, ValidationError> {
+    task.validate()?;
+    if task.lease_term == 0 {
+        return Err(ValidationError::Inconsistent {
+            field: "lease_term",
+            rule: "an order goes under a command lease (term at least 1)",
+        });
+    }
+    // The holder is not carried: the receiver takes it from the envelope, which its key
+    // authenticates. A task under another site's lease would come out changed.
+    if task.lease_holder != site {
+        return Err(ValidationError::Inconsistent {
+            field: "lease_holder",
+            rule: "an order goes under the sending site's own lease",
+        });
+    }
+    let mut out = envelope(KIND_ORDER, site, epoch, seq, task.issued_ms)?;
+    out.push(code_of(&TASK_KINDS, task.kind));
+    out.extend(task.lease_term.to_le_bytes());
+    for v in [
+        task.depth_m,
+        task.altitude_m,
+        task.speed_mps,
+        task.line_spacing_m,
+        task.duration_s,
+        task.rate_hz,
+    ] {
+        out.extend(v.to_le_bytes());
+    }
+    put_str8(&mut out, &task.task_id);
+    put_str8(&mut out, &task.mission_id);
+    // Validation caps the area at 256 points.
+    out.extend((task.area.len() as u16).to_le_bytes());
+    // f64, not the positions' 1e-7 degree: the vehicle gets the very polygon the holder's
+    // station validated and recorded (rounding could make a valid survey polygon touch
+    // itself), for at most 4 kB in a message that is rare.
+    for p in &task.area {
+        out.extend(p.latitude_deg.to_le_bytes());
+        out.extend(p.longitude_deg.to_le_bytes());
+    }
     Ok(out)
 }
 
@@ -408,6 +475,68 @@ pub fn decode_lease(vehicle_id: &str, bytes: &[u8]) -> Result<LeaseRecord, Decod
     Ok(record)
 }
 
+/// Decodes an order frame; the vehicle id comes from the key expression and the lease
+/// holder is the envelope's site. `issue_seq` and `expires_ms` come back as 0.
+pub fn decode_order(
+    vehicle_id_from_key: &str,
+    bytes: &[u8],
+) -> Result<Sequenced<TaskAssignment>, DecodeError> {
+    let mut r = Reader::open(bytes, KIND_ORDER)?;
+    let (site, epoch, seq, issued_ms) = r.envelope()?;
+    let kind = r.code("task_kind", &TASK_KINDS)?;
+    let lease_term = r.u64("lease_term")?;
+    let depth_m = r.f64("depth_m")?;
+    let altitude_m = r.f64("altitude_m")?;
+    let speed_mps = r.f64("speed_mps")?;
+    let line_spacing_m = r.f64("line_spacing_m")?;
+    let duration_s = r.f64("duration_s")?;
+    let rate_hz = r.f64("rate_hz")?;
+    let task_id = r.str8("task_id", MAX_ID_LEN)?;
+    let mission_id = r.str8("mission_id", MAX_ID_LEN)?;
+    let count = r.u16("area")?;
+    // Checked before reading the points, so a count cannot make the decoder reserve more.
+    range("area", i64::from(count), TaskAssignment::MAX_AREA as i64)?;
+    let mut area = Vec::with_capacity(usize::from(count));
+    for _ in 0..count {
+        area.push(GeoPoint {
+            latitude_deg: r.f64("area.latitude_deg")?,
+            longitude_deg: r.f64("area.longitude_deg")?,
+        });
+    }
+    r.end()?;
+    if lease_term == 0 {
+        return Err(DecodeError::Range {
+            field: "lease_term",
+            value: 0,
+        });
+    }
+    let task = TaskAssignment {
+        task_id,
+        mission_id,
+        vehicle_id: vehicle_id_from_key.to_string(),
+        issued_ms,
+        kind,
+        area,
+        depth_m,
+        altitude_m,
+        speed_mps,
+        line_spacing_m,
+        duration_s,
+        rate_hz,
+        issue_seq: 0,
+        expires_ms: 0,
+        lease_term,
+        lease_holder: site.clone(),
+    };
+    task.validate()?;
+    Ok(Sequenced {
+        site,
+        epoch,
+        seq,
+        item: task,
+    })
+}
+
 fn range(field: &'static str, value: i64, max_abs: i64) -> Result<(), DecodeError> {
     if value.abs() > max_abs {
         return Err(DecodeError::Range { field, value });
@@ -461,6 +590,11 @@ impl<'a> Reader<'a> {
 
     fn u64(&mut self, field: &'static str) -> Result<u64, DecodeError> {
         Ok(u64::from_le_bytes(self.take(field)?))
+    }
+
+    /// Any bit pattern; NaN and infinities are left to the model's validation.
+    fn f64(&mut self, field: &'static str) -> Result<f64, DecodeError> {
+        Ok(f64::from_le_bytes(self.take(field)?))
     }
 
     /// A u48 of ms since the Unix epoch, inside the model's accepted years.

@@ -248,3 +248,162 @@ fn a_restarted_sender_is_heard_again_from_one() {
         Err(Refusal::StaleEpoch)
     );
 }
+
+/// The ship, home of `auv-1`, which it handed over to the shore (term 2).
+fn ship_handed_over() -> Inbound {
+    let config = FederationConfig {
+        site: "ship".into(),
+        remote_sites: vec!["shore".into(), "ship-2".into()],
+        ..FederationConfig::default()
+    };
+    let mut inb = Inbound::new(&config);
+    let t = 1_700_000_000_000;
+    inb.leases_mut().claim("auv-1", t).unwrap();
+    inb.leases_mut().hand_over("auv-1", "shore", t).unwrap();
+    inb
+}
+
+fn order_frame(site: &str, seq: u64, term: u64) -> Vec<u8> {
+    let mut t = wire::tests::order_task(term);
+    t.lease_holder = site.into();
+    wire::encode_order(site, 1, seq, &t).unwrap()
+}
+
+#[test]
+fn an_order_from_the_holder_is_delivered_once() {
+    let mut inb = ship_handed_over();
+    let key = keys::order("shore", "auv-1");
+    let mut got = Vec::new();
+    let frame = order_frame("shore", 1, 2);
+    inb.receive_order(&key, &frame, 0, |o| {
+        got.push(o);
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(got.len(), 1);
+    assert_eq!(got[0].from_site, "shore");
+    assert_eq!(
+        (got[0].task.lease_term, got[0].task.lease_holder.as_str()),
+        (2, "shore")
+    );
+    assert_eq!(got[0].task.vehicle_id, "auv-1");
+    // The same frame again, and the same task under a new number: dropped and counted.
+    for (seq, frame) in [(1, frame), (2, order_frame("shore", 2, 2))] {
+        let r = inb.receive_order(&key, &frame, 0, |_| panic!("delivered twice"));
+        assert_eq!(r, Err(Refusal::Order(OrderRefusal::Duplicate)), "{seq}");
+    }
+    let c = inb.counters();
+    assert_eq!(
+        (c.orders_received, c.orders_accepted, c.order_duplicates),
+        (3, 1, 2)
+    );
+    assert!(c.refused.is_empty(), "{:?}", c.refused);
+}
+
+#[test]
+fn an_order_the_queue_had_no_room_for_is_taken_when_it_comes_again() {
+    let mut inb = ship_handed_over();
+    let key = keys::order("shore", "auv-1");
+    let frame = order_frame("shore", 1, 2);
+    let r = inb.receive_order(&key, &frame, 0, |_| Err(OrderRefusal::QueueFull));
+    assert_eq!(r.unwrap_err().reason(), "order_queue_full");
+    assert_eq!(inb.receive_order(&key, &frame, 1, |_| Ok(())), Ok(()));
+    assert_eq!(inb.counters().refused("order_queue_full"), 1);
+    assert_eq!(inb.counters().orders_accepted, 1);
+}
+
+#[test]
+fn orders_not_from_the_holder_or_not_for_this_site_are_refused_by_reason() {
+    let mut inb = ship_handed_over();
+    let forged = order_frame("ship-2", 1, 2);
+    let cases: Vec<(String, Vec<u8>, &str)> = vec![
+        // ship-2 is configured but does not hold the lease.
+        (
+            keys::order("ship-2", "auv-1"),
+            forged.clone(),
+            "order_not_holder",
+        ),
+        // The holder, at an older term.
+        (
+            keys::order("shore", "auv-1"),
+            order_frame("shore", 1, 1),
+            "order_term",
+        ),
+        // The envelope claims the shore, under ship-2's key.
+        (
+            keys::order("ship-2", "auv-1"),
+            order_frame("shore", 2, 2),
+            "order_site_mismatch",
+        ),
+        // A vehicle whose lease is not known here.
+        (
+            keys::order("shore", "auv-9"),
+            order_frame("shore", 3, 2),
+            "order_no_lease",
+        ),
+        (
+            keys::order("pirate", "auv-1"),
+            order_frame("pirate", 1, 2),
+            "unknown_site",
+        ),
+        (
+            keys::order("ship", "auv-1"),
+            order_frame("ship", 1, 2),
+            "own_site",
+        ),
+        (
+            keys::order("shore", "auv-1"),
+            vec![1, 5, 1],
+            "order_malformed:truncated",
+        ),
+        (
+            keys::order("shore", "auv-1"),
+            alarm_frame("shore", 1, 1),
+            "order_malformed:kind",
+        ),
+        (keys::alarms("shore"), order_frame("shore", 4, 2), "bad_key"),
+    ];
+    for (key, payload, reason) in &cases {
+        let r = inb.receive_order(key, payload, 0, |_| panic!("{key} delivered"));
+        assert_eq!(r.unwrap_err().reason(), *reason, "{key}");
+        assert_eq!(inb.counters().refused(reason), 1, "{key}");
+    }
+    // Sent again and again: counted each time (a refused order is not remembered).
+    for _ in 0..3 {
+        let r = inb.receive_order(&keys::order("ship-2", "auv-1"), &forged, 0, |_| Ok(()));
+        assert!(r.is_err());
+    }
+    assert_eq!(inb.counters().refused("order_not_holder"), 4);
+    assert_eq!(inb.counters().orders_accepted, 0);
+    // An order key is not picture data: `receive` refuses it, as it does a catch-up reply.
+    assert_eq!(
+        inb.receive(
+            &keys::order("shore", "auv-1"),
+            &order_frame("shore", 5, 2),
+            0
+        ),
+        Err(Refusal::BadKey)
+    );
+}
+
+#[test]
+fn an_order_for_another_sites_vehicle_or_with_the_lease_off_is_refused() {
+    // ship-2 learnt the lease but is not auv-1's home.
+    let config = FederationConfig {
+        site: "ship-2".into(),
+        remote_sites: vec!["shore".into(), "ship".into()],
+        ..FederationConfig::default()
+    };
+    let mut third = Inbound::new(&config);
+    let mut ship = ship_handed_over();
+    for r in ship.leases().leases().cloned().collect::<Vec<_>>() {
+        third.leases_mut().apply("ship", r).ok();
+    }
+    let key = keys::order("shore", "auv-1");
+    let r = third.receive_order(&key, &order_frame("shore", 1, 2), 0, |_| Ok(()));
+    assert_eq!(r.unwrap_err().reason(), "order_not_ours");
+    // The lease off at the home: nothing to check an order against.
+    ship.lease_enabled = false;
+    let r = ship.receive_order(&key, &order_frame("shore", 1, 2), 0, |_| Ok(()));
+    assert_eq!(r.unwrap_err().reason(), "order_lease_off");
+}

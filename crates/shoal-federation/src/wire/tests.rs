@@ -1,7 +1,7 @@
 //! Round trips, the documented layout, and refusal of every kind of bad bytes.
 
 use proptest::prelude::*;
-use shoal_model::{Event, EventKind, Severity, TaskState, VehicleKind};
+use shoal_model::{Event, EventKind, Severity, Task, TaskState, VehicleKind};
 
 use super::*;
 use crate::types::tests::position;
@@ -149,6 +149,212 @@ fn a_lease_frame_with_term_zero_a_bad_reason_or_a_bad_site_is_refused() {
     ));
 }
 
+/// A survey under the shore's lease, term `term`, of the ship's `auv-1`.
+pub(crate) fn order_task(term: u64) -> TaskAssignment {
+    let p = |lat: f64, lon: f64| GeoPoint {
+        latitude_deg: lat,
+        longitude_deg: lon,
+    };
+    let mut t = TaskAssignment::new(
+        "t-9",
+        "m-1",
+        "auv-1",
+        1_700_000_000_456,
+        &Task::SurveyArea {
+            polygon: vec![p(43.1, 5.9), p(43.1, 5.91), p(43.11, 5.91)],
+            line_spacing_m: 20.0,
+            depth_m: Some(12.5),
+            altitude_m: None,
+            speed_mps: 1.5,
+        },
+    );
+    t.lease_term = term;
+    t.lease_holder = "shore".into();
+    t
+}
+
+#[test]
+fn an_order_frame_has_the_documented_layout() {
+    let task = order_task(7);
+    let bytes = encode_order("shore", 9, 4, &task).unwrap();
+    let mut expected = vec![1, 5, 5];
+    expected.extend(b"shore");
+    // s = 3 + 5 = 8: where the fixed part after the site starts.
+    expected.extend(9u64.to_le_bytes()); // s
+    expected.extend(4u64.to_le_bytes()); // s+8
+    expected.extend(&1_700_000_000_456i64.to_le_bytes()[..6]); // s+16
+    expected.push(1); // s+22: survey_area
+    expected.extend(7u64.to_le_bytes()); // s+23
+    for v in [12.5f64, -1.0, 1.5, 20.0, 0.0, 0.0] {
+        expected.extend(v.to_le_bytes()); // s+31 .. s+71
+    }
+    expected.push(3); // s+79
+    expected.extend(b"t-9");
+    expected.push(3);
+    expected.extend(b"m-1");
+    expected.extend(3u16.to_le_bytes());
+    for (lat, lon) in [(43.1f64, 5.9f64), (43.1, 5.91), (43.11, 5.91)] {
+        expected.extend(lat.to_le_bytes());
+        expected.extend(lon.to_le_bytes());
+    }
+    assert_eq!(bytes, expected);
+    let back = decode_order("auv-1", &bytes).unwrap();
+    assert_eq!((back.site.as_str(), back.epoch, back.seq), ("shore", 9, 4));
+    assert_eq!(back.item, task);
+}
+
+#[test]
+fn the_order_table_in_the_doc_has_the_offsets_the_encoder_writes() {
+    // docs/federation.md is the specification third parties decode from; the offsets after
+    // the site are `s+k`, and the test above checks the encoder against the same ones.
+    let doc = include_str!("../../../../docs/federation.md");
+    let table = doc
+        .split("### Order frame (kind 5)")
+        .nth(1)
+        .and_then(|s| s.split("\n### ").next())
+        .expect("the doc has the order frame's table");
+    let rows: Vec<(String, String)> = table
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| offset"))
+        .map(|l| {
+            let cells: Vec<&str> = l.split('|').map(str::trim).collect();
+            (cells[1].to_string(), cells[2].to_string())
+        })
+        .collect();
+    let expected = [
+        ("0", "1"),
+        ("1", "1"),
+        ("2", "1 + n"),
+        ("s", "8"),
+        ("s+8", "8"),
+        ("s+16", "6"),
+        ("s+22", "1"),
+        ("s+23", "8"),
+        ("s+31", "8"),
+        ("s+39", "8"),
+        ("s+47", "8"),
+        ("s+55", "8"),
+        ("s+63", "8"),
+        ("s+71", "8"),
+        ("s+79", "1 + t"),
+        ("…", "1 + m"),
+        ("…", "2"),
+        ("…", "16 × count"),
+    ];
+    let rows: Vec<(&str, &str)> = rows.iter().map(|(a, b)| (a.as_str(), b.as_str())).collect();
+    assert_eq!(rows, expected);
+}
+
+#[test]
+fn an_order_round_trips_every_kind_and_drops_what_it_does_not_carry() {
+    let p = |lat: f64, lon: f64| GeoPoint {
+        latitude_deg: lat,
+        longitude_deg: lon,
+    };
+    let tasks = [
+        Task::GotoWaypoint {
+            target: p(-89.999_999_999, 179.999_999_999),
+            depth_m: None,
+            altitude_m: Some(5.0),
+            speed_mps: 0.0,
+        },
+        Task::Hold {
+            duration_s: 86_400.0,
+        },
+        Task::Surface,
+        Task::ReturnHome,
+        Task::Abort,
+        Task::RequestState,
+        Task::SetReportingRate { rate_hz: 0.25 },
+    ];
+    for t in tasks {
+        let mut a = TaskAssignment::new("t", "", "auv-1", 1_700_000_000_000, &t);
+        a.lease_term = u64::MAX;
+        a.lease_holder = "shore".into();
+        // Not carried: the home station stamps its own.
+        a.issue_seq = 42;
+        a.expires_ms = a.issued_ms + 1;
+        let back = decode_order("auv-1", &encode_order("shore", 1, 1, &a).unwrap()).unwrap();
+        a.issue_seq = 0;
+        a.expires_ms = 0;
+        assert_eq!(back.item, a);
+    }
+}
+
+#[test]
+fn an_order_without_the_senders_lease_is_not_encoded() {
+    let mut t = order_task(0);
+    t.lease_holder = String::new();
+    assert_eq!(
+        encode_order("shore", 1, 1, &t)
+            .unwrap_err()
+            .reason()
+            .to_string(),
+        "inconsistent:lease_term"
+    );
+    // Under another site's lease: it would come out as the sender's.
+    let t = order_task(3);
+    assert_eq!(
+        encode_order("ship", 1, 1, &t)
+            .unwrap_err()
+            .reason()
+            .to_string(),
+        "inconsistent:lease_holder"
+    );
+    let mut t = order_task(3);
+    t.speed_mps = f64::NAN;
+    assert!(encode_order("shore", 1, 1, &t).is_err());
+}
+
+/// Offset of the fixed part after the site `shore` (s = 3 + 5).
+const S: usize = 8;
+
+#[test]
+fn a_bad_order_frame_is_refused_naming_what_is_wrong() {
+    let good = encode_order("shore", 1, 1, &order_task(2)).unwrap();
+    let refused = |edit: &dyn Fn(&mut Vec<u8>)| {
+        let mut b = good.clone();
+        edit(&mut b);
+        decode_order("auv-1", &b).unwrap_err().reason()
+    };
+    assert_eq!(
+        refused(&|b| b[S + 23..S + 31].copy_from_slice(&0u64.to_le_bytes())),
+        "range:lease_term"
+    );
+    assert_eq!(refused(&|b| b[S + 22] = 8), "code:task_kind");
+    // 257 points announced (and even present): refused before they are read.
+    assert_eq!(
+        refused(&|b| {
+            let at = b.len() - 3 * 16 - 2;
+            b[at..at + 2].copy_from_slice(&257u16.to_le_bytes());
+            b.extend(std::iter::repeat_n(0u8, 254 * 16));
+        }),
+        "range:area"
+    );
+    assert_eq!(refused(&|b| b.push(0)), "trailing");
+    assert_eq!(
+        refused(&|b| b[S + 47..S + 55].copy_from_slice(&f64::INFINITY.to_le_bytes())),
+        "invalid:not_finite:speed_mps"
+    );
+    assert_eq!(
+        refused(&|b| b[S + 31..S + 39].copy_from_slice(&(-1.0f64).to_le_bytes())),
+        "invalid:inconsistent:depth_m"
+    );
+    // The envelope's site is the lease holder: it must be a site name.
+    assert_eq!(refused(&|b| b[3] = b'*'), "invalid:bad_text:site");
+    assert_eq!(
+        decode_order("bad id", &good).unwrap_err().reason(),
+        "invalid:bad_text:vehicle_id"
+    );
+    assert_eq!(
+        decode_task(&good).unwrap_err(),
+        DecodeError::Kind {
+            expected: KIND_TASK,
+            found: KIND_ORDER
+        }
+    );
+}
+
 #[test]
 fn every_truncation_of_every_frame_is_refused() {
     let frames = [
@@ -156,6 +362,7 @@ fn every_truncation_of_every_frame_is_refused() {
         encode_alarm("ship-1", 7, 3, &alarm("e1")).unwrap(),
         encode_task("s", 1, 1, &transition("t-9", TaskState::Done)).unwrap(),
         encode_lease(&lease(3)).unwrap(),
+        encode_order("shore", 9, 4, &order_task(7)).unwrap(),
     ];
     for frame in &frames {
         for len in 0..frame.len() {
@@ -164,6 +371,7 @@ fn every_truncation_of_every_frame_is_refused() {
             assert!(decode_alarm(cut).is_err(), "{len}");
             assert!(decode_task(cut).is_err(), "{len}");
             assert!(decode_lease("v", cut).is_err(), "{len}");
+            assert!(decode_order("v", cut).is_err(), "{len}");
         }
     }
 }
@@ -319,6 +527,50 @@ proptest! {
         let _ = decode_alarm(&bytes);
         let _ = decode_task(&bytes);
         let _ = decode_lease("v", &bytes);
+        let _ = decode_order("v", &bytes);
+    }
+
+    #[test]
+    fn orders_round_trip_exactly(
+        site in "[a-z0-9-]{1,32}", epoch in any::<u64>(), seq in 1..u64::MAX,
+        kind in 0..8usize, task in "[A-Za-z0-9_.-]{1,64}", mission in "([A-Za-z0-9_.-]{1,64})?",
+        vehicle in ids(), term in 1..=u64::MAX, issued in MIN_TIMESTAMP_MS..=MAX_TIMESTAMP_MS,
+        depth in 0.0..=11_000.0f64, altitude in 0.0..=10_000.0f64, use_depth in any::<bool>(),
+        speed in 0.0..=30.0f64, spacing in 1.0..=10_000.0f64, duration in 0.0..=86_400.0f64,
+        rate in 0.001..=100.0f64,
+        centre in (-80.0..=80.0f64, -170.0..=170.0f64), radius in 1e-6..=5.0f64,
+        corners in 3..=256usize, phase in 0.0..1.0f64, points in 0..=8usize,
+    ) {
+        let kind = TASK_KINDS[kind];
+        // A convex polygon (corners on a circle, in order) never crosses itself.
+        let polygon = |n: usize| -> Vec<GeoPoint> {
+            (0..n)
+                .map(|i| {
+                    let a = std::f64::consts::TAU * (i as f64 + phase) / n as f64;
+                    GeoPoint {
+                        latitude_deg: centre.0 + radius * a.sin(),
+                        longitude_deg: centre.1 + radius * a.cos(),
+                    }
+                })
+                .collect()
+        };
+        let area = match kind {
+            TaskKind::GotoWaypoint => polygon(1),
+            TaskKind::SurveyArea => polygon(corners),
+            // Other kinds ignore the area, but it crosses as it is.
+            _ => polygon(points),
+        };
+        let (depth_m, altitude_m) = if use_depth { (depth, -1.0) } else { (-1.0, altitude) };
+        let t = TaskAssignment {
+            task_id: task, mission_id: mission, vehicle_id: vehicle.clone(), issued_ms: issued,
+            kind, area, depth_m, altitude_m, speed_mps: speed, line_spacing_m: spacing,
+            duration_s: duration, rate_hz: rate, issue_seq: 0, expires_ms: 0,
+            lease_term: term, lease_holder: site.clone(),
+        };
+        prop_assume!(t.validate().is_ok());
+        let bytes = encode_order(&site, epoch, seq, &t).unwrap();
+        let back = decode_order(&vehicle, &bytes).unwrap();
+        prop_assert_eq!(back, Sequenced { site, epoch, seq, item: t });
     }
 
     #[test]

@@ -9,6 +9,8 @@
 //!   payloads are refused.
 //! - `lease`: the command lease claimed, handed over, refused without authority, taken
 //!   over by the standby in a partition and given up by the old holder when it heals.
+//! - `orders`: the lease holder commands another site's vehicle through its home site;
+//!   orders without the lease or forged are refused and never delivered.
 //! - `python_client`: an independent PyPI `eclipse-zenoh` client decodes from the doc.
 //! - `tls`: site identity over mutual TLS (`tls/127.0.0.1`): an expired certificate and a
 //!   common name not accepted never reach the shore; bad files stop the start.
@@ -20,6 +22,7 @@
 mod common;
 mod encoding_size;
 mod lease;
+mod orders;
 mod outage;
 mod python_client;
 mod three_sites;
