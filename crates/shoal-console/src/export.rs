@@ -207,6 +207,7 @@ mod tests {
             link: None,
             status: None,
             retries: 0,
+            via_site: None,
         }
     }
 

@@ -923,6 +923,7 @@ impl From<DispatchError> for ApiError {
             | DispatchError::LowBattery { .. }
             | DispatchError::DuplicateTask(_)
             | DispatchError::Lease(_)
+            | DispatchError::Relay(_)
             | DispatchError::DuplicateMission(_) => Self::Conflict(e.to_string()),
             DispatchError::Publish(_) => Self::Internal(e.to_string()),
             DispatchError::InMission { ref error, .. }

@@ -152,6 +152,9 @@ pub enum DispatchError {
     /// Another site commands the vehicle, or the command lease is not settled yet.
     #[error(transparent)]
     Lease(#[from] crate::federation::LeaseDenial),
+    /// A task for another site's vehicle could not be sent to that site.
+    #[error(transparent)]
+    Relay(#[from] crate::federation::RelayRefused),
     /// A mission with this id exists already.
     #[error("mission_id {0:?} is already in use")]
     DuplicateMission(String),

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use serde::Serialize;
-use shoal_model::{Event, TaskState, VehicleKind};
+use shoal_model::{Event, TaskAssignment, TaskState, VehicleKind};
 
 use crate::core::StationHandle;
 
@@ -21,6 +21,29 @@ pub trait FederationView: Send + Sync {
 
     /// Hands the lease of a vehicle this station holds to the site `to`.
     fn hand_over(&self, vehicle: &str, to: &str) -> Result<LeaseView, HandoverRefused>;
+
+    /// The site whose vehicle `vehicle` is, when it is another site's.
+    fn home_of(&self, vehicle: &str) -> Option<String>;
+
+    /// Sends `task`, for another site's vehicle whose lease this station holds (and that
+    /// the task carries), to that site, whose station gives it to the vehicle.
+    fn relay(&self, task: &TaskAssignment) -> Result<(), RelayRefused>;
+}
+
+/// Why a task for another site's vehicle was not sent to that site.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum RelayRefused {
+    /// The federation refused to send it; the text says why.
+    #[error("the task for {vehicle} cannot be sent to site {site}: {why}")]
+    Refused {
+        /// The vehicle.
+        vehicle: String,
+        /// Its site.
+        site: String,
+        /// Why.
+        why: String,
+    },
 }
 
 /// The command lease a station sends a vehicle's tasks under; every task carries it, and
@@ -56,6 +79,23 @@ pub enum LeaseDenial {
         /// The site that holds it.
         holder: String,
         /// The lease's term.
+        term: u64,
+    },
+    /// The task was sent under a lease that is no longer in force (a task another site
+    /// sent here, or one registered before the lease changed hands).
+    #[error(
+        "the task for {vehicle} was sent under site {sent_holder}'s command lease term {sent_term}, no longer in force (site {holder} holds term {term})"
+    )]
+    Superseded {
+        /// The vehicle.
+        vehicle: String,
+        /// The site whose lease the task carries.
+        sent_holder: String,
+        /// That lease's term.
+        sent_term: u64,
+        /// The site that holds the lease now (this one).
+        holder: String,
+        /// Its term.
         term: u64,
     },
     /// The station has just started and is still learning the other sites' leases.
@@ -243,6 +283,23 @@ impl StationHandle {
         Ok(lease)
     }
 
+    /// The site whose vehicle `vehicle` is, when the federation knows it as another site's.
+    pub(crate) fn home_of(&self, vehicle: &str) -> Option<String> {
+        self.core.federation.get()?.home_of(vehicle)
+    }
+
+    /// Sends a task to its vehicle's site (see [`FederationView::relay`]).
+    pub(crate) fn relay(&self, task: &TaskAssignment, site: &str) -> Result<(), RelayRefused> {
+        match self.core.federation.get() {
+            Some(view) => view.relay(task),
+            None => Err(RelayRefused::Refused {
+                vehicle: task.vehicle_id.clone(),
+                site: site.to_owned(),
+                why: "this station is not federated".into(),
+            }),
+        }
+    }
+
     /// Whether this station may command `vehicle` under the command lease (always when it
     /// is not federated).
     pub(crate) fn may_command(&self, vehicle: &str) -> Result<LeaseGrant, LeaseDenial> {
@@ -252,3 +309,6 @@ impl StationHandle {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -48,7 +48,7 @@ pub use error::{
 };
 pub use federation::{
     FederationSnapshot, FederationView, HandoverRefused, LeaseDenial, LeaseGrant, LeaseView,
-    RemoteAlarmView, RemoteTransitionView, RemoteVehicleView, SiteView,
+    RelayRefused, RemoteAlarmView, RemoteTransitionView, RemoteVehicleView, SiteView,
 };
 pub use health::{
     DdsHealth, HealthThresholds, HealthVerdict, HistoryHealth, SemanticHealth, StationHealth,

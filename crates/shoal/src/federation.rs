@@ -1,6 +1,8 @@
 //! The station's side of the federation (`[federation]`): its live feed goes out over
 //! Zenoh (positions, alarms, task transitions, as the section's policies say), and the
-//! remote sites' picture comes back for `GET /api/federation`.
+//! remote sites' picture comes back for `GET /api/federation`. Tasks cross too, under the
+//! command lease: one for another site's vehicle goes to that site, one another site sends
+//! for a vehicle here is dispatched, and the task transitions of the former come back.
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::Arc;
@@ -10,9 +12,11 @@ use shoal_federation::{
     CommandDenied, Federation, FederationConfig, HandoverError, LeaseRecord, TaskTransition,
     VehiclePosition,
 };
+use shoal_model::{TaskAssignment, TaskStatus};
 use shoal_station::{
     FederationSnapshot, FederationView, HandoverRefused, LeaseDenial, LeaseGrant, LeaseView,
-    LiveUpdate, RemoteAlarmView, RemoteTransitionView, RemoteVehicleView, SiteView, StationHandle,
+    LiveUpdate, RelayRefused, RemoteAlarmView, RemoteTransitionView, RemoteVehicleView, SiteView,
+    StationHandle,
 };
 use tokio::sync::broadcast::error::RecvError;
 use tokio_util::sync::CancellationToken;
@@ -97,6 +101,32 @@ impl FederationView for View {
         }
     }
 
+    fn home_of(&self, vehicle: &str) -> Option<String> {
+        let fed = &self.0;
+        // The lease names the vehicle's home; without one, the site whose picture has it.
+        let home = fed
+            .leases()
+            .into_iter()
+            .find(|r| r.vehicle_id == vehicle)
+            .map(|r| r.home)
+            .or_else(|| {
+                fed.picture(|p| {
+                    p.vehicles()
+                        .find(|v| v.position.vehicle_id == vehicle)
+                        .map(|v| v.site.clone())
+                })
+            });
+        home.filter(|h| h != fed.site())
+    }
+
+    fn relay(&self, task: &TaskAssignment) -> Result<(), RelayRefused> {
+        self.0.relay_order(task).map_err(|e| RelayRefused::Refused {
+            vehicle: task.vehicle_id.clone(),
+            site: self.home_of(&task.vehicle_id).unwrap_or_default(),
+            why: e.to_string(),
+        })
+    }
+
     fn snapshot(&self, now_ms: i64) -> FederationSnapshot {
         let fed = &self.0;
         let mut snap = fed.picture(|p| FederationSnapshot {
@@ -163,6 +193,10 @@ impl FederationView for View {
             ("catchup_queries", i.catchup_queries),
             ("catchup_replies", i.catchup_replies),
             ("received_leases", i.leases),
+            ("received_orders", i.orders_received),
+            ("accepted_orders", i.orders_accepted),
+            ("duplicate_orders", i.order_duplicates),
+            ("sent_orders", o.orders_sent),
             ("sent_positions", o.positions_sent),
             ("coalesced_positions", o.positions_coalesced),
             ("sent_alarms", o.alarms_sent),
@@ -187,6 +221,41 @@ impl FederationView for View {
         }
         snap
     }
+}
+
+/// Dispatches a task that the vehicle's lease holder sent here; a refusal ends the task
+/// failed here (the sender sees it in this site's transitions) and is logged.
+fn take_order(station: &StationHandle, order: shoal_federation::RelayedOrder) {
+    let (task_id, from) = (order.task.task_id.clone(), order.from_site.clone());
+    if let Err(e) = station.dispatch_for(&order.from_site, order.task) {
+        warn!(task = %task_id, from = %from, error = %e, "task from another site refused");
+    }
+}
+
+/// Applies the task transitions that arrived after `after` (a local arrival index) to the
+/// tasks this station sent through their sites; the index of the last one seen.
+fn follow_sent_tasks(fed: &Federation, station: &StationHandle, after: u64) -> u64 {
+    let new: Vec<(u64, String, TaskStatus)> = fed.picture(|p| {
+        p.transitions_after(after)
+            .map(|t| {
+                let status = TaskStatus {
+                    task_id: t.transition.task_id.clone(),
+                    vehicle_id: t.transition.vehicle_id.clone(),
+                    timestamp_ms: t.transition.timestamp_ms,
+                    state: t.transition.state,
+                    progress_pct: 0.0,
+                    message: String::new(),
+                };
+                (t.index, t.site.clone(), status)
+            })
+            .collect()
+    });
+    let mut last = after;
+    for (index, site, status) in new {
+        station.remote_task_moved(&site, &status);
+        last = last.max(index);
+    }
+    last
 }
 
 /// What the bridge has already sent, so the live feed's repeats are not sent again.
@@ -292,13 +361,29 @@ pub async fn start(
         warn!("a federation was already attached; this one only sends");
     }
     let mut live = station.live();
+    let mut orders = fed.take_orders();
+    let mut changed = fed.changed();
     Ok(tokio::spawn(async move {
         let mut sent = Sent::default();
         let mut lagged = 0u64;
+        let mut seen_transition = 0u64;
         loop {
             let update = tokio::select! {
                 () = shutdown.cancelled() => break,
                 u = live.recv() => u,
+                Some(order) = async {
+                    match orders.as_mut() {
+                        Some(rx) => rx.recv().await,
+                        None => std::future::pending().await,
+                    }
+                } => {
+                    take_order(&station, order);
+                    continue;
+                }
+                Ok(()) = changed.changed() => {
+                    seen_transition = follow_sent_tasks(&fed, &station, seen_transition);
+                    continue;
+                }
             };
             let result = match update {
                 Ok(LiveUpdate::Vehicle(v)) => match &v.latest {

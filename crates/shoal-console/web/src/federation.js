@@ -1,10 +1,10 @@
 // Other sites' vehicles, alarms and task transitions, as the federation brings them
 // (docs/federation.md): polled from GET /api/federation, drawn on the map apart from the
 // own fleet and listed under "Other sites" in the fleet panel (each site's vehicles, then
-// its latest tasks). They are read-only here: this station cannot
-// command another site's vehicles, so nothing offers them for a task. The command leases
-// (which site commands each vehicle) are listed too, and an operator hands over a lease
-// this site holds.
+// its latest tasks). The command leases (which site commands each vehicle) are listed
+// too: an operator hands over a lease this site holds, and commands another site's vehicle
+// whose lease is held here (surface, abort), which goes to that vehicle through its site.
+// Nothing else offers another site's vehicles for a task.
 
 import Overlay from 'ol/Overlay.js';
 import { api, describe } from './api.js';
@@ -330,10 +330,22 @@ async function handOver(vehicle, to) {
   }
 }
 
+/** Orders another site's vehicle, whose lease this site holds, to `kind` (a task without
+ *  parameters) through POST /api/tasks: the station sends it through the vehicle's site. */
+async function commandThrough(vehicle, kind) {
+  try {
+    const sent = await api('POST', '/api/tasks', { vehicle_id: vehicle, task: { kind } });
+    toast(`${kind} sent to ${vehicle} through its site (task ${sent.task_id})`);
+  } catch (e) {
+    toast(`${kind} for ${vehicle} refused: ${describe(e)}`, 'error');
+  }
+}
+
 /** The site picked to hand each vehicle's lease to: kept across the list's redraws. */
 const handTo = new Map();
 
-/** The command leases: who commands each vehicle; a lease held here can be handed over. */
+/** The command leases: who commands each vehicle; a lease held here can be handed over,
+ *  and another site's vehicle whose lease is held here can be ordered to surface or abort. */
 function leaseSection(f) {
   if (!f.leaseEnabled) return null;
   const leases = [...f.leases].sort((a, b) => a.vehicle_id.localeCompare(b.vehicle_id));
@@ -352,6 +364,12 @@ function leaseSection(f) {
             'aria-label': `hand ${l.vehicle_id} to`,
             onchange: (e) => handTo.set(l.vehicle_id, e.target.value),
           }, targets.map((s) => h('option', { value: s, selected: s === picked }, s)));
+          const command = (kind, label) => h('button', {
+            type: 'button',
+            class: `link-button needs-operator command-${kind}`,
+            onclick: () => commandThrough(l.vehicle_id, kind),
+          }, label);
+          const remoteHeld = l.held_here && l.home !== f.site;
           return h('tr', { class: 'lease', dataset: { vehicle: l.vehicle_id, holder: l.holder, held: String(l.held_here) } },
             h('td', {}, h('strong', {}, l.vehicle_id)),
             h('td', {}, l.held_here ? h('span', { class: 'pill site-online' }, `${l.holder} (here)`) : l.holder),
@@ -362,7 +380,8 @@ function leaseSection(f) {
                 type: 'button',
                 class: 'link-button needs-operator hand-over',
                 onclick: () => handOver(l.vehicle_id, select.value),
-              }, 'Hand over'))
+              }, 'Hand over'),
+              remoteHeld ? h('span', {}, ' · ', command('surface', 'Surface'), ' ', command('abort', 'Abort')) : null)
               : null));
         }))));
 }

@@ -2,8 +2,9 @@
 // scripts/console-e2e.sh federates the `shoal up` station (site "shore") over Zenoh with a
 // second station (site "ship", DDS domain 147) that has one simulated AUV, ship-auv-1.
 // The shore's console must show it on the map and under "Other sites", as the ship's,
-// with the ship's task transitions, and never offer it for a task; it lists who holds
-// each command lease and hands back a lease it was handed.
+// with the ship's task transitions, and never offer it in a task form; it lists who holds
+// each command lease, commands the ship's vehicle through the ship while it holds the
+// lease, and hands back a lease it was handed.
 
 import { after, before, describe, test } from 'node:test';
 import assert from 'node:assert/strict';
@@ -213,6 +214,22 @@ describe('Another site in the console', { concurrency: false }, () => {
     assert.equal(res.status, 200, body);
     const handed = JSON.parse(body);
     await page.locator('#leases tr.lease[data-vehicle="ship-auv-1"][data-held="true"]').waitFor({ timeout: 30000 });
+
+    // Holding the lease, the shore commands the ship's vehicle: the task goes through the
+    // ship's station, which gives it to the vehicle under the shore's lease.
+    await row().locator('button.command-surface').click();
+    let relayed = null;
+    for (let i = 0; i < 30 && !relayed; i++) {
+      const tasks = await (await fetch(`${SHIP}/api/tasks`)).json();
+      relayed = tasks.find((t) => t.assignment.vehicle_id === 'ship-auv-1' && t.assignment.kind === 'surface'
+        && t.assignment.lease_holder === 'shore') || null;
+      if (!relayed) await new Promise((resolve) => setTimeout(resolve, 1000));
+    }
+    assert.ok(relayed, 'the ship never dispatched the shore\'s task');
+    assert.equal(relayed.assignment.lease_term, handed.term);
+    const mine = await admin('GET', `/api/tasks/${relayed.assignment.task_id}`);
+    assert.equal(mine.status, 200);
+    assert.equal(mine.body.via_site, 'ship');
 
     // The shore's operator hands it back to the ship from the console.
     await row().locator('select.lease-to').selectOption('ship');

@@ -20,7 +20,7 @@ use crate::config::ms;
 const PRUNE_EVERY_MS: i64 = 1_000;
 use crate::core::{StationHandle, blocking, lock};
 use crate::error::DispatchError;
-use crate::federation::LeaseGrant;
+use crate::federation::{LeaseDenial, LeaseGrant, RelayRefused};
 use crate::register::Contact;
 use crate::reporters::LiveUpdate;
 pub use preview::{MissionPreview, VehiclePreview};
@@ -69,7 +69,13 @@ impl StationHandle {
         }
         shoal_model::Validate::validate(task).map_err(DispatchError::Invalid)?;
         task.task().map_err(DispatchError::Invalid)?;
-        self.dispatch_lease(&task.vehicle_id, task.kind)
+        // The lease a task carries: the one it was last sent under, or, for a task another
+        // site sent here for this site's vehicle, that site's.
+        let carried = (task.lease_term > 0).then(|| LeaseGrant {
+            term: task.lease_term,
+            holder: task.lease_holder.clone(),
+        });
+        self.dispatch_lease(&task.vehicle_id, task.kind, carried.as_ref())
     }
 
     /// Whether a task of `kind` would go to `vehicle_id` now, as far as the vehicle is
@@ -77,14 +83,17 @@ impl StationHandle {
     /// same check dispatching makes, so that a console can say beforehand what the station
     /// would refuse.
     pub fn check_dispatch(&self, vehicle_id: &str, kind: TaskKind) -> Result<(), DispatchError> {
-        self.dispatch_lease(vehicle_id, kind).map(|_| ())
+        self.dispatch_lease(vehicle_id, kind, None).map(|_| ())
     }
 
-    /// [`Self::check_dispatch`], returning the command lease the task would go under.
+    /// [`Self::check_dispatch`], returning the command lease the task would go under: this
+    /// station's, or `carried` when that is the lease another site holds now (a task that
+    /// site sent here for this site's vehicle).
     fn dispatch_lease(
         &self,
         vehicle_id: &str,
         kind: TaskKind,
+        carried: Option<&LeaseGrant>,
     ) -> Result<LeaseGrant, DispatchError> {
         use shoal_model::TaskKind as K;
         let fleet = lock(&self.core.fleet);
@@ -94,7 +103,27 @@ impl StationHandle {
         // Exactly one site commands a vehicle, aborts included: a federated site that does
         // not hold the lease asks the holder to hand it over (or takes it over when the
         // holder is lost).
-        let lease = self.may_command(vehicle_id)?;
+        let lease = match self.may_command(vehicle_id) {
+            Ok(lease) => match carried {
+                Some(c) if c.holder != lease.holder => {
+                    return Err(LeaseDenial::Superseded {
+                        vehicle: vehicle_id.to_owned(),
+                        sent_holder: c.holder.clone(),
+                        sent_term: c.term,
+                        holder: lease.holder,
+                        term: lease.term,
+                    }
+                    .into());
+                }
+                _ => lease,
+            },
+            Err(LeaseDenial::HeldElsewhere { holder, term, .. })
+                if carried.is_some_and(|c| c.holder == holder && c.term == term) =>
+            {
+                LeaseGrant { term, holder }
+            }
+            Err(e) => return Err(e.into()),
+        };
         if kind == K::Abort {
             // An emergency order always goes out, whatever the vehicle says it can do.
             return Ok(lease);
@@ -134,8 +163,19 @@ impl StationHandle {
         self.dispatch_now(task)
     }
 
-    /// [`Self::dispatch`] for code that is not async.
-    pub fn dispatch_now(&self, task: TaskAssignment) -> Result<(), DispatchError> {
+    /// [`Self::dispatch`] for code that is not async. A task for another site's vehicle
+    /// whose command lease this station holds goes to that site.
+    pub fn dispatch_now(&self, mut task: TaskAssignment) -> Result<(), DispatchError> {
+        // This station's own lease is stamped at the send; only a task another site sent
+        // here may carry another's, and an operator cannot claim one.
+        task.lease_term = 0;
+        task.lease_holder.clear();
+        let local = lock(&self.core.fleet)
+            .vehicles
+            .contains_key(&task.vehicle_id);
+        if !local && let Some(site) = self.home_of(&task.vehicle_id) {
+            return self.dispatch_through(task, &site);
+        }
         let task = self.surface_by_default(task);
         self.check_task(&task)?;
         {
@@ -148,6 +188,70 @@ impl StationHandle {
         self.register_task(&task);
         // The outcome of the write itself: reading the register afterwards would race the
         // vehicle, whose acceptance may already have moved the task past `sent`.
+        blocking(|| self.send_registered(&task.task_id))
+    }
+
+    /// Sends a task for `site`'s vehicle to that site, under this station's lease of it:
+    /// registered here, its state follows that site's task transitions.
+    fn dispatch_through(&self, task: TaskAssignment, site: &str) -> Result<(), DispatchError> {
+        shoal_model::Validate::validate(&task).map_err(DispatchError::Invalid)?;
+        task.task().map_err(DispatchError::Invalid)?;
+        let lease = self.may_command(&task.vehicle_id)?;
+        if lease.term == 0 {
+            return Err(RelayRefused::Refused {
+                vehicle: task.vehicle_id,
+                site: site.to_owned(),
+                why: "the command lease is off ([federation.lease] enabled = false), so no \
+                      site commands another's vehicles"
+                    .into(),
+            }
+            .into());
+        }
+        {
+            let mut reg = lock(&self.core.tasks);
+            if reg.contains_task(&task.task_id) {
+                return Err(DispatchError::DuplicateTask(task.task_id));
+            }
+            reg.add_task(task.clone(), self.now());
+            reg.set_via_site(&task.task_id, site);
+        }
+        self.register_task(&task);
+        blocking(|| self.send_registered(&task.task_id))
+    }
+
+    /// Takes a task that `from_site`, holding the command lease of this site's vehicle,
+    /// sent here: checked as any task (the lease it carries must be the one in force), then
+    /// given to the vehicle with that lease. A task refused here ends failed, so that the
+    /// sender learns it through this site's task transitions.
+    pub fn dispatch_for(
+        &self,
+        from_site: &str,
+        mut task: TaskAssignment,
+    ) -> Result<(), DispatchError> {
+        if task.lease_term == 0 || task.lease_holder != from_site {
+            return Err(DispatchError::BadField {
+                field: "lease_holder",
+                rule: "a task sent by another site carries that site's command lease",
+            });
+        }
+        // This station numbers and times what it sends.
+        task.issue_seq = 0;
+        task.expires_ms = 0;
+        let task = self.surface_by_default(task);
+        let checked = self.check_task(&task);
+        let mut reg = lock(&self.core.tasks);
+        if reg.contains_task(&task.task_id) {
+            return Err(DispatchError::DuplicateTask(task.task_id));
+        }
+        reg.add_task(task.clone(), self.now());
+        drop(reg);
+        self.register_task(&task);
+        if let Err(e) = checked {
+            warn!(task = %task.task_id, from = from_site, error = %e, "task from another site not sent");
+            self.task_ended(&task.task_id, TaskState::Failed, &format!("not sent: {e}"));
+            return Err(e);
+        }
+        info!(task = %task.task_id, vehicle = %task.vehicle_id, from = from_site, term = task.lease_term, "task from the lease holder");
         blocking(|| self.send_registered(&task.task_id))
     }
 
@@ -165,12 +269,15 @@ impl StationHandle {
     /// TTL). The station records which link it expects to carry the task, which sets how
     /// long it waits for an acknowledgement before the task expires.
     pub(crate) fn send_registered(&self, task_id: &str) -> Result<(), DispatchError> {
-        let Some(task) = lock(&self.core.tasks)
+        let Some((task, via_site)) = lock(&self.core.tasks)
             .task(task_id)
-            .map(|t| t.assignment.clone())
+            .map(|t| (t.assignment.clone(), t.via_site.clone()))
         else {
             return Err(DispatchError::UnknownTask(task_id.to_owned()));
         };
+        if let Some(site) = via_site {
+            return self.send_through(&task, &site);
+        }
         // Checked again when a mission's next task comes due: things change (the lease
         // too, so the task carries the one in force now).
         let lease = match self.check_task(&task) {
@@ -213,6 +320,49 @@ impl StationHandle {
                 );
                 self.record_transitions();
                 Err(DispatchError::Publish(e))
+            }
+        }
+    }
+
+    /// [`Self::send_registered`] for a task sent through another site: under this station's
+    /// lease, checked again now.
+    fn send_through(&self, task: &TaskAssignment, site: &str) -> Result<(), DispatchError> {
+        let task_id = task.task_id.as_str();
+        let lease = match self.may_command(&task.vehicle_id) {
+            Ok(lease) if lease.term > 0 => Ok(lease),
+            Ok(_) => Err(DispatchError::Relay(RelayRefused::Refused {
+                vehicle: task.vehicle_id.clone(),
+                site: site.to_owned(),
+                why: "the command lease is off".into(),
+            })),
+            Err(e) => Err(e.into()),
+        };
+        let lease = match lease {
+            Ok(lease) => lease,
+            Err(e) => {
+                warn!(task = task_id, error = %e, "task not sent");
+                self.task_ended(task_id, TaskState::Failed, &format!("not sent: {e}"));
+                return Err(e);
+            }
+        };
+        let window = self.start_window_ms(LinkKind::Acoustic);
+        let Some(task) = lock(&self.core.tasks).stamp(task_id, self.now(), window, &lease) else {
+            return Err(DispatchError::UnknownTask(task_id.to_owned()));
+        };
+        self.store(Record::Task(task.clone()));
+        match self.relay(&task, site) {
+            Ok(()) => {
+                info!(task = %task.task_id, vehicle = %task.vehicle_id, site, term = lease.term, "task sent through the vehicle's site");
+                lock(&self.core.stats).tasks_dispatched += 1;
+                lock(&self.core.tasks).sent(&task.task_id, LinkKind::Ip, self.now());
+                self.record_transitions();
+                self.push_task(&task.task_id);
+                Ok(())
+            }
+            Err(e) => {
+                warn!(task = %task.task_id, error = %e, "task not sent through its vehicle's site");
+                self.task_ended(&task.task_id, TaskState::Failed, &format!("not sent: {e}"));
+                Err(e.into())
             }
         }
     }

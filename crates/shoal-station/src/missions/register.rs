@@ -123,8 +123,16 @@ impl TaskRegister {
                 link: None,
                 status: None,
                 retries: 0,
+                via_site: None,
             },
         );
+    }
+
+    /// Marks a registered task as sent through `site` (another site's vehicle).
+    pub(crate) fn set_via_site(&mut self, task_id: &str, site: &str) {
+        if let Some(t) = self.tasks.get_mut(task_id) {
+            t.via_site = Some(site.to_owned());
+        }
     }
 
     /// Registers a mission whose tasks were checked and added with [`Self::add_task`].
@@ -183,10 +191,13 @@ impl TaskRegister {
 
     /// Marks a task handed to a link.
     pub(crate) fn sent(&mut self, task_id: &str, link: LinkKind, now_ms: i64) {
-        self.on_bus.insert(task_id.to_owned());
         let Some(t) = self.tasks.get_mut(task_id) else {
             return;
         };
+        // One sent through another site was never on this station's bus.
+        if t.via_site.is_none() {
+            self.on_bus.insert(task_id.to_owned());
+        }
         // The dispatch time is this send, the station's own step between planning and the
         // vehicle (a mission's task waits `pending`, possibly long, for its turn). It is noted
         // even when the state does not move: the vehicle's acceptance can be applied before
@@ -201,7 +212,10 @@ impl TaskRegister {
             t.state = TaskState::Sent;
             t.link = Some(link);
             t.updated_ms = now_ms;
-            t.message = format!("sent over {}", link_name(link));
+            t.message = match &t.via_site {
+                Some(site) => format!("sent through site {site}"),
+                None => format!("sent over {}", link_name(link)),
+            };
             let record = transition(t, now_ms);
             self.transitions.push(record);
         }
@@ -571,7 +585,9 @@ impl TaskRegister {
             .values()
             .filter(|t| t.state == TaskState::Sent)
             .filter(|t| {
-                let limit = if t.link == Some(LinkKind::Acoustic) {
+                // A task sent through another site waits as long as an acoustic one: that
+                // site may be reaching its vehicle acoustically.
+                let limit = if t.link == Some(LinkKind::Acoustic) || t.via_site.is_some() {
                     acoustic_ms
                 } else {
                     ip_ms

@@ -29,6 +29,9 @@ pub struct TaskView {
     pub status: Option<TaskStatus>,
     /// Times the station sent it again after the acoustic link gave up on it.
     pub retries: u32,
+    /// The site it was sent through, for another site's vehicle commanded under this
+    /// station's lease (its state then comes from that site's task transitions).
+    pub via_site: Option<String>,
 }
 
 /// Where a mission is.

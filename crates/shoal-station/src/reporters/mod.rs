@@ -314,6 +314,30 @@ impl StationHandle {
                 return Ok(());
             }
         }
+        self.apply_task_status(s, true)
+    }
+
+    /// A task this station sent through `site` (another site's vehicle) moved there: that
+    /// site's task transition, applied as the vehicle's report. False when it is not such
+    /// a task (then nothing changes).
+    pub fn remote_task_moved(&self, site: &str, t: &TaskStatus) -> bool {
+        let ours = lock(&self.core.tasks).task(&t.task_id).is_some_and(|v| {
+            v.via_site.as_deref() == Some(site) && v.assignment.vehicle_id == t.vehicle_id
+        });
+        if !ours {
+            return false;
+        }
+        let mut s = t.clone();
+        if s.message.is_empty() {
+            s.message = format!("reported by site {site}");
+        }
+        self.apply_task_status(s, false).is_ok()
+    }
+
+    /// Moves a task's state machine and its mission on with a report; `heard` when the
+    /// vehicle itself reported (which proves contact).
+    fn apply_task_status(&self, s: TaskStatus, heard: bool) -> Result<(), Rejection> {
+        let now = self.now();
         let Some(changed) = lock(&self.core.tasks).on_status(&s, now) else {
             // Not a task this station gave that vehicle: nothing to track, nothing to store.
             warn!(task = %s.task_id, vehicle = %s.vehicle_id, state = ?s.state, "status for a task this station never gave that vehicle; ignored");
@@ -327,10 +351,12 @@ impl StationHandle {
         lock(&self.core.stats).task_status += 1;
         // The vehicle's own word on its task proves it is heard (a relay's word, sent or
         // expired, does not).
-        if matches!(
-            s.state,
-            TaskState::Accepted | TaskState::Running | TaskState::Done
-        ) {
+        if heard
+            && matches!(
+                s.state,
+                TaskState::Accepted | TaskState::Running | TaskState::Done
+            )
+        {
             self.heard_from(&s.vehicle_id, now);
         }
         let fired = lock(&self.core.semantic).task_status(&s);

@@ -6,6 +6,9 @@
 //! shore (its standby) takes the lease over and commands too. The vehicle obeys the newer
 //! lease and refuses the ship's task, saying who it obeys; once the link heals the ship
 //! learns the shore's lease and refuses to command at all.
+//!
+//! Then a shore with no path of its own to the ship's vehicle commands it through the
+//! ship's station, under the lease it was handed.
 
 use std::time::Duration;
 
@@ -188,4 +191,102 @@ fn a_vehicle_obeys_only_the_newest_lease_across_a_partition_and_its_heal() {
     let (code, body) = hold(ship_api, "s-3", "auv-l1");
     assert_eq!(code, 409, "{body}");
     assert!(body.contains("commanded by site shore"), "{body}");
+}
+
+/// A shore with no path of its own to the ship's vehicle (DDS domains 214 ship, 215 shore)
+/// commands it through the ship's station while it holds the lease, and follows the task
+/// through the ship's transitions; without the lease it cannot.
+#[test]
+fn the_shore_commands_the_ships_vehicle_through_the_ship_while_it_holds_the_lease() {
+    let dir = tempfile::tempdir().unwrap();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (ship_api, shore_api, zenoh) = (free_port(), free_port(), free_port());
+    let _link = router(&rt, zenoh);
+    let connect = format!(r#"["tcp/127.0.0.1:{zenoh}"]"#);
+    let common = [
+        ("SHOAL_FEDERATION__MODE", "client"),
+        ("SHOAL_FEDERATION__LISTEN", "[]"),
+        ("SHOAL_FEDERATION__CONNECT", connect.as_str()),
+        ("SHOAL_FEDERATION__INSECURE_OPEN", "true"),
+        ("SHOAL_FEDERATION__LEASE__SETTLE_MS", "2000"),
+    ];
+    let site = |name: &'static str, domain: u16, api: u16, remote: &'static str| {
+        let mut env = common.to_vec();
+        env.extend_from_slice(&[
+            ("SHOAL_FEDERATION__SITE", name),
+            ("SHOAL_FEDERATION__REMOTE_SITES", remote),
+        ]);
+        federated_station(dir.path(), name, domain, api, &format!("{name}.db"), &env)
+    };
+    let mut ship = site("ship", 214, ship_api, r#"["shore"]"#);
+    let mut shore = site("shore", 215, shore_api, r#"["ship"]"#);
+    let _vehicle = Proc::start_with(
+        "auv-r1",
+        dir.path(),
+        214,
+        &[
+            "--insecure",
+            "vehicle",
+            "--sim",
+            "auv",
+            "--id",
+            "auv-r1",
+            "--lat",
+            "63.44",
+            "--lon",
+            "10.36",
+        ],
+        &[],
+    );
+    ship.wait_for(60, "the ship to claim auv-r1", || {
+        lease(ship_api, "auv-r1") == held("ship", 1, true)
+    });
+    shore.wait_for(60, "the shore to learn the ship's lease", || {
+        lease(shore_api, "auv-r1") == held("ship", 1, false)
+    });
+    let (code, body) = hold(shore_api, "r-0", "auv-r1");
+    assert_eq!(code, 409, "{body}");
+    assert!(body.contains("commanded by site ship"), "{body}");
+
+    let to_shore = r#"{"to": "shore"}"#;
+    let (code, body) = http_post(ship_api, "/api/federation/leases/auv-r1", to_shore).unwrap();
+    assert_eq!(code, 200, "{body}");
+    shore.wait_for(30, "the shore to hold auv-r1's lease", || {
+        lease(shore_api, "auv-r1") == held("shore", 2, true)
+    });
+    let (code, body) = hold(shore_api, "r-1", "auv-r1");
+    assert_eq!(code, 202, "{body}");
+    ship.wait_for(
+        30,
+        "the ship to give the shore's task to its vehicle",
+        || state(ship_api, "r-1") == "running",
+    );
+    let there = json(ship_api, "/api/tasks/r-1");
+    assert_eq!(
+        (
+            &there["assignment"]["lease_term"],
+            &there["assignment"]["lease_holder"]
+        ),
+        (&serde_json::json!(2), &serde_json::json!("shore")),
+        "{there}"
+    );
+    shore.wait_for(30, "the shore to see its task running", || {
+        state(shore_api, "r-1") == "running"
+    });
+    let here = json(shore_api, "/api/tasks/r-1");
+    assert_eq!(here["via_site"], "ship", "{here}");
+    // The ship no longer commands its own vehicle.
+    let (code, body) = hold(ship_api, "s-1", "auv-r1");
+    assert_eq!(code, 409, "{body}");
+
+    // Handed back, the shore commands it no more.
+    let to_ship = r#"{"to": "ship"}"#;
+    let (code, body) = http_post(shore_api, "/api/federation/leases/auv-r1", to_ship).unwrap();
+    assert_eq!(code, 200, "{body}");
+    let (code, body) = hold(shore_api, "r-2", "auv-r1");
+    assert_eq!(code, 409, "{body}");
+    assert!(
+        state(shore_api, "r-2").is_null(),
+        "a refused task is not registered"
+    );
 }
