@@ -48,7 +48,7 @@ fuzz_target!(|data: &[u8]| {
         3 => keys::catchup(site, Stream::Alarms),
         4 => keys::alive(site),
         5 => keys::lease(site, "auv-1"),
-        6 => keys::order(site, "auv-1"),
+        6 => keys::order(site, "shore", "auv-1"),
         _ => String::from_utf8_lossy(payload).into_owned(),
     };
     let config = FederationConfig {

@@ -4,8 +4,8 @@
 //! - a liveliness token `shoal/S/alive`, and a liveliness subscriber on `shoal/*/alive`
 //!   (a remote site coming up is asked what it published while it was away);
 //! - subscribers on `shoal/*/vehicles/*/position`, `shoal/*/alarms`, `shoal/*/tasks/*`,
-//!   `shoal/*/leases/*` and `shoal/*/orders/*` (every site, so that data from unknown sites
-//!   is seen, refused and counted);
+//!   `shoal/*/leases/*` (every site, so that data from unknown sites is seen, refused and
+//!   counted), and `shoal/*/orders/S/*` (orders for this site's vehicles, from any site);
 //! - a queryable on `shoal/S/catchup/*` answering from the outbound journals;
 //! - tasks: one publishing positions as their vehicles fall due, one publishing alarms,
 //!   task transitions, lease records and orders from a bounded queue, one asking catch-up
@@ -337,7 +337,7 @@ impl Federation {
         let orders_sub = {
             let shared = Arc::clone(&shared);
             session
-                .declare_subscriber(format!("{ROOT}/*/orders/*"))
+                .declare_subscriber(keys::orders_to(&site))
                 .allowed_origin(Locality::Remote)
                 .callback(move |sample| shared.order(&sample))
                 .await
@@ -582,6 +582,8 @@ impl Federation {
             .lease(&task.vehicle_id)
             .cloned();
         orders::check_relay(&self.site, enabled, lease.as_ref(), task)?;
+        // check_relay found the lease, naming the home.
+        let home = lease.map(|l| l.home).unwrap_or_default();
         // A place in the queue first, so that an order with no room uses no number.
         let permit = self.outgoing.try_reserve().map_err(|e| match e {
             mpsc::error::TrySendError::Full(()) => {
@@ -591,7 +593,7 @@ impl Federation {
             mpsc::error::TrySendError::Closed(()) => OrderError::Stopped,
         })?;
         let publication = lock(&self.shared.outbound)
-            .order(task)
+            .order(task, &home)
             .map_err(|e| match e {
                 PushError::Invalid(e) => OrderError::Invalid(e),
             })?;

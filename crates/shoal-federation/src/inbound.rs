@@ -386,9 +386,18 @@ impl Inbound {
         payload: &[u8],
         deliver: impl FnOnce(RelayedOrder) -> Result<(), OrderRefusal>,
     ) -> Result<(), Refusal> {
-        let Some(Key::Order { site, vehicle }) = Key::parse(key) else {
+        let Some(Key::Order {
+            site,
+            home,
+            vehicle,
+        }) = Key::parse(key)
+        else {
             return Err(Refusal::BadKey);
         };
+        // Only the home subscribes to its orders; one addressed elsewhere is not for here.
+        if home != self.site {
+            return Err(Refusal::BadKey);
+        }
         self.check_site(site)?;
         let frame = wire::decode_order(vehicle, payload).map_err(OrderRefusal::Malformed)?;
         // The key's site is the authenticated sender; the envelope's is the lease holder

@@ -12,7 +12,7 @@
 //! | `shoal/<site>/catchup/tasks` | queryable: the site's recent task transitions |
 //! | `shoal/<site>/alive` | liveliness token while the site's session is up |
 //! | `shoal/<site>/leases/<vehicle>` | a command-lease record the site made; also its queryable |
-//! | `shoal/<site>/orders/<vehicle>` | a task the site, holding the vehicle's lease, sends to the vehicle's home |
+//! | `shoal/<site>/orders/<home>/<vehicle>` | a task the site, holding the vehicle's lease, sends to the vehicle's home site |
 
 use shoal_model::{MAX_ID_LEN, is_identifier};
 
@@ -74,11 +74,16 @@ pub fn leases(site: &str) -> String {
 }
 
 /// Key of an order: a task `site` (the sender, holding `vehicle`'s command lease) sends
-/// to the vehicle's home site to publish to it. The key names the sender, not the home,
-/// because a site may publish only under its own `shoal/<site>/**`: that is what
-/// authenticates the sender.
-pub fn order(site: &str, vehicle: &str) -> String {
-    format!("{ROOT}/{site}/orders/{vehicle}")
+/// to `home`, the vehicle's home site, to publish to it. It opens with the sender because
+/// a site may publish only under its own `shoal/<site>/**` (what authenticates it), and
+/// names the home so that only the home subscribes: other sites never receive the order.
+pub fn order(site: &str, home: &str, vehicle: &str) -> String {
+    format!("{ROOT}/{site}/orders/{home}/{vehicle}")
+}
+
+/// Selector of every order sent to `home`, by any site.
+pub fn orders_to(home: &str) -> String {
+    format!("{ROOT}/*/orders/{home}/*")
 }
 
 /// Key of a site's liveliness token.
@@ -113,10 +118,12 @@ pub enum Key<'a> {
         /// The vehicle.
         vehicle: &'a str,
     },
-    /// `shoal/<site>/orders/<vehicle>`
+    /// `shoal/<site>/orders/<home>/<vehicle>`
     Order {
         /// The sending site (the lease holder).
         site: &'a str,
+        /// The site the order is for (the vehicle's home).
+        home: &'a str,
         /// The vehicle the task is for.
         vehicle: &'a str,
     },
@@ -146,8 +153,14 @@ impl<'a> Key<'a> {
             ["leases", vehicle] if is_identifier(vehicle, MAX_VEHICLE_ID) => {
                 Self::Lease { site, vehicle }
             }
-            ["orders", vehicle] if is_identifier(vehicle, MAX_VEHICLE_ID) => {
-                Self::Order { site, vehicle }
+            ["orders", home, vehicle]
+                if is_site_name(home) && is_identifier(vehicle, MAX_VEHICLE_ID) =>
+            {
+                Self::Order {
+                    site,
+                    home,
+                    vehicle,
+                }
             }
             ["alive"] => Self::Alive { site },
             _ => return None,
@@ -203,14 +216,15 @@ mod tests {
             })
         );
         assert_eq!(
-            Key::parse(&order("shore", "auv-1")),
+            Key::parse(&order("shore", "ship", "auv-1")),
             Some(Key::Order {
                 site: "shore",
+                home: "ship",
                 vehicle: "auv-1"
             })
         );
         assert_eq!(
-            Key::parse(&order("shore", "auv-1")).unwrap().site(),
+            Key::parse(&order("shore", "ship", "auv-1")).unwrap().site(),
             "shore"
         );
     }
@@ -230,9 +244,12 @@ mod tests {
             "shoal/s/leases/*",
             "shoal/s/orders",
             "shoal/s/orders/*",
-            "shoal/s/orders/a b",
-            "shoal/s/orders/auv-1/x",
-            "shoal/*/orders/auv-1",
+            "shoal/s/orders/auv-1",
+            "shoal/s/orders/h/a b",
+            "shoal/s/orders/a b/auv-1",
+            "shoal/s/orders/h/auv-1/x",
+            "shoal/*/orders/h/auv-1",
+            "shoal/s/orders/*/auv-1",
             "shoal/../alarms",
         ] {
             assert_eq!(Key::parse(k), None, "{k}");

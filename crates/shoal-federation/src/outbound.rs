@@ -313,14 +313,14 @@ impl Outbound {
 
     /// Numbers an order (a task under this site's lease for another site's vehicle; the
     /// caller checked the lease) and returns it to publish.
-    pub fn order(&mut self, task: &TaskAssignment) -> Result<Publication, PushError> {
+    pub fn order(&mut self, task: &TaskAssignment, home: &str) -> Result<Publication, PushError> {
         let site = &self.site;
         let frame = self
             .orders
             .append(|epoch, seq| wire::encode_order(site, epoch, seq, task))?;
         self.counters.orders_sent += 1;
         Ok(Publication {
-            key: keys::order(site, &task.vehicle_id),
+            key: keys::order(site, home, &task.vehicle_id),
             frame,
         })
     }

@@ -272,7 +272,7 @@ fn order_frame(site: &str, seq: u64, term: u64) -> Vec<u8> {
 #[test]
 fn an_order_from_the_holder_is_delivered_once() {
     let mut inb = ship_handed_over();
-    let key = keys::order("shore", "auv-1");
+    let key = keys::order("shore", "ship", "auv-1");
     let mut got = Vec::new();
     let frame = order_frame("shore", 1, 2);
     inb.receive_order(&key, &frame, 0, |o| {
@@ -303,7 +303,7 @@ fn an_order_from_the_holder_is_delivered_once() {
 #[test]
 fn an_order_the_queue_had_no_room_for_is_taken_when_it_comes_again() {
     let mut inb = ship_handed_over();
-    let key = keys::order("shore", "auv-1");
+    let key = keys::order("shore", "ship", "auv-1");
     let frame = order_frame("shore", 1, 2);
     let r = inb.receive_order(&key, &frame, 0, |_| Err(OrderRefusal::QueueFull));
     assert_eq!(r.unwrap_err().reason(), "order_queue_full");
@@ -319,45 +319,45 @@ fn orders_not_from_the_holder_or_not_for_this_site_are_refused_by_reason() {
     let cases: Vec<(String, Vec<u8>, &str)> = vec![
         // ship-2 is configured but does not hold the lease.
         (
-            keys::order("ship-2", "auv-1"),
+            keys::order("ship-2", "ship", "auv-1"),
             forged.clone(),
             "order_not_holder",
         ),
         // The holder, at an older term.
         (
-            keys::order("shore", "auv-1"),
+            keys::order("shore", "ship", "auv-1"),
             order_frame("shore", 1, 1),
             "order_term",
         ),
         // The envelope claims the shore, under ship-2's key.
         (
-            keys::order("ship-2", "auv-1"),
+            keys::order("ship-2", "ship", "auv-1"),
             order_frame("shore", 2, 2),
             "order_site_mismatch",
         ),
         // A vehicle whose lease is not known here.
         (
-            keys::order("shore", "auv-9"),
+            keys::order("shore", "ship", "auv-9"),
             order_frame("shore", 3, 2),
             "order_no_lease",
         ),
         (
-            keys::order("pirate", "auv-1"),
+            keys::order("pirate", "ship", "auv-1"),
             order_frame("pirate", 1, 2),
             "unknown_site",
         ),
         (
-            keys::order("ship", "auv-1"),
+            keys::order("ship", "ship", "auv-1"),
             order_frame("ship", 1, 2),
             "own_site",
         ),
         (
-            keys::order("shore", "auv-1"),
+            keys::order("shore", "ship", "auv-1"),
             vec![1, 5, 1],
             "order_malformed:truncated",
         ),
         (
-            keys::order("shore", "auv-1"),
+            keys::order("shore", "ship", "auv-1"),
             alarm_frame("shore", 1, 1),
             "order_malformed:kind",
         ),
@@ -370,7 +370,9 @@ fn orders_not_from_the_holder_or_not_for_this_site_are_refused_by_reason() {
     }
     // Sent again and again: counted each time (a refused order is not remembered).
     for _ in 0..3 {
-        let r = inb.receive_order(&keys::order("ship-2", "auv-1"), &forged, 0, |_| Ok(()));
+        let r = inb.receive_order(&keys::order("ship-2", "ship", "auv-1"), &forged, 0, |_| {
+            Ok(())
+        });
         assert!(r.is_err());
     }
     assert_eq!(inb.counters().refused("order_not_holder"), 4);
@@ -378,7 +380,7 @@ fn orders_not_from_the_holder_or_not_for_this_site_are_refused_by_reason() {
     // An order key is not picture data: `receive` refuses it, as it does a catch-up reply.
     assert_eq!(
         inb.receive(
-            &keys::order("shore", "auv-1"),
+            &keys::order("shore", "ship", "auv-1"),
             &order_frame("shore", 5, 2),
             0
         ),
@@ -399,8 +401,13 @@ fn an_order_for_another_sites_vehicle_or_with_the_lease_off_is_refused() {
     for r in ship.leases().leases().cloned().collect::<Vec<_>>() {
         third.leases_mut().apply("ship", r).ok();
     }
-    let key = keys::order("shore", "auv-1");
+    let key = keys::order("shore", "ship", "auv-1");
+    // Addressed to the ship, it is not for ship-2 (which does not subscribe to it anyway).
     let r = third.receive_order(&key, &order_frame("shore", 1, 2), 0, |_| Ok(()));
+    assert_eq!(r.unwrap_err(), Refusal::BadKey);
+    // Addressed to ship-2, which is not the vehicle's home.
+    let to_third = keys::order("shore", "ship-2", "auv-1");
+    let r = third.receive_order(&to_third, &order_frame("shore", 1, 2), 0, |_| Ok(()));
     assert_eq!(r.unwrap_err().reason(), "order_not_ours");
     // The lease off at the home: nothing to check an order against.
     ship.lease_enabled = false;

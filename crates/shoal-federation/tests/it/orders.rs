@@ -132,7 +132,9 @@ async fn the_holder_commands_another_sites_vehicle_through_its_home_and_forgerie
         // Published until heard (the raw peer's routes take a moment).
         for frame in [stale.clone(), claimed.clone()] {
             let peer = peer.clone();
-            tokio::spawn(async move { peer.put(keys::order("shore", "auv-1"), frame).await });
+            tokio::spawn(
+                async move { peer.put(keys::order("shore", "ship", "auv-1"), frame).await },
+            );
         }
         refused(&ship, "order_term") > 0 && refused(&ship, "order_site_mismatch") > 0
     })
