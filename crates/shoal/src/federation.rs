@@ -9,8 +9,8 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use shoal_federation::{
-    CommandDenied, Federation, FederationConfig, HandoverError, LeaseRecord, TaskTransition,
-    VehiclePosition,
+    CommandDenied, Federation, FederationConfig, HandoverError, LeaseReason, LeaseRecord,
+    TaskTransition, VehiclePosition,
 };
 use shoal_model::{TaskAssignment, TaskStatus};
 use shoal_station::{
@@ -232,6 +232,39 @@ fn take_order(station: &StationHandle, order: shoal_federation::RelayedOrder) {
     }
 }
 
+/// Announces to their vehicles the leases this site took since `before` (the leases it
+/// held then, vehicle → term; `None` at the first check, which announces nothing): a
+/// handover to it or a takeover, not its own claims. Returns the leases held now.
+fn announce_new_leases(
+    fed: &Federation,
+    station: &StationHandle,
+    before: Option<&HashMap<String, u64>>,
+) -> HashMap<String, u64> {
+    let mine: Vec<LeaseRecord> = fed
+        .leases()
+        .into_iter()
+        .filter(|r| r.holder == fed.site())
+        .collect();
+    if let Some(before) = before {
+        for r in &mine {
+            let new = before.get(&r.vehicle_id).is_none_or(|term| *term < r.term);
+            if new && r.reason != LeaseReason::Claim {
+                match station.announce_lease(&r.vehicle_id, r.term) {
+                    Ok(task) => {
+                        info!(vehicle = %r.vehicle_id, term = r.term, task = %task, "command lease announced to the vehicle");
+                    }
+                    // Unreached (another site's vehicle whose home is lost, a vehicle out
+                    // of contact): its first task under the lease will do it.
+                    Err(e) => {
+                        info!(vehicle = %r.vehicle_id, term = r.term, error = %e, "command lease not announced to the vehicle");
+                    }
+                }
+            }
+        }
+    }
+    mine.into_iter().map(|r| (r.vehicle_id, r.term)).collect()
+}
+
 /// Applies the task transitions that arrived after `after` (a local arrival index) to the
 /// tasks this station sent through their sites; the index of the last one seen.
 fn follow_sent_tasks(fed: &Federation, station: &StationHandle, after: u64) -> u64 {
@@ -363,7 +396,9 @@ pub async fn start(
     let mut live = station.live();
     let mut orders = fed.take_orders();
     let mut changed = fed.changed();
+    let mut lease_check = tokio::time::interval(std::time::Duration::from_secs(1));
     Ok(tokio::spawn(async move {
+        let mut held: Option<HashMap<String, u64>> = None;
         let mut sent = Sent::default();
         let mut lagged = 0u64;
         let mut seen_transition = 0u64;
@@ -382,6 +417,10 @@ pub async fn start(
                 }
                 Ok(()) = changed.changed() => {
                     seen_transition = follow_sent_tasks(&fed, &station, seen_transition);
+                    continue;
+                }
+                _ = lease_check.tick() => {
+                    held = Some(announce_new_leases(&fed, &station, held.as_ref()));
                     continue;
                 }
             };

@@ -191,6 +191,18 @@ impl StationHandle {
         blocking(|| self.send_registered(&task.task_id))
     }
 
+    /// Makes a vehicle whose command lease this station has just taken (handed over to it,
+    /// or taken over) obey that lease at once: a `request_state` task under it, which the
+    /// vehicle answers with a state vector, moves the lease its task ledger obeys, so that
+    /// an old holder cut off from the federation is refused from then on, not only after
+    /// this station's first task. The task's id, `lease-<vehicle>-<term>`.
+    pub fn announce_lease(&self, vehicle_id: &str, term: u64) -> Result<String, DispatchError> {
+        let id = format!("lease-{vehicle_id}-{term}");
+        let task =
+            TaskAssignment::new(id.as_str(), "", vehicle_id, self.now(), &Task::RequestState);
+        self.dispatch_now(task).map(|()| id)
+    }
+
     /// Sends a task for `site`'s vehicle to that site, under this station's lease of it:
     /// registered here, its state follows that site's task transitions.
     fn dispatch_through(&self, task: TaskAssignment, site: &str) -> Result<(), DispatchError> {

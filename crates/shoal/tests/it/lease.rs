@@ -3,8 +3,9 @@
 //! through a Zenoh router that the test closes to cut the link and opens again to heal it.
 //!
 //! The ship holds the lease and commands; cut off, it still believes it does, while the
-//! shore (its standby) takes the lease over and commands too. The vehicle obeys the newer
-//! lease and refuses the ship's task, saying who it obeys; once the link heals the ship
+//! shore (its standby) takes the lease over, announces it to the vehicle and commands too.
+//! The vehicle obeys the newer lease and refuses the ship's task, saying who it obeys;
+//! once the link heals the ship
 //! learns the shore's lease and refuses to command at all.
 //!
 //! Then a shore with no path of its own to the ship's vehicle commands it through the
@@ -147,6 +148,25 @@ fn a_vehicle_obeys_only_the_newest_lease_across_a_partition_and_its_heal() {
         lease(shore_api, "auv-l1") == held("shore", 2, true)
     });
     assert_eq!(lease(ship_api, "auv-l1"), held("ship", 1, true));
+    // Taking the lease, the shore announces it to the vehicle (a state request under it).
+    shore.wait_for(30, "the shore's lease announced to auv-l1", || {
+        state(shore_api, "lease-auv-l1-2") == "done"
+    });
+
+    // Both stations now command the vehicle; it obeys the newer lease only, from the
+    // announcement on.
+    let (code, body) = hold(ship_api, "s-2", "auv-l1");
+    assert_eq!(code, 202, "the ship cannot know yet: {body}");
+    ship.wait_for(30, "the vehicle to refuse the ship's task", || {
+        state(ship_api, "s-2") == "failed"
+    });
+    let refused = json(ship_api, "/api/tasks/s-2");
+    let message = refused["message"].as_str().unwrap_or_default();
+    assert!(
+        message.contains("issued under command lease term 1 of site ship")
+            && message.contains("obeys site shore (command lease term 2)"),
+        "{refused}"
+    );
     let (code, body) = hold(shore_api, "h-1", "auv-l1");
     assert_eq!(code, 202, "{body}");
     // Accepted: the vehicle queues it behind the ship's first task.
@@ -161,20 +181,6 @@ fn a_vehicle_obeys_only_the_newest_lease_across_a_partition_and_its_heal() {
         ),
         (&serde_json::json!(2), &serde_json::json!("shore")),
         "{sent}"
-    );
-
-    // Both stations now command the vehicle; it obeys the newer lease only.
-    let (code, body) = hold(ship_api, "s-2", "auv-l1");
-    assert_eq!(code, 202, "the ship cannot know yet: {body}");
-    ship.wait_for(30, "the vehicle to refuse the ship's task", || {
-        state(ship_api, "s-2") == "failed"
-    });
-    let refused = json(ship_api, "/api/tasks/s-2");
-    let message = refused["message"].as_str().unwrap_or_default();
-    assert!(
-        message.contains("issued under command lease term 1 of site ship")
-            && message.contains("obeys site shore (command lease term 2)"),
-        "{refused}"
     );
     std::thread::sleep(Duration::from_secs(2));
     assert_eq!(
@@ -254,6 +260,12 @@ fn the_shore_commands_the_ships_vehicle_through_the_ship_while_it_holds_the_leas
     shore.wait_for(30, "the shore to hold auv-r1's lease", || {
         lease(shore_api, "auv-r1") == held("shore", 2, true)
     });
+    // The shore announces its lease to the vehicle through the ship.
+    shore.wait_for(
+        30,
+        "the shore's lease announced to auv-r1 through the ship",
+        || state(shore_api, "lease-auv-r1-2") == "done",
+    );
     let (code, body) = hold(shore_api, "r-1", "auv-r1");
     assert_eq!(code, 202, "{body}");
     ship.wait_for(
