@@ -73,16 +73,7 @@ const EVENT_KINDS: [EventKind; 9] = [
     EventKind::DataRejected,
     EventKind::Other,
 ];
-const TASK_KINDS: [TaskKind; 8] = [
-    TaskKind::GotoWaypoint,
-    TaskKind::SurveyArea,
-    TaskKind::Hold,
-    TaskKind::Surface,
-    TaskKind::ReturnHome,
-    TaskKind::Abort,
-    TaskKind::RequestState,
-    TaskKind::SetReportingRate,
-];
+const TASK_KINDS: [TaskKind; 8] = TaskKind::ALL;
 const TASK_STATES: [TaskState; 8] = [
     TaskState::Pending,
     TaskState::Sent,

@@ -100,6 +100,18 @@ fn self_intersecting(polygon: &[GeoPoint]) -> bool {
 }
 
 impl TaskKind {
+    /// Every kind, in the IDL's declaration order (the order of their wire codes).
+    pub const ALL: [Self; 8] = [
+        Self::GotoWaypoint,
+        Self::SurveyArea,
+        Self::Hold,
+        Self::Surface,
+        Self::ReturnHome,
+        Self::Abort,
+        Self::RequestState,
+        Self::SetReportingRate,
+    ];
+
     /// The capability code a vehicle announces to say it can do this kind of task.
     pub fn capability(self) -> &'static str {
         match self {

@@ -176,16 +176,7 @@ mod tests {
 
     #[test]
     fn every_task_kind_has_a_distinct_capability_code() {
-        let kinds = [
-            TaskKind::GotoWaypoint,
-            TaskKind::SurveyArea,
-            TaskKind::Hold,
-            TaskKind::Surface,
-            TaskKind::ReturnHome,
-            TaskKind::Abort,
-            TaskKind::RequestState,
-            TaskKind::SetReportingRate,
-        ];
+        let kinds = TaskKind::ALL;
         let codes: std::collections::HashSet<_> = kinds.iter().map(|k| capability_of(*k)).collect();
         assert_eq!(codes.len(), kinds.len());
     }

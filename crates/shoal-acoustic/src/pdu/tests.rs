@@ -137,21 +137,26 @@ fn an_identified_task_refuses_what_it_cannot_carry_exactly() {
     ));
 }
 
-/// A task id chunk above 65³ is garbage: refused, never read as some other id.
-#[test]
-fn an_identified_task_with_an_impossible_id_code_is_refused() {
-    // Abort to auv 3, task 7, seq 0, no expiry, a one-character id of code 127.
+/// An abort to auv 3, task 7, written bit by bit from the docs' table of layout 2: issue
+/// sequence `seq`, no expiry, a one-character id of code `id_code`.
+fn layout_2_abort(seq: u64, id_code: u64) -> Vec<u8> {
     let mut w = BitWriter::new();
     w.write(u64::from(id::IDENTIFIED_TASK), 8);
     w.write(3, 4);
     w.write(7, 8);
     w.write(5, 3);
-    w.write(0, 52);
+    w.write(seq, 52);
     w.write(0, 17);
     w.write(0, 6);
-    w.write(127, 7);
+    w.write(id_code, 7);
+    w.finish()
+}
+
+/// A task id chunk above 65³ is garbage: refused, never read as some other id.
+#[test]
+fn an_identified_task_with_an_impossible_id_code_is_refused() {
     assert_eq!(
-        decode(&w.finish()),
+        decode(&layout_2_abort(0, 127)),
         Err(DecodeError::InvalidCode {
             field: "task_id",
             code: 127
@@ -198,17 +203,8 @@ fn the_wire_lease_holder_limit_is_the_models() {
 /// decodes with no lease, and re-encodes to the same bytes.
 #[test]
 fn a_layout_2_task_from_an_older_station_decodes_without_a_lease() {
-    // Abort to auv 3, task 7, seq 5, no expiry, the one-character id "a" (index 39).
-    let mut w = BitWriter::new();
-    w.write(u64::from(id::IDENTIFIED_TASK), 8);
-    w.write(3, 4);
-    w.write(7, 8);
-    w.write(5, 3);
-    w.write(5, 52);
-    w.write(0, 17);
-    w.write(0, 6);
-    w.write(39, 7);
-    let bytes = w.finish();
+    // Sequence 5, the one-character id "a" (index 39).
+    let bytes = layout_2_abort(5, 39);
     let Pdu::IdentifiedTask(t) = decode(&bytes).unwrap() else {
         panic!()
     };

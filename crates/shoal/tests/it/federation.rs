@@ -568,7 +568,7 @@ fn remote_vehicles(api: u16) -> Vec<String> {
 }
 
 /// A simulated AUV on `domain`.
-fn auv(dir: &Path, id: &'static str, domain: u16) -> Proc {
+pub(crate) fn auv(dir: &Path, id: &'static str, domain: u16) -> Proc {
     Proc::start_with(
         id,
         dir,

@@ -11,10 +11,11 @@
 //! Then a shore with no path of its own to the ship's vehicle commands it through the
 //! ship's station, under the lease it was handed.
 
+use std::path::Path;
 use std::time::Duration;
 
 use crate::common::{free_port, http_get, http_post};
-use crate::federation::{federated_station, json};
+use crate::federation::{auv, federated_station, json};
 use crate::recorder::Proc;
 
 const DOMAIN: u16 = 213;
@@ -65,6 +66,29 @@ fn state(api: u16, task_id: &str) -> serde_json::Value {
     json(api, &format!("/api/tasks/{task_id}"))["state"].clone()
 }
 
+/// A station of site `name` on DDS `domain`, its API on `api`, a client of the test's
+/// router at `connect`, with `extra` settings. Site identity is tested in `federation`:
+/// here the router is the test's own, on loopback.
+fn site_station(
+    dir: &Path,
+    name: &'static str,
+    domain: u16,
+    api: u16,
+    connect: &str,
+    extra: &[(&str, &str)],
+) -> Proc {
+    let mut env = vec![
+        ("SHOAL_FEDERATION__SITE", name),
+        ("SHOAL_FEDERATION__MODE", "client"),
+        ("SHOAL_FEDERATION__LISTEN", "[]"),
+        ("SHOAL_FEDERATION__CONNECT", connect),
+        ("SHOAL_FEDERATION__INSECURE_OPEN", "true"),
+        ("SHOAL_FEDERATION__LEASE__SETTLE_MS", "2000"),
+    ];
+    env.extend_from_slice(extra);
+    federated_station(dir, name, domain, api, &format!("{name}.db"), &env)
+}
+
 #[test]
 fn a_vehicle_obeys_only_the_newest_lease_across_a_partition_and_its_heal() {
     let dir = tempfile::tempdir().unwrap();
@@ -72,57 +96,35 @@ fn a_vehicle_obeys_only_the_newest_lease_across_a_partition_and_its_heal() {
     let (ship_api, shore_api, zenoh) = (free_port(), free_port(), free_port());
     let link = router(&rt, zenoh);
     let connect = format!(r#"["tcp/127.0.0.1:{zenoh}"]"#);
-    // Identity is tested in `federation`; here the router is the test's own, on loopback.
-    let common = [
-        ("SHOAL_FEDERATION__MODE", "client"),
-        ("SHOAL_FEDERATION__LISTEN", "[]"),
-        ("SHOAL_FEDERATION__CONNECT", connect.as_str()),
-        ("SHOAL_FEDERATION__INSECURE_OPEN", "true"),
+    let fast = [
         ("SHOAL_FEDERATION__LINK_LEASE_MS", "2000"),
         ("SHOAL_FEDERATION__LEASE__FAILOVER_TIMEOUT_MS", "1000"),
-        ("SHOAL_FEDERATION__LEASE__SETTLE_MS", "2000"),
     ];
-    let site = |name: &'static str, api: u16, own: &[(&'static str, &'static str)]| {
-        let mut env = common.to_vec();
-        env.extend_from_slice(own);
-        federated_station(dir.path(), name, DOMAIN, api, &format!("{name}.db"), &env)
-    };
-    let mut ship = site(
-        "ship",
-        ship_api,
-        &[
-            ("SHOAL_FEDERATION__SITE", "ship"),
-            ("SHOAL_FEDERATION__REMOTE_SITES", r#"["shore"]"#),
-            ("SHOAL_FEDERATION__LEASE__STANDBY", "shore"),
-        ],
-    );
-    let mut shore = site(
-        "shore",
-        shore_api,
-        &[
-            ("SHOAL_FEDERATION__SITE", "shore"),
-            ("SHOAL_FEDERATION__REMOTE_SITES", r#"["ship"]"#),
-            ("SHOAL_FEDERATION__LEASE__HOME", "false"),
-        ],
-    );
-    let _vehicle = Proc::start_with(
-        "auv-l1",
+    let ship_env = [
+        ("SHOAL_FEDERATION__REMOTE_SITES", r#"["shore"]"#),
+        ("SHOAL_FEDERATION__LEASE__STANDBY", "shore"),
+    ];
+    let shore_env = [
+        ("SHOAL_FEDERATION__REMOTE_SITES", r#"["ship"]"#),
+        ("SHOAL_FEDERATION__LEASE__HOME", "false"),
+    ];
+    let mut ship = site_station(
         dir.path(),
+        "ship",
         DOMAIN,
-        &[
-            "--insecure",
-            "vehicle",
-            "--sim",
-            "auv",
-            "--id",
-            "auv-l1",
-            "--lat",
-            "63.44",
-            "--lon",
-            "10.36",
-        ],
-        &[],
+        ship_api,
+        &connect,
+        &[&fast[..], &ship_env[..]].concat(),
     );
+    let mut shore = site_station(
+        dir.path(),
+        "shore",
+        DOMAIN,
+        shore_api,
+        &connect,
+        &[&fast[..], &shore_env[..]].concat(),
+    );
+    let _vehicle = auv(dir.path(), "auv-l1", DOMAIN);
     ship.wait_for(60, "the ship's API", || {
         http_get(ship_api, "/api/fleet").is_ok()
     });
@@ -209,41 +211,24 @@ fn the_shore_commands_the_ships_vehicle_through_the_ship_while_it_holds_the_leas
     let (ship_api, shore_api, zenoh) = (free_port(), free_port(), free_port());
     let _link = router(&rt, zenoh);
     let connect = format!(r#"["tcp/127.0.0.1:{zenoh}"]"#);
-    let common = [
-        ("SHOAL_FEDERATION__MODE", "client"),
-        ("SHOAL_FEDERATION__LISTEN", "[]"),
-        ("SHOAL_FEDERATION__CONNECT", connect.as_str()),
-        ("SHOAL_FEDERATION__INSECURE_OPEN", "true"),
-        ("SHOAL_FEDERATION__LEASE__SETTLE_MS", "2000"),
-    ];
-    let site = |name: &'static str, domain: u16, api: u16, remote: &'static str| {
-        let mut env = common.to_vec();
-        env.extend_from_slice(&[
-            ("SHOAL_FEDERATION__SITE", name),
-            ("SHOAL_FEDERATION__REMOTE_SITES", remote),
-        ]);
-        federated_station(dir.path(), name, domain, api, &format!("{name}.db"), &env)
-    };
-    let mut ship = site("ship", 214, ship_api, r#"["shore"]"#);
-    let mut shore = site("shore", 215, shore_api, r#"["ship"]"#);
-    let _vehicle = Proc::start_with(
-        "auv-r1",
+    let remote = |site| [("SHOAL_FEDERATION__REMOTE_SITES", site)];
+    let mut ship = site_station(
         dir.path(),
+        "ship",
         214,
-        &[
-            "--insecure",
-            "vehicle",
-            "--sim",
-            "auv",
-            "--id",
-            "auv-r1",
-            "--lat",
-            "63.44",
-            "--lon",
-            "10.36",
-        ],
-        &[],
+        ship_api,
+        &connect,
+        &remote(r#"["shore"]"#),
     );
+    let mut shore = site_station(
+        dir.path(),
+        "shore",
+        215,
+        shore_api,
+        &connect,
+        &remote(r#"["ship"]"#),
+    );
+    let _vehicle = auv(dir.path(), "auv-r1", 214);
     ship.wait_for(60, "the ship to claim auv-r1", || {
         lease(ship_api, "auv-r1") == held("ship", 1, true)
     });
