@@ -34,6 +34,11 @@ fuzz_target!(|data: &[u8]| {
         let again = wire::encode_order(&o.site, o.epoch, o.seq, &o.item).expect("re-encodes");
         assert_eq!(again, data, "order re-encoding differs");
     }
+    if let Ok(e) = wire::decode_environment("auv-1", data) {
+        let again =
+            wire::encode_environment(&e.site, e.epoch, e.seq, &e.item).expect("re-encodes");
+        assert_eq!(again, data, "environment re-encoding differs");
+    }
 
     // The first byte picks the key, the rest is the payload; the same bytes also arrive
     // as a catch-up reply.
@@ -41,7 +46,7 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     let site = if pick & 0x80 == 0 { "ship" } else { "pirate" };
-    let key = match pick % 8 {
+    let key = match pick % 9 {
         0 => keys::position(site, "auv-1"),
         1 => keys::alarms(site),
         2 => keys::task(site, "t-1"),
@@ -49,6 +54,7 @@ fuzz_target!(|data: &[u8]| {
         4 => keys::alive(site),
         5 => keys::lease(site, "auv-1"),
         6 => keys::order(site, "shore", "auv-1"),
+        7 => keys::environment(site, "auv-1"),
         _ => String::from_utf8_lossy(payload).into_owned(),
     };
     let config = FederationConfig {
@@ -70,6 +76,8 @@ fuzz_target!(|data: &[u8]| {
     let _ = inbound.receive_catchup(&request, &key, payload, 3);
     inbound.finish_catchup(&request, true);
     assert!(inbound.counters().alarms <= 2);
+    // One frame carries 32 summaries at most; the second time they are duplicates.
+    assert!(inbound.counters().environment <= 32);
 
     // Orders, at the home of `auv-1` whose lease it handed to `ship` (term 2): one may be
     // delivered, never twice (the same bytes come again as a resend).

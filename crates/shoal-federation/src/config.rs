@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use shoal_model::Severity;
+use shoal_model::{MAX_NAME_LEN, Severity, is_identifier};
 
 use crate::types::is_site_name;
 
@@ -391,11 +391,35 @@ impl Default for LeasePolicy {
 }
 
 /// Policy for environment observations.
-#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EnvironmentPolicy {
-    /// `off`, or `aggregated` (not built yet: refused by validation).
+    /// `off` (nothing crosses), or `aggregated`: per vehicle and property, one summary
+    /// (count, min, max, mean, latest) per window instead of every observation.
     pub mode: EnvironmentMode,
+    /// Length of a window, seconds, in 5..=3600. Each vehicle's windows are on its own
+    /// phase of the wall clock, so a fleet's summaries do not leave as one burst.
+    pub window_s: u64,
+    /// Properties that cross (e.g. `sea_water_temperature`); empty: every property.
+    pub properties: Vec<String>,
+    /// Zenoh QoS: the lowest priority, dropped on congestion (the next window replaces a
+    /// lost summary).
+    pub qos: Qos,
+}
+
+impl Default for EnvironmentPolicy {
+    fn default() -> Self {
+        Self {
+            mode: EnvironmentMode::Off,
+            window_s: 60,
+            properties: Vec::new(),
+            qos: Qos {
+                priority: Priority::Background,
+                congestion: Congestion::Drop,
+                express: false,
+            },
+        }
+    }
 }
 
 /// Whether environment data crosses.
@@ -405,9 +429,14 @@ pub enum EnvironmentMode {
     /// Nothing crosses.
     #[default]
     Off,
-    /// Aggregates per property and window (planned).
+    /// Aggregates per vehicle, property and window.
     Aggregated,
 }
+
+/// Shortest environment window accepted, seconds.
+pub const MIN_ENVIRONMENT_WINDOW_S: u64 = 5;
+/// Longest environment window accepted, seconds.
+pub const MAX_ENVIRONMENT_WINDOW_S: u64 = 3600;
 
 /// Bounds on what remote sites can make this site hold or do.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -429,6 +458,9 @@ pub struct Limits {
     pub catchup_batch: usize,
     /// How long a catch-up query waits for its replies, ms.
     pub catchup_timeout_ms: u64,
+    /// Remote environment aggregates held in the picture, one per (site, vehicle,
+    /// property); aggregates of further ones are refused.
+    pub remote_environment: usize,
 }
 
 impl Default for Limits {
@@ -441,6 +473,7 @@ impl Default for Limits {
             catchup_replies: 1000,
             catchup_batch: 100,
             catchup_timeout_ms: 10_000,
+            remote_environment: 10_000,
         }
     }
 }
@@ -495,12 +528,7 @@ impl FederationConfig {
         }
         bounded("alarms.catchup", self.alarms.catchup)?;
         bounded("tasks.catchup", self.tasks.catchup)?;
-        if self.environment.mode == EnvironmentMode::Aggregated {
-            return Err(invalid(
-                "environment.mode",
-                "aggregated is not built yet; only off is accepted",
-            ));
-        }
+        self.validate_environment()?;
         if !(1_000..=600_000).contains(&self.link_lease_ms) {
             return Err(invalid("link_lease_ms", "must be in 1000..=600000"));
         }
@@ -527,6 +555,7 @@ impl FederationConfig {
         bounded("limits.reorder_window", l.reorder_window)?;
         bounded("limits.catchup_replies", l.catchup_replies)?;
         bounded("limits.catchup_batch", l.catchup_batch)?;
+        bounded("limits.remote_environment", l.remote_environment)?;
         if l.catchup_batch > l.catchup_replies {
             return Err(invalid(
                 "limits.catchup_batch",
@@ -545,6 +574,33 @@ impl FederationConfig {
         if self.enabled {
             // Read the files now, so that a station refuses to start naming the key.
             self.identity()?;
+        }
+        Ok(())
+    }
+
+    /// `[federation.environment]`, checked whatever the mode, so that turning it on later
+    /// does not reveal a bad value.
+    fn validate_environment(&self) -> Result<(), ConfigError> {
+        let env = &self.environment;
+        let window = MIN_ENVIRONMENT_WINDOW_S..=MAX_ENVIRONMENT_WINDOW_S;
+        if !window.contains(&env.window_s) {
+            return Err(invalid(
+                "environment.window_s",
+                format!(
+                    "{} is not in {MIN_ENVIRONMENT_WINDOW_S}..={MAX_ENVIRONMENT_WINDOW_S}",
+                    env.window_s
+                ),
+            ));
+        }
+        for (i, property) in env.properties.iter().enumerate() {
+            let key = format!("environment.properties[{i}]");
+            // The model's rule for a property name: anything else would never match.
+            if !is_identifier(property, MAX_NAME_LEN) {
+                return Err(invalid(key, "must be 1..=64 of [A-Za-z0-9_.-]"));
+            }
+            if env.properties[..i].contains(property) {
+                return Err(invalid(key, format!("{property} is listed twice")));
+            }
         }
         Ok(())
     }
@@ -856,6 +912,32 @@ mod tests {
     }
 
     #[test]
+    fn environment_aggregated_is_accepted_with_its_window_and_properties() {
+        let text = "[federation.environment]\nmode = \"aggregated\"\nwindow_s = 5\n\
+                    properties = [\"sea_water_temperature\", \"sea_water_salinity\"]\n";
+        let file: File = toml::from_str(text).unwrap();
+        let env = &file.federation.environment;
+        assert_eq!(env.mode, EnvironmentMode::Aggregated);
+        assert_eq!((env.window_s, env.properties.len()), (5, 2));
+        // Lowest priority and dropped on congestion unless configured otherwise.
+        assert_eq!(env.qos.priority, Priority::Background);
+        assert_eq!(env.qos.congestion, Congestion::Drop);
+        assert_eq!(file.federation.validate(), Ok(()));
+        let both_ends = |window_s| FederationConfig {
+            environment: EnvironmentPolicy {
+                mode: EnvironmentMode::Aggregated,
+                window_s,
+                ..EnvironmentPolicy::default()
+            },
+            ..FederationConfig::default()
+        };
+        assert_eq!(both_ends(MIN_ENVIRONMENT_WINDOW_S).validate(), Ok(()));
+        assert_eq!(both_ends(MAX_ENVIRONMENT_WINDOW_S).validate(), Ok(()));
+        let e = toml::from_str::<File>("[federation.environment]\nwindow = 5\n").unwrap_err();
+        assert!(e.to_string().contains("window"), "{e}");
+    }
+
+    #[test]
     fn the_default_listens_on_loopback_only_and_does_not_scout() {
         let c = FederationConfig::default();
         assert!(c.listen.iter().all(|e| e.starts_with("tcp/127.0.0.1:")));
@@ -898,8 +980,23 @@ mod tests {
         );
         assert!(refused(|c| c.alarms.catchup = 0).starts_with("federation.alarms.catchup:"));
         assert!(
-            refused(|c| c.environment.mode = EnvironmentMode::Aggregated)
-                .starts_with("federation.environment.mode:")
+            refused(|c| c.environment.window_s = 4).starts_with("federation.environment.window_s:")
+        );
+        assert!(
+            refused(|c| c.environment.window_s = 3601)
+                .starts_with("federation.environment.window_s:")
+        );
+        assert!(
+            refused(|c| c.environment.properties = vec!["sea water".into()])
+                .starts_with("federation.environment.properties[0]:")
+        );
+        assert!(
+            refused(|c| c.environment.properties = vec!["t".into(), "s".into(), "t".into()])
+                .starts_with("federation.environment.properties[2]:")
+        );
+        assert!(
+            refused(|c| c.limits.remote_environment = 0)
+                .starts_with("federation.limits.remote_environment:")
         );
         assert!(refused(|c| c.mode = Mode::Client).starts_with("federation.listen:"));
         assert!(

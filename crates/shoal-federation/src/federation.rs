@@ -4,12 +4,14 @@
 //! - a liveliness token `shoal/S/alive`, and a liveliness subscriber on `shoal/*/alive`
 //!   (a remote site coming up is asked what it published while it was away);
 //! - subscribers on `shoal/*/vehicles/*/position`, `shoal/*/alarms`, `shoal/*/tasks/*`,
-//!   `shoal/*/leases/*` (every site, so that data from unknown sites is seen, refused and
-//!   counted), and `shoal/*/orders/S/*` (orders for this site's vehicles, from any site);
+//!   `shoal/*/leases/*`, `shoal/*/environment/*` (every site, so that data from unknown
+//!   sites is seen, refused and counted), and `shoal/*/orders/S/*` (orders for this
+//!   site's vehicles, from any site);
 //! - a queryable on `shoal/S/catchup/*` answering from the outbound journals;
 //! - tasks: one publishing positions as their vehicles fall due, one publishing alarms,
 //!   task transitions, lease records and orders from a bounded queue, one asking catch-up
-//!   queries.
+//!   queries, and (with `environment.mode = "aggregated"`) one publishing environment
+//!   summaries as their vehicles' windows end.
 //!
 //! Orders this site accepts (it is the vehicle's home, the sender holds the lease) wait in
 //! a bounded queue for the station, which takes its receiver with
@@ -28,7 +30,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
-use shoal_model::{Event, TaskAssignment, now_ms};
+use shoal_model::{EnvironmentObservation, Event, TaskAssignment, now_ms};
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
@@ -40,7 +42,7 @@ use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::query::{ConsolidationMode, Query, Queryable};
 use zenoh::sample::{Locality, Sample, SampleKind};
 
-use crate::config::{Congestion, FederationConfig, Priority, Qos};
+use crate::config::{Congestion, EnvironmentMode, FederationConfig, Priority, Qos};
 use crate::error::{ShutdownError, StartError};
 use crate::inbound::{CatchupRequest, Inbound, InboundCounters};
 use crate::keys::{self, ROOT, Stream};
@@ -324,6 +326,8 @@ impl Federation {
             format!("{ROOT}/*/alarms"),
             format!("{ROOT}/*/tasks/*"),
             format!("{ROOT}/*/leases/*"),
+            // Whatever this site's own mode: a site that sends none may still read others'.
+            format!("{ROOT}/*/environment/*"),
         ] {
             let shared = Arc::clone(&shared);
             let sub = session
@@ -414,6 +418,14 @@ impl Federation {
                 stop.clone(),
             )),
         ];
+        if config.environment.mode == EnvironmentMode::Aggregated {
+            tasks.push(tokio::spawn(publish_environment(
+                session.clone(),
+                Arc::clone(&shared),
+                config.environment.qos,
+                stop.clone(),
+            )));
+        }
         if config.lease.enabled {
             let (answers, takes, done, served) = (
                 Arc::clone(&shared),
@@ -619,6 +631,14 @@ impl Federation {
         Ok(())
     }
 
+    /// Takes an environment observation the station accepted: with
+    /// `environment.mode = "aggregated"` it is folded into its vehicle's summary of the
+    /// current window (if its property is listed), which crosses when the window ends;
+    /// with `off`, nothing is done. Refused only when invalid (and aggregated).
+    pub fn push_observation(&self, observation: &EnvironmentObservation) -> Result<(), PushError> {
+        lock(&self.shared.outbound).observation(observation, now_ms())
+    }
+
     /// Takes a local task transition; it crosses at once.
     pub fn push_transition(&self, transition: &TaskTransition) -> Result<(), PushError> {
         let publication = lock(&self.shared.outbound).task(transition)?;
@@ -745,6 +765,44 @@ async fn publish_positions(
                 && let Err(e) = publisher.put(p.frame).await
             {
                 warn!(key = %p.key, error = %e, "position not published");
+            }
+        }
+    }
+}
+
+/// How often the environment publisher looks for windows that ended: a summary leaves at
+/// most this long after its window's end (windows are 5 s at least).
+const ENVIRONMENT_TICK: Duration = Duration::from_millis(500);
+
+/// Publishes each vehicle's environment summaries when its window ends, with the
+/// environment's QoS (by default the lowest priority, dropped on congestion: the next
+/// window's summary replaces a lost one, and nothing is caught up). Windows still open at
+/// shutdown are not sent.
+async fn publish_environment(
+    session: Session,
+    shared: Arc<Shared>,
+    qos: Qos,
+    stop: CancellationToken,
+) {
+    let mut interval = tokio::time::interval(ENVIRONMENT_TICK);
+    interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            () = stop.cancelled() => break,
+            _ = interval.tick() => {}
+        }
+        // The wall clock: a window's bounds cross as timestamps.
+        let due = lock(&shared.outbound).due_environment(now_ms());
+        for p in due {
+            let result = session
+                .put(&p.key, p.frame)
+                .priority(priority(qos.priority))
+                .congestion_control(congestion(qos.congestion))
+                .express(qos.express)
+                .allowed_destination(Locality::Remote)
+                .await;
+            if let Err(e) = result {
+                warn!(key = %p.key, error = %e, "environment summary not published");
             }
         }
     }

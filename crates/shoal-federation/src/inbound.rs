@@ -10,6 +10,9 @@
 //!
 //! Orders ([`crate::orders`]) come through [`Inbound::receive_order`], which checks them
 //! against the command leases kept here and hands each new one to a delivery function.
+//!
+//! Environment frames are not sequenced streams: nothing is caught up, and each summary
+//! in a frame is taken or refused on its own against the one the picture holds.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
@@ -58,6 +61,13 @@ pub enum Refusal {
     /// A new remote vehicle beyond `limits.remote_vehicles`.
     #[error("too many remote vehicles")]
     TooManyVehicles,
+    /// An environment summary of an earlier window than the one held for its property.
+    #[error("environment summary older than the one held")]
+    StaleEnvironment,
+    /// An environment summary of a new (site, vehicle, property) beyond
+    /// `limits.remote_environment`.
+    #[error("too many remote environment summaries")]
+    TooManyEnvironment,
     /// A catch-up query answered with more than `limits.catchup_replies`.
     #[error("catch-up reply beyond the limit")]
     CatchupOverflow,
@@ -86,6 +96,8 @@ impl Refusal {
             Self::Duplicate => "duplicate".into(),
             Self::StalePosition => "stale_position".into(),
             Self::TooManyVehicles => "too_many_vehicles".into(),
+            Self::StaleEnvironment => "stale_environment".into(),
+            Self::TooManyEnvironment => "too_many_environment".into(),
             Self::CatchupOverflow => "catchup_overflow".into(),
             Self::CatchupKey => "catchup_key".into(),
             Self::Lease(r) => r.reason().into(),
@@ -120,13 +132,16 @@ pub struct InboundCounters {
     pub transitions: u64,
     /// Command-lease records taken (stale ones are in the lease counters).
     pub leases: u64,
+    /// Environment summaries taken into the picture (one per vehicle, property and
+    /// window; those refused are counted by reason, per summary).
+    pub environment: u64,
     /// Order samples received (whatever became of them).
     pub orders_received: u64,
     /// Orders accepted and delivered to the station (each once).
     pub orders_accepted: u64,
     /// Orders received again (the same frame, or the same task sent again) and dropped.
     pub order_duplicates: u64,
-    /// Sequenced frames received again and suppressed.
+    /// Sequenced frames, and environment summaries, received again and suppressed.
     pub duplicates: u64,
     /// Sequence numbers given up: the sender no longer had them, or the reorder window
     /// overflowed.
@@ -292,6 +307,7 @@ impl Inbound {
                 l.remote_vehicles,
                 l.remote_alarms,
                 l.remote_transitions,
+                l.remote_environment,
             ),
             leases: LeaseTable::new(
                 &config.site,
@@ -579,6 +595,20 @@ impl Inbound {
                 self.counters.transitions += 1;
                 Ok(gap.then(|| self.request(site, Stream::Tasks)).flatten())
             }
+            Key::Environment { site, vehicle } => {
+                if catchup.is_some() {
+                    return Err(Refusal::CatchupKey);
+                }
+                let frame = wire::decode_environment(vehicle, payload)?;
+                if frame.site != site {
+                    return Err(Refusal::SiteMismatch {
+                        key: site.to_string(),
+                        frame: frame.site,
+                    });
+                }
+                self.environment(site, frame, now_ms);
+                Ok(None)
+            }
             Key::Lease { site, vehicle } => {
                 if catchup.is_some() {
                     return Err(Refusal::CatchupKey);
@@ -592,6 +622,31 @@ impl Inbound {
             // Not data of the picture: liveliness comes through `site_alive`, orders through
             // `receive_order` (and never in a catch-up reply).
             Key::Alive { .. } | Key::Order { .. } => Err(Refusal::BadKey),
+        }
+    }
+
+    /// Takes an environment frame's summaries into the picture, counting each refused one
+    /// by its reason: the frame was read, and its summaries fare each on its own.
+    fn environment(
+        &mut self,
+        site: &str,
+        frame: Sequenced<crate::environment::EnvironmentAggregates>,
+        now_ms: i64,
+    ) {
+        let vehicle = frame.item.vehicle_id.clone();
+        let t = self
+            .picture
+            .environment_frame(site, (frame.epoch, frame.seq), frame.item, now_ms);
+        self.counters.environment += t.taken;
+        self.counters.duplicates += t.duplicate;
+        for (refusal, n) in [
+            (Refusal::StaleEnvironment, t.stale),
+            (Refusal::TooManyEnvironment, t.full),
+        ] {
+            if n > 0 {
+                debug!(site, vehicle = %vehicle, reason = %refusal, summaries = n, "environment summaries refused");
+                *self.counters.refused.entry(refusal.reason()).or_default() += n;
+            }
         }
     }
 

@@ -13,6 +13,7 @@
 //! | `shoal/<site>/alive` | liveliness token while the site's session is up |
 //! | `shoal/<site>/leases/<vehicle>` | a command-lease record the site made; also its queryable |
 //! | `shoal/<site>/orders/<home>/<vehicle>` | a task the site, holding the vehicle's lease, sends to the vehicle's home site |
+//! | `shoal/<site>/environment/<vehicle>` | a vehicle's environment summaries of one window |
 
 use shoal_model::{MAX_ID_LEN, is_identifier};
 
@@ -86,6 +87,11 @@ pub fn orders_to(home: &str) -> String {
     format!("{ROOT}/*/orders/{home}/*")
 }
 
+/// Key of a vehicle's environment summaries.
+pub fn environment(site: &str, vehicle: &str) -> String {
+    format!("{ROOT}/{site}/environment/{vehicle}")
+}
+
 /// Key of a site's liveliness token.
 pub fn alive(site: &str) -> String {
     format!("{ROOT}/{site}/alive")
@@ -127,6 +133,13 @@ pub enum Key<'a> {
         /// The vehicle the task is for.
         vehicle: &'a str,
     },
+    /// `shoal/<site>/environment/<vehicle>`
+    Environment {
+        /// The publishing site.
+        site: &'a str,
+        /// The vehicle whose summaries they are.
+        vehicle: &'a str,
+    },
     /// `shoal/<site>/alive`
     Alive {
         /// The site whose session is up.
@@ -162,6 +175,9 @@ impl<'a> Key<'a> {
                     vehicle,
                 }
             }
+            ["environment", vehicle] if is_identifier(vehicle, MAX_VEHICLE_ID) => {
+                Self::Environment { site, vehicle }
+            }
             ["alive"] => Self::Alive { site },
             _ => return None,
         };
@@ -174,6 +190,7 @@ impl<'a> Key<'a> {
             Self::Position { site, .. }
             | Self::Lease { site, .. }
             | Self::Order { site, .. }
+            | Self::Environment { site, .. }
             | Self::Alarms { site }
             | Self::Task { site }
             | Self::Alive { site } => site,
@@ -227,6 +244,18 @@ mod tests {
             Key::parse(&order("shore", "ship", "auv-1")).unwrap().site(),
             "shore"
         );
+        assert_eq!(
+            Key::parse(&environment("ship", "auv-1")),
+            Some(Key::Environment {
+                site: "ship",
+                vehicle: "auv-1"
+            })
+        );
+        assert_eq!(environment("ship", "auv-1"), "shoal/ship/environment/auv-1");
+        assert_eq!(
+            Key::parse(&environment("ship", "auv-1")).unwrap().site(),
+            "ship"
+        );
     }
 
     #[test]
@@ -251,6 +280,11 @@ mod tests {
             "shoal/*/orders/h/auv-1",
             "shoal/s/orders/*/auv-1",
             "shoal/../alarms",
+            "shoal/s/environment",
+            "shoal/s/environment/*",
+            "shoal/s/environment/a b",
+            "shoal/s/environment/auv-1/x",
+            "shoal/*/environment/auv-1",
         ] {
             assert_eq!(Key::parse(k), None, "{k}");
         }

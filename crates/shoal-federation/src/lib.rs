@@ -5,11 +5,14 @@
 //!   endpoints, and per kind of data whether it crosses, how often and with what QoS.
 //! - [`Federation`]: the running transport. The station pushes its local data
 //!   ([`Federation::push_position`], [`Federation::push_alarm`],
-//!   [`Federation::push_transition`]) and reads the remote part of the fleet picture
+//!   [`Federation::push_transition`], [`Federation::push_observation`]) and reads the
+//!   remote part of the fleet picture
 //!   ([`Federation::picture`], [`Federation::counters`], [`Federation::changed`]).
 //! - The cores, tested without a network: [`outbound`] (rate limiting per vehicle,
 //!   sequence numbers, catch-up journals) and [`inbound`] (validation, duplicate
 //!   suppression, gaps, the [`FederatedPicture`]).
+//! - [`environment`]: environment observations summarised per vehicle, property and
+//!   window before they cross (`[federation.environment] mode = "aggregated"`).
 //! - [`lease`]: the command lease, which site commands each vehicle (tested without a
 //!   network like the other cores).
 //! - [`orders`]: a task the lease holder sends to the vehicle's home site
@@ -24,6 +27,7 @@
 #![forbid(unsafe_code)]
 
 pub mod config;
+pub mod environment;
 #[cfg(feature = "transport")]
 mod error;
 #[cfg(feature = "transport")]
@@ -43,9 +47,10 @@ pub mod wire;
 mod zenoh_config;
 
 pub use config::{
-    ConfigError, FederationConfig, Identity, LeasePolicy, Secret, TlsConfig, TlsIdentity,
-    UserPassword,
+    ConfigError, EnvironmentMode, EnvironmentPolicy, FederationConfig, Identity, LeasePolicy,
+    Secret, TlsConfig, TlsIdentity, UserPassword,
 };
+pub use environment::{EnvironmentAggregates, PropertyAggregate};
 #[cfg(feature = "transport")]
 pub use error::{ShutdownError, StartError};
 #[cfg(feature = "transport")]
@@ -56,5 +61,7 @@ pub use lease::{HandoverError, LeaseCounters, LeaseReason, LeaseRecord, LeaseTab
 pub use lease_keeper::{CommandDenied, LeaseFileError};
 pub use orders::{OrderError, OrderRefusal, RelayedOrder};
 pub use outbound::{OutboundCounters, PushError};
-pub use picture::{FederatedPicture, RemoteAlarm, RemoteTransition, RemoteVehicle, SiteStatus};
+pub use picture::{
+    FederatedPicture, RemoteAlarm, RemoteEnvironment, RemoteTransition, RemoteVehicle, SiteStatus,
+};
 pub use types::{TaskTransition, VehiclePosition};

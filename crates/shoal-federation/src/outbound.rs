@@ -4,16 +4,20 @@
 //!   period has passed since its last one was sent (coalescing, latest value wins).
 //! - [`Journal`]: numbers one stream (alarms or task transitions) from 1 under this run's
 //!   epoch and keeps the last frames, so a remote site can catch up after an outage.
-//! - [`Outbound`]: both, for one site, applying the configured policy, and the numbering
-//!   of the orders this site sends (kept for nothing: orders are not caught up).
+//! - [`Outbound`]: both, for one site, applying the configured policy, the numbering of
+//!   the orders this site sends (kept for nothing: orders are not caught up), and the
+//!   environment [`Aggregator`] with the numbering of its frames (not caught up either).
 //!
-//! Times are in ms of any monotonic clock the caller keeps; the transport uses tokio's.
+//! Times are in ms of any monotonic clock the caller keeps (the transport uses tokio's),
+//! except the environment's, which are the wall clock: a window's bounds cross as
+//! timestamps.
 
 use std::collections::{HashMap, VecDeque};
 
-use shoal_model::{Event, TaskAssignment, Validate as _, ValidationError};
+use shoal_model::{EnvironmentObservation, Event, TaskAssignment, Validate as _, ValidationError};
 
-use crate::config::FederationConfig;
+use crate::config::{EnvironmentMode, FederationConfig};
+use crate::environment::{self, Aggregator, Observed};
 use crate::keys::{self, Stream};
 use crate::types::{TaskTransition, VehiclePosition};
 use crate::wire;
@@ -203,6 +207,17 @@ pub struct OutboundCounters {
     pub orders_sent: u64,
     /// Frames the publishing queue had no room for (remote sites catch up on them).
     pub queue_full: u64,
+    /// Environment observations folded into a summary (`environment.mode = "aggregated"`).
+    pub environment_observations: u64,
+    /// Environment observations of a property not in `environment.properties`, not sent.
+    pub environment_not_listed: u64,
+    /// Environment observations dropped: a new (vehicle, property) while 10 000 summaries
+    /// were held, or a unit other than the one of the property's summary in its window.
+    pub environment_dropped: u64,
+    /// Environment summaries (one per vehicle, property and window) published.
+    pub environment_aggregates_sent: u64,
+    /// Environment frames published (one per vehicle and window, more past 32 properties).
+    pub environment_frames_sent: u64,
 }
 
 /// One site's sending side.
@@ -214,6 +229,10 @@ pub struct Outbound {
     alarms: Journal,
     tasks: Journal,
     orders: Journal,
+    /// `None` unless `environment.mode = "aggregated"`.
+    environment: Option<Aggregator>,
+    /// Numbers only: a lost summary is replaced by the next window's.
+    environment_frames: Journal,
     counters: OutboundCounters,
 }
 
@@ -237,6 +256,18 @@ impl Outbound {
             tasks: Journal::new(epoch, keep(config.tasks.reliable, config.tasks.catchup)),
             // Numbers only: an order that did not arrive is not delivered late.
             orders: Journal::new(epoch, 0),
+            environment: (config.environment.mode == EnvironmentMode::Aggregated).then(|| {
+                // Validation keeps the window in 5..=3600 s.
+                let window_ms = i64::try_from(config.environment.window_s)
+                    .unwrap_or(i64::MAX / 1000)
+                    .saturating_mul(1000);
+                Aggregator::new(
+                    window_ms,
+                    &config.environment.properties,
+                    environment::MAX_AGGREGATES,
+                )
+            }),
+            environment_frames: Journal::new(epoch, 0),
             config: config.clone(),
             counters: OutboundCounters::default(),
         }
@@ -325,6 +356,54 @@ impl Outbound {
         })
     }
 
+    /// Takes a local environment observation the station took at `now_ms` (wall clock)
+    /// into its vehicle's window; with `environment.mode = "off"`, does nothing (and does
+    /// not look at it).
+    pub fn observation(
+        &mut self,
+        o: &EnvironmentObservation,
+        now_ms: i64,
+    ) -> Result<(), PushError> {
+        let Some(aggregator) = self.environment.as_mut() else {
+            return Ok(());
+        };
+        o.validate()?;
+        let c = &mut self.counters;
+        match aggregator.observe(o, now_ms) {
+            Observed::Taken => c.environment_observations += 1,
+            Observed::NotListed => c.environment_not_listed += 1,
+            Observed::Dropped | Observed::UnitMismatch => c.environment_dropped += 1,
+        }
+        Ok(())
+    }
+
+    /// The environment frames of the windows over at `now_ms` (wall clock), numbered and
+    /// encoded; none with `environment.mode = "off"`.
+    pub fn due_environment(&mut self, now_ms: i64) -> Vec<Publication> {
+        let Some(aggregator) = self.environment.as_mut() else {
+            return Vec::new();
+        };
+        let due = aggregator.due(now_ms);
+        let site = &self.site;
+        let mut out = Vec::with_capacity(due.len());
+        for a in due {
+            // Built from validated observations, so encoding cannot fail; skip rather than
+            // panic.
+            if let Ok(frame) = self
+                .environment_frames
+                .append(|epoch, seq| wire::encode_environment(site, epoch, seq, &a))
+            {
+                self.counters.environment_frames_sent += 1;
+                self.counters.environment_aggregates_sent += a.properties.len() as u64;
+                out.push(Publication {
+                    key: keys::environment(site, &a.vehicle_id),
+                    frame,
+                });
+            }
+        }
+        out
+    }
+
     /// Answers a catch-up query: the kept frames after `after` of `epoch`.
     pub fn catchup(
         &mut self,
@@ -362,7 +441,7 @@ pub fn catchup_limit(asked: Option<&str>, own: usize) -> usize {
 }
 
 /// A vehicle's offset into the period, ms: FNV-1a of its id, so the same on every run.
-fn phase(id: &str, period_ms: i64) -> i64 {
+pub(crate) fn phase(id: &str, period_ms: i64) -> i64 {
     let h = id.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
         (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
     });
@@ -529,6 +608,39 @@ mod tests {
         let mut p = position("auv-1");
         p.latitude_deg = 91.0;
         assert!(o.position(p).is_err());
+    }
+
+    #[test]
+    fn environment_off_takes_nothing_and_aggregated_sends_each_window_once() {
+        use crate::environment::tests::{T0, obs};
+        let mut off = Outbound::new(&FederationConfig::default(), 1);
+        // Off: not even looked at.
+        let mut bad = obs("auv-1", "t", f64::NAN, T0);
+        assert_eq!(off.observation(&bad, T0), Ok(()));
+        assert!(off.due_environment(T0 + 3_600_000).is_empty());
+        assert_eq!(off.counters(), &OutboundCounters::default());
+
+        let mut c = FederationConfig::default();
+        c.environment.mode = EnvironmentMode::Aggregated;
+        c.environment.properties = vec!["t".into()];
+        let mut on = Outbound::new(&c, 9);
+        assert!(on.observation(&bad, T0).is_err());
+        bad.value = 1.0;
+        on.observation(&bad, T0).unwrap();
+        on.observation(&obs("auv-1", "t", 3.0, T0), T0).unwrap();
+        on.observation(&obs("auv-1", "s", 3.0, T0), T0).unwrap();
+        let sent = on.due_environment(T0 + 60_000);
+        assert_eq!(sent.len(), 1);
+        assert_eq!(sent[0].key, "shoal/local/environment/auv-1");
+        let frame = wire::decode_environment("auv-1", &sent[0].frame).unwrap();
+        assert_eq!((frame.epoch, frame.seq), (9, 1));
+        assert_eq!(frame.item.properties[0].mean, 2.0);
+        assert!(on.due_environment(T0 + 120_000).is_empty());
+        let counters = on.counters();
+        assert_eq!(counters.environment_observations, 2);
+        assert_eq!(counters.environment_not_listed, 1);
+        assert_eq!(counters.environment_aggregates_sent, 1);
+        assert_eq!(counters.environment_frames_sent, 1);
     }
 
     #[test]

@@ -1,11 +1,13 @@
 //! `FederatedPicture`: what this site knows of the remote sites — their vehicles with the
-//! age of their data, the alarms and task transitions received from them, and whether
-//! each site's session is up. Everything in it is bounded by `[federation.limits]`.
+//! age of their data, the alarms and task transitions received from them, the latest
+//! environment summary of each of their vehicles' properties, and whether each site's
+//! session is up. Everything in it is bounded by `[federation.limits]`.
 
 use std::collections::{BTreeMap, VecDeque};
 
 use shoal_model::Event;
 
+use crate::environment::{EnvironmentAggregates, PropertyAggregate};
 use crate::types::{TaskTransition, VehiclePosition};
 
 /// A remote site's vehicle, as last heard.
@@ -56,6 +58,62 @@ pub struct RemoteTransition {
     pub received_ms: i64,
 }
 
+/// The latest environment summary of one property of a remote site's vehicle: over the
+/// window `[window_start_ms, window_end_ms)` of the sending site's clock.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RemoteEnvironment {
+    /// The site the vehicle belongs to.
+    pub site: String,
+    /// The vehicle.
+    pub vehicle_id: String,
+    /// The property, e.g. `sea_water_temperature`.
+    pub property: String,
+    /// Unit of the values (UCUM code, e.g. `Cel`); may be empty.
+    pub unit: String,
+    /// Start of the window, ms since the Unix epoch.
+    pub window_start_ms: i64,
+    /// End of the window, ms since the Unix epoch.
+    pub window_end_ms: i64,
+    /// Observations summarised, at least 1.
+    pub count: u32,
+    /// Smallest value in the window.
+    pub min: f64,
+    /// Largest value in the window.
+    pub max: f64,
+    /// Mean value in the window.
+    pub mean: f64,
+    /// Value of the latest observation.
+    pub last_value: f64,
+    /// Time of the latest observation, ms since the Unix epoch.
+    pub last_ms: i64,
+    /// Where the latest observation was taken: WGS84 latitude, degrees (1e-7 degree steps).
+    pub latitude_deg: f64,
+    /// Its WGS84 longitude, degrees (1e-7 degree steps).
+    pub longitude_deg: f64,
+    /// Its depth, metres (0.2 m steps).
+    pub depth_m: f64,
+    /// When the summary arrived here, ms since the Unix epoch.
+    pub received_ms: i64,
+}
+
+/// (site, vehicle, property): one environment summary held per key.
+type EnvironmentKey = (String, String, String);
+/// A summary held, with the (epoch, seq) of the frame that brought it.
+type HeldEnvironment = (RemoteEnvironment, (u64, u64));
+
+/// What became of the summaries of one environment frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub(crate) struct EnvironmentTaken {
+    /// Taken into the picture.
+    pub taken: u64,
+    /// Refused: the picture holds a later window of the same property.
+    pub stale: u64,
+    /// The same frame again (same sender run and number).
+    pub duplicate: u64,
+    /// Refused: a new (site, vehicle, property) beyond `limits.remote_environment`.
+    pub full: u64,
+}
+
 /// Whether a remote site's session is up, as its liveliness token says.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SiteStatus {
@@ -71,11 +129,13 @@ pub struct FederatedPicture {
     vehicles: BTreeMap<(String, String), RemoteVehicle>,
     alarms: VecDeque<RemoteAlarm>,
     transitions: VecDeque<RemoteTransition>,
+    environment: BTreeMap<EnvironmentKey, HeldEnvironment>,
     sites: BTreeMap<String, SiteStatus>,
     last_index: u64,
     max_vehicles: usize,
     max_alarms: usize,
     max_transitions: usize,
+    max_environment: usize,
 }
 
 /// Why the picture did not take a position.
@@ -88,14 +148,93 @@ pub(crate) enum PositionRefusal {
 }
 
 impl FederatedPicture {
-    /// An empty picture with these bounds.
-    pub fn new(max_vehicles: usize, max_alarms: usize, max_transitions: usize) -> Self {
+    /// An empty picture with these bounds (those of `[federation.limits]`).
+    pub fn new(
+        max_vehicles: usize,
+        max_alarms: usize,
+        max_transitions: usize,
+        max_environment: usize,
+    ) -> Self {
         Self {
             max_vehicles,
             max_alarms,
             max_transitions,
+            max_environment,
             ..Self::default()
         }
+    }
+
+    /// Takes each summary of a frame from `site`, sent as `(epoch, seq)`, on its own: a
+    /// summary replaces the one held for its (site, vehicle, property) unless that one is
+    /// of a later window, or the same frame.
+    pub(crate) fn environment_frame(
+        &mut self,
+        site: &str,
+        sent: (u64, u64),
+        frame: EnvironmentAggregates,
+        now_ms: i64,
+    ) -> EnvironmentTaken {
+        let mut out = EnvironmentTaken::default();
+        let EnvironmentAggregates {
+            vehicle_id,
+            window_start_ms,
+            window_end_ms,
+            properties,
+        } = frame;
+        for p in properties {
+            let key = (site.to_string(), vehicle_id.clone(), p.property.clone());
+            let full = self.environment.len() >= self.max_environment;
+            let held = self.environment.get(&key);
+            match held {
+                Some((h, _)) if h.window_end_ms > window_end_ms => {
+                    out.stale += 1;
+                    continue;
+                }
+                Some((h, from)) if h.window_end_ms == window_end_ms && *from == sent => {
+                    out.duplicate += 1;
+                    continue;
+                }
+                None if full => {
+                    out.full += 1;
+                    continue;
+                }
+                _ => {}
+            }
+            let PropertyAggregate {
+                property,
+                unit,
+                count,
+                min,
+                max,
+                mean,
+                last_value,
+                last_ms,
+                latitude_deg,
+                longitude_deg,
+                depth_m,
+            } = p;
+            let remote = RemoteEnvironment {
+                site: site.to_string(),
+                vehicle_id: vehicle_id.clone(),
+                property,
+                unit,
+                window_start_ms,
+                window_end_ms,
+                count,
+                min,
+                max,
+                mean,
+                last_value,
+                last_ms,
+                latitude_deg,
+                longitude_deg,
+                depth_m,
+                received_ms: now_ms,
+            };
+            self.environment.insert(key, (remote, sent));
+            out.taken += 1;
+        }
+        out
     }
 
     pub(crate) fn position(
@@ -198,6 +337,13 @@ impl FederatedPicture {
         self.transitions.iter().filter(move |t| t.index > index)
     }
 
+    /// The latest environment summary of every property of every remote vehicle, by site,
+    /// vehicle, then property. A rolling picture: each window's summary replaces the
+    /// previous one, and a lost one is replaced by the next window's (none is caught up).
+    pub fn environment(&self) -> impl Iterator<Item = &RemoteEnvironment> {
+        self.environment.values().map(|(e, _)| e)
+    }
+
     /// The remote sites heard of, with whether each is up.
     pub fn sites(&self) -> impl Iterator<Item = (&str, SiteStatus)> {
         self.sites.iter().map(|(s, st)| (s.as_str(), *st))
@@ -212,7 +358,7 @@ mod tests {
 
     #[test]
     fn the_picture_keeps_the_newest_position_and_refuses_vehicles_past_its_bound() {
-        let mut pic = FederatedPicture::new(2, 10, 10);
+        let mut pic = FederatedPicture::new(2, 10, 10, 10);
         let mut p = position("a");
         pic.position("ship", p.clone(), 0).unwrap();
         p.timestamp_ms -= 1;
@@ -233,12 +379,44 @@ mod tests {
 
     #[test]
     fn alarms_are_bounded_and_read_after_an_index() {
-        let mut pic = FederatedPicture::new(1, 2, 2);
+        let mut pic = FederatedPicture::new(1, 2, 2, 2);
         for seq in 1..=3 {
             pic.alarm("ship", seq, alarm(&format!("e{seq}")), 0);
         }
         let kept: Vec<u64> = pic.alarms_after(0).map(|a| a.seq).collect();
         assert_eq!(kept, vec![2, 3]);
         assert_eq!(pic.alarms_after(2).count(), 1);
+    }
+
+    #[test]
+    fn environment_keeps_the_latest_window_per_property_within_its_bound() {
+        use crate::environment::tests::aggregates;
+        let mut pic = FederatedPicture::new(1, 1, 1, 3);
+        let frame = aggregates("auv-1", &["s", "t"]);
+        let taken = pic.environment_frame("ship", (1, 1), frame.clone(), 5);
+        assert_eq!(taken.taken, 2);
+        // The same frame again: a duplicate.
+        let again = pic.environment_frame("ship", (1, 1), frame.clone(), 6);
+        assert_eq!((again.taken, again.duplicate), (0, 2));
+        // An earlier window: stale; a later one replaces, and a third property fits.
+        let mut earlier = frame;
+        earlier.window_start_ms -= 60_000;
+        earlier.window_end_ms -= 60_000;
+        assert_eq!(pic.environment_frame("ship", (1, 2), earlier, 7).stale, 2);
+        let mut later = aggregates("auv-1", &["o", "t"]);
+        later.window_start_ms += 60_000;
+        later.window_end_ms += 60_000;
+        later.properties[1].count = 9;
+        assert_eq!(pic.environment_frame("ship", (1, 3), later, 8).taken, 2);
+        // The bound: a fourth (site, vehicle, property) is refused, a known one is not.
+        let other = aggregates("auv-2", &["t"]);
+        assert_eq!(pic.environment_frame("ship", (1, 4), other, 9).full, 1);
+        let got: Vec<(&str, u32, i64)> = pic
+            .environment()
+            .map(|e| (e.property.as_str(), e.count, e.received_ms))
+            .collect();
+        assert_eq!(got, [("o", 3, 8), ("s", 3, 5), ("t", 9, 8)]);
+        let t = pic.environment().last().unwrap();
+        assert_eq!((t.site.as_str(), t.vehicle_id.as_str()), ("ship", "auv-1"));
     }
 }

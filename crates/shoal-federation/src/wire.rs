@@ -11,14 +11,18 @@
 //! carry their site, the sender's epoch and a sequence number, which the receiver uses to
 //! suppress duplicates and to ask for what it missed. Orders (a task the lease holder
 //! sends to the vehicle's home site) carry the same envelope; they are rare, so their
-//! numbers are plain `f64`s, exact, rather than fixed point.
+//! numbers are plain `f64`s, exact, rather than fixed point. Environment summaries carry
+//! the envelope too (numbered, never caught up); their statistics are `f64`s, since a
+//! property's range and resolution are unknown to the federation, and the place of the
+//! latest observation is coded as a position's.
 
 use shoal_model::{
-    Event, EventKind, GeoPoint, MAX_ID_LEN, MAX_TEXT_LEN, MAX_TIMESTAMP_MS, MAX_VEHICLE_ID_LEN,
-    MIN_TIMESTAMP_MS, Severity, TaskAssignment, TaskKind, TaskState, Validate, ValidationError,
-    VehicleKind,
+    Event, EventKind, GeoPoint, MAX_ID_LEN, MAX_NAME_LEN, MAX_TEXT_LEN, MAX_TIMESTAMP_MS,
+    MAX_VEHICLE_ID_LEN, MIN_TIMESTAMP_MS, Severity, TaskAssignment, TaskKind, TaskState, Validate,
+    ValidationError, VehicleKind,
 };
 
+use crate::environment::{EnvironmentAggregates, MAX_PROPERTIES_PER_FRAME, PropertyAggregate};
 use crate::lease::{LeaseReason, LeaseRecord};
 use crate::types::{MAX_SITE_LEN, TaskTransition, VehiclePosition, is_site_name};
 
@@ -34,6 +38,8 @@ pub const KIND_TASK: u8 = 3;
 pub const KIND_LEASE: u8 = 4;
 /// Kind byte of an order frame (a task relayed through the vehicle's home site).
 pub const KIND_ORDER: u8 = 5;
+/// Kind byte of an environment frame (a vehicle's summaries of one window).
+pub const KIND_ENVIRONMENT: u8 = 6;
 /// Size of a position frame, bytes.
 pub const POSITION_LEN: usize = 24;
 
@@ -292,6 +298,38 @@ pub fn encode_order(
     Ok(out)
 }
 
+/// Encodes a vehicle's summaries of one window (validated first) with its envelope; the
+/// envelope's timestamp is the window's end, and the vehicle is in the key expression.
+pub fn encode_environment(
+    site: &str,
+    epoch: u64,
+    seq: u64,
+    a: &EnvironmentAggregates,
+) -> Result<Vec<u8>, ValidationError> {
+    a.validate()?;
+    let mut out = envelope(KIND_ENVIRONMENT, site, epoch, seq, a.window_end_ms)?;
+    put_u48(&mut out, a.window_start_ms);
+    // Validation caps the count at 32.
+    out.push(a.properties.len() as u8);
+    for p in &a.properties {
+        put_str8(&mut out, &p.property);
+        // Validation caps the unit at 16 bytes.
+        put_str8(&mut out, &p.unit);
+        out.extend(p.count.to_le_bytes());
+        for v in [p.min, p.max, p.mean, p.last_value] {
+            out.extend(v.to_le_bytes());
+        }
+        put_u48(&mut out, p.last_ms);
+        // As a position's: the place of the latest observation locates the summary; it is
+        // not a measurement of its own, and 0.2 m of depth is finer than a window of a
+        // moving vehicle resolves (2 bytes where an f32 would take 4).
+        out.extend(fixed_i32(p.latitude_deg * DEG_SCALE).to_le_bytes());
+        out.extend(fixed_i32(p.longitude_deg * DEG_SCALE).to_le_bytes());
+        out.extend(fixed_u16(p.depth_m / DEPTH_STEP_M).to_le_bytes());
+    }
+    Ok(out)
+}
+
 fn envelope(
     kind: u8,
     site: &str,
@@ -528,6 +566,68 @@ pub fn decode_order(
     })
 }
 
+/// Decodes an environment frame; the vehicle id comes from the key expression.
+pub fn decode_environment(
+    vehicle_id: &str,
+    bytes: &[u8],
+) -> Result<Sequenced<EnvironmentAggregates>, DecodeError> {
+    let mut r = Reader::open(bytes, KIND_ENVIRONMENT)?;
+    let (site, epoch, seq, window_end_ms) = r.envelope()?;
+    let window_start_ms = r.time("window_start_ms")?;
+    let count = r.u8("properties")?;
+    // Checked before reading them, so a count cannot make the decoder reserve more.
+    if count == 0 || usize::from(count) > MAX_PROPERTIES_PER_FRAME {
+        return Err(DecodeError::Range {
+            field: "properties",
+            value: i64::from(count),
+        });
+    }
+    let mut properties = Vec::with_capacity(usize::from(count));
+    for _ in 0..count {
+        let property = r.str8("property", MAX_NAME_LEN)?;
+        let unit = r.str8("unit", crate::environment::MAX_UNIT_LEN)?;
+        let count = r.u32("count")?;
+        let min = r.f64("min")?;
+        let max = r.f64("max")?;
+        let mean = r.f64("mean")?;
+        let last_value = r.f64("last_value")?;
+        let last_ms = r.time("last_ms")?;
+        let lat = r.i32("latitude")?;
+        let lon = r.i32("longitude")?;
+        let depth = r.u16("depth")?;
+        range("latitude", i64::from(lat), 900_000_000)?;
+        range("longitude", i64::from(lon), 1_800_000_000)?;
+        range("depth", i64::from(depth), 55_000)?;
+        properties.push(PropertyAggregate {
+            property,
+            unit,
+            count,
+            min,
+            max,
+            mean,
+            last_value,
+            last_ms,
+            latitude_deg: f64::from(lat) / DEG_SCALE,
+            longitude_deg: f64::from(lon) / DEG_SCALE,
+            depth_m: f64::from(depth) * DEPTH_STEP_M,
+        });
+    }
+    r.end()?;
+    let aggregates = EnvironmentAggregates {
+        vehicle_id: vehicle_id.to_string(),
+        window_start_ms,
+        window_end_ms,
+        properties,
+    };
+    aggregates.validate()?;
+    Ok(Sequenced {
+        site,
+        epoch,
+        seq,
+        item: aggregates,
+    })
+}
+
 fn range(field: &'static str, value: i64, max_abs: i64) -> Result<(), DecodeError> {
     if value.abs() > max_abs {
         return Err(DecodeError::Range { field, value });
@@ -579,6 +679,10 @@ impl<'a> Reader<'a> {
         Ok(i32::from_le_bytes(self.take(field)?))
     }
 
+    fn u32(&mut self, field: &'static str) -> Result<u32, DecodeError> {
+        Ok(u32::from_le_bytes(self.take(field)?))
+    }
+
     fn u64(&mut self, field: &'static str) -> Result<u64, DecodeError> {
         Ok(u64::from_le_bytes(self.take(field)?))
     }
@@ -590,15 +694,17 @@ impl<'a> Reader<'a> {
 
     /// A u48 of ms since the Unix epoch, inside the model's accepted years.
     fn timestamp(&mut self) -> Result<i64, DecodeError> {
-        let b: [u8; 6] = self.take("timestamp_ms")?;
+        self.time("timestamp_ms")
+    }
+
+    /// A u48 of ms since the Unix epoch named `field`, inside the model's accepted years.
+    fn time(&mut self, field: &'static str) -> Result<i64, DecodeError> {
+        let b: [u8; 6] = self.take(field)?;
         let mut full = [0u8; 8];
         full[..6].copy_from_slice(&b);
         let ms = i64::from_le_bytes(full);
         if !(MIN_TIMESTAMP_MS..=MAX_TIMESTAMP_MS).contains(&ms) {
-            return Err(DecodeError::Range {
-                field: "timestamp_ms",
-                value: ms,
-            });
+            return Err(DecodeError::Range { field, value: ms });
         }
         Ok(ms)
     }

@@ -414,3 +414,110 @@ fn an_order_for_another_sites_vehicle_or_with_the_lease_off_is_refused() {
     let r = ship.receive_order(&key, &order_frame("shore", 1, 2), 0, |_| Ok(()));
     assert_eq!(r.unwrap_err().reason(), "order_lease_off");
 }
+
+fn environment_frame(site: &str, seq: u64, vehicle: &str, properties: &[&str]) -> Vec<u8> {
+    let a = crate::environment::tests::aggregates(vehicle, properties);
+    wire::encode_environment(site, 1, seq, &a).unwrap()
+}
+
+#[test]
+fn environment_summaries_fill_the_picture_and_bad_frames_are_refused_by_reason() {
+    let mut inb = shore();
+    let key = keys::environment("ship", "auv-1");
+    let frame = environment_frame("ship", 1, "auv-1", &["s", "t"]);
+    assert_eq!(inb.receive(&key, &frame, 10), Ok(None));
+    assert_eq!(inb.counters().environment, 2);
+    let got: Vec<(String, String, String)> = inb
+        .picture()
+        .environment()
+        .map(|e| (e.site.clone(), e.vehicle_id.clone(), e.property.clone()))
+        .collect();
+    assert_eq!(
+        got,
+        [
+            ("ship".into(), "auv-1".into(), "s".into()),
+            ("ship".into(), "auv-1".into(), "t".into())
+        ]
+    );
+    // The same frame again: each summary a duplicate, nothing refused.
+    assert_eq!(inb.receive(&key, &frame, 11), Ok(None));
+    assert_eq!(inb.counters().duplicates, 2);
+    assert!(inb.counters().refused.is_empty());
+
+    let cases: Vec<(String, Vec<u8>, &str)> = vec![
+        (
+            keys::environment("pirate", "auv-1"),
+            environment_frame("pirate", 1, "auv-1", &["t"]),
+            "unknown_site",
+        ),
+        (
+            keys::environment("shore", "auv-1"),
+            environment_frame("shore", 1, "auv-1", &["t"]),
+            "own_site",
+        ),
+        (
+            keys::environment("ship", "auv-1"),
+            environment_frame("ship2", 1, "auv-1", &["t"]),
+            "site_mismatch",
+        ),
+        (
+            key.clone(),
+            frame[..frame.len() - 1].to_vec(),
+            "malformed:truncated",
+        ),
+        (key.clone(), alarm_frame("ship", 1, 1), "malformed:kind"),
+    ];
+    for (key, payload, reason) in &cases {
+        let refusal = inb.receive(key, payload, 0).unwrap_err();
+        assert_eq!(refusal.reason(), *reason, "{key}");
+        assert_eq!(inb.counters().refused(reason), 1, "{reason}");
+    }
+    // Never in a catch-up reply.
+    let request = CatchupRequest {
+        site: "ship".into(),
+        stream: Stream::Alarms,
+        epoch: None,
+        after: 0,
+        limit: 10,
+    };
+    assert_eq!(
+        inb.receive_catchup(&request, &key, &frame, 0),
+        Err(Refusal::CatchupKey)
+    );
+    assert_eq!(inb.counters().environment, 2);
+}
+
+#[test]
+fn environment_summaries_past_the_limit_or_stale_are_refused_each() {
+    let config = FederationConfig {
+        site: "shore".into(),
+        remote_sites: vec!["ship".into()],
+        limits: Limits {
+            remote_environment: 2,
+            ..Limits::default()
+        },
+        ..FederationConfig::default()
+    };
+    let mut inb = Inbound::new(&config);
+    let key = keys::environment("ship", "auv-1");
+    inb.receive(
+        &key,
+        &environment_frame("ship", 1, "auv-1", &["a", "b", "c"]),
+        0,
+    )
+    .unwrap();
+    assert_eq!(inb.counters().environment, 2);
+    assert_eq!(inb.counters().refused("too_many_environment"), 1);
+    // A later window of a held property replaces it even when the picture is full.
+    let mut later = crate::environment::tests::aggregates("auv-1", &["a"]);
+    later.window_start_ms += 60_000;
+    later.window_end_ms += 60_000;
+    let later = wire::encode_environment("ship", 1, 2, &later).unwrap();
+    inb.receive(&key, &later, 1).unwrap();
+    assert_eq!(inb.counters().environment, 3);
+    // The earlier window of `a`, arriving late: stale.
+    inb.receive(&key, &environment_frame("ship", 3, "auv-1", &["a"]), 2)
+        .unwrap();
+    assert_eq!(inb.counters().refused("stale_environment"), 1);
+    assert_eq!(inb.picture().environment().count(), 2);
+}

@@ -4,6 +4,7 @@ use proptest::prelude::*;
 use shoal_model::{Event, EventKind, Severity, Task, TaskState, VehicleKind};
 
 use super::*;
+use crate::environment::tests::{T0, aggregate, aggregates};
 use crate::types::tests::position;
 
 pub(crate) fn alarm(id: &str) -> Event {
@@ -246,6 +247,206 @@ fn the_order_table_in_the_doc_has_the_offsets_the_encoder_writes() {
 }
 
 #[test]
+fn an_environment_frame_has_the_documented_layout() {
+    let mut a = aggregates("auv-1", &["sea_water_temperature"]);
+    a.properties[0].unit = "Cel".into();
+    let bytes = encode_environment("ship", 9, 4, &a).unwrap();
+    let mut expected = vec![1, 6, 4];
+    expected.extend(b"ship");
+    // s = 3 + 4 = 7: where the fixed part after the site starts.
+    expected.extend(9u64.to_le_bytes()); // s
+    expected.extend(4u64.to_le_bytes()); // s+8
+    expected.extend(&(T0 + 60_000).to_le_bytes()[..6]); // s+16: the window's end
+    expected.extend(&T0.to_le_bytes()[..6]); // s+22: its start
+    expected.push(1); // s+28: one property
+    // s+29, the property: p = its name's length, u = its unit's, q = 2 + p + u.
+    expected.push(21);
+    expected.extend(b"sea_water_temperature");
+    expected.push(3);
+    expected.extend(b"Cel");
+    expected.extend(3u32.to_le_bytes()); // q
+    for v in [12.5f64, 14.25, 13.0, 14.25] {
+        expected.extend(v.to_le_bytes()); // q+4 .. q+28
+    }
+    expected.extend(&(T0 + 59_000).to_le_bytes()[..6]); // q+36
+    expected.extend(431_000_000i32.to_le_bytes()); // q+42
+    expected.extend(59_000_000i32.to_le_bytes()); // q+46
+    expected.extend(62u16.to_le_bytes()); // q+50: 12.4 m / 0.2
+    assert_eq!(bytes, expected);
+    assert_eq!(bytes.len(), SE + 29 + (1 + 21) + (1 + 3) + 52);
+    let back = decode_environment("auv-1", &bytes).unwrap();
+    assert_eq!((back.site.as_str(), back.epoch, back.seq), ("ship", 9, 4));
+    assert_eq!(back.item, a);
+}
+
+/// The rows (offset, size) of the table that follows `heading` in docs/federation.md, up
+/// to the next heading or paragraph after it.
+fn doc_rows(doc: &str, heading: &str) -> Vec<(String, String)> {
+    let table = doc
+        .split(heading)
+        .nth(1)
+        .and_then(|s| s.split("\n### ").next())
+        .unwrap_or_else(|| panic!("the doc has {heading}"));
+    table
+        .lines()
+        .skip_while(|l| !l.starts_with("| offset"))
+        .take_while(|l| l.starts_with('|'))
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| offset"))
+        .map(|l| {
+            let cells: Vec<&str> = l.split('|').map(str::trim).collect();
+            (cells[1].to_string(), cells[2].to_string())
+        })
+        .collect()
+}
+
+#[test]
+fn the_environment_tables_in_the_doc_have_the_offsets_the_encoder_writes() {
+    // docs/federation.md is the specification third parties decode from; the test above
+    // checks the encoder against the same offsets.
+    let doc = include_str!("../../../../docs/federation.md");
+    let frame = doc_rows(doc, "### Environment frame (kind 6)");
+    let expected = [
+        ("0", "1"),
+        ("1", "1"),
+        ("2", "1 + n"),
+        ("s", "8"),
+        ("s+8", "8"),
+        ("s+16", "6"),
+        ("s+22", "6"),
+        ("s+28", "1"),
+        ("s+29", "count × property"),
+    ];
+    let frame: Vec<(&str, &str)> = frame
+        .iter()
+        .map(|(a, b)| (a.as_str(), b.as_str()))
+        .collect();
+    assert_eq!(frame, expected);
+    let property = doc_rows(doc, "Each property, from its first byte:");
+    let expected = [
+        ("0", "1 + p"),
+        ("1+p", "1 + u"),
+        ("q", "4"),
+        ("q+4", "8"),
+        ("q+12", "8"),
+        ("q+20", "8"),
+        ("q+28", "8"),
+        ("q+36", "6"),
+        ("q+42", "4"),
+        ("q+46", "4"),
+        ("q+50", "2"),
+    ];
+    let property: Vec<(&str, &str)> = property
+        .iter()
+        .map(|(a, b)| (a.as_str(), b.as_str()))
+        .collect();
+    assert_eq!(property, expected);
+}
+
+/// Offset of the fixed part after the site `ship` (s = 3 + 4).
+const SE: usize = 7;
+
+#[test]
+fn a_bad_environment_frame_is_refused_naming_what_is_wrong() {
+    let mut one = aggregates("auv-1", &["t"]);
+    one.properties[0].unit = "Cel".into();
+    let good = encode_environment("ship", 1, 1, &one).unwrap();
+    // q: the property's fixed part, after its name (`t`) and unit (`Cel`).
+    let q = SE + 29 + 2 + 3 + 1;
+    let refused = |edit: &dyn Fn(&mut Vec<u8>)| {
+        let mut b = good.clone();
+        edit(&mut b);
+        decode_environment("auv-1", &b).unwrap_err().reason()
+    };
+    let f64_at =
+        |at: usize, v: f64| move |b: &mut Vec<u8>| b[at..at + 8].copy_from_slice(&v.to_le_bytes());
+    assert_eq!(refused(&|b| b[SE + 28] = 0), "range:properties");
+    // 33 announced: refused before they are read.
+    assert_eq!(refused(&|b| b[SE + 28] = 33), "range:properties");
+    assert_eq!(refused(&|b| b.push(0)), "trailing");
+    assert_eq!(
+        refused(&|b| b[q..q + 4].copy_from_slice(&0u32.to_le_bytes())),
+        "invalid:inconsistent:count"
+    );
+    assert_eq!(refused(&f64_at(q + 4, f64::NAN)), "invalid:not_finite:min");
+    assert_eq!(
+        refused(&f64_at(q + 12, f64::INFINITY)),
+        "invalid:not_finite:max"
+    );
+    // min 12.5 > max.
+    assert_eq!(refused(&f64_at(q + 12, 12.0)), "invalid:inconsistent:min");
+    assert_eq!(refused(&f64_at(q + 20, 15.0)), "invalid:inconsistent:mean");
+    assert_eq!(refused(&f64_at(q + 20, 12.0)), "invalid:inconsistent:mean");
+    assert_eq!(
+        refused(&f64_at(q + 28, 1.0)),
+        "invalid:inconsistent:last_value"
+    );
+    assert_eq!(
+        refused(&|b| b[q + 36..q + 42].copy_from_slice(&[0; 6])),
+        "range:last_ms"
+    );
+    assert_eq!(
+        refused(&|b| b[q + 42..q + 46].copy_from_slice(&900_000_001i32.to_le_bytes())),
+        "range:latitude"
+    );
+    assert_eq!(
+        refused(&|b| b[q + 50..q + 52].copy_from_slice(&55_001u16.to_le_bytes())),
+        "range:depth"
+    );
+    // The window: its start after its end, or longer than an hour.
+    assert_eq!(
+        refused(&|b| b[SE + 22..SE + 28].copy_from_slice(&(T0 + 60_001).to_le_bytes()[..6])),
+        "invalid:inconsistent:window_start_ms"
+    );
+    assert_eq!(
+        refused(&|b| b[SE + 22..SE + 28].copy_from_slice(&(T0 - 3_600_000).to_le_bytes()[..6])),
+        "invalid:inconsistent:window_start_ms"
+    );
+    assert_eq!(
+        refused(&|b| b[SE + 22..SE + 28].copy_from_slice(&[0xff; 6])),
+        "range:window_start_ms"
+    );
+    // Identifiers: the property name (`t` at SE + 30), the unit, the site, the vehicle.
+    assert_eq!(refused(&|b| b[SE + 30] = b' '), "invalid:bad_text:property");
+    assert_eq!(refused(&|b| b[SE + 32] = b'\n'), "invalid:bad_text:unit");
+    assert_eq!(refused(&|b| b[SE + 32] = 0xff), "utf8:unit");
+    assert_eq!(refused(&|b| b[3] = b'*'), "invalid:bad_text:site");
+    assert_eq!(
+        decode_environment("bad id", &good).unwrap_err().reason(),
+        "invalid:bad_text:vehicle_id"
+    );
+    assert_eq!(
+        refused(&|b| b[SE + 8..SE + 16].copy_from_slice(&[0; 8])),
+        "range:seq"
+    );
+    // The same property twice in a frame.
+    let twice = {
+        let mut b = good.clone();
+        b[SE + 28] = 2;
+        b.extend_from_slice(&good[SE + 29..]);
+        b
+    };
+    assert_eq!(
+        decode_environment("auv-1", &twice).unwrap_err().reason(),
+        "invalid:inconsistent:property"
+    );
+    assert_eq!(
+        decode_alarm(&good).unwrap_err(),
+        DecodeError::Kind {
+            expected: KIND_ALARM,
+            found: KIND_ENVIRONMENT
+        }
+    );
+    // And what the encoder is given is checked the same.
+    let mut bad = one.clone();
+    bad.properties[0].mean = 99.0;
+    assert!(encode_environment("ship", 1, 1, &bad).is_err());
+    assert!(encode_environment("a/b", 1, 1, &one).is_err());
+    let mut many = aggregates("auv-1", &[]);
+    many.properties = (0..33).map(|i| aggregate(&format!("p{i}"))).collect();
+    assert!(encode_environment("ship", 1, 1, &many).is_err());
+}
+
+#[test]
 fn an_order_round_trips_every_kind_and_drops_what_it_does_not_carry() {
     let p = |lat: f64, lon: f64| GeoPoint {
         latitude_deg: lat,
@@ -363,6 +564,7 @@ fn every_truncation_of_every_frame_is_refused() {
         encode_task("s", 1, 1, &transition("t-9", TaskState::Done)).unwrap(),
         encode_lease(&lease(3)).unwrap(),
         encode_order("shore", 9, 4, &order_task(7)).unwrap(),
+        encode_environment("ship", 9, 4, &aggregates("auv-1", &["s", "t"])).unwrap(),
     ];
     for frame in &frames {
         for len in 0..frame.len() {
@@ -372,6 +574,7 @@ fn every_truncation_of_every_frame_is_refused() {
             assert!(decode_task(cut).is_err(), "{len}");
             assert!(decode_lease("v", cut).is_err(), "{len}");
             assert!(decode_order("v", cut).is_err(), "{len}");
+            assert!(decode_environment("v", cut).is_err(), "{len}");
         }
     }
 }
@@ -528,6 +731,7 @@ proptest! {
         let _ = decode_task(&bytes);
         let _ = decode_lease("v", &bytes);
         let _ = decode_order("v", &bytes);
+        let _ = decode_environment("v", &bytes);
     }
 
     #[test]
@@ -571,6 +775,64 @@ proptest! {
         let bytes = encode_order(&site, epoch, seq, &t).unwrap();
         let back = decode_order(&vehicle, &bytes).unwrap();
         prop_assert_eq!(back, Sequenced { site, epoch, seq, item: t });
+    }
+
+    #[test]
+    fn environment_round_trips_exactly_but_for_the_place(
+        site in "[a-z0-9-]{1,32}", epoch in any::<u64>(), seq in 1..u64::MAX,
+        vehicle in ids(), start in MIN_TIMESTAMP_MS..MAX_TIMESTAMP_MS - 3_600_000,
+        span in 1..=3_600_000i64,
+        properties in proptest::collection::btree_map(
+            "[A-Za-z0-9_.-]{1,64}",
+            (
+                "[ -~]{0,16}", 1..=u32::MAX, proptest::collection::vec(
+                    proptest::num::f64::NORMAL | proptest::num::f64::ZERO
+                        | proptest::num::f64::SUBNORMAL, 1..4),
+                0..4usize, MIN_TIMESTAMP_MS..=MAX_TIMESTAMP_MS,
+                -90.0..=90.0f64, -180.0..=180.0f64, 0.0..=11_000.0f64,
+            ),
+            1..=32,
+        ),
+    ) {
+        let properties: Vec<PropertyAggregate> = properties
+            .into_iter()
+            .map(|(property, (unit, count, values, last, last_ms, lat, lon, depth))| {
+                // Any finite values: the summary's own are among them (min, max, one as the
+                // mean and one as the last), so it is consistent.
+                let min = values.iter().copied().fold(f64::INFINITY, f64::min);
+                let max = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                PropertyAggregate {
+                    property, unit, count, min, max,
+                    mean: values[values.len() / 2],
+                    last_value: values[last % values.len()],
+                    last_ms, latitude_deg: lat, longitude_deg: lon, depth_m: depth,
+                }
+            })
+            .collect();
+        let a = EnvironmentAggregates {
+            vehicle_id: vehicle.clone(), window_start_ms: start, window_end_ms: start + span,
+            properties,
+        };
+        let bytes = encode_environment(&site, epoch, seq, &a).unwrap();
+        let back = decode_environment(&vehicle, &bytes).unwrap();
+        prop_assert_eq!((&back.site, back.epoch, back.seq), (&site, epoch, seq));
+        // The place is rounded as a position's; everything else is exact.
+        prop_assert_eq!(back.item.properties.len(), a.properties.len());
+        for (got, sent) in back.item.properties.iter().zip(&a.properties) {
+            prop_assert!((got.latitude_deg - sent.latitude_deg).abs() <= 0.5e-7 + 1e-12);
+            prop_assert!((got.longitude_deg - sent.longitude_deg).abs() <= 0.5e-7 + 1e-12);
+            prop_assert!((got.depth_m - sent.depth_m).abs() <= DEPTH_STEP_M / 2.0 + 1e-9);
+            let place = |p: &PropertyAggregate| PropertyAggregate {
+                latitude_deg: 0.0, longitude_deg: 0.0, depth_m: 0.0, ..p.clone()
+            };
+            prop_assert_eq!(place(got), place(sent));
+        }
+        prop_assert_eq!(
+            (back.item.window_start_ms, back.item.window_end_ms, back.item.vehicle_id.clone()),
+            (start, start + span, vehicle)
+        );
+        // What decoded re-encodes to the very bytes (as the fuzz target checks).
+        prop_assert_eq!(encode_environment(&site, epoch, seq, &back.item).unwrap(), bytes);
     }
 
     #[test]

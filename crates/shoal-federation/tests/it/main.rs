@@ -15,12 +15,16 @@
 //! - `tls`: site identity over mutual TLS (`tls/127.0.0.1`): an expired certificate and a
 //!   common name not accepted never reach the shore; bad files stop the start.
 //! - `encoding_size`: the WAN encoding measured against CDR (+ zstd) on a realistic fleet.
+//! - `environment`: environment observations cross as one summary per vehicle, property
+//!   and window (`environment.mode = "aggregated"`), nothing with the mode off; a site
+//!   not configured is refused.
 
 // Test code: a failed step is a failed test.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 mod common;
 mod encoding_size;
+mod environment;
 mod lease;
 mod orders;
 mod outage;
