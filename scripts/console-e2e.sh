@@ -154,6 +154,7 @@ ship_env=(SHOAL_DDS__DOMAIN_ID=147 SHOAL_CONSOLE__AUTH__ENABLED=false)
     SHOAL_FEDERATION__PASSWORD_FILE="$work/ship.password" \
     SHOAL_FEDERATION__CREDENTIALS_FILE="$work/ship-sites.txt" \
     SHOAL_FEDERATION__POSITIONS__MAX_RATE_HZ=1.0 \
+    SHOAL_FEDERATION__ENVIRONMENT__MODE=aggregated SHOAL_FEDERATION__ENVIRONMENT__WINDOW_S=5 \
     "$bin" --insecure station --scenario none --listen "127.0.0.1:$ship_port" --db :memory: \
     >"$out/ship-station.log" 2>&1) &
 ship_pid=$!

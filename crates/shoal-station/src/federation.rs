@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use serde::Serialize;
-use shoal_model::{Event, TaskAssignment, TaskState, VehicleKind};
+use shoal_model::{EnvironmentObservation, Event, TaskAssignment, TaskState, VehicleKind};
 
 use crate::core::StationHandle;
 
@@ -28,6 +28,10 @@ pub trait FederationView: Send + Sync {
     /// Sends `task`, for another site's vehicle whose lease this station holds (and that
     /// the task carries), to that site, whose station gives it to the vehicle.
     fn relay(&self, task: &TaskAssignment) -> Result<(), RelayRefused>;
+
+    /// Takes an environment observation this station accepted (the federation aggregates
+    /// it for the other sites, when `[federation.environment]` says so).
+    fn observe(&self, observation: &EnvironmentObservation);
 }
 
 /// Why a task for another site's vehicle was not sent to that site.
@@ -182,6 +186,8 @@ pub struct FederationSnapshot {
     pub alarms: Vec<RemoteAlarmView>,
     /// The latest task transitions from remote sites (bounded), oldest first.
     pub transitions: Vec<RemoteTransitionView>,
+    /// The latest environment aggregate of each remote vehicle and property (bounded).
+    pub environment: Vec<RemoteEnvironmentView>,
     /// Whether the command lease is in force (`[federation.lease] enabled`).
     pub lease_enabled: bool,
     /// Every command lease this site knows, by vehicle.
@@ -226,6 +232,41 @@ pub struct RemoteVehicleView {
     pub battery_pct: f64,
     /// How old the position is now, ms.
     pub age_ms: i64,
+}
+
+/// Another site's environment data: one property of one vehicle over one window.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RemoteEnvironmentView {
+    /// The site whose vehicle measured it.
+    pub site: String,
+    /// The vehicle.
+    pub vehicle_id: String,
+    /// The property (e.g. `sea_water_temperature`).
+    pub property: String,
+    /// Its unit.
+    pub unit: String,
+    /// The window, ms since the Unix epoch: from …
+    pub window_start_ms: i64,
+    /// … to.
+    pub window_end_ms: i64,
+    /// Observations in the window.
+    pub count: u64,
+    /// Least value.
+    pub min: f64,
+    /// Greatest value.
+    pub max: f64,
+    /// Mean value.
+    pub mean: f64,
+    /// The window's last value …
+    pub last_value: f64,
+    /// … when it was measured, ms since the Unix epoch, …
+    pub last_ms: i64,
+    /// … and where: latitude, degrees, …
+    pub latitude_deg: f64,
+    /// … longitude, degrees, …
+    pub longitude_deg: f64,
+    /// … depth, metres.
+    pub depth_m: f64,
 }
 
 /// An alarm from another site.

@@ -48,7 +48,8 @@ pub use error::{
 };
 pub use federation::{
     FederationSnapshot, FederationView, HandoverRefused, LeaseDenial, LeaseGrant, LeaseView,
-    RelayRefused, RemoteAlarmView, RemoteTransitionView, RemoteVehicleView, SiteView,
+    RelayRefused, RemoteAlarmView, RemoteEnvironmentView, RemoteTransitionView, RemoteVehicleView,
+    SiteView,
 };
 pub use health::{
     DdsHealth, HealthThresholds, HealthVerdict, HistoryHealth, SemanticHealth, StationHealth,

@@ -644,7 +644,7 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 27]>([
+        rows.extend::<[(&str, &str, &str, Check); 28]>([
             ("foxglove", "SHOAL_FOXGLOVE__ENABLED", "true", |c| {
                 c.foxglove.enabled && c.foxglove.max_clients == 8
             }),
@@ -714,6 +714,12 @@ mod tests {
                     c.federation.environment.mode
                         == shoal_federation::config::EnvironmentMode::Aggregated
                 },
+            ),
+            (
+                "federation.environment.qos",
+                "SHOAL_FEDERATION__ENVIRONMENT__QOS",
+                "{ priority = \"background\", congestion = \"drop\", express = true }",
+                |c| c.federation.environment.qos.express,
             ),
             (
                 "federation.limits",

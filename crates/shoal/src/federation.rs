@@ -12,11 +12,11 @@ use shoal_federation::{
     CommandDenied, Federation, FederationConfig, HandoverError, LeaseReason, LeaseRecord,
     TaskTransition, VehiclePosition,
 };
-use shoal_model::{TaskAssignment, TaskStatus};
+use shoal_model::{EnvironmentObservation, TaskAssignment, TaskStatus};
 use shoal_station::{
     FederationSnapshot, FederationView, HandoverRefused, LeaseDenial, LeaseGrant, LeaseView,
-    LiveUpdate, RelayRefused, RemoteAlarmView, RemoteTransitionView, RemoteVehicleView, SiteView,
-    StationHandle,
+    LiveUpdate, RelayRefused, RemoteAlarmView, RemoteEnvironmentView, RemoteTransitionView,
+    RemoteVehicleView, SiteView, StationHandle,
 };
 use tokio::sync::broadcast::error::RecvError;
 use tokio_util::sync::CancellationToken;
@@ -127,6 +127,13 @@ impl FederationView for View {
         })
     }
 
+    fn observe(&self, observation: &EnvironmentObservation) {
+        if let Err(e) = self.0.push_observation(observation) {
+            // Validated by the station already: this is a bug, not bad input.
+            warn!(error = %e, "environment observation not aggregated for the federation");
+        }
+    }
+
     fn snapshot(&self, now_ms: i64) -> FederationSnapshot {
         let fed = &self.0;
         let mut snap = fed.picture(|p| FederationSnapshot {
@@ -173,6 +180,26 @@ impl FederationView for View {
                     timestamp_ms: t.transition.timestamp_ms,
                 })
                 .collect(),
+            environment: p
+                .environment()
+                .map(|e| RemoteEnvironmentView {
+                    site: e.site.clone(),
+                    vehicle_id: e.vehicle_id.clone(),
+                    property: e.property.clone(),
+                    unit: e.unit.clone(),
+                    window_start_ms: e.window_start_ms,
+                    window_end_ms: e.window_end_ms,
+                    count: u64::from(e.count),
+                    min: e.min,
+                    max: e.max,
+                    mean: e.mean,
+                    last_value: e.last_value,
+                    last_ms: e.last_ms,
+                    latitude_deg: e.latitude_deg,
+                    longitude_deg: e.longitude_deg,
+                    depth_m: e.depth_m,
+                })
+                .collect(),
             lease_enabled: fed.lease_enabled(),
             leases: Vec::new(),
             counters: Default::default(),
@@ -197,6 +224,12 @@ impl FederationView for View {
             ("accepted_orders", i.orders_accepted),
             ("duplicate_orders", i.order_duplicates),
             ("sent_orders", o.orders_sent),
+            ("received_environment", i.environment),
+            ("environment_observations", o.environment_observations),
+            ("environment_not_listed", o.environment_not_listed),
+            ("environment_dropped", o.environment_dropped),
+            ("sent_environment_aggregates", o.environment_aggregates_sent),
+            ("sent_environment_frames", o.environment_frames_sent),
             ("sent_positions", o.positions_sent),
             ("coalesced_positions", o.positions_coalesced),
             ("sent_alarms", o.alarms_sent),

@@ -87,6 +87,7 @@ async function poll(gen) {
       vehicles: doc.vehicles,
       alarms: doc.alarms,
       transitions: doc.transitions || [],
+      environment: doc.environment || [],
       leases: doc.leases || [],
       leaseEnabled: Boolean(doc.lease_enabled),
       receivedMs: Date.now(),
@@ -273,6 +274,24 @@ function taskRows(site, tasks, now) {
   ));
 }
 
+/** A site's environment data, aggregated per vehicle and property over each window
+ *  (mean, range, count, the window's age), or nothing before the first window. */
+function remoteEnvironment(site, environment, now) {
+  const rows = (environment || []).filter((e) => e.site === site)
+    .sort((a, b) => a.vehicle_id.localeCompare(b.vehicle_id) || a.property.localeCompare(b.property));
+  if (!rows.length) return null;
+  return h('table', { class: 'grid compact remote remote-environment' },
+    h('thead', {}, h('tr', {}, ['vehicle', 'property', 'mean', 'range', 'n', 'age'].map((t) => h('th', {}, t)))),
+    h('tbody', {}, rows.map((e) => h('tr', { dataset: { vehicle: e.vehicle_id, property: e.property } },
+      h('td', {}, e.vehicle_id),
+      h('td', {}, e.property),
+      h('td', { class: 'num' }, `${fmt(e.mean, 2)} ${e.unit}`),
+      h('td', { class: 'num' }, `${fmt(e.min, 2)} to ${fmt(e.max, 2)}`),
+      h('td', { class: 'num' }, String(e.count)),
+      h('td', { class: 'num age' }, ago(e.window_end_ms, now)),
+    ))));
+}
+
 /** The fleet panel's "Other sites" section, or null when this station is not federated. */
 export function remoteSection() {
   const f = fed();
@@ -311,6 +330,7 @@ export function remoteSection() {
             h('tbody', {}, siteRows(site, vehicles, now)))
           : h('p', { class: 'muted' }, online === false ? 'Offline: nothing heard.' : 'No vehicle position received yet.'),
         remoteTasks(site, f.transitions, now),
+        remoteEnvironment(site, f.environment, now),
       );
     }),
     leaseSection(f),

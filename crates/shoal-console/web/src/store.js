@@ -17,7 +17,7 @@ export const state = {
   selected: null,
   /** Other sites' picture from GET /api/federation (federation.js); `enabled` is null
    *  until the station first answered, `error` set while the last poll failed. */
-  federation: { enabled: null, site: '', sites: [], vehicles: [], alarms: [], transitions: [], leases: [], leaseEnabled: false, receivedMs: 0, error: null },
+  federation: { enabled: null, site: '', sites: [], vehicles: [], alarms: [], transitions: [], environment: [], leases: [], leaseEnabled: false, receivedMs: 0, error: null },
   /** `site/vehicle_id` of the remote vehicle picked on the map or in the list: kept apart
    *  from `selected`, which the command views act on. */
   remoteSelected: null,

@@ -3,7 +3,8 @@
 // second station (site "ship", DDS domain 147) that has one simulated AUV, ship-auv-1.
 // The shore's console must show it on the map and under "Other sites", as the ship's,
 // with the ship's task transitions, and never offer it in a task form; it lists who holds
-// each command lease, commands the ship's vehicle through the ship while it holds the
+// each command lease, shows the ship's environment summaries, commands the ship's
+// vehicle through the ship while it holds the
 // lease, and hands back a lease it was handed.
 
 import { after, before, describe, test } from 'node:test';
@@ -194,6 +195,26 @@ describe('Another site in the console', { concurrency: false }, () => {
     assert.match(text, /sent|accepted|running|done/);
     // Not among the shore's own missions or tasks.
     assert.equal((await admin('GET', `/api/missions/${mission}`)).status, 404);
+  });
+
+  test("the ship's environment data shows at the shore, aggregated per property and window", async () => {
+    // The ship sends summaries of 5 s windows (scripts/console-e2e.sh); its AUV's CTD
+    // samples the water every 10 s.
+    let env = [];
+    for (let i = 0; i < 60 && !env.length; i++) {
+      const doc = (await admin('GET', '/api/federation')).body;
+      env = (doc.environment || []).filter((e) => e.site === 'ship' && e.vehicle_id === 'ship-auv-1');
+      if (!env.length) await new Promise((resolve) => setTimeout(resolve, 1000));
+    }
+    assert.ok(env.length, 'no environment summary from the ship within a minute');
+    for (const e of env) {
+      assert.ok(e.count >= 1 && e.min <= e.mean && e.mean <= e.max, JSON.stringify(e));
+      assert.ok(e.window_start_ms < e.window_end_ms, JSON.stringify(e));
+    }
+    await page.click('#tabs button[data-tab=fleet]');
+    const row = page.locator(`#remote-fleet .remote-site[data-site="ship"] .remote-environment tr[data-vehicle="ship-auv-1"][data-property="${env[0].property}"]`);
+    await row.waitFor({ timeout: 30000 });
+    assert.match(await row.textContent(), new RegExp(env[0].property));
   });
 
   test('the command leases: the ship commands its vehicle; a lease handed to the shore is handed back from its console', async () => {

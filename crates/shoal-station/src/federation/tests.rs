@@ -22,6 +22,8 @@ struct Leases {
     /// Vehicle → its site, for other sites' vehicles.
     homes: HashMap<String, String>,
     relayed: Mutex<Vec<TaskAssignment>>,
+    /// Environment observations handed over, by vehicle.
+    observed: Mutex<Vec<String>>,
 }
 
 impl Leases {
@@ -38,6 +40,7 @@ impl Leases {
                 .map(|(v, s)| ((*v).to_owned(), (*s).to_owned()))
                 .collect(),
             relayed: Mutex::new(Vec::new()),
+            observed: Mutex::new(Vec::new()),
         })
     }
 
@@ -83,6 +86,13 @@ impl FederationView for Leases {
     fn relay(&self, task: &TaskAssignment) -> Result<(), RelayRefused> {
         self.relayed.lock().unwrap().push(task.clone());
         Ok(())
+    }
+
+    fn observe(&self, observation: &EnvironmentObservation) {
+        self.observed
+            .lock()
+            .unwrap()
+            .push(observation.vehicle_id.clone());
     }
 }
 
@@ -204,4 +214,34 @@ fn a_task_from_the_lease_holder_reaches_the_vehicle_with_its_lease_and_no_other(
     ));
     assert!(f.h.task("h-3").is_none());
     assert_eq!(f.out.tasks().len(), 1);
+}
+
+#[test]
+fn every_observation_the_station_accepts_goes_to_the_federation() {
+    let leases = Leases::new("ship", &[], &[]);
+    let f = federated(&leases);
+    f.alive("auv-1");
+    let o = EnvironmentObservation {
+        vehicle_id: "auv-1".into(),
+        property: "sea_water_temperature".into(),
+        timestamp_ms: now_ms(),
+        value: 7.5,
+        unit: "Cel".into(),
+        latitude_deg: 63.44,
+        longitude_deg: 10.38,
+        depth_m: 10.0,
+    };
+    f.h.ingest_observation(crate::testing::valid(o.clone()))
+        .unwrap();
+    let mut stale = o;
+    stale.timestamp_ms -= 86_400_000;
+    assert!(
+        f.h.ingest_observation(crate::testing::valid(stale))
+            .is_err()
+    );
+    assert_eq!(
+        *leases.observed.lock().unwrap(),
+        ["auv-1"],
+        "only the accepted one"
+    );
 }

@@ -325,6 +325,10 @@ impl StationHandle {
         )?;
         lock(&self.core.stats).observations += 1;
         self.offer_observation(&o);
+        // Aggregated for the other sites, when the federation sends environment data.
+        if let Some(view) = self.core.federation.get() {
+            view.observe(&o);
+        }
         let fired = lock(&self.core.semantic).add_observation(&o);
         self.emit_fired(fired);
         self.store(Record::Observation(o));

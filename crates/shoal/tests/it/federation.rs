@@ -167,6 +167,8 @@ fn a_shore_station_sees_the_ships_vehicle_over_the_federation() {
         ("SHOAL_FEDERATION__LISTEN", &zenoh_ep),
         ("SHOAL_FEDERATION__REMOTE_SITES", "[\"shore\"]"),
         ("SHOAL_FEDERATION__POSITIONS__MAX_RATE_HZ", "2.0"),
+        ("SHOAL_FEDERATION__ENVIRONMENT__MODE", "aggregated"),
+        ("SHOAL_FEDERATION__ENVIRONMENT__WINDOW_S", "5"),
     ]);
     let mut ship = station("ship", 116, ship_api, &ship_env);
     let shore_id = identity(dir.path(), "shore", "unused", &[("ship", "pw-ship-1")]);
@@ -242,6 +244,28 @@ fn a_shore_station_sees_the_ships_vehicle_over_the_federation() {
         ship.log()
     );
     assert!(ship_doc["vehicles"].as_array().unwrap().is_empty());
+
+    // The ship's environment data, one summary per property and 5 s window (its AUV's CTD
+    // samples every 10 s).
+    let summaries = || {
+        json(shore_api, "/api/federation")["environment"]
+            .as_array()
+            .map(|es| {
+                es.iter()
+                    .filter(|e| e["site"] == "ship" && e["vehicle_id"] == "auv-f1")
+                    .cloned()
+                    .collect::<Vec<_>>()
+            })
+            .unwrap_or_default()
+    };
+    shore.wait_for(60, "auv-f1's environment summaries at the shore", || {
+        !summaries().is_empty()
+    });
+    for e in summaries() {
+        let (min, mean, max) = (e["min"].as_f64(), e["mean"].as_f64(), e["max"].as_f64());
+        assert!(e["count"].as_u64() >= Some(1), "{e}");
+        assert!(min <= mean && mean <= max, "{e}");
+    }
 
     // The command lease: the ship, auv-f1's home, claims it; the shore learns who holds it.
     let lease = |api: u16| {
