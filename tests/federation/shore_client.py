@@ -2,8 +2,8 @@
 """An independent shore-side client of Shoal's federation, written from docs/federation.md
 alone (key expressions, wire version 1, catch-up queries), with PyPI eclipse-zenoh.
 
-It connects to one endpoint (never scouts), subscribes to every site's positions, alarms
-and task transitions, asks the site named by --site for the alarms and transitions it
+It connects to one endpoint (never scouts), subscribes to every site's positions, alarms,
+task transitions and environment summaries, asks the site named by --site for the alarms and transitions it
 already published (the catch-up queryable), decodes each payload, and prints one JSON
 object per line on stdout:
 
@@ -11,14 +11,16 @@ object per line on stdout:
     {"event": "position", "site": ..., "vehicle": ..., ...}
     {"event": "alarm", "site": ..., "epoch": ..., "seq": ..., ...}
     {"event": "task", "site": ..., "epoch": ..., "seq": ..., ...}
+    {"event": "environment", "site": ..., "vehicle": ..., "properties": [...], ...}
     {"event": "refused", "key": ..., "reason": ...}     a payload that does not decode
 
-Alarms and transitions are printed once per (site, epoch, seq), however often they
-arrive. It exits 0 once it has printed at least --positions positions, --alarms alarms
-and --tasks transitions, or 1 after --timeout seconds.
+Alarms, transitions and environment frames are printed once per (site, epoch, seq),
+however often they arrive. It exits 0 once it has printed at least --positions
+positions, --alarms alarms, --tasks transitions and --environment environment frames,
+or 1 after --timeout seconds.
 
 Usage: shore_client.py --connect tcp/127.0.0.1:7447 --site ship [--positions 1]
-       [--alarms 1] [--tasks 1] [--timeout 30]
+       [--alarms 1] [--tasks 1] [--environment 0] [--timeout 30]
 """
 
 import argparse
@@ -31,7 +33,7 @@ import time
 import zenoh
 
 WIRE_VERSION = 1
-KIND_POSITION, KIND_ALARM, KIND_TASK = 1, 2, 3
+KIND_POSITION, KIND_ALARM, KIND_TASK, KIND_ENVIRONMENT = 1, 2, 3, 6
 
 # Code tables ("Codes" in docs/federation.md).
 VEHICLE_KINDS = ["auv", "usv", "asv", "rov", "glider"]
@@ -147,6 +149,39 @@ def decode_task(data):
     return out
 
 
+def decode_environment(site, vehicle, data):
+    """Environment frame: a vehicle's summaries of one window ("Environment frame")."""
+    r = Reader(data)
+    out = {"event": "environment", **envelope(r, KIND_ENVIRONMENT), "vehicle": vehicle}
+    # The envelope's timestamp is the window's end.
+    out["window_end_ms"] = out.pop("timestamp_ms")
+    out["window_start_ms"] = r.u48("window_start")
+    if not out["window_start_ms"] < out["window_end_ms"] <= out["window_start_ms"] + 3_600_000:
+        raise Refused("window")
+    n = r.u8("count")
+    if not 1 <= n <= 32:
+        raise Refused("property count")
+    props = []
+    for _ in range(n):
+        p = {"property": r.str8("property"), "unit": r.str8("unit"),
+             "count": struct.unpack("<I", r.take(4, "count"))[0]}
+        for field in ("min", "max", "mean", "last_value"):
+            p[field] = struct.unpack("<d", r.take(8, field))[0]
+        p["last_ms"] = r.u48("last_time")
+        p["latitude_deg"] = r.i32("latitude") * 1e-7
+        p["longitude_deg"] = r.i32("longitude") * 1e-7
+        p["depth_m"] = r.u16("depth") * 0.2
+        if p["count"] < 1 or not p["min"] <= p["mean"] <= p["max"] \
+                or not p["min"] <= p["last_value"] <= p["max"]:
+            raise Refused(f"summary of {p['property']}")
+        props.append(p)
+    if len({p["property"] for p in props}) != n:
+        raise Refused("a property twice")
+    out["properties"] = props
+    r.end()
+    return out
+
+
 def decode(key: str, data: bytes):
     """Dispatches on the key expression ("Key expressions" in the doc)."""
     chunks = key.split("/")
@@ -156,7 +191,9 @@ def decode(key: str, data: bytes):
     rest = chunks[2:]
     if len(rest) == 3 and rest[0] == "vehicles" and rest[2] == "position":
         return decode_position(site, rest[1], data)
-    if rest in (["alarms"], ["catchup", "alarms"]):
+    if len(rest) == 2 and rest[0] == "environment":
+        item = decode_environment(site, rest[1], data)
+    elif rest in (["alarms"], ["catchup", "alarms"]):
         item = decode_alarm(data)
     elif (len(rest) == 2 and rest[0] == "tasks") or rest == ["catchup", "tasks"]:
         item = decode_task(data)
@@ -174,6 +211,7 @@ def main():
     ap.add_argument("--positions", type=int, default=1)
     ap.add_argument("--alarms", type=int, default=1)
     ap.add_argument("--tasks", type=int, default=1)
+    ap.add_argument("--environment", type=int, default=0)
     ap.add_argument("--timeout", type=float, default=30.0)
     args = ap.parse_args()
 
@@ -193,7 +231,7 @@ def main():
 
     subscribers = [session.declare_subscriber(k, on_sample)
                    for k in ("shoal/*/vehicles/*/position", "shoal/*/alarms",
-                             "shoal/*/tasks/*")]
+                             "shoal/*/tasks/*", "shoal/*/environment/*")]
     print(json.dumps({"event": "ready"}), flush=True)
 
     # What the site published before we came: its catch-up queryables, all replies kept
@@ -206,8 +244,9 @@ def main():
                 inbox.put((str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
 
     seen = set()
-    counts = {"position": 0, "alarm": 0, "task": 0}
-    wanted = {"position": args.positions, "alarm": args.alarms, "task": args.tasks}
+    counts = {"position": 0, "alarm": 0, "task": 0, "environment": 0}
+    wanted = {"position": args.positions, "alarm": args.alarms, "task": args.tasks,
+              "environment": args.environment}
     deadline = time.monotonic() + args.timeout
     while any(counts[k] < wanted[k] for k in counts):
         left = deadline - time.monotonic()

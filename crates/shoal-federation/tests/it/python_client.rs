@@ -11,8 +11,8 @@ use std::process::Stdio;
 use std::time::Duration;
 
 use serde_json::Value;
-use shoal_federation::Federation;
-use shoal_model::TaskState;
+use shoal_federation::{EnvironmentMode, Federation};
+use shoal_model::{EnvironmentObservation, TaskState, now_ms};
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::Command;
 
@@ -58,6 +58,8 @@ async fn a_python_zenoh_client_decodes_the_federation_from_the_doc() {
     let port = free_port();
     let mut config = site("ship", Some(port), &[], &["shore"]);
     config.positions.max_rate_hz = 5.0;
+    config.environment.mode = EnvironmentMode::Aggregated;
+    config.environment.window_s = 5;
     let ship = Federation::start(config).await.unwrap();
 
     // Published before the client exists: it gets them from the catch-up queryable.
@@ -75,6 +77,8 @@ async fn a_python_zenoh_client_decodes_the_federation_from_the_doc() {
             &endpoint(port),
             "--site",
             "ship",
+            "--environment",
+            "1",
             "--timeout",
             "25",
         ])
@@ -100,6 +104,17 @@ async fn a_python_zenoh_client_decodes_the_federation_from_the_doc() {
                 () = tokio::time::sleep(Duration::from_millis(200)) => {
                     lat += 1e-3;
                     ship.push_position(position("auv-1", lat)).unwrap();
+                    ship.push_observation(&EnvironmentObservation {
+                        vehicle_id: "auv-1".into(),
+                        property: "sea_water_temperature".into(),
+                        timestamp_ms: now_ms(),
+                        value: 7.0 + (lat - 43.0) * 100.0,
+                        unit: "Cel".into(),
+                        latitude_deg: lat,
+                        longitude_deg: 10.0,
+                        depth_m: 12.0,
+                    })
+                    .unwrap();
                 }
             }
         }
@@ -157,6 +172,23 @@ async fn a_python_zenoh_client_decodes_the_federation_from_the_doc() {
     near("heading_deg", expected.heading_deg, 360.0 / 65536.0);
     near("speed_mps", expected.speed_mps, 0.01);
     near("battery_pct", expected.battery_pct, 0.5);
+
+    // A window's summary, decoded from the doc's kind-6 table.
+    let env = of("environment");
+    let e = env[0];
+    assert_eq!(
+        (&e["site"], &e["vehicle"]),
+        (&"ship".into(), &"auv-1".into())
+    );
+    let s = &e["properties"][0];
+    assert_eq!(
+        (&s["property"], &s["unit"]),
+        (&"sea_water_temperature".into(), &"Cel".into())
+    );
+    let f = |k: &str| s[k].as_f64().unwrap();
+    assert!(s["count"].as_u64().unwrap() >= 1, "{e}");
+    assert!(f("min") <= f("mean") && f("mean") <= f("max"), "{e}");
+    assert!(f("min") >= 7.0 && (f("depth_m") - 12.0).abs() <= 0.1, "{e}");
 
     ship.shutdown().await.unwrap();
 }
