@@ -131,6 +131,9 @@ EOF
 # TYPE  DATABASE  USER  ADDRESS       METHOD
 local   all       all                 trust
 host    all       all   127.0.0.1/32  trust
+# Streaming replication (a standby ashore, tests/history/replication.sh), loopback too.
+local   replication  all                 trust
+host    replication  all   127.0.0.1/32  trust
 EOF
 }
 

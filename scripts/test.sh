@@ -111,6 +111,9 @@ SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" scripts/console-e2e.s
 step "the HTTP API against its OpenAPI document (schemathesis, all checks, inside $NS)"
 SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" scripts/api-conformance.sh "$NS"
 
+step "shared history: a ship's PostgreSQL streamed to a standby ashore, across an outage (inside $NS)"
+SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" tests/history/replication.sh "$NS"
+
 if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
     # So does the release build: the fuzz targets build apart, under the nightly toolchain.
     if (( tight )); then
