@@ -66,32 +66,13 @@ pub struct RemoteEnvironment {
     pub site: String,
     /// The vehicle.
     pub vehicle_id: String,
-    /// The property, e.g. `sea_water_temperature`.
-    pub property: String,
-    /// Unit of the values (UCUM code, e.g. `Cel`); may be empty.
-    pub unit: String,
     /// Start of the window, ms since the Unix epoch.
     pub window_start_ms: i64,
     /// End of the window, ms since the Unix epoch.
     pub window_end_ms: i64,
-    /// Observations summarised, at least 1.
-    pub count: u32,
-    /// Smallest value in the window.
-    pub min: f64,
-    /// Largest value in the window.
-    pub max: f64,
-    /// Mean value in the window.
-    pub mean: f64,
-    /// Value of the latest observation.
-    pub last_value: f64,
-    /// Time of the latest observation, ms since the Unix epoch.
-    pub last_ms: i64,
-    /// Where the latest observation was taken: WGS84 latitude, degrees (1e-7 degree steps).
-    pub latitude_deg: f64,
-    /// Its WGS84 longitude, degrees (1e-7 degree steps).
-    pub longitude_deg: f64,
-    /// Its depth, metres (0.2 m steps).
-    pub depth_m: f64,
+    /// The property's summary over the window, as the frame carried it (positions to its
+    /// wire steps: 1e-7 degree, 0.2 m).
+    pub summary: PropertyAggregate,
     /// When the summary arrived here, ms since the Unix epoch.
     pub received_ms: i64,
 }
@@ -200,35 +181,12 @@ impl FederatedPicture {
                 }
                 _ => {}
             }
-            let PropertyAggregate {
-                property,
-                unit,
-                count,
-                min,
-                max,
-                mean,
-                last_value,
-                last_ms,
-                latitude_deg,
-                longitude_deg,
-                depth_m,
-            } = p;
             let remote = RemoteEnvironment {
                 site: site.to_string(),
                 vehicle_id: vehicle_id.clone(),
-                property,
-                unit,
                 window_start_ms,
                 window_end_ms,
-                count,
-                min,
-                max,
-                mean,
-                last_value,
-                last_ms,
-                latitude_deg,
-                longitude_deg,
-                depth_m,
+                summary: p,
                 received_ms: now_ms,
             };
             self.environment.insert(key, (remote, sent));
@@ -413,7 +371,7 @@ mod tests {
         assert_eq!(pic.environment_frame("ship", (1, 4), other, 9).full, 1);
         let got: Vec<(&str, u32, i64)> = pic
             .environment()
-            .map(|e| (e.property.as_str(), e.count, e.received_ms))
+            .map(|e| (e.summary.property.as_str(), e.summary.count, e.received_ms))
             .collect();
         assert_eq!(got, [("o", 3, 8), ("s", 3, 5), ("t", 9, 8)]);
         let t = pic.environment().last().unwrap();

@@ -182,22 +182,25 @@ impl FederationView for View {
                 .collect(),
             environment: p
                 .environment()
-                .map(|e| RemoteEnvironmentView {
-                    site: e.site.clone(),
-                    vehicle_id: e.vehicle_id.clone(),
-                    property: e.property.clone(),
-                    unit: e.unit.clone(),
-                    window_start_ms: e.window_start_ms,
-                    window_end_ms: e.window_end_ms,
-                    count: u64::from(e.count),
-                    min: e.min,
-                    max: e.max,
-                    mean: e.mean,
-                    last_value: e.last_value,
-                    last_ms: e.last_ms,
-                    latitude_deg: e.latitude_deg,
-                    longitude_deg: e.longitude_deg,
-                    depth_m: e.depth_m,
+                .map(|e| {
+                    let s = &e.summary;
+                    RemoteEnvironmentView {
+                        site: e.site.clone(),
+                        vehicle_id: e.vehicle_id.clone(),
+                        property: s.property.clone(),
+                        unit: s.unit.clone(),
+                        window_start_ms: e.window_start_ms,
+                        window_end_ms: e.window_end_ms,
+                        count: u64::from(s.count),
+                        min: s.min,
+                        max: s.max,
+                        mean: s.mean,
+                        last_value: s.last_value,
+                        last_ms: s.last_ms,
+                        latitude_deg: s.latitude_deg,
+                        longitude_deg: s.longitude_deg,
+                        depth_m: s.depth_m,
+                    }
                 })
                 .collect(),
             lease_enabled: fed.lease_enabled(),

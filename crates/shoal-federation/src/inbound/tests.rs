@@ -430,7 +430,13 @@ fn environment_summaries_fill_the_picture_and_bad_frames_are_refused_by_reason()
     let got: Vec<(String, String, String)> = inb
         .picture()
         .environment()
-        .map(|e| (e.site.clone(), e.vehicle_id.clone(), e.property.clone()))
+        .map(|e| {
+            (
+                e.site.clone(),
+                e.vehicle_id.clone(),
+                e.summary.property.clone(),
+            )
+        })
         .collect();
     assert_eq!(
         got,

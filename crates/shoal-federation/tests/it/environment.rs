@@ -96,19 +96,41 @@ async fn observations_cross_as_one_summary_per_property_and_window() {
         // By property name: salinity, then temperature.
         let (s, t) = (&got[0], &got[1]);
         assert_eq!(
-            (s.property.as_str(), t.property.as_str()),
+            (s.summary.property.as_str(), t.summary.property.as_str()),
             (SALINITY, TEMPERATURE)
         );
         assert_eq!(window.1 - window.0, 5000);
         assert_eq!((t.window_start_ms, t.window_end_ms), window);
-        assert_eq!((t.count, t.min, t.max, t.mean), (3, 12.0, 14.0, 13.0));
-        assert_eq!(t.last_value, 12.0);
-        assert_eq!(t.unit, "Cel");
-        assert!((t.latitude_deg - 43.2).abs() < 1e-7 && (t.longitude_deg - 5.9).abs() < 1e-7);
-        assert!((t.depth_m - 20.4).abs() <= 0.1 + 1e-9);
-        assert_eq!((s.count, s.min, s.max, s.mean), (2, 38.0, 38.5, 38.25));
-        assert_eq!((s.last_value, s.unit.as_str()), (38.5, "[ppth]"));
-        assert!(s.last_ms < t.last_ms);
+        assert_eq!(
+            (
+                t.summary.count,
+                t.summary.min,
+                t.summary.max,
+                t.summary.mean
+            ),
+            (3, 12.0, 14.0, 13.0)
+        );
+        assert_eq!(t.summary.last_value, 12.0);
+        assert_eq!(t.summary.unit, "Cel");
+        assert!(
+            (t.summary.latitude_deg - 43.2).abs() < 1e-7
+                && (t.summary.longitude_deg - 5.9).abs() < 1e-7
+        );
+        assert!((t.summary.depth_m - 20.4).abs() <= 0.1 + 1e-9);
+        assert_eq!(
+            (
+                s.summary.count,
+                s.summary.min,
+                s.summary.max,
+                s.summary.mean
+            ),
+            (2, 38.0, 38.5, 38.25)
+        );
+        assert_eq!(
+            (s.summary.last_value, s.summary.unit.as_str()),
+            (38.5, "[ppth]")
+        );
+        assert!(s.summary.last_ms < t.summary.last_ms);
         assert!(
             t.received_ms >= window.1 - 1000,
             "sent before its window ended"
