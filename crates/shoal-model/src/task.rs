@@ -555,6 +555,37 @@ mod tests {
     const T: i64 = 1_700_000_000_000;
 
     #[test]
+    fn a_lease_holder_goes_with_a_term_and_is_an_identifier() {
+        let ok = |term: u64, holder: &str| {
+            let mut a = TaskAssignment::new("t", "", "v", T, &Task::Surface);
+            a.lease_term = term;
+            a.lease_holder = holder.into();
+            a.validate().map_err(|e| e.reason().to_string())
+        };
+        assert_eq!(ok(0, ""), Ok(()));
+        assert_eq!(ok(3, "shore"), Ok(()));
+        assert_eq!(ok(3, ""), Err("inconsistent:lease_holder".into()));
+        assert_eq!(ok(0, "shore"), Err("inconsistent:lease_holder".into()));
+        assert!(ok(3, "sh ore").is_err());
+        assert!(ok(3, &"s".repeat(MAX_LEASE_HOLDER_LEN + 1)).is_err());
+    }
+
+    #[test]
+    fn leases_order_by_term_then_by_the_holder_name_that_sorts_first() {
+        assert!(lease_supersedes(2, "ship", 1, "alpha"));
+        assert!(lease_supersedes(2, "alpha", 2, "bravo"));
+        assert!(!lease_supersedes(2, "bravo", 2, "alpha"));
+        assert!(
+            !lease_supersedes(2, "ship", 2, "ship"),
+            "not newer than itself"
+        );
+        assert!(
+            lease_supersedes(1, "ship", 0, ""),
+            "any lease is newer than none"
+        );
+    }
+
+    #[test]
     fn a_task_starts_only_before_its_expiry_or_within_the_age_limit_without_one() {
         let mut a = TaskAssignment::new("t", "", "v", T, &Task::Surface);
         // No expiry: the vehicle's own age limit decides, and without one any age goes.
