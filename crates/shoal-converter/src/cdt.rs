@@ -29,6 +29,10 @@
 //! status can only come back with an acoustic task number (the vehicle's ledger refuses
 //! to run any of them twice). Acoustic states older than the newest the station has from
 //! either link are not republished, so the station never sees time run backwards.
+//!
+//! With a [`CdtConfig::tap`], a copy of every PDU handed to the link, every frame received
+//! and every message's fate goes to a recorder ([`crate::tap`]); a full tap drops and
+//! counts, the CDT never waits for it.
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
@@ -54,6 +58,7 @@ use crate::config::{CdtConfig, address_book};
 use crate::dedup::Dedup;
 use crate::error::ConverterError;
 use crate::link_status::LinkStatus;
+use crate::tap::{MessageFate, TapEvent, TapRecord};
 
 /// Task numbers remembered per CDT for mapping status back (oldest forgotten).
 const TASK_MEMORY: usize = 1024;
@@ -409,11 +414,7 @@ impl Cdt {
             pdu: bytes,
             supersede_key: None,
         };
-        let id = self
-            .link
-            .send(msg)
-            .await
-            .map_err(|_| ConverterError::LinkStopped)?;
+        let id = self.send(msg).await?;
         info!(task = %t.task_id, vehicle = %t.vehicle_id, task_no, ?class, "task queued on the acoustic link");
         self.publish_status(
             &t.task_id,
@@ -555,6 +556,28 @@ impl Cdt {
     }
 
     async fn on_link_event(&mut self, ev: LinkEvent) -> Result<(), ConverterError> {
+        if self.cfg.tap.is_some() {
+            let event = match &ev {
+                LinkEvent::Received {
+                    src,
+                    dst,
+                    frame,
+                    rssi,
+                    integrity,
+                } => Some(TapEvent::Received {
+                    src: *src,
+                    dst: *dst,
+                    bytes: frame.clone(),
+                    rssi: *rssi,
+                    integrity: *integrity,
+                }),
+                other => MessageFate::of(other)
+                    .map(|(message_id, fate)| TapEvent::Fate { message_id, fate }),
+            };
+            if let Some(event) = event {
+                self.tap(event);
+            }
+        }
         match ev {
             LinkEvent::Received {
                 src,
@@ -873,11 +896,37 @@ impl Cdt {
             pdu: bytes,
             supersede_key: Some(supersede_key(kind, dst, 0)),
         };
-        self.link
+        self.send(msg).await.map(|_| ())
+    }
+
+    /// Hands `msg` to the link layer, and a copy to the tap if there is one.
+    async fn send(&self, msg: Outgoing) -> Result<MessageId, ConverterError> {
+        let copy = self
+            .cfg
+            .tap
+            .as_ref()
+            .map(|_| (msg.dst, msg.class, msg.pdu.clone()));
+        let id = self
+            .link
             .send(msg)
             .await
-            .map(|_| ())
-            .map_err(|_| ConverterError::LinkStopped)
+            .map_err(|_| ConverterError::LinkStopped)?;
+        if let Some((dst, class, bytes)) = copy {
+            self.tap(TapEvent::Sent {
+                dst,
+                class,
+                message_id: id,
+                bytes,
+            });
+        }
+        Ok(id)
+    }
+
+    /// Reports `event` to the tap, if there is one.
+    fn tap(&self, event: TapEvent) {
+        if let Some(tap) = &self.cfg.tap {
+            tap.report(TapRecord::now(self.cfg.address, self.cfg.now_ms(), event));
+        }
     }
 
     async fn on_state(&mut self, k: &StateKeyframe, now: i64) {

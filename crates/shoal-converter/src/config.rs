@@ -17,6 +17,7 @@ use shoal_model::Warp;
 
 use crate::error::ConverterError;
 pub use crate::failover::IpPathConfig;
+use crate::tap::FrameTap;
 
 /// Which modem protocol the converter speaks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -300,6 +301,10 @@ pub struct CdtConfig {
     /// (`None`: the system clock). Its speed-up must be `1 / time_scale`.
     #[serde(skip)]
     pub clock: Option<Warp>,
+    /// Where a copy of every frame sent and received and every message's fate goes (a
+    /// recorder's queue, [`crate::tap`]); `None`: nowhere. Never makes the CDT wait.
+    #[serde(skip)]
+    pub tap: Option<FrameTap>,
 }
 
 impl Default for CdtConfig {
@@ -318,6 +323,7 @@ impl Default for CdtConfig {
             relay: RelayConfig::default(),
             time_scale: 1.0,
             clock: None,
+            tap: None,
         }
     }
 }

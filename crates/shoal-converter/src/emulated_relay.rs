@@ -64,6 +64,7 @@ use crate::config::{
 };
 use crate::error::ConverterError;
 use crate::modem::Modem;
+use crate::tap::FrameTap;
 use crate::{run_cdt, run_vdt};
 
 /// The relay's link-status interval, seconds (simulated): a demo's operator watches the
@@ -176,6 +177,9 @@ pub struct EmulatedRelayConfig {
     pub relaying: std::collections::HashMap<String, RelayConfig>,
     /// The emulator's hard range, metres (`None`: the channel model decides).
     pub max_range_m: Option<f64>,
+    /// Where the relay's CDT reports its frames and link events ([`CdtConfig::tap`]);
+    /// `None`: nowhere.
+    pub tap: Option<FrameTap>,
 }
 
 impl EmulatedRelayConfig {
@@ -208,6 +212,7 @@ impl EmulatedRelayConfig {
             clock: None,
             relaying: std::collections::HashMap::new(),
             max_range_m: None,
+            tap: None,
         }
     }
 
@@ -280,6 +285,7 @@ impl EmulatedRelayConfig {
             link: self.link.clone(),
             time_scale: self.time_scale,
             clock: self.clock,
+            tap: self.tap.clone(),
             ..CdtConfig::default()
         }
     }

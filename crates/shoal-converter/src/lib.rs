@@ -20,6 +20,8 @@
 //! - [`emulated_relay`]: the SWARMs sea-trial topology in one call: any vehicle software on
 //!   its private DDS domain → VDT → emulated sea → CDT on a relay → station (`shoal up`'s
 //!   acoustic demo puts the simulator behind it).
+//! - [`tap`]: [`FrameTap`], a bounded, never-blocking copy of a CDT's frames and link
+//!   events for a recorder ([`CdtConfig::tap`]).
 //!
 //! The codec, the modem drivers, the link layer and the emulator live in `shoal-acoustic`;
 //! this crate is the glue between them and the Publish/Subscribe Manager (`shoal-dds`).
@@ -35,6 +37,7 @@ mod error;
 pub mod failover;
 pub mod link_status;
 mod modem;
+pub mod tap;
 pub mod vdt;
 
 pub use cdt::run_cdt;
@@ -45,4 +48,5 @@ pub use config::{
 pub use error::ConverterError;
 pub use link_status::LinkStatus;
 pub use modem::Modem;
+pub use tap::{FrameTap, MessageFate, TapEvent, TapQueue, TapRecord};
 pub use vdt::{run_vdt, run_vdt_secured};

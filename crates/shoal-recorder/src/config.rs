@@ -24,6 +24,11 @@ pub enum Compression {
 pub struct RecorderConfig {
     /// Whether the station records (its `[recorder]` section); `shoal record` always does.
     pub enabled: bool,
+    /// Also record the acoustic link's frames and modem events wherever a CDT runs under
+    /// this configuration (`shoal up`'s acoustic demo, `shoal scenario run`), whether or not
+    /// `enabled` is set: into `directory` as `PREFIX-acoustic-*.mcap`, apart from the DDS
+    /// files ([`crate::acoustic`], docs/recorder.md, "Acoustic frames").
+    pub acoustic: bool,
     /// Directory the files are written in (created if missing).
     pub directory: PathBuf,
     /// File names are `PREFIX-YYYYmmddTHHMMSSZ-N.mcap` (UTC time the file was opened, N
@@ -63,6 +68,7 @@ impl Default for RecorderConfig {
     fn default() -> Self {
         Self {
             enabled: false,
+            acoustic: false,
             directory: PathBuf::from("recordings"),
             prefix: "shoal".into(),
             max_file_bytes: 512 * 1024 * 1024,

@@ -30,6 +30,9 @@ pub enum RecordError {
     /// A sample could not be serialised.
     #[error("cannot encode a sample: {0}")]
     Encode(#[from] CdrError),
+    /// An acoustic record could not be serialised as JSON.
+    #[error("cannot encode an acoustic record as JSON: {0}")]
+    Json(#[from] serde_json::Error),
     /// A subscription could not be created.
     #[error("cannot subscribe: {0}")]
     Subscribe(#[from] CreateError),

@@ -8,12 +8,16 @@
 //!   byte offset a damaged or truncated file stopped being readable.
 //! - [`Replayer`] publishes recorded samples again on DDS at the recorded pace (or faster),
 //!   each through the participant allowed to speak for it ([`Publishers`]).
+//! - [`AcousticRecorder`] writes what a CDT's frame tap reports (frames sent and received,
+//!   each message's fate on the acoustic link) into MCAP files of their own, as JSON with
+//!   JSON Schemas ([`acoustic`]).
 //!
-//! Schemas are `omgidl` (the text of `idl/shoal.idl`), messages `cdr`: the 4-byte
-//! encapsulation header and the XCDR1 body, exactly as they travel on DDS.
+//! The DDS topics' schemas are `omgidl` (the text of `idl/shoal.idl`), messages `cdr`:
+//! the 4-byte encapsulation header and the XCDR1 body, exactly as they travel on DDS.
 
 #![forbid(unsafe_code)]
 
+pub mod acoustic;
 mod config;
 mod error;
 mod reader;
@@ -25,6 +29,7 @@ mod writer;
 #[cfg(test)]
 mod tests;
 
+pub use acoustic::{AcousticRecorder, AcousticStats, AcousticWriter};
 pub use config::{Compression, RecorderConfig};
 pub use error::{ReadError, RecordError, ReplayError};
 pub use reader::{McapMessages, ReaderStats, RecordedMessage, mcap_files};

@@ -24,6 +24,12 @@ const READ_STEP: usize = 64 * 1024;
 /// Every MCAP record starts with an opcode byte and a 64-bit length.
 const RECORD_PREFIX: u64 = 9;
 
+/// Most topic names of skipped channels kept per file ([`McapMessages::unknown_topics`]).
+const MAX_UNKNOWN_TOPICS: usize = 16;
+
+/// Longest topic name of a skipped channel kept, bytes (longer ones are cut).
+const MAX_UNKNOWN_TOPIC_LEN: usize = 128;
+
 /// A recorded message of a Shoal topic.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RecordedMessage {
@@ -66,6 +72,7 @@ pub struct McapMessages<R> {
     good: u64,
     schemas: HashMap<u16, (String, String)>,
     channels: HashMap<u16, Option<Topic>>,
+    unknown_topics: Vec<String>,
     queue: VecDeque<RecordedMessage>,
     stats: ReaderStats,
     done: bool,
@@ -93,6 +100,7 @@ impl<R: Read> McapMessages<R> {
             good: 0,
             schemas: HashMap::new(),
             channels: HashMap::new(),
+            unknown_topics: Vec::new(),
             queue: VecDeque::new(),
             stats: ReaderStats::default(),
             done: false,
@@ -107,6 +115,13 @@ impl<R: Read> McapMessages<R> {
     /// Bytes read and used so far.
     pub fn offset(&self) -> u64 {
         self.good
+    }
+
+    /// The topics of the channels skipped so far (not Shoal channels: an acoustic
+    /// recording's `acoustic/frame`, another tool's topics), in the order met; at most 16,
+    /// each cut to 128 bytes.
+    pub fn unknown_topics(&self) -> &[String] {
+        &self.unknown_topics
     }
 
     /// Reads on until there are messages queued or the file ends (`Ok(false)`).
@@ -209,6 +224,19 @@ impl<R: Read> McapMessages<R> {
                 });
                 if topic.is_none() && !self.channels.contains_key(&channel.id) {
                     self.stats.unknown_channels += 1;
+                    let mut name = channel.topic;
+                    if name.len() > MAX_UNKNOWN_TOPIC_LEN {
+                        let mut cut = MAX_UNKNOWN_TOPIC_LEN;
+                        while !name.is_char_boundary(cut) {
+                            cut -= 1;
+                        }
+                        name.truncate(cut);
+                    }
+                    if self.unknown_topics.len() < MAX_UNKNOWN_TOPICS
+                        && !self.unknown_topics.contains(&name)
+                    {
+                        self.unknown_topics.push(name);
+                    }
                 }
                 self.channels.insert(channel.id, topic);
             }
@@ -411,14 +439,17 @@ fn order_key(stem: &str) -> Option<(String, u64)> {
     let (rest, n) = stem.rsplit_once('-')?;
     let n: u64 = n.parse().ok()?;
     let (_, stamp) = rest.rsplit_once('-')?;
-    let ok = stamp.len() == 16
-        && stamp.as_bytes()[8] == b'T'
-        && stamp.ends_with('Z')
-        && stamp[..8]
-            .bytes()
-            .chain(stamp[9..15].bytes())
-            .all(|b| b.is_ascii_digit());
-    ok.then(|| (stamp.to_string(), n))
+    is_stamp(stamp).then(|| (stamp.to_string(), n))
+}
+
+/// Whether `stamp` is a recorder's `YYYYmmddTHHMMSSZ` (checked byte by byte: a file name
+/// is whatever the directory holds, not necessarily ASCII).
+pub(crate) fn is_stamp(stamp: &str) -> bool {
+    let b = stamp.as_bytes();
+    b.len() == 16
+        && b[8] == b'T'
+        && b[15] == b'Z'
+        && b[..8].iter().chain(&b[9..15]).all(u8::is_ascii_digit)
 }
 
 #[cfg(test)]

@@ -276,7 +276,13 @@ pub struct Replayer {
     /// Recorded time and the instant it is replayed at, of the replay's first message.
     clock: Option<(u64, Instant)>,
     progress: Option<Progress>,
+    /// Topics of skipped channels already told of, so each is told once per replayer.
+    skipped: BTreeSet<String>,
+    on_skipped: Option<SkippedNote>,
 }
+
+/// A caller's note of skipped channels: the file and the topics new in it.
+type SkippedNote = Box<dyn FnMut(&Path, &[String]) + Send>;
 
 /// A caller's progress report and how often it wants it.
 struct Progress {
@@ -304,7 +310,16 @@ impl Replayer {
             stats: ReplayStats::default(),
             clock: None,
             progress: None,
+            skipped: BTreeSet::new(),
+            on_skipped: None,
         }
+    }
+
+    /// Calls `note` with a file and the topics of its channels that are not Shoal DDS
+    /// topics (an acoustic recording's `acoustic/frame`, another tool's topics), which
+    /// are skipped, each topic once per replayer; without it they are logged.
+    pub fn on_skipped_channels(&mut self, note: impl FnMut(&Path, &[String]) + Send + 'static) {
+        self.on_skipped = Some(Box::new(note));
     }
 
     /// Calls `report` with the counters at most every `every` while replaying.
@@ -349,6 +364,7 @@ impl Replayer {
             let mut messages = McapMessages::new(std::io::BufReader::new(f));
             let stopped = self.replay_messages(&mut messages, cancel).await?;
             self.stats.unknown += messages.stats().unknown_messages;
+            self.note_skipped(&file, messages.unknown_topics());
             if let Some(source) = stopped {
                 self.stats.damaged_files += 1;
                 warn!(file = %file.display(), error = %source, "file not read to its end");
@@ -356,6 +372,30 @@ impl Replayer {
             }
         }
         Ok(damaged)
+    }
+
+    /// Tells of the skipped channels' topics of `file` not told of before.
+    fn note_skipped(&mut self, file: &Path, topics: &[String]) {
+        // Bounded: a directory of another tool's files could name any number of topics.
+        let room = 256usize.saturating_sub(self.skipped.len());
+        let new: Vec<String> = topics
+            .iter()
+            .filter(|t| !self.skipped.contains(*t))
+            .take(room)
+            .cloned()
+            .collect();
+        if new.is_empty() {
+            return;
+        }
+        self.skipped.extend(new.iter().cloned());
+        match self.on_skipped.as_mut() {
+            Some(note) => note(file, &new),
+            None => info!(
+                file = %file.display(),
+                topics = %new.join(", "),
+                "channels that are not Shoal DDS topics skipped"
+            ),
+        }
     }
 
     /// Replays messages until they end, the replay is cancelled, or reading stops with an

@@ -444,6 +444,10 @@ fn channels_that_are_not_shoal_channels_are_skipped_and_counted() {
     assert_eq!(messages.len(), 1);
     assert_eq!(reader.stats().unknown_messages, 2);
     assert_eq!(reader.stats().unknown_channels, 2);
+    assert_eq!(
+        reader.unknown_topics(),
+        ["rt/chatter", "shoal/state_vector"]
+    );
 }
 
 #[test]

@@ -1,5 +1,8 @@
 //! MCAP files: one channel per topic, chunked and compressed, flushed at least every
 //! second, rotated by size and time.
+//!
+//! [`McapSeries`] does the file handling for any fixed set of channels; [`RecordWriter`]
+//! puts the DDS topics through it, `crate::acoustic` the acoustic link's records.
 
 use std::collections::BTreeMap;
 use std::fs::{File, OpenOptions};
@@ -66,13 +69,28 @@ impl Seek for Counting {
     }
 }
 
+/// One channel of the files a [`McapSeries`] writes, with its schema.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ChannelSpec {
+    /// The channel's topic.
+    pub topic: &'static str,
+    /// The channel's message encoding.
+    pub message_encoding: &'static str,
+    /// The schema's name.
+    pub schema_name: &'static str,
+    /// The schema's encoding.
+    pub schema_encoding: &'static str,
+    /// The schema's text.
+    pub schema: &'static str,
+}
+
 struct OpenFile {
     path: PathBuf,
     writer: mcap::Writer<Counting>,
     len: Arc<AtomicU64>,
-    /// Channel id per topic ([`Topic::index`]), for the topics recorded.
-    channels: [Option<u16>; 6],
-    sequence: [u32; 6],
+    /// Channel id per channel of the series, in its order.
+    channels: Vec<u16>,
+    sequence: Vec<u32>,
     opened: Instant,
     messages: u64,
     /// Messages and uncompressed bytes in the chunk not yet on disk.
@@ -88,27 +106,17 @@ struct OpenFile {
 /// a second's samples or `max_chunk_bytes`, so a process killed at any instant leaves a
 /// file of complete chunks followed by at most one partial record, which readers stop at.
 pub struct RecordWriter {
-    directory: PathBuf,
-    prefix: String,
-    max_file_bytes: u64,
-    max_total_bytes: u64,
-    max_file_age: Duration,
-    compression: Compression,
-    compression_level: u32,
+    series: McapSeries,
     topics: Vec<Topic>,
-    chunk_bytes: u64,
-    current: Option<OpenFile>,
-    closed_bytes: u64,
-    stats: WriterStats,
-    files: Vec<PathBuf>,
+    /// The series' channel of each topic ([`Topic::index`]), for the topics recorded.
+    slots: [Option<usize>; 6],
 }
 
 impl std::fmt::Debug for RecordWriter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("RecordWriter")
-            .field("directory", &self.directory)
-            .field("current", &self.current.as_ref().map(|c| &c.path))
-            .field("stats", &self.stats)
+            .field("series", &self.series)
+            .field("topics", &self.topics)
             .finish_non_exhaustive()
     }
 }
@@ -118,19 +126,135 @@ impl RecordWriter {
     /// with the first message.
     pub fn new(config: &RecorderConfig) -> Result<Self, RecordError> {
         let topics = config.check()?;
+        let mut slots = [None; 6];
+        let specs: Vec<ChannelSpec> = topics
+            .iter()
+            .enumerate()
+            .map(|(slot, topic)| {
+                slots[topic.index()] = Some(slot);
+                ChannelSpec {
+                    topic: topic.name(),
+                    message_encoding: MESSAGE_ENCODING,
+                    schema_name: topic.type_name(),
+                    schema_encoding: SCHEMA_ENCODING,
+                    schema: SHOAL_IDL,
+                }
+            })
+            .collect();
+        Ok(Self {
+            series: McapSeries::new(config, &config.prefix, specs)?,
+            topics,
+            slots,
+        })
+    }
+
+    /// The topics this writer records.
+    pub fn topics(&self) -> &[Topic] {
+        &self.topics
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> WriterStats {
+        self.series.stats()
+    }
+
+    /// Every file opened so far (and not deleted by `max_total_bytes`), oldest first.
+    pub fn files(&self) -> &[PathBuf] {
+        self.series.files()
+    }
+
+    /// Writes one message: `payload` is the CDR sample with its encapsulation header;
+    /// times are ns since the Unix epoch. A topic not recorded is ignored.
+    pub fn write(
+        &mut self,
+        topic: Topic,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+        payload: &[u8],
+    ) -> Result<(), RecordError> {
+        let Some(slot) = self.slots[topic.index()] else {
+            return Ok(());
+        };
+        self.series
+            .write(slot, log_time_ns, publish_time_ns, payload)
+    }
+
+    /// Writes the current chunk out if it is a second old, and closes the file if it is
+    /// due for rotation. Call it at least every second, whatever the traffic.
+    pub fn tick(&mut self, now: Instant) -> Result<(), RecordError> {
+        self.series.tick(now)
+    }
+
+    /// The longest the caller may wait before the next [`RecordWriter::tick`].
+    pub fn next_tick(&self, now: Instant) -> Duration {
+        self.series.next_tick(now)
+    }
+
+    /// Writes the current chunk to the file and the file to the operating system.
+    pub fn flush(&mut self) -> Result<(), RecordError> {
+        self.series.flush()
+    }
+
+    /// Finishes the current file (summary, footer) and syncs it; the next message opens
+    /// a new one.
+    pub fn close(&mut self) -> Result<(), RecordError> {
+        self.series.close()
+    }
+}
+
+/// A series of MCAP files with a fixed set of channels, in one directory under one
+/// prefix: opened with the first message, chunked and compressed, a chunk on disk at least
+/// every second, rotated by size and time, the oldest deleted past `max_total_bytes`.
+pub(crate) struct McapSeries {
+    directory: PathBuf,
+    prefix: String,
+    max_file_bytes: u64,
+    max_total_bytes: u64,
+    max_file_age: Duration,
+    compression: Compression,
+    compression_level: u32,
+    specs: Vec<ChannelSpec>,
+    chunk_bytes: u64,
+    current: Option<OpenFile>,
+    closed_bytes: u64,
+    stats: WriterStats,
+    files: Vec<PathBuf>,
+}
+
+impl std::fmt::Debug for McapSeries {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("McapSeries")
+            .field("directory", &self.directory)
+            .field("prefix", &self.prefix)
+            .field("current", &self.current.as_ref().map(|c| &c.path))
+            .field("stats", &self.stats)
+            .finish_non_exhaustive()
+    }
+}
+
+impl McapSeries {
+    /// A series of `PREFIX-*.mcap` files with `specs`' channels, written with `config`'s
+    /// directory (created if missing), limits and compression. `config` must have been
+    /// checked ([`RecorderConfig::check`]) and `prefix` be one it allows, or one with a
+    /// fixed suffix of the same characters.
+    pub(crate) fn new(
+        config: &RecorderConfig,
+        prefix: &str,
+        specs: Vec<ChannelSpec>,
+    ) -> Result<Self, RecordError> {
         std::fs::create_dir_all(&config.directory).map_err(|source| RecordError::Io {
             path: config.directory.clone(),
             source,
         })?;
         Ok(Self {
             directory: config.directory.clone(),
-            prefix: config.prefix.clone(),
+            prefix: prefix.to_owned(),
             max_file_bytes: config.max_file_bytes,
             max_total_bytes: config.max_total_bytes,
             max_file_age: Duration::from_secs(config.max_file_seconds),
             compression: config.compression,
             compression_level: config.compression_level,
-            topics,
+            specs,
             // Small files get small chunks, so that rotation by size stays close.
             chunk_bytes: (config.max_file_bytes / 4).min(config.max_chunk_bytes),
             current: None,
@@ -138,11 +262,6 @@ impl RecordWriter {
             stats: WriterStats::default(),
             files: Vec::new(),
         })
-    }
-
-    /// The topics this writer records.
-    pub fn topics(&self) -> &[Topic] {
-        &self.topics
     }
 
     /// Counters so far.
@@ -157,21 +276,21 @@ impl RecordWriter {
         }
     }
 
-    /// Every file opened so far, oldest first.
+    /// Every file opened so far (and not deleted by `max_total_bytes`), oldest first.
     pub fn files(&self) -> &[PathBuf] {
         &self.files
     }
 
-    /// Writes one message: `payload` is the CDR sample with its encapsulation header;
-    /// times are ns since the Unix epoch. A topic not recorded is ignored.
+    /// Writes one message on channel `slot` (its place in the specs); times are ns since
+    /// the Unix epoch. A slot out of range is ignored.
     pub fn write(
         &mut self,
-        topic: Topic,
+        slot: usize,
         log_time_ns: u64,
         publish_time_ns: u64,
         payload: &[u8],
     ) -> Result<(), RecordError> {
-        if !self.topics.contains(&topic) {
+        if slot >= self.specs.len() {
             return Ok(());
         }
         self.rotate_if_due(Instant::now())?;
@@ -180,10 +299,11 @@ impl RecordWriter {
             Some(file) => file,
             None => self.open()?,
         };
-        let Some(channel_id) = file.channels[topic.index()] else {
+        let (Some(&channel_id), Some(sequence)) =
+            (file.channels.get(slot), file.sequence.get_mut(slot))
+        else {
             return Ok(());
         };
-        let sequence = &mut file.sequence[topic.index()];
         *sequence = sequence.wrapping_add(1);
         let header = MessageHeader {
             channel_id,
@@ -221,7 +341,7 @@ impl RecordWriter {
         self.rotate_if_due(now)
     }
 
-    /// The longest the caller may wait before the next [`RecordWriter::tick`].
+    /// The longest the caller may wait before the next [`McapSeries::tick`].
     pub fn next_tick(&self, now: Instant) -> Duration {
         match &self.current {
             Some(file) if file.unflushed > 0 => {
@@ -294,9 +414,9 @@ impl RecordWriter {
         let mine: Vec<(PathBuf, u64)> = all
             .into_iter()
             .filter(|p| {
-                p.file_name()
+                p.file_stem()
                     .and_then(|n| n.to_str())
-                    .is_some_and(|n| n.starts_with(&format!("{}-", self.prefix)))
+                    .is_some_and(|n| is_series_file(n, &self.prefix))
             })
             .filter_map(|p| std::fs::metadata(&p).ok().map(|m| (p, m.len())))
             .collect();
@@ -366,15 +486,19 @@ impl RecordWriter {
             .emit_message_indexes(false)
             .create(sink)
             .map_err(mcap_err)?;
-        let mut channels = [None; 6];
-        for topic in &self.topics {
+        let mut channels = Vec::with_capacity(self.specs.len());
+        for spec in &self.specs {
             let schema = writer
-                .add_schema(topic.type_name(), SCHEMA_ENCODING, SHOAL_IDL.as_bytes())
+                .add_schema(
+                    spec.schema_name,
+                    spec.schema_encoding,
+                    spec.schema.as_bytes(),
+                )
                 .map_err(mcap_err)?;
             let id = writer
-                .add_channel(schema, topic.name(), MESSAGE_ENCODING, &BTreeMap::new())
+                .add_channel(schema, spec.topic, spec.message_encoding, &BTreeMap::new())
                 .map_err(mcap_err)?;
-            channels[topic.index()] = Some(id);
+            channels.push(id);
         }
         // Header, schemas and channels reach the disk at once: even a file killed before
         // its first flush says what it would have held.
@@ -387,8 +511,8 @@ impl RecordWriter {
             path,
             writer,
             len,
+            sequence: vec![0; channels.len()],
             channels,
-            sequence: [0; 6],
             opened: now,
             messages: 0,
             unflushed: 0,
@@ -398,12 +522,24 @@ impl RecordWriter {
     }
 }
 
-impl Drop for RecordWriter {
+impl Drop for McapSeries {
     fn drop(&mut self) {
         if let Err(e) = self.close() {
             tracing::warn!(error = %e, "recording file not closed cleanly");
         }
     }
+}
+
+/// Whether `stem` names a file of the series `prefix`: `PREFIX-YYYYmmddTHHMMSSZ-N`
+/// exactly, so that another series whose prefix starts with this one (the acoustic files'
+/// `PREFIX-acoustic`) is never counted or deleted as this one's.
+fn is_series_file(stem: &str, prefix: &str) -> bool {
+    stem.strip_prefix(prefix)
+        .and_then(|rest| rest.strip_prefix('-'))
+        .and_then(|rest| rest.split_once('-'))
+        .is_some_and(|(stamp, n)| {
+            crate::reader::is_stamp(stamp) && !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit())
+        })
 }
 
 /// `YYYYmmddTHHMMSSZ` of a UTC time.
@@ -417,4 +553,30 @@ fn utc_stamp(t: time::OffsetDateTime) -> String {
         t.minute(),
         t.second()
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_series_counts_only_its_own_file_names() {
+        assert!(is_series_file("shoal-20260101T000000Z-1", "shoal"));
+        assert!(is_series_file("shoal-20260101T000000Z-12", "shoal"));
+        assert!(is_series_file(
+            "shoal-acoustic-20260101T000000Z-3",
+            "shoal-acoustic"
+        ));
+        for other in [
+            "shoal-acoustic-20260101T000000Z-3",
+            "shoalx-20260101T000000Z-1",
+            "shoal-20260101T000000Z-",
+            "shoal-20260101T000000Z-1x",
+            "shoal-2026010T000000Z-1",
+            "shoal-2026010\u{e9}T00000Z-1",
+            "shoal",
+        ] {
+            assert!(!is_series_file(other, "shoal"), "{other}");
+        }
+    }
 }

@@ -1,5 +1,6 @@
 //! The recorder end to end on a private DDS domain (170): samples of every topic published,
-//! recorded, read back by the reference Python MCAP reader and by ours, and replayed.
+//! recorded, read back by the reference Python MCAP reader and by ours, and replayed (an
+//! acoustic recording in the same directory skipped with a note).
 //!
 //! Must run inside the private network namespace (`scripts/netns-run.sh`). The Python
 //! check is skipped with the reason printed when `.venv` lacks `mcap`, unless
@@ -321,6 +322,26 @@ async fn every_topic_is_recorded_read_by_the_reference_reader_and_replayed() {
         assert_eq!(stream["counts"], v["counts"]);
     }
 
+    // An acoustic recording beside it (`[recorder] acoustic`): not DDS topics, so replay
+    // skips its channels and says so once.
+    let mut acoustic = shoal_recorder::AcousticWriter::new(&config).unwrap();
+    for message_id in 1..=3 {
+        let record = shoal_converter::TapRecord::now(
+            1,
+            T0,
+            shoal_converter::TapEvent::Fate {
+                message_id,
+                fate: shoal_converter::MessageFate::Delivered,
+            },
+        );
+        acoustic.write(&record).unwrap();
+    }
+    acoustic.close().unwrap();
+    assert_eq!(
+        shoal_recorder::mcap_files(&config.directory).unwrap().len(),
+        2
+    );
+
     // Replay at 5x onto the domain: a subscriber gets every state vector, at the pace.
     let sub_dds = dds();
     let mut states = sub_dds.subscribe::<StateVector>().unwrap();
@@ -333,6 +354,16 @@ async fn every_topic_is_recorded_read_by_the_reference_reader_and_replayed() {
             ..ReplayOptions::default()
         },
     );
+    let notes = Arc::new(std::sync::Mutex::new(Vec::new()));
+    {
+        let notes = Arc::clone(&notes);
+        replayer.on_skipped_channels(move |file, topics| {
+            notes
+                .lock()
+                .unwrap()
+                .push((file.to_path_buf(), topics.to_vec()));
+        });
+    }
     let span_ns = recorded.last().unwrap().log_time_ns - recorded[0].log_time_ns;
     let started = Instant::now();
     let damaged = replayer
@@ -354,8 +385,12 @@ async fn every_topic_is_recorded_read_by_the_reference_reader_and_replayed() {
     assert_eq!(s.published, total - 1);
     assert_eq!(
         (s.invalid, s.undecodable, s.unknown, s.write_failed),
-        (0, 0, 0, 0)
+        (0, 0, 3, 0)
     );
+    let notes = notes.lock().unwrap().clone();
+    assert_eq!(notes.len(), 1, "{notes:?}");
+    assert!(notes[0].0.to_string_lossy().contains("shoal-acoustic-"));
+    assert_eq!(notes[0].1, ["acoustic/frame", "acoustic/link_event"]);
     let mut got = Vec::new();
     while got.len() < 50 {
         let item = tokio::time::timeout(Duration::from_secs(10), states.next())

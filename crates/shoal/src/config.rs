@@ -612,6 +612,9 @@ mod tests {
             ("recorder", "SHOAL_RECORDER__ENABLED", "true", |c| {
                 c.recorder.enabled && c.recorder.prefix == "shoal"
             }),
+            ("recorder", "SHOAL_RECORDER__ACOUSTIC", "true", |c| {
+                c.recorder.acoustic && c.recorder.directory == Path::new("recordings")
+            }),
             (
                 "security",
                 "SHOAL_SECURITY__BUNDLE",

@@ -330,9 +330,15 @@ pub async fn acoustic_demo(
     } else {
         None
     };
-    crate::relay::run_acoustic_demo(demo, cdt_dds, keys, shutdown)
+    let (recorder, tap) = crate::record::start_acoustic(&cfg.recorder)?.unzip();
+    let run = crate::relay::run_acoustic_demo(demo, cdt_dds, keys, tap, shutdown)
         .await
-        .context("acoustic demo failed")
+        .context("acoustic demo failed");
+    // The relay has stopped, its CDT's tap with it: the recorder closes at once.
+    if let Some(recorder) = recorder {
+        crate::record::stop_acoustic(recorder).await;
+    }
+    run
 }
 
 /// What the acoustic demo runs: the acoustic vehicles and relay of `scenario` (a file or a

@@ -1,14 +1,17 @@
 //! `shoal record` and `shoal replay`: Shoal topics into MCAP files and back onto DDS
-//! (docs/recorder.md).
+//! (docs/recorder.md); and the acoustic recording `[recorder] acoustic` asks of every CDT
+//! this process runs.
 
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
+use shoal_converter::FrameTap;
 use shoal_dds::{Credentials, PubSub};
 use shoal_recorder::{
-    Identity, Publishers, Recorder, RecorderConfig, ReplayOptions, ReplayStats, Replayer, Speed,
+    AcousticRecorder, Identity, Publishers, Recorder, RecorderConfig, ReplayOptions, ReplayStats,
+    Replayer, Speed,
 };
 use shoal_security::dds::{DdsKeystore, Enclave, Grant};
 use tracing::{info, warn};
@@ -144,6 +147,44 @@ pub async fn record(cfg: &ShoalConfig, args: RecordArgs) -> Result<()> {
         s.files, s.messages, s.bytes, s.dropped, s.refused
     );
     Ok(())
+}
+
+/// The acoustic recorder `[recorder] acoustic` asks for, started, and the tap to give the
+/// CDT (docs/recorder.md, "Acoustic frames"); `None` when it is off.
+pub fn start_acoustic(config: &RecorderConfig) -> Result<Option<(AcousticRecorder, FrameTap)>> {
+    if !config.acoustic {
+        return Ok(None);
+    }
+    let started = AcousticRecorder::start(config).with_context(|| {
+        format!(
+            "cannot start recording the acoustic link ([recorder] acoustic) into {}",
+            config.directory.display()
+        )
+    })?;
+    info!(
+        directory = %config.directory.display(),
+        prefix = %shoal_recorder::acoustic::acoustic_prefix(config),
+        "recording the acoustic link's frames and events ([recorder] acoustic)"
+    );
+    Ok(Some(started))
+}
+
+/// Stops an acoustic recorder (once its CDT has stopped) and logs what it wrote; a
+/// failure is logged, not returned: the files stay readable up to their last chunk.
+pub async fn stop_acoustic(recorder: AcousticRecorder) {
+    match recorder.stop().await {
+        Ok(s) => info!(
+            files = s.files,
+            messages = s.messages,
+            bytes = s.bytes,
+            dropped = s.dropped,
+            "acoustic recording closed"
+        ),
+        Err(e) => warn!(
+            error = %e,
+            "acoustic recording failed; its files are readable up to their last chunk"
+        ),
+    }
 }
 
 /// A secure replay starts at most this many vehicle processes.
@@ -298,6 +339,18 @@ pub async fn replay(
     let mut replayer = Replayer::new(publishers, options);
     let label = who.clone();
     replayer.on_progress(PROGRESS_EVERY, move |s| print_stats(&label, "progress", s));
+    // Said once, by the process that reads for everyone (each vehicle's process skips
+    // the same channels).
+    if args.as_vehicle.is_none() {
+        let label = who.clone();
+        replayer.on_skipped_channels(move |file, topics| {
+            eprintln!(
+                "shoal {label}: note: {}: skipping {} (not Shoal DDS topics; not replayed)",
+                file.display(),
+                topics.join(", ")
+            );
+        });
+    }
     let mut damaged = Vec::new();
     let run = async {
         loop {

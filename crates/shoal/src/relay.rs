@@ -11,10 +11,10 @@ use std::sync::Arc;
 
 use anyhow::Result;
 use shoal_acoustic::channel::ChannelModel;
-use shoal_converter::ConverterError;
 use shoal_converter::emulated_relay::{
     AcousticKeys, EmulatedRelayConfig, RelayedVehicle, run_emulated_relay,
 };
+use shoal_converter::{ConverterError, FrameTap};
 use shoal_dds::PubSub;
 use shoal_model::VehicleKind;
 use shoal_proxy::sim::{OceanField, SimSettings, SimSpec};
@@ -137,7 +137,8 @@ impl AcousticDemoConfig {
 
 /// Runs the acoustic demo until `shutdown`: each simulated vehicle on its private domain,
 /// heard through the relay whose CDT publishes with `cdt_dds` on the station's domain
-/// (with security on, a signing participant), its frames tagged with `keys` if given.
+/// (with security on, a signing participant), its frames tagged with `keys` if given and
+/// reported to `tap` if given (`[recorder] acoustic`).
 ///
 /// Returns an error if the relay or a simulated vehicle cannot start or stops on its own;
 /// everything it started is stopped.
@@ -145,9 +146,11 @@ pub async fn run_acoustic_demo(
     demo: AcousticDemoConfig,
     cdt_dds: Arc<PubSub>,
     keys: Option<AcousticKeys>,
+    tap: Option<FrameTap>,
     shutdown: CancellationToken,
 ) -> Result<()> {
-    let relay = demo.relay();
+    let mut relay = demo.relay();
+    relay.tap = tap;
     let settings = SimSettings {
         ocean: demo.ocean,
         ..SimSettings::default()

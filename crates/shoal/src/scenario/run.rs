@@ -40,7 +40,8 @@ const READ_LIMIT: usize = 1_000_000;
     after_help = "Example: shoal scenario run sea-trial --speed 60 --duration 600 --out runs/trial-1\n\n\
 The report directory holds report.html (open it in a browser; it needs no network), \
 summary.json (the figures), history.sqlite (every state, task and event the station \
-stored) and recording/ (every DDS sample, as MCAP)."
+stored) and recording/ (every DDS sample, as MCAP; with [recorder] acoustic = true also the \
+acoustic relay's frames and link events, in PREFIX-acoustic-*.mcap)."
 )]
 pub struct RunArgs {
     /// The scenario: a TOML file, or the name of a shipped one (`shoal scenario list`).

@@ -21,6 +21,7 @@ use shoal_dds::PubSub;
 use shoal_model::{Event, LinkStatus, StateVector, Warp};
 use shoal_proxy::ProxyOptions;
 use shoal_proxy::sim::{SimAdapter, SimFault, SimSettings, SimSpec};
+use shoal_recorder::AcousticRecorder;
 use shoal_scenario::Scenario;
 use shoal_scenario::report::{LinkFigures, LinkSample, RunRecord};
 use tokio::sync::mpsc;
@@ -55,6 +56,8 @@ pub struct AcousticNet {
     stop: CancellationToken,
     task: JoinHandle<()>,
     observer: JoinHandle<()>,
+    /// The relay's frames and link events into the run's recording (`[recorder] acoustic`).
+    recorder: Option<AcousticRecorder>,
 }
 
 impl AcousticNet {
@@ -103,6 +106,8 @@ impl AcousticNet {
         relay.fixed_per = net.fixed_per;
         relay.channel = net.channel;
         relay.relay_vehicle.clone_from(&net.relay_vehicle);
+        let (recorder, tap) = crate::record::start_acoustic(&cfg.recorder)?.unzip();
+        relay.tap = tap;
         let cdt_dds = Arc::new(PubSub::new(&cfg.dds).context("cannot join DDS for the relay")?);
 
         let controls: Controls = Arc::default();
@@ -174,6 +179,7 @@ impl AcousticNet {
             stop,
             task,
             observer,
+            recorder,
         }))
     }
 
@@ -288,6 +294,9 @@ impl AcousticNet {
         let wait = std::time::Duration::from_secs(10);
         let _ = tokio::time::timeout(wait, self.task).await;
         let _ = tokio::time::timeout(wait, self.observer).await;
+        if let Some(recorder) = self.recorder {
+            crate::record::stop_acoustic(recorder).await;
+        }
     }
 }
 

@@ -113,7 +113,7 @@ impl Drop for Proc {
     }
 }
 
-fn python_with_mcap() -> Option<PathBuf> {
+pub(crate) fn python_with_mcap() -> Option<PathBuf> {
     let python = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
     let works = python.exists()
         && Command::new(&python)

@@ -273,11 +273,13 @@ fn a_bad_scenario_is_one_line_and_nothing_starts() {
 
 /// The shipped acoustic scenario: an AUV heard only through the emulated acoustic relay,
 /// its link cut for two minutes, its computer failed and restarted, and the relay's modem
-/// failed for one minute, all at 60x.
+/// failed for one minute, all at 60x; with `[recorder] acoustic` on, the relay's frames
+/// recorded beside the DDS samples.
 #[test]
 fn an_acoustic_vehicle_runs_its_tasks_through_the_relay_across_outages() {
     let dir = tempfile::tempdir().unwrap();
     let out = shoal(dir.path())
+        .env("SHOAL_RECORDER__ACOUSTIC", "true")
         .args([
             "scenario",
             "run",
@@ -347,4 +349,48 @@ fn an_acoustic_vehicle_runs_its_tasks_through_the_relay_across_outages() {
     assert!(html.contains("<h2>Acoustic network</h2>") && html.contains("auv-ac1 → relay"));
     assert!(html.contains("State vector age on reaching the station"));
     assert!(html.contains("aria-label=\"Acoustic link quality (RSSI at the relay)\""));
+
+    // The DDS recording and, under their own prefix, the relay's frames and link events.
+    let mut dds_files = 0;
+    let mut acoustic = Vec::new();
+    for entry in std::fs::read_dir(run.join("recording")).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        if name.starts_with("shoal-acoustic-") {
+            acoustic.push(path);
+        } else if name.starts_with("shoal-") {
+            dds_files += 1;
+        }
+    }
+    assert_eq!(dds_files, 1);
+    assert!(!acoustic.is_empty(), "no acoustic recording");
+    if let Some(python) = crate::recorder::python_with_mcap() {
+        let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../tests/recorder/check_acoustic_mcap.py");
+        let out = Command::new(python)
+            .arg(script)
+            .args(&acoustic)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let found: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        // Hundreds of the AUV's frames at the relay, the tasks down, their fates.
+        assert!(
+            found["directions"]["received"].as_u64().unwrap() > 100,
+            "{found}"
+        );
+        assert!(
+            found["pdu_types"]["identified_task"].as_u64().unwrap() >= 2,
+            "{found}"
+        );
+        assert!(
+            found["events"]["delivered"].as_u64().unwrap() >= 2,
+            "{found}"
+        );
+        assert_eq!(found["invalid"], serde_json::json!([]), "{found}");
+    }
 }

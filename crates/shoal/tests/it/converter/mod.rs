@@ -3,8 +3,8 @@
 //! the vehicle side, and the converter library does not depend on the simulator.
 //!
 //! Every test runs the real modem emulator on 127.0.0.1 and real DDS participants. Each
-//! uses its own DDS domains (from 100..130 and 190..191, listed in the module); domain A stands for the
-//! vehicle side, domain B for the station side.
+//! uses its own DDS domains (from 100..130, 190..191 and 216..217, listed in the module);
+//! domain A stands for the vehicle side, domain B for the station side.
 //!
 //! - `common`: emulator, participants and waiting helpers, and the demo's relay topology.
 //! - `end_to_end`: AUV on domain A → VDT → emulated sea → CDT → domain B and tasks back
@@ -24,6 +24,8 @@
 //! - `failover`: a vehicle surfacing and diving switches between its IP path and the
 //!   acoustic link; tasks exactly once, no state vector lost or duplicated (domains 190,
 //!   191; `shoal bench acoustic` measures the same on 192, 193).
+//! - `recording`: the relay's CDT feeding its frames and link events to the acoustic
+//!   recorder, the file read by the reference Python MCAP reader (domains 216, 217).
 //!
 //! New converter tests go in the module of their area; a new area gets a module listed
 //! here. The `shoal bench acoustic` figures are checked by the benchmark's own unit tests.
@@ -35,5 +37,6 @@ mod impersonation;
 mod keyframes;
 mod outage;
 mod reconnect;
+mod recording;
 mod redelivery;
 mod relay;
