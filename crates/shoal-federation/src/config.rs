@@ -70,6 +70,12 @@ pub struct FederationConfig {
     /// (Zenoh's link lease; a keep-alive crosses every quarter of it). The command lease's
     /// failover starts counting then.
     pub link_lease_ms: u64,
+    /// The rate of this site's slowest WAN link, kbit/s; 0: a fast link. Over a slow link
+    /// Zenoh's priorities act only on what has not yet left for the kernel, so with a rate
+    /// the site keeps the kernel's send buffer and Zenoh's batches to a fraction of a
+    /// second of the link (see [`LinkShaping`]): an alarm then waits behind at most that,
+    /// not behind seconds of positions.
+    pub link_rate_kbps: u32,
     /// Mutual TLS between sites: encryption, and each side of a link checks the other's
     /// certificate.
     pub tls: TlsConfig,
@@ -109,6 +115,7 @@ impl Default for FederationConfig {
             environment: EnvironmentPolicy::default(),
             lease: LeasePolicy::default(),
             link_lease_ms: 10_000,
+            link_rate_kbps: 0,
             limits: Limits::default(),
         }
     }
@@ -211,8 +218,8 @@ impl Mode {
     }
 }
 
-/// Zenoh's priority classes, highest first.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+/// Zenoh's priority classes, highest first (so a higher priority compares less).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 #[allow(missing_docs)]
 pub enum Priority {
@@ -483,7 +490,52 @@ pub const MAX_POSITION_RATE_HZ: f64 = 10.0;
 /// Largest catch-up buffer and limit accepted.
 pub const MAX_BUFFER: usize = 100_000;
 
+/// The slowest `link_rate_kbps` accepted (a 2.4 kbit/s HF or Iridium data line).
+pub const LINK_RATE_KBPS_MIN: u32 = 2;
+/// The fastest `link_rate_kbps` accepted (10 Gbit/s).
+pub const LINK_RATE_KBPS_MAX: u32 = 10_000_000;
+
+/// What `link_rate_kbps` makes of the kernel's and Zenoh's buffers on every link.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinkShaping {
+    /// Each link's TCP send buffer (`SO_SNDBUF`), bytes: half a second of the link, at
+    /// least 4 KiB. What the kernel holds leaves in order, whatever its priority.
+    pub send_buffer_bytes: u32,
+    /// Zenoh's batch, bytes: an eighth of a second of the link, 8 KiB to 64 KiB. A batch
+    /// once started goes out whole, so an alarm may wait behind one; but Zenoh's queues
+    /// hold at most 16 batches a priority, and smaller batches would make its queues too
+    /// small (below).
+    pub batch_bytes: u16,
+    /// Batches each of Zenoh's queues for reliable data holds (2 to 16): 128 KiB a
+    /// priority, as with Zenoh's defaults (two 64 KiB batches). A full queue blocks a
+    /// reliable publisher, and in a router the link a message came in on, for up to 5 s: a
+    /// site whose link falls silent must not fill it in seconds. The queues of positions
+    /// and environment summaries, which a newer value replaces, keep Zenoh's least (2).
+    pub queue_batches: u8,
+}
+
+impl LinkShaping {
+    /// The shaping for a link of `kbps` kbit/s.
+    pub fn for_rate(kbps: u32) -> Self {
+        let bytes_per_s = u64::from(kbps) * 1000 / 8;
+        let send = (bytes_per_s / 2).clamp(4096, 4 << 20);
+        let batch = (bytes_per_s / 8).clamp(8 * 1024, u64::from(u16::MAX));
+        let queue = (128 * 1024 / batch).clamp(2, 16);
+        Self {
+            send_buffer_bytes: u32::try_from(send).unwrap_or(u32::MAX),
+            batch_bytes: u16::try_from(batch).unwrap_or(u16::MAX),
+            queue_batches: u8::try_from(queue).unwrap_or(16),
+        }
+    }
+}
+
 impl FederationConfig {
+    /// The buffers to use for `link_rate_kbps`; `None` for a fast link (the kernel's and
+    /// Zenoh's own defaults).
+    pub fn link_shaping(&self) -> Option<LinkShaping> {
+        (self.link_rate_kbps != 0).then(|| LinkShaping::for_rate(self.link_rate_kbps))
+    }
+
     /// Checks every key; the error names the first one that cannot work.
     pub fn validate(&self) -> Result<(), ConfigError> {
         if !is_site_name(&self.site) {
@@ -531,6 +583,16 @@ impl FederationConfig {
         self.validate_environment()?;
         if !(1_000..=600_000).contains(&self.link_lease_ms) {
             return Err(invalid("link_lease_ms", "must be in 1000..=600000"));
+        }
+        if self.link_rate_kbps != 0
+            && !(LINK_RATE_KBPS_MIN..=LINK_RATE_KBPS_MAX).contains(&self.link_rate_kbps)
+        {
+            return Err(invalid(
+                "link_rate_kbps",
+                format!(
+                    "must be 0 (a fast link) or in {LINK_RATE_KBPS_MIN}..={LINK_RATE_KBPS_MAX}"
+                ),
+            ));
         }
         let lease = &self.lease;
         if !lease.standby.is_empty() && !self.remote_sites.contains(&lease.standby) {
@@ -997,6 +1059,11 @@ mod tests {
         assert!(
             refused(|c| c.limits.remote_environment = 0)
                 .starts_with("federation.limits.remote_environment:")
+        );
+        assert!(refused(|c| c.link_rate_kbps = 1).starts_with("federation.link_rate_kbps:"));
+        assert!(
+            refused(|c| c.link_rate_kbps = LINK_RATE_KBPS_MAX + 1)
+                .starts_with("federation.link_rate_kbps:")
         );
         assert!(refused(|c| c.mode = Mode::Client).starts_with("federation.listen:"));
         assert!(

@@ -82,6 +82,9 @@ struct Shared {
     catchup: mpsc::Sender<CatchupRequest>,
     /// The lease keeper's state; locked before `inbound` when both are.
     lease_run: Mutex<LeaseRun>,
+    /// `lease.enabled`, fixed at start: read without the lease state's lock, so that no
+    /// getter takes two locks.
+    lease_enabled: bool,
     /// Remote sites to ask for their lease records.
     lease_ask: mpsc::Sender<String>,
     site: String,
@@ -136,7 +139,7 @@ impl Shared {
         let requests = lock(&self.inbound).site_alive(key, online, now_ms());
         self.changed.send_modify(|n| *n += 1);
         if online
-            && lock(&self.lease_run).policy.enabled
+            && self.lease_enabled
             && let Some(keys::Key::Alive { site }) = keys::Key::parse(key)
         {
             // Queued behind the others; a full queue: the next reconnection asks again.
@@ -220,8 +223,17 @@ impl Keeper for Shared {
             inbound
                 .leases_mut()
                 .fail_over(|s| offline.get(s).copied().flatten(), timeout, now);
-        for r in &failed_over {
-            warn!(vehicle = %r.vehicle_id, term = r.term, "command lease taken over: its holder's site has been offline for lease.failover_timeout_ms");
+        // One line per takeover, not per vehicle: a site's whole fleet fails over at once.
+        if let Some(first) = failed_over.first() {
+            warn!(
+                vehicles = failed_over.len(),
+                first = %first.vehicle_id,
+                term = first.term,
+                "command leases taken over: their holder's site has been offline for lease.failover_timeout_ms"
+            );
+            for r in &failed_over {
+                debug!(vehicle = %r.vehicle_id, term = r.term, "command lease taken over");
+            }
         }
         made.extend(failed_over);
         made
@@ -312,6 +324,7 @@ impl Federation {
             changed: watch::Sender::new(0),
             catchup: catchup_tx,
             lease_run: Mutex::new(LeaseRun::new(config.lease.clone(), &config.remote_sites)),
+            lease_enabled: config.lease.enabled,
             lease_ask: lease_ask_tx,
             site: config.site.clone(),
             state_file,
@@ -392,7 +405,7 @@ impl Federation {
                 config.clone(),
                 stop.clone(),
             )),
-            tokio::spawn(publish_sequenced(
+            spawn_may_block(publish_sequenced(
                 session.clone(),
                 site.clone(),
                 alarm_publisher,
@@ -400,13 +413,13 @@ impl Federation {
                 outgoing_rx,
                 stop.clone(),
             )),
-            tokio::spawn(serve_catchup(
+            spawn_may_block(serve_catchup(
                 queryable,
                 Arc::clone(&shared),
                 config.limits.catchup_replies,
                 stop.clone(),
             )),
-            tokio::spawn(ask_catchup(
+            spawn_may_block(ask_catchup(
                 session.clone(),
                 Arc::clone(&shared),
                 catchup_rx,
@@ -419,7 +432,7 @@ impl Federation {
             )),
         ];
         if config.environment.mode == EnvironmentMode::Aggregated {
-            tasks.push(tokio::spawn(publish_environment(
+            tasks.push(spawn_may_block(publish_environment(
                 session.clone(),
                 Arc::clone(&shared),
                 config.environment.qos,
@@ -427,13 +440,14 @@ impl Federation {
             )));
         }
         if config.lease.enabled {
-            let (answers, takes, done, served) = (
+            let (answers, takes, done, up, served) = (
+                Arc::clone(&shared),
                 Arc::clone(&shared),
                 Arc::clone(&shared),
                 Arc::clone(&shared),
                 site.clone(),
             );
-            tasks.push(tokio::spawn(lease_keeper::serve(
+            tasks.push(spawn_may_block(lease_keeper::serve(
                 lease_queryable,
                 served,
                 move || {
@@ -445,12 +459,13 @@ impl Federation {
                 },
                 stop.clone(),
             )));
-            tasks.push(tokio::spawn(lease_keeper::ask(
+            tasks.push(spawn_may_block(lease_keeper::ask(
                 session.clone(),
                 lease_ask_rx,
                 lease_timeout,
                 move |key, payload| takes.lease_reply(key, payload),
                 move |site| lock(&done.lease_run).answered(site),
+                move |site| lock(&up.inbound).offline_since(site, 0).is_none(),
                 stop.clone(),
             )));
             let keeper: Arc<dyn Keeper> = Arc::clone(&shared) as Arc<dyn Keeper>;
@@ -579,7 +594,7 @@ impl Federation {
 
     /// Whether the command lease is in force (`lease.enabled`).
     pub fn lease_enabled(&self) -> bool {
-        lock(&self.shared.lease_run).policy.enabled
+        self.shared.lease_enabled
     }
 
     /// Sends `task` to the home site of its vehicle, another site's vehicle whose command
@@ -588,7 +603,7 @@ impl Federation {
     /// `lease_holder` = this site). Published at once, reliably; not caught up after an
     /// outage (the sender follows the task through the home site's task transitions).
     pub fn relay_order(&self, task: &TaskAssignment) -> Result<(), OrderError> {
-        let enabled = lock(&self.shared.lease_run).policy.enabled;
+        let enabled = self.shared.lease_enabled;
         let lease = lock(&self.shared.inbound)
             .leases()
             .lease(&task.vehicle_id)
@@ -657,6 +672,11 @@ impl Federation {
     }
 
     /// Reads the federated picture.
+    ///
+    /// `read` runs with the picture locked: it must not call back into this federation
+    /// (the lease state is locked before the picture, so calling, say,
+    /// [`Self::may_command`] from `read` could deadlock with the lease keeper, which holds
+    /// the lease state and waits for the picture).
     pub fn picture<R>(&self, read: impl FnOnce(&FederatedPicture) -> R) -> R {
         read(lock(&self.shared.inbound).picture())
     }
@@ -695,6 +715,20 @@ impl Drop for Federation {
     fn drop(&mut self) {
         self.stop.cancel();
     }
+}
+
+/// Runs a task whose Zenoh calls may block on a thread of its own.
+///
+/// Zenoh resolves a put, a reply or a query synchronously, `.await` included: under
+/// congestion control `Block` it waits for room in the link's queue, up to Zenoh's
+/// `wait_before_close` (5 s), holding its thread. On one of the runtime's workers (two on a
+/// small machine) a stalled link would stall the station with it.
+fn spawn_may_block<F>(task: F) -> JoinHandle<()>
+where
+    F: Future<Output = ()> + Send + 'static,
+{
+    let runtime = tokio::runtime::Handle::current();
+    tokio::task::spawn_blocking(move || runtime.block_on(task))
 }
 
 fn priority(p: Priority) -> zenoh::qos::Priority {
@@ -915,6 +949,17 @@ struct CatchupQos {
     timeout: Duration,
 }
 
+/// The priority of a catch-up query and its replies: the stream's, but at most
+/// `data_high`. Catch-up is history: behind a site's live alarms and transitions, which
+/// would otherwise queue behind a whole outage's worth of it, and ahead of positions.
+fn catchup_priority(stream: Priority) -> Priority {
+    if stream < Priority::DataHigh {
+        Priority::DataHigh
+    } else {
+        stream
+    }
+}
+
 /// Wait before asking again for what a query that ran out of time did not bring.
 const CATCHUP_RETRY: Duration = Duration::from_secs(2);
 
@@ -983,7 +1028,7 @@ async fn ask_catchup(
         let replies = session
             .get(&selector)
             .consolidation(ConsolidationMode::None)
-            .priority(priority(stream_qos.priority))
+            .priority(priority(catchup_priority(stream_qos.priority)))
             .congestion_control(congestion(stream_qos.congestion))
             .timeout(timeout)
             .await;
@@ -1044,5 +1089,23 @@ async fn ask_catchup(
             ));
         }
         next = more;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn catch_up_travels_below_live_alarms_and_transitions_and_above_positions() {
+        assert_eq!(catchup_priority(Priority::RealTime), Priority::DataHigh);
+        assert_eq!(
+            catchup_priority(Priority::InteractiveHigh),
+            Priority::DataHigh
+        );
+        assert_eq!(catchup_priority(Priority::DataHigh), Priority::DataHigh);
+        // A stream configured lower keeps its own.
+        assert_eq!(catchup_priority(Priority::Background), Priority::Background);
+        assert!(catchup_priority(Priority::RealTime) < Priority::Data);
     }
 }

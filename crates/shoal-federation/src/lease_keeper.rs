@@ -220,7 +220,31 @@ impl LeaseRun {
     }
 }
 
-/// Answers `shoal/<site>/leases/*` with the records this site made that are current.
+/// Records a lease query asks for in one part: about 7 kB, under a second of a 64 kbit/s
+/// link, so each part arrives well within the query's timeout behind other traffic.
+pub(crate) const ASK_PART: usize = 100;
+
+/// The part of `records` a lease query's parameters ask for: sorted by vehicle, those
+/// after the vehicle `after` (all without it), at most `limit` (all without it, or when it
+/// is not a number).
+pub(crate) fn answer_part(
+    mut records: Vec<LeaseRecord>,
+    after: Option<&str>,
+    limit: Option<&str>,
+) -> Vec<LeaseRecord> {
+    records.sort_by(|a, b| a.vehicle_id.cmp(&b.vehicle_id));
+    let limit = limit
+        .and_then(|v| v.parse::<usize>().ok())
+        .map_or(usize::MAX, |n| n.max(1));
+    records
+        .into_iter()
+        .filter(|r| after.is_none_or(|a| r.vehicle_id.as_str() > a))
+        .take(limit)
+        .collect()
+}
+
+/// Answers `shoal/<site>/leases/*` with the records this site made that are current, in
+/// the part the query asks for (`?after=<vehicle>;limit=<n>`, both optional).
 pub(crate) async fn serve(
     queryable: Queryable<FifoChannelHandler<Query>>,
     site: String,
@@ -232,9 +256,10 @@ pub(crate) async fn serve(
             () = stop.cancelled() => break,
             q = queryable.recv_async() => match q { Ok(q) => q, Err(_) => break },
         };
-        let records = records();
-        debug!(count = records.len(), "lease query served");
-        for r in records {
+        let params = query.parameters();
+        let part = answer_part(records(), params.get("after"), params.get("limit"));
+        debug!(count = part.len(), "lease query served");
+        for r in part {
             let frame = match wire::encode_lease(&r) {
                 Ok(f) => f,
                 Err(e) => {
@@ -250,25 +275,67 @@ pub(crate) async fn serve(
     }
 }
 
-/// Asks each remote site that comes up for its lease records, one site at a time; each
-/// reply goes to `take` (which checks it like a published record), and `done` notes the
-/// site answered.
+/// Wait before asking a site again whose answer ran out of time.
+const ASK_RETRY: Duration = Duration::from_secs(2);
+
+/// Asks each remote site that comes up for its lease records, one site at a time and in
+/// parts of [`ASK_PART`] (a whole fleet's records in one answer would not cross a
+/// satellite link within the timeout); each reply goes to `take` (which checks it like a
+/// published record), and `done` notes the site answered. A part that ran out of time is
+/// asked for again after [`ASK_RETRY`] while `online` says the site is still up: nothing
+/// else would tell this site of a takeover it missed while the link was down. Records are
+/// idempotent, so a repeated one changes nothing.
 pub(crate) async fn ask(
     session: Session,
     mut sites: mpsc::Receiver<String>,
     timeout: Duration,
     take: impl Fn(&str, &[u8]),
     done: impl Fn(&str),
+    online: impl Fn(&str) -> bool,
     stop: CancellationToken,
 ) {
+    // (when, site, the vehicle after which the part starts)
+    let mut retries: Vec<(Instant, String, Option<String>)> = Vec::new();
+    let mut next: Option<(String, Option<String>)> = None;
     loop {
-        let site = tokio::select! {
-            () = stop.cancelled() => break,
-            s = sites.recv() => match s { Some(s) => s, None => break },
+        let (site, after) = match next.take() {
+            Some(n) => n,
+            None => {
+                let due = retries.iter().map(|r| r.0).min();
+                tokio::select! {
+                    () = stop.cancelled() => break,
+                    s = sites.recv() => match s { Some(s) => (s, None), None => break },
+                    () = async {
+                        match due {
+                            Some(at) => tokio::time::sleep_until(at).await,
+                            None => std::future::pending().await,
+                        }
+                    } => {
+                        let now = Instant::now();
+                        let Some(i) = retries.iter().position(|r| r.0 <= now) else { continue };
+                        let (_, site, after) = retries.swap_remove(i);
+                        if !online(&site) {
+                            continue;
+                        }
+                        debug!(site, "lease query ran out of time before; asking again");
+                        (site, after)
+                    }
+                }
+            }
         };
+        retries.retain(|r| r.1 != site);
+        let mut selector = format!("{}?limit={ASK_PART}", keys::leases(&site));
+        if let Some(a) = &after {
+            selector.push_str(&format!(";after={a}"));
+        }
+        let started = Instant::now();
+        // Above positions, like catch-up (the replies travel at the query's priority): at
+        // Zenoh's default priority they would queue behind a link's worth of positions.
         let replies = match session
-            .get(keys::leases(&site))
+            .get(&selector)
             .consolidation(ConsolidationMode::None)
+            .priority(zenoh::qos::Priority::DataHigh)
+            .congestion_control(zenoh::qos::CongestionControl::Block)
             .timeout(timeout)
             .await
         {
@@ -278,19 +345,36 @@ pub(crate) async fn ask(
                 continue;
             }
         };
-        let mut n = 0usize;
+        let (mut n, mut failed, mut last) = (0usize, false, None::<String>);
         loop {
             let reply = tokio::select! {
                 () = stop.cancelled() => return,
                 r = replies.recv_async() => match r { Ok(r) => r, Err(_) => break },
             };
-            if let Ok(sample) = reply.result() {
-                n += 1;
-                take(sample.key_expr().as_str(), &sample.payload().to_bytes());
+            match reply.result() {
+                Ok(sample) => {
+                    n += 1;
+                    let key = sample.key_expr().as_str();
+                    if let Some(keys::Key::Lease { vehicle, .. }) = keys::Key::parse(key)
+                        && last.as_deref().is_none_or(|l| vehicle > l)
+                    {
+                        last = Some(vehicle.to_owned());
+                    }
+                    take(key, &sample.payload().to_bytes());
+                }
+                // Zenoh's "timeout" reply among them.
+                Err(_) => failed = true,
             }
         }
-        debug!(site, records = n, "lease query answered");
-        done(&site);
+        debug!(site, records = n, failed, "lease query answered");
+        if failed || started.elapsed() >= timeout.mul_f64(0.95) {
+            // The part again, from what arrived of it.
+            retries.push((Instant::now() + ASK_RETRY, site, last.or(after)));
+        } else if n >= ASK_PART {
+            next = Some((site, last.or(after)));
+        } else {
+            done(&site);
+        }
     }
 }
 
@@ -324,6 +408,47 @@ pub(crate) async fn keep(keeper: Arc<dyn Keeper>, stop: CancellationToken) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::lease::LeaseReason;
+
+    fn record(vehicle: &str) -> LeaseRecord {
+        LeaseRecord {
+            vehicle_id: vehicle.into(),
+            term: 1,
+            holder: "ship".into(),
+            home: "ship".into(),
+            standby: String::new(),
+            reason: LeaseReason::Claim,
+            granted_ms: 0,
+        }
+    }
+
+    fn ids(part: &[LeaseRecord]) -> Vec<&str> {
+        part.iter().map(|r| r.vehicle_id.as_str()).collect()
+    }
+
+    #[test]
+    fn a_lease_answer_comes_in_parts_sorted_by_vehicle() {
+        let all = || ["auv-3", "auv-1", "usv-1", "auv-2"].map(record).to_vec();
+        // No parameters (an older site, a client reading the doc): everything, sorted.
+        assert_eq!(
+            ids(&answer_part(all(), None, None)),
+            ["auv-1", "auv-2", "auv-3", "usv-1"]
+        );
+        assert_eq!(
+            ids(&answer_part(all(), None, Some("2"))),
+            ["auv-1", "auv-2"]
+        );
+        // The next part starts after the last vehicle received.
+        assert_eq!(
+            ids(&answer_part(all(), Some("auv-2"), Some("2"))),
+            ["auv-3", "usv-1"]
+        );
+        assert!(answer_part(all(), Some("usv-1"), Some("2")).is_empty());
+        // A nonsensical limit is ignored, 0 is taken as 1: never an empty part that would
+        // read as the end.
+        assert_eq!(answer_part(all(), None, Some("x")).len(), 4);
+        assert_eq!(ids(&answer_part(all(), None, Some("0"))), ["auv-1"]);
+    }
 
     #[test]
     fn a_missing_file_is_no_leases_and_a_corrupt_one_is_an_error_naming_it() {

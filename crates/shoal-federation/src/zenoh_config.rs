@@ -34,6 +34,27 @@ const READS: [&str; 4] = [
     "liveliness_query",
 ];
 
+/// Zenoh's queues of the priorities that carry reliable data (`block`): alarms, task
+/// transitions, lease records, orders, catch-up.
+const RELIABLE_QUEUES: [&str; 5] = [
+    "transport/link/tx/queue/size/control",
+    "transport/link/tx/queue/size/real_time",
+    "transport/link/tx/queue/size/interactive_high",
+    "transport/link/tx/queue/size/interactive_low",
+    "transport/link/tx/queue/size/data_high",
+];
+/// Zenoh's queues of the priorities that carry what a newer value replaces (`drop`):
+/// positions (`data`) and environment summaries (`background`).
+const LATEST_VALUE_QUEUES: [&str; 3] = [
+    "transport/link/tx/queue/size/data",
+    "transport/link/tx/queue/size/data_low",
+    "transport/link/tx/queue/size/background",
+];
+/// Batches of a latest-value queue: Zenoh's least. A full one drops the newest position
+/// rather than keep seconds of stale ones ahead of it (16 of 8 KiB are 16 s of a
+/// 64 kbit/s link).
+const LATEST_VALUE_BATCHES: u8 = 2;
+
 /// Zenoh's configuration for a (validated) federation configuration and this site's
 /// identity (`None` with `insecure_open`).
 pub fn zenoh_config(
@@ -65,6 +86,24 @@ pub fn zenoh_config(
         // silent. Zenoh sends a keep-alive every quarter of it.
         ("transport/link/tx/lease", json(c.link_lease_ms.into())),
     ];
+    if let Some(shaping) = c.link_shaping() {
+        // Zenoh's priorities order what waits in its own queues; once written to the
+        // socket, data leaves in order. A small send buffer keeps the queue where the
+        // priorities act, and small batches bound what an alarm waits behind.
+        let send = json(shaping.send_buffer_bytes.into());
+        settings.push(("transport/link/tcp/so_sndbuf", send.clone()));
+        settings.push(("transport/link/tls/so_sndbuf", send));
+        settings.push((
+            "transport/link/tx/batch_size",
+            json(shaping.batch_bytes.into()),
+        ));
+        for key in RELIABLE_QUEUES {
+            settings.push((key, json(shaping.queue_batches.into())));
+        }
+        for key in LATEST_VALUE_QUEUES {
+            settings.push((key, json(LATEST_VALUE_BATCHES.into())));
+        }
+    }
     if let Some(id) = identity {
         if polices(c, id) {
             settings.push(("access_control", json(access_control(c, id))));
@@ -212,6 +251,44 @@ mod tests {
             z.get_json("listen/endpoints").unwrap(),
             r#"["tcp/127.0.0.1:7447"]"#
         );
+    }
+
+    #[test]
+    fn a_slow_link_gets_a_small_send_buffer_and_small_batches_a_fast_one_the_defaults() {
+        let fast = zenoh_config(&FederationConfig::default(), None).unwrap();
+        assert_eq!(
+            fast.get_json("transport/link/tcp/so_sndbuf").unwrap(),
+            "null"
+        );
+        let default_batch = fast.get_json("transport/link/tx/batch_size").unwrap();
+        let c = FederationConfig {
+            link_rate_kbps: 64,
+            ..FederationConfig::default()
+        };
+        let z = zenoh_config(&c, None).unwrap();
+        // 64 kbit/s: 8000 B/s, half a second is under the 4 KiB floor; an eighth, 1000 B,
+        // under the 8 KiB one.
+        assert_eq!(z.get_json("transport/link/tcp/so_sndbuf").unwrap(), "4096");
+        assert_eq!(z.get_json("transport/link/tls/so_sndbuf").unwrap(), "4096");
+        assert_eq!(z.get_json("transport/link/tx/batch_size").unwrap(), "8192");
+        assert_ne!(default_batch, "8192");
+        // 16 batches of 8 KiB for reliable data: 128 KiB, as Zenoh's default two of 64 KiB;
+        // the least for positions, which a newer one replaces.
+        assert_eq!(parsed(&z, "transport/link/tx/queue/size")["real_time"], 16);
+        assert_eq!(parsed(&z, "transport/link/tx/queue/size")["data_high"], 16);
+        assert_eq!(parsed(&z, "transport/link/tx/queue/size")["data"], 2);
+        assert_eq!(parsed(&z, "transport/link/tx/queue/size")["background"], 2);
+        let c = FederationConfig {
+            link_rate_kbps: 2_000,
+            ..FederationConfig::default()
+        };
+        let z = zenoh_config(&c, None).unwrap();
+        assert_eq!(
+            z.get_json("transport/link/tcp/so_sndbuf").unwrap(),
+            "125000"
+        );
+        assert_eq!(z.get_json("transport/link/tx/batch_size").unwrap(), "31250");
+        assert_eq!(parsed(&z, "transport/link/tx/queue/size")["real_time"], 4);
     }
 
     #[test]

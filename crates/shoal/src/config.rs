@@ -647,7 +647,7 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 28]>([
+        rows.extend::<[(&str, &str, &str, Check); 29]>([
             ("foxglove", "SHOAL_FOXGLOVE__ENABLED", "true", |c| {
                 c.foxglove.enabled && c.foxglove.max_clients == 8
             }),
@@ -723,6 +723,12 @@ mod tests {
                 "SHOAL_FEDERATION__ENVIRONMENT__QOS",
                 "{ priority = \"background\", congestion = \"drop\", express = true }",
                 |c| c.federation.environment.qos.express,
+            ),
+            (
+                "federation",
+                "SHOAL_FEDERATION__LINK_RATE_KBPS",
+                "64",
+                |c| c.federation.link_rate_kbps == 64,
             ),
             (
                 "federation.limits",

@@ -136,6 +136,9 @@ impl FederationView for View {
 
     fn snapshot(&self, now_ms: i64) -> FederationSnapshot {
         let fed = &self.0;
+        // Read before the picture: `picture` holds the inbound core, and the lease state is
+        // locked before it, never inside it.
+        let lease_enabled = fed.lease_enabled();
         let mut snap = fed.picture(|p| FederationSnapshot {
             site: fed.site().to_owned(),
             sites: p
@@ -203,7 +206,7 @@ impl FederationView for View {
                     }
                 })
                 .collect(),
-            lease_enabled: fed.lease_enabled(),
+            lease_enabled,
             leases: Vec::new(),
             counters: Default::default(),
         });

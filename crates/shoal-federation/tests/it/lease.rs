@@ -175,3 +175,74 @@ async fn the_standby_takes_over_a_lost_holder_and_the_old_holder_gives_way_when_
         "the ship did not fight back"
     );
 }
+
+/// A site that comes up learns every lease a remote site holds, through its lease query,
+/// in parts (a fleet's records in one answer would not cross a slow link in time); and
+/// reading the picture while the lease state is busy never deadlocks.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_site_that_comes_up_learns_a_whole_fleets_leases_in_parts() {
+    logs();
+    let port = free_port();
+    let _link = router(port).await;
+    let ship = Federation::start(leased(client("ship", port, &["shore"]), "", true))
+        .await
+        .unwrap();
+    let fleet: Vec<String> = (0..250).map(|i| format!("auv-{i:03}")).collect();
+    for v in &fleet {
+        ship.push_position(position(v, 43.1)).unwrap();
+    }
+    eventually("the ship to claim its fleet", || {
+        ship.leases().len() == fleet.len()
+    })
+    .await;
+
+    // The claims were published before the shore existed: only its query brings them.
+    let shore = std::sync::Arc::new(
+        Federation::start(leased(client("shore", port, &["ship"]), "", false))
+            .await
+            .unwrap(),
+    );
+    // Meanwhile, readers of the picture that ask about leases from inside it, and callers
+    // of the lease state, as the station's console and dispatcher do at once.
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let (done_tx, done_rx) = std::sync::mpsc::channel();
+    let mut threads = Vec::new();
+    for reader in [true, false] {
+        let (shore, stop, done) = (shore.clone(), stop.clone(), done_tx.clone());
+        threads.push(std::thread::spawn(move || {
+            let mut n = 0u64;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                if reader {
+                    shore.picture(|_| shore.lease_enabled());
+                } else {
+                    let _ = shore.may_command("auv-007");
+                }
+                n += 1;
+            }
+            done.send(n).unwrap();
+        }));
+    }
+    // While the shore's lease query is answered and taken in.
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    for _ in 0..2 {
+        // Checked before anything else takes a lock: a deadlocked pair would hang it.
+        let n = done_rx
+            .recv_timeout(Duration::from_secs(10))
+            .expect("a reader or a lease caller is stuck: a lock-order deadlock");
+        assert!(n > 0);
+    }
+    for t in threads {
+        t.join().unwrap();
+    }
+    eventually("the shore to learn every lease", || {
+        shore.leases().len() == fleet.len()
+    })
+    .await;
+    assert!(
+        shore
+            .leases()
+            .iter()
+            .all(|r| r.holder == "ship" && r.term == 1)
+    );
+}

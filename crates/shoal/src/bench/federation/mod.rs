@@ -103,6 +103,13 @@ pub struct Plan {
     /// silent link lives, so how soon the shore sees ship-1 lost in the outage.
     #[arg(long, default_value_t = 10_000)]
     pub link_lease_ms: u64,
+    /// Leave every site's `link_rate_kbps` at 0 (a fast link's buffers) instead of the
+    /// ships' rate, to see what the shaping does.
+    #[arg(long)]
+    pub unshaped: bool,
+    /// Keep the stations' logs (their directory is printed) even when the run succeeds.
+    #[arg(long)]
+    pub keep_logs: bool,
     /// Also write the figures as JSON here (what the test suite checks).
     #[arg(long)]
     pub summary: Option<PathBuf>,
@@ -155,6 +162,16 @@ impl Plan {
             rate_bps: Some(self.rate_kbps * 1000.0),
             loss: self.loss_pct / 100.0,
             queue_bytes: self.queue_bytes,
+        }
+    }
+
+    /// Every site's `[federation] link_rate_kbps`: the ships' rate, as an operator sets it
+    /// on the sites facing the satellite links, or 0 with `--unshaped`.
+    fn link_rate_kbps(&self) -> String {
+        if self.unshaped {
+            "0".into()
+        } else {
+            format!("{}", self.rate_kbps.round().max(2.0))
         }
     }
 
@@ -524,6 +541,10 @@ impl Run {
                 "SHOAL_FEDERATION__LINK_LEASE_MS".into(),
                 plan.link_lease_ms.to_string(),
             ),
+            (
+                "SHOAL_FEDERATION__LINK_RATE_KBPS".into(),
+                plan.link_rate_kbps(),
+            ),
             // Reached only from inside the site's own namespace.
             ("SHOAL_CONSOLE__AUTH__ENABLED".into(), "false".into()),
             ("RUST_LOG".into(), "warn,cyclonedds=error".into()),
@@ -754,7 +775,7 @@ pub(super) async fn federation(plan: Plan) -> Result<()> {
         () = stop.cancelled() => Err(anyhow::anyhow!("interrupted")),
     };
     run.stop_children().await;
-    if result.is_err() {
+    if result.is_err() || plan.keep_logs {
         eprintln!("federation: the stations' logs are in {}", dir.display());
     } else {
         let _ = std::fs::remove_dir_all(&dir);
@@ -769,7 +790,7 @@ async fn measure(plan: &Plan, run: &mut Run) -> Result<()> {
     let shore_ns = run.netns.name(SHORE).to_owned();
     let ship_ns = run.netns.name(SHIP).to_owned();
     println!(
-        "# shoal bench federation — {} — {}\nship-1 and ship-2 behind {} ms RTT, {} kbit/s, {} % loss each way ({} B modem buffer, seed {}); {} vehicles per ship; {} s run, ship-1's link cut for {} s from its middle",
+        "# shoal bench federation — {} — {}\nship-1 and ship-2 behind {} ms RTT, {} kbit/s, {} % loss each way ({} B modem buffer, seed {}); {} vehicles per ship; {} s run, ship-1's link cut for {} s from its middle; every site's link_rate_kbps {}",
         machine(),
         date(),
         plan.rtt_ms,
@@ -779,7 +800,8 @@ async fn measure(plan: &Plan, run: &mut Run) -> Result<()> {
         plan.seed,
         plan.vehicles,
         plan.seconds,
-        plan.outage
+        plan.outage,
+        plan.link_rate_kbps()
     );
     let api = "/api/federation";
     run.station(plan, SHORE, &passwords)?;
@@ -1338,6 +1360,8 @@ mod tests {
             domain: 10,
             lease_timeout: 10,
             link_lease_ms: 10_000,
+            unshaped: false,
+            keep_logs: false,
             summary: None,
         };
         plan(1800, 300).check().unwrap();
