@@ -23,6 +23,7 @@ use tracing::error;
 
 use crate::config::RecorderConfig;
 use crate::error::RecordError;
+use crate::recorder::join_writer;
 use crate::writer::{ChannelSpec, McapSeries, WriterStats};
 
 /// The channel of frames sent and received.
@@ -375,14 +376,7 @@ impl AcousticRecorder {
     pub async fn stop(mut self) -> Result<AcousticStats, RecordError> {
         self.stop.store(true, Ordering::Release);
         let thread = self.thread.take();
-        let joined = tokio::task::spawn_blocking(move || thread.map(std::thread::JoinHandle::join))
-            .await
-            .map_err(|e| RecordError::Thread(e.to_string()))?;
-        match joined {
-            Some(Ok(result)) => result?,
-            Some(Err(_)) => return Err(RecordError::Thread("it panicked".into())),
-            None => {}
-        }
+        join_writer(thread).await?;
         Ok(self.stats())
     }
 }

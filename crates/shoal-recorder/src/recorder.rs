@@ -200,15 +200,22 @@ impl Recorder {
         // the queue and sees the channel closed.
         self.sender = None;
         let thread = self.thread.take();
-        let joined = tokio::task::spawn_blocking(move || thread.map(std::thread::JoinHandle::join))
-            .await
-            .map_err(|e| RecordError::Thread(e.to_string()))?;
-        match joined {
-            Some(Ok(result)) => result?,
-            Some(Err(_)) => return Err(RecordError::Thread("it panicked".into())),
-            None => {}
-        }
+        join_writer(thread).await?;
         Ok(self.stats())
+    }
+}
+
+/// Waits, off the runtime, for a writer thread to finish, and returns what it returned.
+pub(crate) async fn join_writer(
+    thread: Option<std::thread::JoinHandle<Result<(), RecordError>>>,
+) -> Result<(), RecordError> {
+    let joined = tokio::task::spawn_blocking(move || thread.map(std::thread::JoinHandle::join))
+        .await
+        .map_err(|e| RecordError::Thread(e.to_string()))?;
+    match joined {
+        Some(Ok(result)) => result,
+        Some(Err(_)) => Err(RecordError::Thread("it panicked".into())),
+        None => Ok(()),
     }
 }
 
