@@ -504,6 +504,30 @@ impl Namespaces {
         Ok(me)
     }
 
+    /// Sets a (per-namespace) sysctl in every site's namespace, as `sysctl -w` would.
+    pub(super) fn sysctl(&self, key: &str, value: &str) -> Result<()> {
+        for name in &self.names {
+            let out = Command::new("ip")
+                .args([
+                    "netns",
+                    "exec",
+                    name,
+                    "sysctl",
+                    "-qw",
+                    &format!("{key}={value}"),
+                ])
+                .output()
+                .context("cannot run ip netns exec sysctl")?;
+            if !out.status.success() {
+                bail!(
+                    "sysctl {key}={value} in {name}: {}",
+                    String::from_utf8_lossy(&out.stderr).trim()
+                );
+            }
+        }
+        Ok(())
+    }
+
     /// The namespace of site `i` (in the order given).
     pub(super) fn name(&self, i: usize) -> &str {
         &self.names[i]
