@@ -73,8 +73,8 @@ pub struct FederationConfig {
     /// The rate of this site's slowest WAN link, kbit/s; 0: a fast link. Over a slow link
     /// Zenoh's priorities act only on what has not yet left for the kernel, so with a rate
     /// the site keeps the kernel's send buffer and Zenoh's batches to a fraction of a
-    /// second of the link (see [`LinkShaping`]): an alarm then waits behind at most that,
-    /// not behind seconds of positions.
+    /// second of the link (see [`LinkShaping`]), so that more of a backlog waits where the
+    /// priorities act (the kernel may still queue up to a segment of about 64 kB).
     pub link_rate_kbps: u32,
     /// Mutual TLS between sites: encryption, and each side of a link checks the other's
     /// certificate.
