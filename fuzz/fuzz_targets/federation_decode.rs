@@ -1,13 +1,14 @@
 //! Fuzzes the federation's WAN decoders and its receiving core: arbitrary bytes under any
 //! federation key must never panic, whatever decodes must re-encode to the same bytes,
-//! and the receiving core must refuse or take every sample without panicking.
+//! signature blocks and identity frames must open or be refused without panicking, and
+//! the receiving core must refuse or take every sample without panicking.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
 use shoal_federation::config::FederationConfig;
 use shoal_federation::inbound::{CatchupRequest, Inbound};
 use shoal_federation::keys::{self, Stream};
-use shoal_federation::wire;
+use shoal_federation::{signed, wire};
 
 fuzz_target!(|data: &[u8]| {
     if let Ok(p) = wire::decode_position("auv-1", data) {
@@ -38,6 +39,15 @@ fuzz_target!(|data: &[u8]| {
         let again =
             wire::encode_environment(&e.site, e.epoch, e.seq, &e.item).expect("re-encodes");
         assert_eq!(again, data, "environment re-encoding differs");
+    }
+    // End-to-end signature blocks and identity frames (the certificates themselves are
+    // parsed by WebPKI, fuzzed upstream).
+    if let Ok(Some(o)) = signed::open("shoal/ship/leases/auv-1", data) {
+        assert_eq!(o.frame.len() + o.signature.len() + 4, data.len());
+        assert_eq!(o.frame[1] & signed::SIGNED, 0, "the opened frame reads as unsigned");
+    }
+    if let Ok(chain) = signed::decode_identity(data) {
+        assert!((1..=signed::MAX_CHAIN).contains(&chain.len()));
     }
 
     // The first byte picks the key, the rest is the payload; the same bytes also arrive

@@ -137,7 +137,8 @@ pub struct TlsConfig {
     /// Its private key (PEM: PKCS#8, or PKCS#1 RSA / SEC1 EC), readable by this site only.
     pub private_key: PathBuf,
     /// PEM bundle of the CA certificates whose site certificates this site accepts: the
-    /// remote sites' CAs (and this site's own if it issued theirs).
+    /// remote sites' CAs (and this site's own if it issued theirs), also of sites reached
+    /// only through a router, whose signed lease records and orders are checked here.
     pub trusted_cas: PathBuf,
     /// The connecting side checks that the listener's certificate names the host of the
     /// endpoint (`tls/<host>:<port>`) in its subject alternative names.

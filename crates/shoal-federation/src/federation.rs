@@ -7,7 +7,8 @@
 //!   `shoal/*/leases/*`, `shoal/*/environment/*` (every site, so that data from unknown
 //!   sites is seen, refused and counted), and `shoal/*/orders/S/*` (orders for this
 //!   site's vehicles, from any site);
-//! - a queryable on `shoal/S/catchup/*` answering from the outbound journals;
+//! - a queryable on `shoal/S/catchup/*` answering from the outbound journals, and with
+//!   TLS one on `shoal/S/identity` answering this site's certificate chain;
 //! - tasks: one publishing positions as their vehicles fall due, one publishing alarms,
 //!   task transitions, lease records and orders from a bounded queue, one asking catch-up
 //!   queries, and (with `environment.mode = "aggregated"`) one publishing environment
@@ -22,6 +23,10 @@
 //! send only under its own `shoal/<site>/**` (see `zenoh_config`: on every link with TLS,
 //! on accepted links with user-password alone); the inbound checks below still refuse
 //! what an authorised site sends that is inconsistent or from a site not configured.
+//! With TLS, lease records and orders are also signed end to end with the site's key
+//! ([`crate::signed`]): a router relaying them cannot forge or alter them. A remote site's
+//! certificate is asked of it (`shoal/<site>/identity`) when its session comes up, and
+//! whenever a signed sample arrives before it.
 //!
 //! Zenoh calls the subscribers' callbacks on its own threads; they only lock a core for
 //! the time of one sample and hand catch-up queries to a task through a bounded channel.
@@ -44,13 +49,15 @@ use zenoh::sample::{Locality, Sample, SampleKind};
 
 use crate::config::{Congestion, EnvironmentMode, FederationConfig, Priority, Qos};
 use crate::error::{ShutdownError, StartError};
-use crate::inbound::{CatchupRequest, Inbound, InboundCounters};
+use crate::inbound::{CatchupRequest, Inbound, InboundCounters, Refusal};
 use crate::keys::{self, ROOT, Stream};
 use crate::lease::{HandoverError, LeaseRecord};
 use crate::lease_keeper::{self, CommandDenied, Keeper, LeaseRun};
 use crate::orders::{self, OrderError, OrderRefusal, RelayedOrder};
 use crate::outbound::{Outbound, OutboundCounters, Publication, PushError};
 use crate::picture::FederatedPicture;
+use crate::signed::HeldSample;
+use crate::site_keys::{SiteCertificates, SiteSigner};
 use crate::types::{TaskTransition, VehiclePosition};
 use crate::zenoh_config::{polices, zenoh_config};
 
@@ -92,6 +99,10 @@ struct Shared {
     outgoing: mpsc::Sender<Outgoing>,
     /// Accepted orders, to the station.
     orders: mpsc::Sender<RelayedOrder>,
+    /// This site's key when it signs (with TLS).
+    signer: Option<Arc<SiteSigner>>,
+    /// Remote sites whose certificate to ask for.
+    identity_ask: mpsc::Sender<String>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -104,7 +115,11 @@ impl Shared {
     fn receive(&self, sample: &Sample) {
         let key = sample.key_expr().as_str();
         let payload = sample.payload().to_bytes();
-        let result = lock(&self.inbound).receive(key, &payload, now_ms());
+        self.receive_bytes(key, &payload);
+    }
+
+    fn receive_bytes(&self, key: &str, payload: &[u8]) {
+        let result = lock(&self.inbound).receive(key, payload, now_ms());
         match result {
             Ok(request) => {
                 self.changed.send_modify(|n| *n += 1);
@@ -112,24 +127,81 @@ impl Shared {
                     self.ask(request);
                 }
             }
-            Err(refusal) => debug!(key, reason = %refusal, "refused"),
+            Err(refusal) => self.refused(key, &refusal),
         }
+    }
+
+    /// Logs a refusal; asks for the signer's certificate when a sample waits for it.
+    fn refused(&self, key: &str, refusal: &Refusal) {
+        match refusal {
+            Refusal::AwaitingIdentity { site, ask } => {
+                debug!(
+                    key,
+                    site, "held until the signing site's certificate arrives"
+                );
+                if *ask {
+                    self.ask_identity(site);
+                }
+            }
+            Refusal::AwaitingIdentityFull => {
+                warn!(
+                    key,
+                    "signed sample dropped: too many wait for their signer's certificate"
+                );
+            }
+            Refusal::Signature(e) => warn!(key, reason = %e, "signed sample refused"),
+            _ => debug!(key, reason = %refusal, "refused"),
+        }
+    }
+
+    fn ask_identity(&self, site: &str) {
+        if self.identity_ask.try_send(site.to_owned()).is_err() {
+            // The next held sample, or the site's next session, asks again.
+            lock(&self.inbound).identity_unanswered(site);
+        }
+    }
+
+    /// Takes a remote site's identity frame, and receives again what waited for it.
+    fn identity(&self, site: &str, payload: &[u8]) -> bool {
+        let held: Vec<HeldSample> = match lock(&self.inbound).identity(site, payload, now_ms()) {
+            Ok(held) => held,
+            Err(refusal) => {
+                warn!(site, reason = %refusal, "remote site's identity refused");
+                return false;
+            }
+        };
+        debug!(site, held = held.len(), "remote site's certificate taken");
+        for (key, payload) in held {
+            if matches!(keys::Key::parse(&key), Some(keys::Key::Order { .. })) {
+                self.order_bytes(&key, &payload);
+            } else {
+                self.receive_bytes(&key, &payload);
+            }
+        }
+        true
     }
 
     /// Takes an order sample: checked, and delivered to the station's queue if new.
     fn order(&self, sample: &Sample) {
         let key = sample.key_expr().as_str();
         let payload = sample.payload().to_bytes();
+        self.order_bytes(key, &payload);
+    }
+
+    fn order_bytes(&self, key: &str, payload: &[u8]) {
         // Under the inbound lock: `try_send` never waits, and an order is remembered as
         // delivered only once it is in the queue.
-        let result = lock(&self.inbound).receive_order(key, &payload, now_ms(), |order| {
+        let result = lock(&self.inbound).receive_order(key, payload, now_ms(), |order| {
             self.orders.try_send(order).map_err(|e| match e {
                 mpsc::error::TrySendError::Full(_) => OrderRefusal::QueueFull,
                 mpsc::error::TrySendError::Closed(_) => OrderRefusal::ReceiverClosed,
             })
         });
-        if result.is_ok() {
-            debug!(key, "order accepted");
+        match result {
+            Ok(()) => debug!(key, "order accepted"),
+            Err(refusal @ Refusal::AwaitingIdentity { .. }) => self.refused(key, &refusal),
+            // Logged by the inbound core, rate limited.
+            Err(_) => {}
         }
     }
 
@@ -138,12 +210,14 @@ impl Shared {
         let key = sample.key_expr().as_str();
         let requests = lock(&self.inbound).site_alive(key, online, now_ms());
         self.changed.send_modify(|n| *n += 1);
-        if online
-            && self.lease_enabled
-            && let Some(keys::Key::Alive { site }) = keys::Key::parse(key)
-        {
-            // Queued behind the others; a full queue: the next reconnection asks again.
-            let _ = self.lease_ask.try_send(site.to_owned());
+        if online && let Some(keys::Key::Alive { site }) = keys::Key::parse(key) {
+            if self.signer.is_some() {
+                self.ask_identity(site);
+            }
+            if self.lease_enabled {
+                // Queued behind the others; a full queue: the next reconnection asks again.
+                let _ = self.lease_ask.try_send(site.to_owned());
+            }
         }
         for request in requests {
             self.ask(request);
@@ -162,9 +236,10 @@ impl Shared {
 
     /// Takes a lease record from a reply to a lease query.
     fn lease_reply(&self, key: &str, payload: &[u8]) {
-        match lock(&self.inbound).receive(key, payload, now_ms()) {
+        let result = lock(&self.inbound).receive(key, payload, now_ms());
+        match result {
             Ok(_) => self.changed.send_modify(|n| *n += 1),
-            Err(refusal) => debug!(key, reason = %refusal, "lease reply refused"),
+            Err(refusal) => self.refused(key, &refusal),
         }
     }
 
@@ -307,7 +382,16 @@ impl Federation {
         let (lease_ask_tx, lease_ask_rx) = mpsc::channel(CATCHUP_QUEUE);
         let (outgoing, outgoing_rx) = mpsc::channel(PUBLISH_QUEUE);
         let (orders_tx, orders_rx) = mpsc::channel(ORDER_QUEUE);
+        let (identity_tx, identity_rx) = mpsc::channel(CATCHUP_QUEUE);
         let mut inbound = Inbound::new(&config);
+        // End-to-end signatures go with TLS: its key signs, its trusted CAs check.
+        let signer = match identity.as_ref().and_then(|id| id.tls.as_ref()) {
+            Some(_) => {
+                inbound.require_signatures(Box::new(SiteCertificates::load(&config.tls)?));
+                Some(Arc::new(SiteSigner::load(&config.tls)?))
+            }
+            None => None,
+        };
         let policy = &config.lease;
         let state_file = policy
             .state_path(&config.site)
@@ -330,6 +414,8 @@ impl Federation {
             state_file,
             outgoing: outgoing.clone(),
             orders: orders_tx,
+            signer: signer.clone(),
+            identity_ask: identity_tx,
         });
         let site = config.site.clone();
 
@@ -371,6 +457,16 @@ impl Federation {
             .allowed_origin(Locality::Remote)
             .await
             .map_err(zerr("declare the lease queryable"))?;
+        let identity_queryable = match &signer {
+            Some(_) => Some(
+                session
+                    .declare_queryable(keys::identity(&site))
+                    .allowed_origin(Locality::Remote)
+                    .await
+                    .map_err(zerr("declare the identity queryable"))?,
+            ),
+            None => None,
+        };
         let alarm_publisher = declare(&session, keys::alarms(&site), config.alarms.qos)
             .await
             .map_err(zerr("declare the alarm publisher"))?;
@@ -408,6 +504,7 @@ impl Federation {
             spawn_may_block(publish_sequenced(
                 session.clone(),
                 site.clone(),
+                signer.clone(),
                 alarm_publisher,
                 config.tasks.qos,
                 outgoing_rx,
@@ -431,6 +528,20 @@ impl Federation {
                 stop.clone(),
             )),
         ];
+        if let (Some(signer), Some(queryable)) = (&signer, identity_queryable) {
+            tasks.push(spawn_may_block(serve_identity(
+                queryable,
+                signer.identity().to_vec(),
+                stop.clone(),
+            )));
+            tasks.push(spawn_may_block(ask_identities(
+                session.clone(),
+                Arc::clone(&shared),
+                identity_rx,
+                lease_timeout,
+                stop.clone(),
+            )));
+        }
         if config.environment.mode == EnvironmentMode::Aggregated {
             tasks.push(spawn_may_block(publish_environment(
                 session.clone(),
@@ -450,6 +561,7 @@ impl Federation {
             tasks.push(spawn_may_block(lease_keeper::serve(
                 lease_queryable,
                 served,
+                signer.clone(),
                 move || {
                     lock(&answers.inbound)
                         .leases()
@@ -846,6 +958,7 @@ async fn publish_environment(
 async fn publish_sequenced(
     session: Session,
     site: String,
+    signer: Option<Arc<SiteSigner>>,
     alarms: Publisher<'static>,
     task_qos: Qos,
     mut queue: mpsc::Receiver<Outgoing>,
@@ -860,8 +973,12 @@ async fn publish_sequenced(
             Outgoing::Alarm(p) => alarms.put(p.frame).await,
             Outgoing::Lease(r) => match crate::wire::encode_lease(&r) {
                 Ok(frame) => {
+                    let key = keys::lease(&site, &r.vehicle_id);
+                    let Some(frame) = sealed(signer.as_deref(), &key, frame) else {
+                        continue;
+                    };
                     session
-                        .put(keys::lease(&site, &r.vehicle_id), frame)
+                        .put(key, frame)
                         .priority(priority(task_qos.priority))
                         .congestion_control(congestion(task_qos.congestion))
                         .allowed_destination(Locality::Remote)
@@ -884,8 +1001,11 @@ async fn publish_sequenced(
             // The tasks' priority, but never dropped on congestion whatever `tasks.qos`
             // says: an order is not caught up, so a dropped one would be lost unseen.
             Outgoing::Order(p) => {
+                let Some(frame) = sealed(signer.as_deref(), &p.key, p.frame) else {
+                    continue;
+                };
                 session
-                    .put(p.key, p.frame)
+                    .put(p.key, frame)
                     .priority(priority(task_qos.priority))
                     .congestion_control(zenoh::qos::CongestionControl::Block)
                     .express(task_qos.express)
@@ -896,6 +1016,101 @@ async fn publish_sequenced(
         if let Err(e) = result {
             // Still in the journal (except an order): a remote site catches up on it.
             warn!(error = %e, "alarm, transition, lease record or order not published");
+        }
+    }
+}
+
+/// `frame` for `key`, signed when this site signs; `None` (logged) if signing failed.
+pub(crate) fn sealed(
+    signer: Option<&SiteSigner>,
+    key: &str,
+    mut frame: Vec<u8>,
+) -> Option<Vec<u8>> {
+    let Some(signer) = signer else {
+        return Some(frame);
+    };
+    match signer.seal(key, &mut frame) {
+        Ok(()) => Some(frame),
+        Err(e) => {
+            warn!(key, error = %e, "not sent: cannot sign it");
+            None
+        }
+    }
+}
+
+/// Answers `shoal/<site>/identity` with this site's identity frame.
+async fn serve_identity(
+    queryable: Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
+    frame: Vec<u8>,
+    stop: CancellationToken,
+) {
+    loop {
+        let query = tokio::select! {
+            () = stop.cancelled() => break,
+            q = queryable.recv_async() => match q { Ok(q) => q, Err(_) => break },
+        };
+        let key = query.key_expr().clone();
+        if let Err(e) = query.reply(key, frame.clone()).await {
+            warn!(error = %e, "identity reply not sent");
+        }
+    }
+}
+
+/// Wait before asking again for a certificate that samples wait for.
+const IDENTITY_RETRY: Duration = Duration::from_secs(2);
+
+/// Asks remote sites for their identity, one at a time; asks again after
+/// [`IDENTITY_RETRY`] while samples wait for it and the site is online.
+async fn ask_identities(
+    session: Session,
+    shared: Arc<Shared>,
+    mut sites: mpsc::Receiver<String>,
+    timeout: Duration,
+    stop: CancellationToken,
+) {
+    loop {
+        let site = tokio::select! {
+            () = stop.cancelled() => break,
+            s = sites.recv() => match s { Some(s) => s, None => break },
+        };
+        let replies = match session
+            .get(keys::identity(&site))
+            .consolidation(ConsolidationMode::None)
+            // Above positions: lease records and orders wait for it.
+            .priority(zenoh::qos::Priority::DataHigh)
+            .congestion_control(zenoh::qos::CongestionControl::Block)
+            .timeout(timeout)
+            .await
+        {
+            Ok(r) => r,
+            Err(e) => {
+                warn!(site, error = %e, "identity query not sent");
+                continue;
+            }
+        };
+        let mut taken = false;
+        while let Ok(reply) = tokio::select! {
+            () = stop.cancelled() => return,
+            r = replies.recv_async() => r,
+        } {
+            if let Ok(sample) = reply.result()
+                && !taken
+            {
+                taken = shared.identity(&site, &sample.payload().to_bytes());
+            }
+        }
+        if taken {
+            continue;
+        }
+        let waiting = lock(&shared.inbound).identity_unanswered(&site);
+        let online = lock(&shared.inbound).offline_since(&site, 0).is_none();
+        debug!(site, waiting, online, "identity query unanswered");
+        if waiting && online {
+            let again = shared.identity_ask.clone();
+            tokio::spawn(async move {
+                tokio::time::sleep(IDENTITY_RETRY).await;
+                let _ = again.try_send(site);
+            });
         }
     }
 }

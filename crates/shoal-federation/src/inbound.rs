@@ -11,9 +11,15 @@
 //! Orders ([`crate::orders`]) come through [`Inbound::receive_order`], which checks them
 //! against the command leases kept here and hands each new one to a delivery function.
 //!
+//! With end-to-end signatures required ([`Inbound::require_signatures`], with TLS), lease
+//! records and orders must carry their maker's signature ([`crate::signed`]); one whose
+//! signer's certificate is not known yet is held (bounded) until the site's identity
+//! arrives ([`Inbound::identity`]) and then received again.
+//!
 //! Environment frames are not sequenced streams: nothing is caught up, and each summary
 //! in a frame is taken or refused on its own against the one the picture holds.
 
+use std::borrow::Cow;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use tracing::{debug, warn};
@@ -23,6 +29,7 @@ use crate::keys::{Key, Stream};
 use crate::lease::{Applied, LeaseRefusal, LeaseTable};
 use crate::orders::{self, OrderLedger, OrderRefusal, RelayedOrder, WarnGate};
 use crate::picture::{FederatedPicture, PositionRefusal};
+use crate::signed::{self, Awaiting, HeldSample, Hold, SignatureError, Verify};
 use crate::wire::{self, DecodeError, Sequenced};
 
 /// Why a received sample was not taken.
@@ -81,6 +88,21 @@ pub enum Refusal {
     /// vehicle of this site, already delivered, or no room.
     #[error("order refused: {0}")]
     Order(#[from] OrderRefusal),
+    /// A lease record or order whose end-to-end signature is missing or wrong, or an
+    /// identity frame that does not check out.
+    #[error("{0}")]
+    Signature(#[from] SignatureError),
+    /// Held, not refused: taken once the signing site's certificate arrives.
+    #[error("held until site {site}'s certificate arrives")]
+    AwaitingIdentity {
+        /// The signing site.
+        site: String,
+        /// Nobody asked for its certificate yet: ask.
+        ask: bool,
+    },
+    /// Not held: the samples waiting for the site's certificate are at their limit.
+    #[error("too many samples waiting for the signing site's certificate")]
+    AwaitingIdentityFull,
 }
 
 impl Refusal {
@@ -102,6 +124,9 @@ impl Refusal {
             Self::CatchupKey => "catchup_key".into(),
             Self::Lease(r) => r.reason().into(),
             Self::Order(r) => r.reason(),
+            Self::Signature(e) => e.reason().into(),
+            Self::AwaitingIdentity { .. } => "awaiting_identity".into(),
+            Self::AwaitingIdentityFull => "awaiting_identity_full".into(),
         }
     }
 }
@@ -150,6 +175,10 @@ pub struct InboundCounters {
     pub catchup_queries: u64,
     /// Catch-up replies received (duplicates included).
     pub catchup_replies: u64,
+    /// Signed samples held until their signer's certificate arrived (then received again).
+    pub held_for_identity: u64,
+    /// Remote sites' certificates taken from their identity frames.
+    pub identities: u64,
     /// Refusals by reason (duplicates are counted above, not here).
     pub refused: BTreeMap<String, u64>,
 }
@@ -290,6 +319,9 @@ pub struct Inbound {
     lease_enabled: bool,
     orders: OrderLedger,
     order_warnings: WarnGate,
+    /// The remote sites' certificates when end-to-end signatures are required.
+    signatures: Option<Box<dyn Verify>>,
+    awaiting: Awaiting,
     counters: InboundCounters,
 }
 
@@ -318,8 +350,106 @@ impl Inbound {
             lease_enabled: config.lease.enabled,
             orders: OrderLedger::default(),
             order_warnings: WarnGate::default(),
+            signatures: None,
+            awaiting: Awaiting::default(),
             counters: InboundCounters::default(),
         }
+    }
+
+    /// From now on, lease records and orders are taken only with a signature that
+    /// `verifier` checks with their maker's certificate.
+    pub fn require_signatures(&mut self, verifier: Box<dyn Verify>) {
+        self.signatures = Some(verifier);
+    }
+
+    /// Whether end-to-end signatures are required.
+    pub fn signatures_required(&self) -> bool {
+        self.signatures.is_some()
+    }
+
+    /// Takes `site`'s identity frame (its answer to `shoal/<site>/identity`) and returns
+    /// the samples held for its certificate, to be received again in order.
+    pub fn identity(
+        &mut self,
+        site: &str,
+        payload: &[u8],
+        now_ms: i64,
+    ) -> Result<Vec<HeldSample>, Refusal> {
+        let result = self.learn(site, payload, now_ms);
+        self.count(&crate::keys::identity(site), result.as_ref().err());
+        if result.is_err() {
+            self.awaiting.unanswered(site);
+        }
+        result
+    }
+
+    fn learn(
+        &mut self,
+        site: &str,
+        payload: &[u8],
+        now_ms: i64,
+    ) -> Result<Vec<HeldSample>, Refusal> {
+        self.check_site(site)?;
+        let Some(verifier) = self.signatures.as_mut() else {
+            return Ok(Vec::new());
+        };
+        let chain = signed::decode_identity(payload)?;
+        verifier.learn(site, &chain, now_ms)?;
+        self.counters.identities += 1;
+        Ok(self.awaiting.release(site))
+    }
+
+    /// `site`'s identity query went unanswered; true when samples wait for it, so that
+    /// it is asked again.
+    pub fn identity_unanswered(&mut self, site: &str) -> bool {
+        self.awaiting.unanswered(site)
+    }
+
+    /// Samples held for their signers' certificates now.
+    pub fn awaiting_identity(&self) -> usize {
+        self.awaiting.len()
+    }
+
+    /// The frame of a lease record or order under `key` from `site`, its signature
+    /// checked when signatures are required; held when the signer's certificate is not
+    /// known yet.
+    fn authenticate<'p>(
+        &mut self,
+        key: &str,
+        site: &str,
+        payload: &'p [u8],
+        now_ms: i64,
+    ) -> Result<Cow<'p, [u8]>, Refusal> {
+        let Some(verifier) = &self.signatures else {
+            // Without TLS there is no certificate to check against: the link's identity
+            // is the authority, and a signed frame is read as its unsigned self.
+            return Ok(match signed::open(key, payload)? {
+                Some(opened) => Cow::Owned(opened.frame),
+                None => Cow::Borrowed(payload),
+            });
+        };
+        let opened = signed::open(key, payload)?.ok_or(SignatureError::Unsigned)?;
+        if !verifier.knows(site, now_ms) {
+            return Err(match self.awaiting.hold(site, key, payload) {
+                Hold::AskNow => Refusal::AwaitingIdentity {
+                    site: site.to_owned(),
+                    ask: true,
+                },
+                Hold::Asked => Refusal::AwaitingIdentity {
+                    site: site.to_owned(),
+                    ask: false,
+                },
+                Hold::Full => Refusal::AwaitingIdentityFull,
+            });
+        }
+        verifier.verify(
+            site,
+            opened.scheme,
+            &opened.message,
+            opened.signature,
+            now_ms,
+        )?;
+        Ok(Cow::Owned(opened.frame))
     }
 
     /// The command leases this site knows.
@@ -376,12 +506,16 @@ impl Inbound {
         deliver: impl FnOnce(RelayedOrder) -> Result<(), OrderRefusal>,
     ) -> Result<(), Refusal> {
         self.counters.orders_received += 1;
-        let result = self.take_order(key, payload, deliver);
+        let result = self.take_order(key, payload, now_ms, deliver);
         match &result {
             Ok(()) => self.counters.orders_accepted += 1,
             Err(Refusal::Order(OrderRefusal::Duplicate)) => {
                 self.counters.order_duplicates += 1;
                 debug!(key, "order already delivered");
+            }
+            Err(Refusal::AwaitingIdentity { .. }) => {
+                self.counters.held_for_identity += 1;
+                debug!(key, "order held until its sender's certificate arrives");
             }
             Err(refusal) => {
                 *self.counters.refused.entry(refusal.reason()).or_default() += 1;
@@ -400,6 +534,7 @@ impl Inbound {
         &mut self,
         key: &str,
         payload: &[u8],
+        now_ms: i64,
         deliver: impl FnOnce(RelayedOrder) -> Result<(), OrderRefusal>,
     ) -> Result<(), Refusal> {
         let Some(Key::Order {
@@ -415,7 +550,8 @@ impl Inbound {
             return Err(Refusal::BadKey);
         }
         self.check_site(site)?;
-        let frame = wire::decode_order(vehicle, payload).map_err(OrderRefusal::Malformed)?;
+        let payload = self.authenticate(key, site, payload, now_ms)?;
+        let frame = wire::decode_order(vehicle, &payload).map_err(OrderRefusal::Malformed)?;
         // The key's site is the authenticated sender; the envelope's is the lease holder
         // the task carries: they must be one.
         if frame.site != site {
@@ -478,6 +614,12 @@ impl Inbound {
         self.picture.site(&site, online, now_ms);
         if !online {
             return Vec::new();
+        }
+        if let Some(verifier) = self.signatures.as_mut() {
+            // A site whose session came up may present a new certificate: what it signs
+            // waits for the identity the transport now asks for.
+            verifier.forget(&site);
+            self.awaiting.asking(&site);
         }
         Stream::ALL
             .into_iter()
@@ -613,7 +755,8 @@ impl Inbound {
                 if catchup.is_some() {
                     return Err(Refusal::CatchupKey);
                 }
-                let record = wire::decode_lease(vehicle, payload)?;
+                let payload = self.authenticate(key, site, payload, now_ms)?;
+                let record = wire::decode_lease(vehicle, &payload)?;
                 if self.leases.apply(site, record)? == Applied::Changed {
                     self.counters.leases += 1;
                 }
@@ -621,7 +764,7 @@ impl Inbound {
             }
             // Not data of the picture: liveliness comes through `site_alive`, orders through
             // `receive_order` (and never in a catch-up reply).
-            Key::Alive { .. } | Key::Order { .. } => Err(Refusal::BadKey),
+            Key::Alive { .. } | Key::Order { .. } | Key::Identity { .. } => Err(Refusal::BadKey),
         }
     }
 
@@ -697,6 +840,7 @@ impl Inbound {
         match refusal {
             None => {}
             Some(Refusal::Duplicate) => self.counters.duplicates += 1,
+            Some(Refusal::AwaitingIdentity { .. }) => self.counters.held_for_identity += 1,
             Some(r) => {
                 debug!(key, reason = %r, "federation sample refused");
                 *self.counters.refused.entry(r.reason()).or_default() += 1;

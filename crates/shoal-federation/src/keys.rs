@@ -14,6 +14,7 @@
 //! | `shoal/<site>/leases/<vehicle>` | a command-lease record the site made; also its queryable |
 //! | `shoal/<site>/orders/<home>/<vehicle>` | a task the site, holding the vehicle's lease, sends to the vehicle's home site |
 //! | `shoal/<site>/environment/<vehicle>` | a vehicle's environment summaries of one window |
+//! | `shoal/<site>/identity` | queryable: the site's certificate chain, to check its signatures |
 
 use shoal_model::{MAX_ID_LEN, is_identifier};
 
@@ -92,6 +93,11 @@ pub fn environment(site: &str, vehicle: &str) -> String {
     format!("{ROOT}/{site}/environment/{vehicle}")
 }
 
+/// Key of a site's identity queryable (its certificate chain, [`crate::signed`]).
+pub fn identity(site: &str) -> String {
+    format!("{ROOT}/{site}/identity")
+}
+
 /// Key of a site's liveliness token.
 pub fn alive(site: &str) -> String {
     format!("{ROOT}/{site}/alive")
@@ -145,6 +151,11 @@ pub enum Key<'a> {
         /// The site whose session is up.
         site: &'a str,
     },
+    /// `shoal/<site>/identity`
+    Identity {
+        /// The site whose certificate chain it is.
+        site: &'a str,
+    },
 }
 
 impl<'a> Key<'a> {
@@ -179,6 +190,7 @@ impl<'a> Key<'a> {
                 Self::Environment { site, vehicle }
             }
             ["alive"] => Self::Alive { site },
+            ["identity"] => Self::Identity { site },
             _ => return None,
         };
         Some(parsed)
@@ -193,7 +205,8 @@ impl<'a> Key<'a> {
             | Self::Environment { site, .. }
             | Self::Alarms { site }
             | Self::Task { site }
-            | Self::Alive { site } => site,
+            | Self::Alive { site }
+            | Self::Identity { site } => site,
         }
     }
 }

@@ -27,8 +27,10 @@ use zenoh::handlers::FifoChannelHandler;
 use zenoh::query::{ConsolidationMode, Query, Queryable};
 
 use crate::config::LeasePolicy;
+use crate::federation::sealed;
 use crate::keys;
 use crate::lease::{Current, LeaseRecord};
+use crate::site_keys::SiteSigner;
 use crate::wire;
 
 /// How often the keeper looks at the leases.
@@ -248,6 +250,7 @@ pub(crate) fn answer_part(
 pub(crate) async fn serve(
     queryable: Queryable<FifoChannelHandler<Query>>,
     site: String,
+    signer: Option<Arc<SiteSigner>>,
     records: impl Fn() -> Vec<LeaseRecord>,
     stop: CancellationToken,
 ) {
@@ -267,7 +270,11 @@ pub(crate) async fn serve(
                     continue;
                 }
             };
-            if let Err(e) = query.reply(keys::lease(&site, &r.vehicle_id), frame).await {
+            let key = keys::lease(&site, &r.vehicle_id);
+            let Some(frame) = sealed(signer.as_deref(), &key, frame) else {
+                continue;
+            };
+            if let Err(e) = query.reply(key, frame).await {
                 warn!(error = %e, "lease reply not sent");
                 break;
             }

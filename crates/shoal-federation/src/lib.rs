@@ -18,6 +18,8 @@
 //! - [`orders`]: a task the lease holder sends to the vehicle's home site
 //!   ([`Federation::relay_order`]), which delivers it to its station
 //!   ([`Federation::take_orders`]) once it has checked the lease.
+//! - [`signed`]: end-to-end signatures on lease records and orders (with TLS), checked
+//!   against the signing site's own certificate whatever hops they crossed.
 //! - [`wire`]: the compact WAN encoding; [`keys`]: the key expressions. Both are
 //!   documented byte for byte in `docs/federation.md` for third-party clients.
 //!
@@ -40,6 +42,9 @@ mod lease_keeper;
 pub mod orders;
 pub mod outbound;
 pub mod picture;
+pub mod signed;
+#[cfg(feature = "transport")]
+mod site_keys;
 mod tls;
 pub mod types;
 pub mod wire;

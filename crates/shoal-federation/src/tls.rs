@@ -99,7 +99,7 @@ pub(crate) fn check_files(_site: &str, tls: &TlsConfig, _now_ms: i64) -> Result<
 
 /// The leaf's validity (ms) after checking its common name is the site's.
 #[cfg(feature = "transport")]
-fn leaf_checks(der: &[u8], site: &str) -> Result<(i64, i64), String> {
+pub(crate) fn leaf_checks(der: &[u8], site: &str) -> Result<(i64, i64), String> {
     let (_, x509) = x509_parser::parse_x509_certificate(der)
         .map_err(|e| format!("not an X.509 certificate: {e}"))?;
     let cn = x509

@@ -40,6 +40,8 @@ pub const KIND_LEASE: u8 = 4;
 pub const KIND_ORDER: u8 = 5;
 /// Kind byte of an environment frame (a vehicle's summaries of one window).
 pub const KIND_ENVIRONMENT: u8 = 6;
+/// Kind byte of an identity frame (a site's certificate chain, [`crate::signed`]).
+pub const KIND_IDENTITY: u8 = 7;
 /// Size of a position frame, bytes.
 pub const POSITION_LEN: usize = 24;
 

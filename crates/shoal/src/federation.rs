@@ -229,6 +229,8 @@ impl FederationView for View {
             ("received_orders", i.orders_received),
             ("accepted_orders", i.orders_accepted),
             ("duplicate_orders", i.order_duplicates),
+            ("held_for_identity", i.held_for_identity),
+            ("remote_identities", i.identities),
             ("sent_orders", o.orders_sent),
             ("received_environment", i.environment),
             ("environment_observations", o.environment_observations),

@@ -527,3 +527,163 @@ fn environment_summaries_past_the_limit_or_stale_are_refused_each() {
     assert_eq!(inb.counters().refused("stale_environment"), 1);
     assert_eq!(inb.picture().environment().count(), 2);
 }
+
+/// End-to-end signatures, with certificates issued as `shoal keys site-cert` issues them.
+#[cfg(feature = "transport")]
+mod signatures {
+    use super::*;
+    use crate::config::TlsConfig;
+    use crate::lease::LeaseRecord;
+    use crate::site_keys::{SiteCertificates, SiteSigner};
+    use crate::tls::tests::site_files;
+
+    const T: i64 = 1_700_000_000_000;
+
+    fn chain(tls: &TlsConfig) -> Vec<u8> {
+        let pem = std::fs::read(&tls.certificate).unwrap();
+        SiteSigner::load(tls).unwrap();
+        let ders: Vec<Vec<u8>> = {
+            use rustls::pki_types::CertificateDer;
+            use rustls::pki_types::pem::PemObject;
+            CertificateDer::pem_slice_iter(&pem)
+                .map(|c| c.unwrap().to_vec())
+                .collect()
+        };
+        signed::encode_identity(&ders)
+    }
+
+    /// The ship's claim of `vehicle`, encoded and (with `signer`) signed.
+    fn claim(vehicle: &str, signer: Option<&SiteSigner>) -> (String, Vec<u8>) {
+        let record = LeaseRecord {
+            vehicle_id: vehicle.into(),
+            term: 1,
+            holder: "ship".into(),
+            home: "ship".into(),
+            standby: String::new(),
+            reason: crate::lease::LeaseReason::Claim,
+            granted_ms: T,
+        };
+        let key = keys::lease("ship", vehicle);
+        let mut frame = wire::encode_lease(&record).unwrap();
+        if let Some(s) = signer {
+            s.seal(&key, &mut frame).unwrap();
+        }
+        (key, frame)
+    }
+
+    fn holder(inb: &Inbound, vehicle: &str) -> Option<String> {
+        inb.leases().lease(vehicle).map(|r| r.holder.clone())
+    }
+
+    #[test]
+    fn a_signed_record_waits_for_its_signers_certificate_and_a_forged_one_is_refused() {
+        let (_dir, ship_tls) = site_files("ship");
+        let (_other, impostor_tls) = site_files("ship");
+        let ship = SiteSigner::load(&ship_tls).unwrap();
+        let impostor = SiteSigner::load(&impostor_tls).unwrap();
+        let mut inb = shore();
+        inb.require_signatures(Box::new(SiteCertificates::load(&ship_tls).unwrap()));
+        let now = shoal_model::now_ms();
+
+        let (key, unsigned) = claim("auv-1", None);
+        assert_eq!(
+            inb.receive(&key, &unsigned, now),
+            Err(Refusal::Signature(SignatureError::Unsigned))
+        );
+        // Signed, the ship's certificate not known yet: held, and asked for once.
+        let (k1, f1) = claim("auv-1", Some(&ship));
+        let (k2, f2) = claim("auv-2", Some(&ship));
+        assert!(matches!(
+            inb.receive(&k1, &f1, now),
+            Err(Refusal::AwaitingIdentity { ask: true, .. })
+        ));
+        assert!(matches!(
+            inb.receive(&k2, &f2, now),
+            Err(Refusal::AwaitingIdentity { ask: false, .. })
+        ));
+        assert_eq!((inb.awaiting_identity(), holder(&inb, "auv-1")), (2, None));
+
+        // An identity from another CA under the ship's name is refused; the samples wait.
+        let r = inb.identity("ship", &chain(&impostor_tls), now);
+        assert_eq!(r.unwrap_err().reason(), "signature:identity");
+        assert_eq!(inb.awaiting_identity(), 2);
+        assert!(inb.identity("ship", b"junk", now).is_err());
+
+        // The genuine one: the held samples come back, in order, and are taken.
+        let held = inb.identity("ship", &chain(&ship_tls), now).unwrap();
+        assert_eq!(held, vec![(k1, f1), (k2, f2)]);
+        for (k, f) in held {
+            assert_eq!(inb.receive(&k, &f, now), Ok(None));
+        }
+        assert_eq!(holder(&inb, "auv-2").as_deref(), Some("ship"));
+
+        // Signed with another key of the same name, or moved to another vehicle's key.
+        let (k3, forged) = claim("auv-3", Some(&impostor));
+        assert_eq!(
+            inb.receive(&k3, &forged, now),
+            Err(Refusal::Signature(SignatureError::Bad))
+        );
+        let (_, genuine) = claim("auv-4", Some(&ship));
+        assert_eq!(
+            inb.receive(&keys::lease("ship", "auv-5"), &genuine, now),
+            Err(Refusal::Signature(SignatureError::Bad))
+        );
+        assert_eq!((holder(&inb, "auv-3"), holder(&inb, "auv-5")), (None, None));
+
+        let c = inb.counters();
+        assert_eq!(c.held_for_identity, 2);
+        assert_eq!(c.identities, 1);
+        assert_eq!(c.refused("signature:unsigned"), 1);
+        assert_eq!(c.refused("signature:bad"), 2);
+        assert_eq!(c.refused("signature:identity"), 1);
+        assert_eq!(c.refused("malformed:version"), 1);
+
+        // The site's session came up again: its certificate is asked for anew.
+        inb.site_alive(&keys::alive("ship"), true, now);
+        let (k6, f6) = claim("auv-6", Some(&ship));
+        assert!(matches!(
+            inb.receive(&k6, &f6, now),
+            Err(Refusal::AwaitingIdentity { ask: false, .. })
+        ));
+    }
+
+    #[test]
+    fn orders_are_signed_by_the_holder_or_refused() {
+        let (_dir, shore_tls) = site_files("shore");
+        let shore = SiteSigner::load(&shore_tls).unwrap();
+        let mut inb = ship_handed_over();
+        inb.require_signatures(Box::new(SiteCertificates::load(&shore_tls).unwrap()));
+        let now = shoal_model::now_ms();
+        inb.identity("shore", &chain(&shore_tls), now).unwrap();
+        let key = keys::order("shore", "ship", "auv-1");
+        let r = inb.receive_order(&key, &order_frame("shore", 1, 2), now, |_| {
+            panic!("an unsigned order was delivered")
+        });
+        assert_eq!(r.unwrap_err().reason(), "signature:unsigned");
+        let mut frame = order_frame("shore", 1, 2);
+        shore.seal(&key, &mut frame).unwrap();
+        let mut got = Vec::new();
+        inb.receive_order(&key, &frame, now, |o| {
+            got.push(o);
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(got.len(), 1);
+        // A tampered byte (the task's depth).
+        let mut tampered = order_frame("shore", 2, 2);
+        shore.seal(&key, &mut tampered).unwrap();
+        tampered[40] ^= 0x10;
+        let r = inb.receive_order(&key, &tampered, now, |_| panic!("delivered"));
+        assert_eq!(r.unwrap_err().reason(), "signature:bad");
+    }
+
+    #[test]
+    fn without_tls_a_signed_frame_is_read_as_unsigned() {
+        let (_dir, ship_tls) = site_files("ship");
+        let ship = SiteSigner::load(&ship_tls).unwrap();
+        let mut inb = shore();
+        let (key, frame) = claim("auv-1", Some(&ship));
+        assert_eq!(inb.receive(&key, &frame, 0), Ok(None));
+        assert_eq!(holder(&inb, "auv-1").as_deref(), Some("ship"));
+    }
+}

@@ -7,7 +7,9 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use shoal_federation::{Federation, FederationConfig, TlsConfig, wire};
+use shoal_federation::{
+    Federation, FederationConfig, LeaseReason, LeaseRecord, TlsConfig, keys, signed, wire,
+};
 use shoal_security::{KeyStore, SiteName, StoreOptions};
 
 use crate::common::*;
@@ -206,4 +208,140 @@ async fn a_bad_tls_file_stops_the_start_naming_its_key() {
         e.starts_with("federation.tls.certificate:") && e.contains("expired"),
         "{e}"
     );
+}
+
+/// A raw Zenoh router listening over TLS on `port` with `site`'s certificate, relaying
+/// whatever its clients send and policing nothing: a compromised or careless router.
+async fn raw_tls_router(port: u16, pki: &Pki, site: &str) -> zenoh::Session {
+    let tls = pki.tls(site);
+    let quoted = |p: &Path| format!("{:?}", p.display().to_string());
+    let mut c = zenoh::Config::default();
+    for (k, v) in [
+        ("mode", r#""router""#.to_string()),
+        ("listen/endpoints", format!(r#"["tls/127.0.0.1:{port}"]"#)),
+        ("connect/endpoints", "[]".into()),
+        ("scouting/multicast/enabled", "false".into()),
+        ("scouting/gossip/enabled", "false".into()),
+        (
+            "transport/link/tls/root_ca_certificate",
+            quoted(&tls.trusted_cas),
+        ),
+        (
+            "transport/link/tls/listen_certificate",
+            quoted(&tls.certificate),
+        ),
+        (
+            "transport/link/tls/listen_private_key",
+            quoted(&tls.private_key),
+        ),
+        ("transport/link/tls/enable_mtls", "true".into()),
+    ] {
+        c.insert_json5(k, &v).unwrap();
+    }
+    zenoh::open(c).await.unwrap()
+}
+
+/// A ship: a client of the router on `port`, home of its vehicles, over TLS.
+fn tls_ship(pki: &Pki, site: &str, port: u16, other: &str) -> FederationConfig {
+    let mut c = FederationConfig {
+        site: site.into(),
+        mode: shoal_federation::config::Mode::Client,
+        listen: vec![],
+        connect: vec![format!("tls/127.0.0.1:{port}")],
+        remote_sites: vec!["shore".into(), other.into()],
+        tls: pki.tls(site),
+        ..unkept()
+    };
+    c.lease.home = true;
+    c.lease.settle_ms = 1_000;
+    c
+}
+
+fn holder(fed: &Federation, vehicle: &str) -> Option<(String, u64)> {
+    fed.leases()
+        .into_iter()
+        .find(|r| r.vehicle_id == vehicle)
+        .map(|r| (r.holder, r.term))
+}
+
+/// The router between two ships holds a trusted certificate (the shore's), so the ships'
+/// links accept it, and a client does not police what its router relays. The lease
+/// records cross signed by the ship that made them: the router's forgeries of one ship's
+/// records (unsigned, or signed with its own key) are refused and counted by the other,
+/// and the genuine records, checked against the maker's certificate fetched through the
+/// same router, are taken.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_router_cannot_forge_a_sites_lease_records() {
+    logs();
+    let pki = Pki::new();
+    let port = free_port();
+    let router = raw_tls_router(port, &pki, "shore").await;
+    let ship = Federation::start(tls_ship(&pki, "ship", port, "ship7"))
+        .await
+        .unwrap();
+    let ship7 = Federation::start(tls_ship(&pki, "ship7", port, "ship"))
+        .await
+        .unwrap();
+    eventually("the ships to see each other through the router", || {
+        sees(&ship, "ship7") && sees(&ship7, "ship")
+    })
+    .await;
+    ship.push_position(position("auv-1", 43.0)).unwrap();
+    ship7.push_position(position("auv-7", 43.1)).unwrap();
+    eventually("each ship to learn the other's signed lease", || {
+        holder(&ship7, "auv-1") == Some(("ship".into(), 1))
+            && holder(&ship, "auv-7") == Some(("ship7".into(), 1))
+    })
+    .await;
+    assert!(ship7.counters().inbound.identities >= 1);
+
+    // The router forges the ship handing auv-1 over to the shore: the holder's own
+    // change, which ship7 would take from the ship.
+    let forged = LeaseRecord {
+        vehicle_id: "auv-1".into(),
+        term: 2,
+        holder: "shore".into(),
+        home: "ship".into(),
+        standby: String::new(),
+        reason: LeaseReason::Handover,
+        granted_ms: shoal_model::now_ms(),
+    };
+    let key = keys::lease("ship", "auv-1");
+    let unsigned = wire::encode_lease(&forged).unwrap();
+    let mut signed_by_router = unsigned.clone();
+    let shore_key = {
+        use rustls::pki_types::PrivateKeyDer;
+        use rustls::pki_types::pem::PemObject;
+        let pem = std::fs::read(pki.tls("shore").private_key).unwrap();
+        rustls::crypto::ring::sign::any_supported_type(
+            &PrivateKeyDer::from_pem_slice(&pem).unwrap(),
+        )
+        .unwrap()
+    };
+    signed::seal(&mut signed_by_router, &key, |m| {
+        let signer = shore_key
+            .choose_scheme(&[rustls::SignatureScheme::ED25519])
+            .unwrap();
+        Ok::<_, rustls::Error>((u16::from(signer.scheme()), signer.sign(m)?))
+    })
+    .unwrap();
+    let refused = |reason| ship7.counters().inbound.refused(reason);
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while refused("signature:unsigned") == 0 || refused("signature:bad") == 0 {
+        assert!(tokio::time::Instant::now() < deadline, "forgeries not seen");
+        router.put(&key, unsigned.clone()).await.unwrap();
+        router.put(&key, signed_by_router.clone()).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    assert_eq!(holder(&ship7, "auv-1"), Some(("ship".into(), 1)));
+
+    // The genuine handover crosses the same router.
+    ship.hand_over("auv-1", "ship7").unwrap();
+    eventually("ship7 to take the genuine handover", || {
+        ship7.may_command("auv-1") == Ok(2)
+    })
+    .await;
+    router.close().await.unwrap();
+    ship.shutdown().await.unwrap();
+    ship7.shutdown().await.unwrap();
 }

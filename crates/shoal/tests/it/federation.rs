@@ -686,6 +686,24 @@ fn two_stations_federate_over_mutual_tls_and_refuse_a_foreign_ca_and_a_forged_si
                     .any(|s| s["site"] == "shore" && s["online"] == true)
             })
     });
+    // The ship's claim of auv-t1 reaches the shore signed end to end, checked against the
+    // ship's certificate, which the shore asked the ship for.
+    shore.wait_for(60, "the ship's signed lease of auv-t1 at the shore", || {
+        let doc = json(shore_api, "/api/federation");
+        let claimed = doc["leases"].as_array().is_some_and(|ls| {
+            ls.iter()
+                .any(|l| l["vehicle_id"] == "auv-t1" && l["holder"] == "ship")
+        });
+        claimed && doc["counters"]["remote_identities"].as_u64() >= Some(1)
+    });
+    let doc = json(shore_api, "/api/federation");
+    let signature_refusals: Vec<_> = doc["counters"]
+        .as_object()
+        .unwrap()
+        .keys()
+        .filter(|k| k.starts_with("refused_signature"))
+        .collect();
+    assert!(signature_refusals.is_empty(), "{doc}");
     for (p, who) in [(&ship, "ship"), (&shore, "shore")] {
         let log = p.log();
         assert!(log.contains("tls"), "{who} does not say TLS is on:\n{log}");
