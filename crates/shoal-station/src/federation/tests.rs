@@ -11,7 +11,8 @@ use shoal_model::{TaskAssignment, TaskState, TaskStatus, now_ms};
 
 use super::*;
 use crate::error::DispatchError;
-use crate::testing::{Fixture, assignment};
+use crate::missions::MissionState;
+use crate::testing::{Fixture, assignment, goto, spec};
 
 /// A federation of which this site is `site`: who holds each vehicle's lease, whose
 /// vehicle each is, and what was sent to other sites.
@@ -176,6 +177,66 @@ fn another_sites_vehicle_is_commanded_through_its_site_and_follows_its_transitio
         Err(DispatchError::Lease(_))
     ));
     assert_eq!(leases.relayed.lock().unwrap().len(), 1);
+}
+
+#[test]
+fn a_mission_on_another_sites_vehicle_goes_through_its_site_task_by_task() {
+    let leases = Leases::new("shore", &[("auv-9", "shore", 2)], &[("auv-9", "ship")]);
+    let f = federated(&leases);
+    let hold = shoal_model::Task::Hold { duration_s: 30.0 };
+    let m = spec("m-9", &[("auv-9", goto()), ("auv-9", hold)]);
+    // The plan preview starts from where the federation last saw the vehicle (none yet).
+    assert!(matches!(
+        f.h.preview_mission(&m),
+        Err(DispatchError::UnknownVehicle(_))
+    ));
+    f.h.plan_mission(m).unwrap();
+    f.h.start_mission("m-9").unwrap();
+    let relayed = || leases.relayed.lock().unwrap().clone();
+    // One task at a time, each under the shore's lease; nothing on the shore's own bus.
+    assert_eq!(relayed().len(), 1);
+    assert_eq!(
+        (
+            relayed()[0].task_id.as_str(),
+            relayed()[0].mission_id.as_str()
+        ),
+        ("m-9-1", "m-9")
+    );
+    assert_eq!(relayed()[0].lease_term, 2);
+    assert!(f.out.tasks().is_empty());
+    let moved = |task: &str, state| TaskStatus {
+        task_id: task.into(),
+        vehicle_id: "auv-9".into(),
+        timestamp_ms: now_ms(),
+        state,
+        progress_pct: 0.0,
+        message: String::new(),
+    };
+    assert!(f.h.remote_task_moved("ship", &moved("m-9-1", TaskState::Done)));
+    // The first done at the ship: the second goes through it.
+    assert_eq!(relayed().len(), 2);
+    assert_eq!(relayed()[1].task_id, "m-9-2");
+    assert_eq!(f.h.mission("m-9").unwrap().state, MissionState::Running);
+    assert!(f.h.remote_task_moved("ship", &moved("m-9-2", TaskState::Running)));
+
+    // Aborted while the hold runs: the abort goes through the ship too.
+    f.h.abort_mission("m-9").unwrap();
+    let sent = relayed();
+    assert_eq!(sent.len(), 3);
+    assert_eq!(sent[2].kind, shoal_model::TaskKind::Abort);
+    assert_eq!(
+        (sent[2].vehicle_id.as_str(), sent[2].lease_term),
+        ("auv-9", 2)
+    );
+    assert_eq!(f.h.mission("m-9").unwrap().state, MissionState::Aborted);
+
+    // Without the lease, such a mission is refused when planned.
+    leases.set("auv-9", "ship", 3);
+    let again = spec("m-10", &[("auv-9", goto())]);
+    assert!(matches!(
+        f.h.plan_mission(again),
+        Err(DispatchError::InMission { index: 0, .. })
+    ));
 }
 
 #[test]

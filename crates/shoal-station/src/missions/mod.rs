@@ -27,6 +27,10 @@ pub use preview::{MissionPreview, VehiclePreview};
 pub(crate) use register::TaskRegister;
 pub use views::{MissionSpec, MissionState, MissionTaskSpec, MissionView, TaskView};
 
+/// A mission's task as planned, and the site it goes through when its vehicle is another
+/// site's.
+type Planned = (TaskAssignment, Option<String>);
+
 impl StationHandle {
     /// A surface vehicle (USV, ASV) told to go somewhere with neither a depth nor an
     /// altitude goes at the surface: the only depth it has.
@@ -170,10 +174,7 @@ impl StationHandle {
         // here may carry another's, and an operator cannot claim one.
         task.lease_term = 0;
         task.lease_holder.clear();
-        let local = lock(&self.core.fleet)
-            .vehicles
-            .contains_key(&task.vehicle_id);
-        if !local && let Some(site) = self.home_of(&task.vehicle_id) {
+        if let Some(site) = self.site_of_remote(&task.vehicle_id) {
             return self.dispatch_through(task, &site);
         }
         let task = self.surface_by_default(task);
@@ -203,15 +204,24 @@ impl StationHandle {
         self.dispatch_now(task).map(|()| id)
     }
 
-    /// Sends a task for `site`'s vehicle to that site, under this station's lease of it:
-    /// registered here, its state follows that site's task transitions.
-    fn dispatch_through(&self, task: TaskAssignment, site: &str) -> Result<(), DispatchError> {
-        shoal_model::Validate::validate(&task).map_err(DispatchError::Invalid)?;
+    /// The site whose vehicle `vehicle` is, when it is not one of this station's own but
+    /// another federated site's: its tasks go through that site.
+    fn site_of_remote(&self, vehicle: &str) -> Option<String> {
+        let local = lock(&self.core.fleet).vehicles.contains_key(vehicle);
+        if local { None } else { self.home_of(vehicle) }
+    }
+
+    /// Checks a task for `site`'s vehicle as this station can: well formed, and under a
+    /// command lease this station holds. The vehicle's own site checks the rest (contact,
+    /// capability, battery) when it takes the task, and a refusal comes back as a failed
+    /// transition.
+    fn check_through(&self, task: &TaskAssignment, site: &str) -> Result<(), DispatchError> {
+        shoal_model::Validate::validate(task).map_err(DispatchError::Invalid)?;
         task.task().map_err(DispatchError::Invalid)?;
         let lease = self.may_command(&task.vehicle_id)?;
         if lease.term == 0 {
             return Err(RelayRefused::Refused {
-                vehicle: task.vehicle_id,
+                vehicle: task.vehicle_id.clone(),
                 site: site.to_owned(),
                 why: "the command lease is off ([federation.lease] enabled = false), so no \
                       site commands another's vehicles"
@@ -219,6 +229,13 @@ impl StationHandle {
             }
             .into());
         }
+        Ok(())
+    }
+
+    /// Sends a task for `site`'s vehicle to that site, under this station's lease of it:
+    /// registered here, its state follows that site's task transitions.
+    fn dispatch_through(&self, task: TaskAssignment, site: &str) -> Result<(), DispatchError> {
+        self.check_through(&task, site)?;
         {
             let mut reg = lock(&self.core.tasks);
             if reg.contains_task(&task.task_id) {
@@ -426,11 +443,12 @@ impl StationHandle {
     }
 
     /// A mission's tasks as they would go out, every one checked (ids unique, vehicles
-    /// able), with the time they are issued at.
+    /// able), with the time they are issued at; beside each, the site it goes through when
+    /// its vehicle is another site's.
     fn mission_assignments(
         &self,
         spec: &MissionSpec,
-    ) -> Result<(i64, Vec<TaskAssignment>), DispatchError> {
+    ) -> Result<(i64, Vec<Planned>), DispatchError> {
         if !shoal_model::is_identifier(&spec.mission_id, shoal_model::MAX_ID_LEN) {
             return Err(DispatchError::BadField {
                 field: "mission_id",
@@ -448,6 +466,7 @@ impl StationHandle {
         }
         let now = self.now();
         let mut assignments: Vec<TaskAssignment> = Vec::with_capacity(spec.tasks.len());
+        let mut through: Vec<Option<String>> = Vec::with_capacity(spec.tasks.len());
         for (n, t) in spec.tasks.iter().enumerate() {
             let id = t
                 .task_id
@@ -466,13 +485,19 @@ impl StationHandle {
                 index: n,
                 error: Box::new(error),
             };
-            self.check_task(&a).map_err(in_mission)?;
+            let site = self.site_of_remote(&a.vehicle_id);
+            match &site {
+                Some(site) => self.check_through(&a, site),
+                None => self.check_task(&a).map(|_| ()),
+            }
+            .map_err(in_mission)?;
             if assignments.iter().any(|b| b.task_id == a.task_id)
                 || lock(&self.core.tasks).contains_task(&a.task_id)
             {
                 return Err(in_mission(DispatchError::DuplicateTask(a.task_id)));
             }
             assignments.push(a);
+            through.push(site);
         }
         // A vehicle's next task in a mission goes out when its task before has ended: a
         // hold until the next task never would, and both would wait for ever.
@@ -494,7 +519,7 @@ impl StationHandle {
                 });
             }
         }
-        Ok((now, assignments))
+        Ok((now, assignments.into_iter().zip(through).collect()))
     }
 
     /// Registers a mission after checking every task (ids unique, vehicles able); it
@@ -503,13 +528,16 @@ impl StationHandle {
         let (now, assignments) = self.mission_assignments(&spec)?;
         {
             let mut reg = lock(&self.core.tasks);
-            let ids = assignments.iter().map(|a| a.task_id.clone()).collect();
-            for a in &assignments {
+            let ids = assignments.iter().map(|(a, _)| a.task_id.clone()).collect();
+            for (a, site) in &assignments {
                 reg.add_task(a.clone(), now);
+                if let Some(site) = site {
+                    reg.set_via_site(&a.task_id, site);
+                }
             }
             reg.add_mission(&spec.mission_id, &spec.name, ids, now);
         }
-        for a in &assignments {
+        for (a, _) in &assignments {
             self.register_task(a);
         }
         info!(mission = %spec.mission_id, tasks = assignments.len(), "mission planned");
@@ -558,16 +586,28 @@ impl StationHandle {
     /// Aborts every open mission and sends an abort to every vehicle in contact.
     pub fn abort_all(&self) -> Vec<String> {
         let missions = lock(&self.core.tasks).open_missions();
+        let mut busy = Vec::new();
         for m in &missions {
-            let _ = lock(&self.core.tasks).abort_mission(m, self.now());
+            busy.extend(
+                lock(&self.core.tasks)
+                    .abort_mission(m, self.now())
+                    .unwrap_or_default(),
+            );
         }
         self.record_transitions();
-        let vehicles: Vec<String> = lock(&self.core.fleet)
+        let mut vehicles: Vec<String> = lock(&self.core.fleet)
             .vehicles
             .iter()
             .filter(|(_, v)| v.contact != Contact::Lost)
             .map(|(id, _)| id.clone())
             .collect();
+        // Other sites' vehicles busy with this station's missions: aborted through their
+        // sites (under the lease this station holds).
+        for v in busy {
+            if !vehicles.contains(&v) && self.site_of_remote(&v).is_some() {
+                vehicles.push(v);
+            }
+        }
         self.raise(
             Severity::Alarm,
             EventKind::Task,
@@ -594,7 +634,14 @@ impl StationHandle {
             .take(shoal_model::MAX_ID_LEN)
             .collect();
         let a = TaskAssignment::new(&id, "", vehicle_id, self.now(), &Task::Abort);
-        lock(&self.core.tasks).add_task(a.clone(), self.now());
+        {
+            let mut reg = lock(&self.core.tasks);
+            reg.add_task(a.clone(), self.now());
+            // Another site's vehicle on a mission of this station's: through its site.
+            if let Some(site) = self.site_of_remote(vehicle_id) {
+                reg.set_via_site(&id, &site);
+            }
+        }
         self.register_task(&a);
         if let Err(e) = self.send_registered(&id) {
             warn!(vehicle = vehicle_id, error = %e, "abort not sent");

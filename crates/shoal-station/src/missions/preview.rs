@@ -70,6 +70,8 @@ impl StationHandle {
     /// estimated per vehicle; nothing is registered.
     pub fn preview_mission(&self, spec: &MissionSpec) -> Result<MissionPreview, DispatchError> {
         let (_, assignments) = self.mission_assignments(spec)?;
+        let assignments: Vec<shoal_model::TaskAssignment> =
+            assignments.into_iter().map(|(a, _)| a).collect();
         let reserve_pct = self.core.config.min_dispatch_battery_pct;
         let mut vehicles: Vec<VehiclePreview> = Vec::new();
         let mut ids: Vec<&str> = Vec::new();
@@ -124,9 +126,22 @@ impl StationHandle {
 
     /// Where the station last knew a vehicle to be, and its battery.
     fn start_of(&self, id: &str) -> Result<Start, DispatchError> {
-        let v = self
-            .vehicle(id)
-            .ok_or_else(|| DispatchError::UnknownVehicle(id.to_owned()))?;
+        let Some(v) = self.vehicle(id) else {
+            // Another site's vehicle: where the federation last saw it.
+            let remote = self
+                .federation()
+                .and_then(|f| f.vehicles.into_iter().find(|v| v.vehicle_id == id))
+                .ok_or_else(|| DispatchError::UnknownVehicle(id.to_owned()))?;
+            return Ok(Start {
+                kind: remote.kind,
+                at: Some(GeoPoint {
+                    latitude_deg: remote.latitude_deg,
+                    longitude_deg: remote.longitude_deg,
+                }),
+                depth_m: remote.depth_m.max(0.0),
+                battery_pct: Some(remote.battery_pct).filter(|b| *b != UNKNOWN),
+            });
+        };
         let latest = v.latest.as_ref();
         Ok(Start {
             kind: v.announcement.kind,

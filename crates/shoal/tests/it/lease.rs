@@ -251,6 +251,28 @@ fn the_shore_commands_the_ships_vehicle_through_the_ship_while_it_holds_the_leas
         "the shore's lease announced to auv-r1 through the ship",
         || state(shore_api, "lease-auv-r1-2") == "done",
     );
+    // A mission of the shore's on the ship's vehicle: each task through the ship, the
+    // next when the one before is done there (before the long hold below, which the
+    // vehicle would finish first).
+    let short = r#"{"vehicle_id": "auv-r1", "task": {"kind": "hold", "duration_s": 1}}"#;
+    let mission = format!(r#"{{"mission_id": "rm", "tasks": [{short}, {short}]}}"#);
+    let (code, body) = http_post(shore_api, "/api/missions?start=true", &mission).unwrap();
+    assert_eq!(code, 201, "{body}");
+    shore.wait_for(
+        60,
+        "the shore's mission through the ship to be done",
+        || json(shore_api, "/api/missions/rm")["state"] == "done",
+    );
+    for task in ["rm-1", "rm-2"] {
+        let there = json(ship_api, &format!("/api/tasks/{task}"));
+        assert_eq!(there["state"], "done", "{there}");
+        assert_eq!(there["assignment"]["lease_holder"], "shore", "{there}");
+        assert_eq!(
+            json(shore_api, &format!("/api/tasks/{task}"))["via_site"],
+            "ship"
+        );
+    }
+
     let (code, body) = hold(shore_api, "r-1", "auv-r1");
     assert_eq!(code, 202, "{body}");
     ship.wait_for(
