@@ -218,6 +218,26 @@ impl TaskLedger {
         self.lease.as_ref()
     }
 
+    /// Forgets the command lease this vehicle has obeyed, at once on disk: the vehicle left
+    /// the federation whose stations issued it, and is to take tasks under no lease (term
+    /// 0) again, or under any lease until the next one moves it on. The lease forgotten,
+    /// if there was one.
+    pub fn forget_lease(&mut self, now_ms: i64) -> Result<Option<ObeyedLease>, LedgerError> {
+        let previous = self.lease.take();
+        if previous.is_some()
+            && let Err(e) = self.save(now_ms)
+        {
+            self.lease = previous;
+            return Err(e);
+        }
+        Ok(previous)
+    }
+
+    /// The tasks remembered, by id, with where each got to.
+    pub fn entries(&self) -> impl Iterator<Item = (&str, Progress)> {
+        self.tasks.iter().map(|(id, e)| (id.as_str(), e.progress))
+    }
+
     /// How many tasks it remembers.
     pub fn len(&self) -> usize {
         self.tasks.len()
@@ -687,6 +707,30 @@ mod tests {
         assert_eq!(
             l.admit(&leased("t-2", 3, 0, ""), T + 2).unwrap(),
             Admission::Fenced(obeyed(1, "ship"))
+        );
+    }
+
+    #[test]
+    fn a_forgotten_lease_lets_a_task_without_one_go_and_stays_forgotten() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        l.admit(&leased("s-1", 1, 3, "shore"), T).unwrap();
+        drop(l);
+        // The vehicle left the federation; its new station sends no lease.
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        assert_eq!(l.forget_lease(T + 1).unwrap(), Some(obeyed(3, "shore")));
+        assert_eq!(l.forget_lease(T + 2).unwrap(), None);
+        drop(l);
+        let mut l = TaskLedger::open(dir.path(), "auv-9", None).unwrap();
+        assert_eq!(l.lease(), None);
+        // What ran before still never runs again.
+        assert_eq!(
+            l.entries().collect::<Vec<_>>(),
+            vec![("s-1", Progress::Started)]
+        );
+        assert_eq!(
+            l.admit(&leased("t-1", 2, 0, ""), T + 3).unwrap(),
+            Admission::Start
         );
     }
 

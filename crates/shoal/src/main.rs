@@ -10,6 +10,7 @@ mod daemons;
 #[cfg(feature = "console")]
 mod federation;
 mod keys;
+mod ledger;
 #[cfg(feature = "console")]
 mod query;
 mod record;
@@ -227,6 +228,9 @@ enum Command {
     /// The station's key store: CA, station and vehicle certificates, acoustic keys,
     /// revocations (see the operator guide, "Security").
     Keys(keys::KeysArgs),
+    /// A vehicle's task ledger ([vehicle] state_dir): `show` what it holds, or
+    /// `forget-lease` when the vehicle leaves a federation.
+    Ledger(ledger::LedgerArgs),
     /// Compact acoustic PDUs: encode JSON to hex, decode hex to JSON, print sizes.
     Pdu {
         #[command(subcommand)]
@@ -374,6 +378,7 @@ fn main() -> ExitCode {
         Command::Bench { .. } => "bench".to_string(),
         Command::Config { .. } => "config".to_string(),
         Command::Keys(_) => "keys".to_string(),
+        Command::Ledger(_) => "ledger".to_string(),
         Command::Pdu { .. } => "pdu".to_string(),
         #[cfg(feature = "console")]
         Command::Query { .. } => "query".to_string(),
@@ -477,6 +482,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             rt.block_on(daemons::swarm(&cfg, spec, exit_on_stdin_close))
         }
         Command::Keys(args) => keys::run(args, &cfg.security),
+        Command::Ledger(args) => ledger::run(args, &cfg.vehicle),
         // --listen and --db are in `cfg` already: flags are its last layer.
         #[cfg(feature = "console")]
         Command::Station {
