@@ -133,11 +133,24 @@ pub(crate) fn python_with_mcap() -> Option<PathBuf> {
 }
 
 fn check_mcap(python: &Path, file: &Path, mode: &str) -> Value {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/recorder/check_mcap.py");
+    run_checker(python, "check_mcap.py", &[file.as_os_str(), mode.as_ref()])
+}
+
+/// What `tests/recorder/check_acoustic_mcap.py` (the Python MCAP reader) finds in the
+/// acoustic recordings `files`.
+pub(crate) fn check_acoustic_mcap(python: &Path, files: &[PathBuf]) -> Value {
+    let args: Vec<&std::ffi::OsStr> = files.iter().map(|f| f.as_os_str()).collect();
+    run_checker(python, "check_acoustic_mcap.py", &args)
+}
+
+/// Runs a checker of `tests/recorder/` with `args`; its JSON output.
+fn run_checker(python: &Path, script: &str, args: &[&std::ffi::OsStr]) -> Value {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/recorder")
+        .join(script);
     let out = Command::new(python)
         .arg(script)
-        .arg(file)
-        .arg(mode)
+        .args(args)
         .output()
         .unwrap();
     assert!(

@@ -365,19 +365,7 @@ fn an_acoustic_vehicle_runs_its_tasks_through_the_relay_across_outages() {
     assert_eq!(dds_files, 1);
     assert!(!acoustic.is_empty(), "no acoustic recording");
     if let Some(python) = crate::recorder::python_with_mcap() {
-        let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../tests/recorder/check_acoustic_mcap.py");
-        let out = Command::new(python)
-            .arg(script)
-            .args(&acoustic)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let found: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let found = crate::recorder::check_acoustic_mcap(&python, &acoustic);
         // Hundreds of the AUV's frames at the relay, the tasks down, their fates.
         assert!(
             found["directions"]["received"].as_u64().unwrap() > 100,

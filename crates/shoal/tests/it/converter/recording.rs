@@ -82,19 +82,7 @@ async fn the_relays_frames_and_link_events_are_recorded_and_read_by_the_referenc
     let Some(python) = crate::recorder::python_with_mcap() else {
         return;
     };
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/recorder/check_acoustic_mcap.py");
-    let out = std::process::Command::new(python)
-        .arg(script)
-        .args(&files)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let found: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let found = crate::recorder::check_acoustic_mcap(&python, &files);
     let schema = |topic: &str| found["schemas"][topic].clone();
     assert_eq!(
         schema("acoustic/frame"),
