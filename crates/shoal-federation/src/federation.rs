@@ -1056,6 +1056,23 @@ async fn serve_identity(
     }
 }
 
+/// Asks `selector` at `data_high`, above positions (the replies travel at the query's
+/// priority: at Zenoh's default they would queue behind a link's worth of positions),
+/// blocking rather than dropped on congestion, every reply kept.
+pub(crate) async fn ask_above_positions(
+    session: &Session,
+    selector: &str,
+    timeout: Duration,
+) -> zenoh::Result<zenoh::handlers::FifoChannelHandler<zenoh::query::Reply>> {
+    session
+        .get(selector)
+        .consolidation(ConsolidationMode::None)
+        .priority(zenoh::qos::Priority::DataHigh)
+        .congestion_control(zenoh::qos::CongestionControl::Block)
+        .timeout(timeout)
+        .await
+}
+
 /// Wait before asking again for a certificate that samples wait for.
 const IDENTITY_RETRY: Duration = Duration::from_secs(2);
 
@@ -1073,15 +1090,8 @@ async fn ask_identities(
             () = stop.cancelled() => break,
             s = sites.recv() => match s { Some(s) => s, None => break },
         };
-        let replies = match session
-            .get(keys::identity(&site))
-            .consolidation(ConsolidationMode::None)
-            // Above positions: lease records and orders wait for it.
-            .priority(zenoh::qos::Priority::DataHigh)
-            .congestion_control(zenoh::qos::CongestionControl::Block)
-            .timeout(timeout)
-            .await
-        {
+        // Above positions: lease records and orders wait for it.
+        let replies = match ask_above_positions(&session, &keys::identity(&site), timeout).await {
             Ok(r) => r,
             Err(e) => {
                 warn!(site, error = %e, "identity query not sent");

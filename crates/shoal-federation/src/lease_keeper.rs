@@ -24,10 +24,10 @@ use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
 use zenoh::Session;
 use zenoh::handlers::FifoChannelHandler;
-use zenoh::query::{ConsolidationMode, Query, Queryable};
+use zenoh::query::{Query, Queryable};
 
 use crate::config::LeasePolicy;
-use crate::federation::sealed;
+use crate::federation::{ask_above_positions, sealed};
 use crate::keys;
 use crate::lease::{Current, LeaseRecord};
 use crate::site_keys::SiteSigner;
@@ -336,16 +336,8 @@ pub(crate) async fn ask(
             selector.push_str(&format!(";after={a}"));
         }
         let started = Instant::now();
-        // Above positions, like catch-up (the replies travel at the query's priority): at
-        // Zenoh's default priority they would queue behind a link's worth of positions.
-        let replies = match session
-            .get(&selector)
-            .consolidation(ConsolidationMode::None)
-            .priority(zenoh::qos::Priority::DataHigh)
-            .congestion_control(zenoh::qos::CongestionControl::Block)
-            .timeout(timeout)
-            .await
-        {
+        // Above positions, like catch-up.
+        let replies = match ask_above_positions(&session, &selector, timeout).await {
             Ok(r) => r,
             Err(e) => {
                 warn!(site, error = %e, "lease query not sent");
