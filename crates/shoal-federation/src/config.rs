@@ -491,6 +491,12 @@ pub const MAX_POSITION_RATE_HZ: f64 = 10.0;
 /// Largest catch-up buffer and limit accepted.
 pub const MAX_BUFFER: usize = 100_000;
 
+/// About what one catch-up answer (an alarm or transition frame, its key, Zenoh's and
+/// TCP's share) costs on the link, bytes: sizes the parts asked for on a slow link.
+pub const CATCHUP_ITEM_BYTES: usize = 120;
+/// About what one lease record answered costs on the link, bytes (signed: about 70 more).
+pub const LEASE_ITEM_BYTES: usize = 100;
+
 /// The slowest `link_rate_kbps` accepted (a 2.4 kbit/s HF or Iridium data line).
 pub const LINK_RATE_KBPS_MIN: u32 = 2;
 /// The fastest `link_rate_kbps` accepted (10 Gbit/s).
@@ -513,6 +519,10 @@ pub struct LinkShaping {
     /// site whose link falls silent must not fill it in seconds. The queues of positions
     /// and environment summaries, which a newer value replaces, keep Zenoh's least (2).
     pub queue_batches: u8,
+    /// How fast this site's answers to catch-up and lease queries leave, bytes per
+    /// second: a quarter of the link, at least 250 B/s. A burst of answers would fill the
+    /// link and the modem's buffer ahead of it, and live data would wait behind it.
+    pub bulk_bytes_per_s: u32,
 }
 
 impl LinkShaping {
@@ -522,11 +532,23 @@ impl LinkShaping {
         let send = (bytes_per_s / 2).clamp(4096, 4 << 20);
         let batch = (bytes_per_s / 8).clamp(8 * 1024, u64::from(u16::MAX));
         let queue = (128 * 1024 / batch).clamp(2, 16);
+        let bulk = (bytes_per_s / 4).max(250);
         Self {
             send_buffer_bytes: u32::try_from(send).unwrap_or(u32::MAX),
             batch_bytes: u16::try_from(batch).unwrap_or(u16::MAX),
             queue_batches: u8::try_from(queue).unwrap_or(16),
+            bulk_bytes_per_s: u32::try_from(bulk).unwrap_or(u32::MAX),
         }
+    }
+
+    /// Items (of about `item_bytes` on the link) to ask for in one part of a catch-up or
+    /// lease query that waits `timeout_ms`, at most `limit`: as many as the bulk rate
+    /// carries in a quarter of the timeout, at least 10. The answering site paces at that
+    /// rate too (a site on a slow link sets `link_rate_kbps` on every site of it).
+    pub fn part_items(&self, item_bytes: usize, timeout_ms: u64, limit: usize) -> usize {
+        let budget = u64::from(self.bulk_bytes_per_s).saturating_mul(timeout_ms) / 4000;
+        let items = usize::try_from(budget).unwrap_or(usize::MAX) / item_bytes.max(1);
+        items.clamp(10, limit.max(10))
     }
 }
 

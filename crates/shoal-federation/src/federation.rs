@@ -55,6 +55,7 @@ use crate::lease::{HandoverError, LeaseRecord};
 use crate::lease_keeper::{self, CommandDenied, Keeper, LeaseRun};
 use crate::orders::{self, OrderError, OrderRefusal, RelayedOrder};
 use crate::outbound::{Outbound, OutboundCounters, Publication, PushError};
+use crate::pacing::{Pacer, REPLY_OVERHEAD};
 use crate::picture::FederatedPicture;
 use crate::signed::HeldSample;
 use crate::site_keys::{SiteCertificates, SiteSigner};
@@ -103,6 +104,21 @@ struct Shared {
     signer: Option<Arc<SiteSigner>>,
     /// Remote sites whose certificate to ask for.
     identity_ask: mpsc::Sender<String>,
+    /// Paces this site's answers to catch-up and lease queries (`link_rate_kbps`).
+    pacer: Option<Mutex<Pacer>>,
+}
+
+impl Shared {
+    /// Waits until an answer of `bytes` (payload and key) may leave, on a paced link.
+    async fn pace(&self, bytes: usize) {
+        let Some(pacer) = &self.pacer else {
+            return;
+        };
+        let wait = lock(pacer).reserve(bytes + REPLY_OVERHEAD, Instant::now());
+        if !wait.is_zero() {
+            tokio::time::sleep(wait).await;
+        }
+    }
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -267,6 +283,12 @@ impl Shared {
     }
 }
 
+impl lease_keeper::Paced for Shared {
+    fn pace(&self, bytes: usize) -> impl Future<Output = ()> + Send {
+        Shared::pace(self, bytes)
+    }
+}
+
 impl Keeper for Shared {
     fn pass(&self) -> Vec<LeaseRecord> {
         let mut run = lock(&self.lease_run);
@@ -416,6 +438,9 @@ impl Federation {
             orders: orders_tx,
             signer: signer.clone(),
             identity_ask: identity_tx,
+            pacer: config
+                .link_shaping()
+                .map(|s| Mutex::new(Pacer::new(s.bulk_bytes_per_s, Instant::now()))),
         });
         let site = config.site.clone();
 
@@ -558,10 +583,18 @@ impl Federation {
                 Arc::clone(&shared),
                 site.clone(),
             );
+            let ask_part = config.link_shaping().map_or(lease_keeper::ASK_PART, |s| {
+                s.part_items(
+                    crate::config::LEASE_ITEM_BYTES,
+                    config.limits.catchup_timeout_ms,
+                    lease_keeper::ASK_PART,
+                )
+            });
             tasks.push(spawn_may_block(lease_keeper::serve(
                 lease_queryable,
                 served,
                 signer.clone(),
+                Arc::clone(&shared),
                 move || {
                     lock(&answers.inbound)
                         .leases()
@@ -574,7 +607,10 @@ impl Federation {
             tasks.push(spawn_may_block(lease_keeper::ask(
                 session.clone(),
                 lease_ask_rx,
-                lease_timeout,
+                lease_keeper::Parts {
+                    timeout: lease_timeout,
+                    part: ask_part,
+                },
                 move |key, payload| takes.lease_reply(key, payload),
                 move |site| lock(&done.lease_run).answered(site),
                 move |site| lock(&up.inbound).offline_since(site, 0).is_none(),
@@ -1157,6 +1193,9 @@ async fn serve_catchup(
             "catch-up served"
         );
         for frame in frames {
+            shared
+                .pace(frame.len() + query.key_expr().as_str().len())
+                .await;
             if let Err(e) = query.reply(query.key_expr().clone(), frame).await {
                 warn!(error = %e, "catch-up reply not sent");
                 break;

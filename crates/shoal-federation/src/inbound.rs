@@ -329,10 +329,20 @@ impl Inbound {
     /// The receiving side of a (validated) configuration.
     pub fn new(config: &FederationConfig) -> Self {
         let l = &config.limits;
+        let mut limits = l.clone();
+        // On a slow link, parts that cross within a quarter of the timeout at the rate
+        // the answering site paces them.
+        if let Some(shaping) = config.link_shaping() {
+            limits.catchup_batch = shaping.part_items(
+                crate::config::CATCHUP_ITEM_BYTES,
+                l.catchup_timeout_ms,
+                l.catchup_batch,
+            );
+        }
         Self {
             site: config.site.clone(),
             remote_sites: config.remote_sites.clone(),
-            limits: l.clone(),
+            limits,
             windows: HashMap::new(),
             pending: HashMap::new(),
             picture: FederatedPicture::new(

@@ -251,6 +251,7 @@ pub(crate) async fn serve(
     queryable: Queryable<FifoChannelHandler<Query>>,
     site: String,
     signer: Option<Arc<SiteSigner>>,
+    pacer: Arc<impl Paced>,
     records: impl Fn() -> Vec<LeaseRecord>,
     stop: CancellationToken,
 ) {
@@ -274,6 +275,7 @@ pub(crate) async fn serve(
             let Some(frame) = sealed(signer.as_deref(), &key, frame) else {
                 continue;
             };
+            pacer.pace(key.len() + frame.len()).await;
             if let Err(e) = query.reply(key, frame).await {
                 warn!(error = %e, "lease reply not sent");
                 break;
@@ -282,11 +284,21 @@ pub(crate) async fn serve(
     }
 }
 
+/// How a lease query is asked: records a part, and how long a part is waited for.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Parts {
+    /// Waited for each part.
+    pub(crate) timeout: Duration,
+    /// Records asked for in a part.
+    pub(crate) part: usize,
+}
+
 /// Wait before asking a site again whose answer ran out of time.
 const ASK_RETRY: Duration = Duration::from_secs(2);
 
 /// Asks each remote site that comes up for its lease records, one site at a time and in
-/// parts of [`ASK_PART`] (a whole fleet's records in one answer would not cross a
+/// parts of `parts.part` records ([`ASK_PART`], fewer on a slow link:
+/// `LinkShaping::part_items`) each waited for `parts.timeout` (a whole fleet's records in one answer would not cross a
 /// satellite link within the timeout); each reply goes to `take` (which checks it like a
 /// published record), and `done` notes the site answered. A part that ran out of time is
 /// asked for again after [`ASK_RETRY`] while `online` says the site is still up: nothing
@@ -295,12 +307,13 @@ const ASK_RETRY: Duration = Duration::from_secs(2);
 pub(crate) async fn ask(
     session: Session,
     mut sites: mpsc::Receiver<String>,
-    timeout: Duration,
+    parts: Parts,
     take: impl Fn(&str, &[u8]),
     done: impl Fn(&str),
     online: impl Fn(&str) -> bool,
     stop: CancellationToken,
 ) {
+    let Parts { timeout, part } = parts;
     // (when, site, the vehicle after which the part starts)
     let mut retries: Vec<(Instant, String, Option<String>)> = Vec::new();
     let mut next: Option<(String, Option<String>)> = None;
@@ -331,7 +344,7 @@ pub(crate) async fn ask(
             }
         };
         retries.retain(|r| r.1 != site);
-        let mut selector = format!("{}?limit={ASK_PART}", keys::leases(&site));
+        let mut selector = format!("{}?limit={part}", keys::leases(&site));
         if let Some(a) = &after {
             selector.push_str(&format!(";after={a}"));
         }
@@ -369,12 +382,18 @@ pub(crate) async fn ask(
         if failed || started.elapsed() >= timeout.mul_f64(0.95) {
             // The part again, from what arrived of it.
             retries.push((Instant::now() + ASK_RETRY, site, last.or(after)));
-        } else if n >= ASK_PART {
+        } else if n >= part {
             next = Some((site, last.or(after)));
         } else {
             done(&site);
         }
     }
+}
+
+/// Waits until an answer of so many bytes may leave (a slow link's pacing).
+pub(crate) trait Paced: Send + Sync {
+    /// Waits for room for `bytes` (payload and key).
+    fn pace(&self, bytes: usize) -> impl Future<Output = ()> + Send;
 }
 
 /// What the keeper needs of the federation, so that it can be driven by the transport.

@@ -41,6 +41,8 @@ pub mod lease;
 mod lease_keeper;
 pub mod orders;
 pub mod outbound;
+#[cfg(feature = "transport")]
+mod pacing;
 pub mod picture;
 pub mod signed;
 #[cfg(feature = "transport")]

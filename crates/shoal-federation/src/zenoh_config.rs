@@ -292,6 +292,32 @@ mod tests {
     }
 
     #[test]
+    fn a_slow_link_paces_answers_at_a_quarter_and_asks_for_parts_that_fit_the_timeout() {
+        use crate::config::{CATCHUP_ITEM_BYTES, LEASE_ITEM_BYTES, LinkShaping};
+        let sat = LinkShaping::for_rate(64);
+        assert_eq!(sat.bulk_bytes_per_s, 2000);
+        // A quarter of 10 s at 2000 B/s: 5000 B, 41 catch-up frames, 50 lease records.
+        assert_eq!(sat.part_items(CATCHUP_ITEM_BYTES, 10_000, 100), 41);
+        assert_eq!(sat.part_items(LEASE_ITEM_BYTES, 10_000, 100), 50);
+        // Never more than configured, never fewer than 10.
+        assert_eq!(
+            LinkShaping::for_rate(10_000).part_items(100, 10_000, 100),
+            100
+        );
+        assert_eq!(LinkShaping::for_rate(2).part_items(100, 10_000, 100), 10);
+        assert_eq!(LinkShaping::for_rate(2).bulk_bytes_per_s, 250);
+        // The receiving core asks catch-up in such parts.
+        let c = FederationConfig {
+            link_rate_kbps: 64,
+            remote_sites: vec!["ship".into()],
+            ..FederationConfig::default()
+        };
+        let mut inbound = crate::inbound::Inbound::new(&c);
+        let asks = inbound.site_alive(&crate::keys::alive("ship"), true, 0);
+        assert!(asks.iter().all(|r| r.limit == 41), "{asks:?}");
+    }
+
+    #[test]
     fn a_client_listens_nowhere() {
         let c = FederationConfig {
             mode: Mode::Client,

@@ -1,0 +1,96 @@
+//! Pacing of bulk answers on a slow link, with no network: a token bucket.
+//!
+//! A site answering catch-up and lease queries sends a burst: a part of 100 frames is
+//! about 10 kB, more than a second of a 64 kbit/s satellite link. Sent at once, a burst
+//! fills the link and the modem's buffer ahead of it (TCP grows its window until that
+//! buffer overflows), and live alarms, transitions and positions then wait seconds behind
+//! it whatever their priority: Zenoh's priorities order only what has not left yet. Worse,
+//! an answer that takes longer than the asker's timeout is thrown away on arrival and
+//! asked for again, so a busy link spends itself on answers nobody reads. With
+//! `link_rate_kbps` set, the answers leave at most at [`crate::config::LinkShaping`]'s
+//! bulk rate, a quarter of the link, and the askers ask for parts that cross within a
+//! quarter of their timeout at that rate.
+
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+/// A token bucket of bytes: `rate` per second, at most `burst` saved up.
+#[derive(Debug, Clone)]
+pub(crate) struct Pacer {
+    bytes_per_s: f64,
+    burst: f64,
+    tokens: f64,
+    last: Instant,
+}
+
+impl Pacer {
+    /// A bucket for `bytes_per_s`, holding a quarter of a second's worth; full at `now`.
+    pub(crate) fn new(bytes_per_s: u32, now: Instant) -> Self {
+        let rate = f64::from(bytes_per_s.max(1));
+        let burst = (rate / 4.0).max(256.0);
+        Self {
+            bytes_per_s: rate,
+            burst,
+            tokens: burst,
+            last: now,
+        }
+    }
+
+    /// Takes `bytes` at `now`; how long to wait before sending them (zero when the bucket
+    /// held enough). The bytes are counted at once, so whoever asks next waits for them
+    /// too: the bucket is shared by every answering task of the site.
+    pub(crate) fn reserve(&mut self, bytes: usize, now: Instant) -> Duration {
+        let elapsed = now.saturating_duration_since(self.last).as_secs_f64();
+        self.last = self.last.max(now);
+        self.tokens = (self.tokens + elapsed * self.bytes_per_s).min(self.burst);
+        #[allow(clippy::cast_precision_loss)]
+        let need = bytes as f64;
+        self.tokens -= need;
+        if self.tokens >= 0.0 {
+            Duration::ZERO
+        } else {
+            Duration::from_secs_f64(-self.tokens / self.bytes_per_s)
+        }
+    }
+}
+
+/// Bytes a reply costs on the link beyond its payload and key: Zenoh's reply header and
+/// framing, and a share of TCP/IP's (measured sizes are in docs/federation.md).
+pub(crate) const REPLY_OVERHEAD: usize = 24;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_burst_goes_at_once_and_the_rest_at_the_rate() {
+        let t0 = Instant::now();
+        let mut p = Pacer::new(2000, t0);
+        // A quarter of a second's worth (500 B) is saved up.
+        assert_eq!(p.reserve(500, t0), Duration::ZERO);
+        // The next 1000 B wait half a second, and the 1000 after them a second.
+        assert_eq!(p.reserve(1000, t0), Duration::from_millis(500));
+        assert_eq!(p.reserve(1000, t0), Duration::from_millis(1000));
+        // Two seconds later the debt is paid and the bucket refilled to its burst only.
+        let later = t0 + Duration::from_secs(3);
+        assert_eq!(p.reserve(500, later), Duration::ZERO);
+        assert!(p.reserve(1, later) > Duration::ZERO);
+    }
+
+    #[test]
+    fn a_part_of_answers_leaves_at_the_rate_on_average() {
+        let t0 = Instant::now();
+        let mut p = Pacer::new(2000, t0);
+        let mut now = t0;
+        for _ in 0..100 {
+            now += p.reserve(100, now);
+        }
+        // 10,000 B at 2,000 B/s, less the 500 B burst.
+        let took = now - t0;
+        assert!(
+            took >= Duration::from_millis(4700) && took <= Duration::from_millis(4800),
+            "{took:?}"
+        );
+    }
+}
