@@ -1335,7 +1335,7 @@ async fn ask_catchup(
         if taken > 0 {
             shared.changed.send_modify(|n| *n += 1);
         }
-        debug!(site = %request.site, stream = request.stream.as_str(), taken, answered, more = more.is_some(), "catch-up done");
+        debug!(site = %request.site, stream = request.stream.as_str(), taken, answered, more = more.is_some(), ms = started.elapsed().as_millis(), "catch-up done");
         // Ran out of time short of a full answer: what it did not bring is asked for again.
         let out_of_time = started.elapsed() >= timeout.mul_f64(0.95);
         if more.is_none()

@@ -378,7 +378,7 @@ pub(crate) async fn ask(
                 Err(_) => failed = true,
             }
         }
-        debug!(site, records = n, failed, "lease query answered");
+        debug!(site, records = n, failed, after = ?after, ms = started.elapsed().as_millis(), "lease query answered");
         if failed || started.elapsed() >= timeout.mul_f64(0.95) {
             // The part again, from what arrived of it.
             retries.push((Instant::now() + ASK_RETRY, site, last.or(after)));

@@ -116,10 +116,17 @@ pub struct Plan {
     /// Keep the stations' logs (their directory is printed) even when the run succeeds.
     #[arg(long)]
     pub keep_logs: bool,
+    /// The stations' log filter (`RUST_LOG` syntax), e.g. `warn,shoal_federation=debug`
+    /// to follow their catch-up and lease queries (with --keep-logs).
+    #[arg(long, value_name = "FILTER", default_value = STATION_LOG)]
+    pub station_log: String,
     /// Also write the figures as JSON here (what the test suite checks).
     #[arg(long)]
     pub summary: Option<PathBuf>,
 }
+
+/// The stations' log filter by default: warnings, and Cyclone's errors only.
+const STATION_LOG: &str = "warn,cyclonedds=error";
 
 impl Plan {
     fn check(&self) -> Result<()> {
@@ -553,7 +560,7 @@ impl Run {
             ),
             // Reached only from inside the site's own namespace.
             ("SHOAL_CONSOLE__AUTH__ENABLED".into(), "false".into()),
-            ("RUST_LOG".into(), "warn,cyclonedds=error".into()),
+            ("RUST_LOG".into(), plan.station_log.clone()),
         ]);
         let db = self.dir.join(format!("{name}.db"));
         let args = [
@@ -1379,6 +1386,7 @@ mod tests {
             unshaped: false,
             notsent_lowat: 0,
             keep_logs: false,
+            station_log: STATION_LOG.into(),
             summary: None,
         };
         plan(1800, 300).check().unwrap();
