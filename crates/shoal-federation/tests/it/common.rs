@@ -195,3 +195,11 @@ pub async fn raw_peer(port: u16) -> zenoh::Session {
     }
     zenoh::open(c).await.unwrap()
 }
+
+/// Who holds `vehicle`'s command lease at `fed`, and at what term.
+pub fn holder(fed: &Federation, vehicle: &str) -> Option<(String, u64)> {
+    fed.leases()
+        .into_iter()
+        .find(|r| r.vehicle_id == vehicle)
+        .map(|r| (r.holder, r.term))
+}

@@ -24,13 +24,6 @@ fn leased(mut c: FederationConfig, standby: &str, home: bool) -> FederationConfi
     c
 }
 
-fn holder(fed: &Federation, vehicle: &str) -> Option<(String, u64)> {
-    fed.leases()
-        .into_iter()
-        .find(|r| r.vehicle_id == vehicle)
-        .map(|r| (r.holder, r.term))
-}
-
 fn refused(fed: &Federation, reason: &str) -> u64 {
     fed.counters().inbound.refused(reason)
 }

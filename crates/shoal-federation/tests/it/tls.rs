@@ -257,13 +257,6 @@ fn tls_ship(pki: &Pki, site: &str, port: u16, other: &str) -> FederationConfig {
     c
 }
 
-fn holder(fed: &Federation, vehicle: &str) -> Option<(String, u64)> {
-    fed.leases()
-        .into_iter()
-        .find(|r| r.vehicle_id == vehicle)
-        .map(|r| (r.holder, r.term))
-}
-
 /// The router between two ships holds a trusted certificate (the shore's), so the ships'
 /// links accept it, and a client does not police what its router relays. The lease
 /// records cross signed by the ship that made them: the router's forgeries of one ship's
