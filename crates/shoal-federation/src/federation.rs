@@ -58,7 +58,7 @@ use crate::outbound::{Outbound, OutboundCounters, Publication, PushError};
 use crate::pacing::{Pacer, REPLY_OVERHEAD};
 use crate::picture::FederatedPicture;
 use crate::signed::HeldSample;
-use crate::site_keys::{SiteCertificates, SiteSigner};
+use crate::site_keys::{SiteCertificates, SiteSigner, sealed};
 use crate::types::{TaskTransition, VehiclePosition};
 use crate::zenoh_config::{polices, zenoh_config};
 
@@ -1052,24 +1052,6 @@ async fn publish_sequenced(
         if let Err(e) = result {
             // Still in the journal (except an order): a remote site catches up on it.
             warn!(error = %e, "alarm, transition, lease record or order not published");
-        }
-    }
-}
-
-/// `frame` for `key`, signed when this site signs; `None` (logged) if signing failed.
-pub(crate) fn sealed(
-    signer: Option<&SiteSigner>,
-    key: &str,
-    mut frame: Vec<u8>,
-) -> Option<Vec<u8>> {
-    let Some(signer) = signer else {
-        return Some(frame);
-    };
-    match signer.seal(key, &mut frame) {
-        Ok(()) => Some(frame),
-        Err(e) => {
-            warn!(key, error = %e, "not sent: cannot sign it");
-            None
         }
     }
 }

@@ -27,10 +27,10 @@ use zenoh::handlers::FifoChannelHandler;
 use zenoh::query::{Query, Queryable};
 
 use crate::config::LeasePolicy;
-use crate::federation::{ask_above_positions, sealed};
+use crate::federation::ask_above_positions;
 use crate::keys;
 use crate::lease::{Current, LeaseRecord};
-use crate::site_keys::SiteSigner;
+use crate::site_keys::{SiteSigner, sealed};
 use crate::wire;
 
 /// How often the keeper looks at the leases.

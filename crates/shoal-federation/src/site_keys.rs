@@ -8,14 +8,15 @@
 //! again for its dates at every use.
 
 use std::collections::HashMap;
-use std::sync::Arc;
 use std::time::Duration;
 
 use rustls::SignatureScheme;
 use rustls::crypto::WebPkiSupportedAlgorithms;
 use rustls::pki_types::pem::PemObject;
 use rustls::pki_types::{CertificateDer, PrivateKeyDer, TrustAnchor, UnixTime};
-use rustls::sign::SigningKey;
+use rustls::sign::Signer;
+
+use tracing::warn;
 
 use crate::config::{ConfigError, TlsConfig, invalid};
 use crate::signed::{self, SignatureError, Verify};
@@ -52,7 +53,8 @@ fn certificates(key: &str, path: &std::path::Path) -> Result<Vec<Vec<u8>>, Confi
 
 /// This site's key, signing the lease records and orders it publishes.
 pub(crate) struct SiteSigner {
-    key: Arc<dyn SigningKey>,
+    /// The key with its scheme, chosen once.
+    signer: Box<dyn Signer>,
     identity: Vec<u8>,
 }
 
@@ -80,14 +82,14 @@ impl SiteSigner {
             .map_err(|e| bad(format!("no PEM private key: {e}")))?;
         let key = rustls::crypto::ring::sign::any_supported_type(&der)
             .map_err(|e| bad(format!("cannot sign with it: {e}")))?;
-        if key.choose_scheme(SCHEMES).is_none() {
-            return Err(bad(format!(
+        let signer = key.choose_scheme(SCHEMES).ok_or_else(|| {
+            bad(format!(
                 "a {:?} key signs with none of Ed25519, ECDSA P-256 or P-384, RSA-PSS",
                 key.algorithm()
-            )));
-        }
+            ))
+        })?;
         Ok(Self {
-            key,
+            signer,
             identity: signed::encode_identity(&chain),
         })
     }
@@ -95,17 +97,31 @@ impl SiteSigner {
     /// Signs `frame` for `key_expr` in place ([`signed::seal`]).
     pub(crate) fn seal(&self, key_expr: &str, frame: &mut Vec<u8>) -> Result<(), rustls::Error> {
         signed::seal(frame, key_expr, |message| {
-            let signer = self
-                .key
-                .choose_scheme(SCHEMES)
-                .ok_or_else(|| rustls::Error::General("no signature scheme".into()))?;
-            Ok((u16::from(signer.scheme()), signer.sign(message)?))
+            Ok((u16::from(self.signer.scheme()), self.signer.sign(message)?))
         })
     }
 
     /// The identity frame this site answers `shoal/<site>/identity` with.
     pub(crate) fn identity(&self) -> &[u8] {
         &self.identity
+    }
+}
+
+/// `frame` for `key`, signed when this site signs; `None` (logged) if signing failed.
+pub(crate) fn sealed(
+    signer: Option<&SiteSigner>,
+    key: &str,
+    mut frame: Vec<u8>,
+) -> Option<Vec<u8>> {
+    let Some(signer) = signer else {
+        return Some(frame);
+    };
+    match signer.seal(key, &mut frame) {
+        Ok(()) => Some(frame),
+        Err(e) => {
+            warn!(key, error = %e, "not sent: cannot sign it");
+            None
+        }
     }
 }
 
