@@ -634,11 +634,13 @@ impl StationHandle {
             .take(shoal_model::MAX_ID_LEN)
             .collect();
         let a = TaskAssignment::new(&id, "", vehicle_id, self.now(), &Task::Abort);
+        // Another site's vehicle on a mission of this station's: through its site. Asked
+        // before the register is locked, so that the fleet's lock is not taken inside it.
+        let through = self.site_of_remote(vehicle_id);
         {
             let mut reg = lock(&self.core.tasks);
             reg.add_task(a.clone(), self.now());
-            // Another site's vehicle on a mission of this station's: through its site.
-            if let Some(site) = self.site_of_remote(vehicle_id) {
+            if let Some(site) = through {
                 reg.set_via_site(&id, &site);
             }
         }
