@@ -40,6 +40,10 @@ fuzz_target!(|data: &[u8]| {
             wire::encode_environment(&e.site, e.epoch, e.seq, &e.item).expect("re-encodes");
         assert_eq!(again, data, "environment re-encoding differs");
     }
+    if let Ok(end) = wire::decode_catchup_end(data) {
+        let again = wire::encode_catchup_end(&end).expect("a decoded end re-encodes");
+        assert_eq!(again, data, "catch-up end re-encoding differs");
+    }
     // End-to-end signature blocks and identity frames (the certificates themselves are
     // parsed by WebPKI, fuzzed upstream).
     if let Ok(Some(o)) = signed::open("shoal/ship/leases/auv-1", data) {
@@ -84,7 +88,7 @@ fuzz_target!(|data: &[u8]| {
     };
     let _ = inbound.site_alive(&keys::alive("ship"), true, 2);
     let _ = inbound.receive_catchup(&request, &key, payload, 3);
-    inbound.finish_catchup(&request, true);
+    let _ = inbound.finish_catchup(&request);
     assert!(inbound.counters().alarms <= 2);
     // One frame carries 32 summaries at most; the second time they are duplicates.
     assert!(inbound.counters().environment <= 32);

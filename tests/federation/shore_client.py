@@ -12,6 +12,8 @@ object per line on stdout:
     {"event": "alarm", "site": ..., "epoch": ..., "seq": ..., ...}
     {"event": "task", "site": ..., "epoch": ..., "seq": ..., ...}
     {"event": "environment", "site": ..., "vehicle": ..., "properties": [...], ...}
+    {"event": "catchup_end", "site": ..., "stream": ..., "epoch": ..., "oldest": ...,
+     "highest": ...}                                    the last reply of a catch-up answer
     {"event": "refused", "key": ..., "reason": ...}     a payload that does not decode
 
 Alarms, transitions and environment frames are printed once per (site, epoch, seq),
@@ -33,7 +35,7 @@ import time
 import zenoh
 
 WIRE_VERSION = 1
-KIND_POSITION, KIND_ALARM, KIND_TASK, KIND_ENVIRONMENT = 1, 2, 3, 6
+KIND_POSITION, KIND_ALARM, KIND_TASK, KIND_ENVIRONMENT, KIND_CATCHUP_END = 1, 2, 3, 6, 8
 
 # Code tables ("Codes" in docs/federation.md).
 VEHICLE_KINDS = ["auv", "usv", "asv", "rov", "glider"]
@@ -182,6 +184,15 @@ def decode_environment(site, vehicle, data):
     return out
 
 
+def decode_catchup_end(stream, data):
+    r = Reader(data)
+    r.header(KIND_CATCHUP_END)
+    out = {"event": "catchup_end", "site": r.str8("site"), "stream": stream,
+           "epoch": r.u64("epoch"), "oldest": r.u64("oldest"), "highest": r.u64("highest")}
+    r.end()
+    return out
+
+
 def decode(key: str, data: bytes):
     """Dispatches on the key expression ("Key expressions" in the doc)."""
     chunks = key.split("/")
@@ -193,6 +204,8 @@ def decode(key: str, data: bytes):
         return decode_position(site, rest[1], data)
     if len(rest) == 2 and rest[0] == "environment":
         item = decode_environment(site, rest[1], data)
+    elif len(rest) == 2 and rest[0] == "catchup" and data[1:2] == bytes([KIND_CATCHUP_END]):
+        item = decode_catchup_end(rest[1], data)
     elif rest in (["alarms"], ["catchup", "alarms"]):
         item = decode_alarm(data)
     elif (len(rest) == 2 and rest[0] == "tasks") or rest == ["catchup", "tasks"]:
@@ -261,6 +274,9 @@ def main():
             item = decode(key, data)
         except (Refused, UnicodeDecodeError) as e:
             print(json.dumps({"event": "refused", "key": key, "reason": str(e)}), flush=True)
+            continue
+        if item["event"] == "catchup_end":
+            print(json.dumps(item), flush=True)
             continue
         if item["event"] != "position":
             ident = (item["site"], item["event"], item["epoch"], item["seq"])

@@ -31,7 +31,7 @@
 //! Zenoh calls the subscribers' callbacks on its own threads; they only lock a core for
 //! the time of one sample and hand catch-up queries to a task through a bounded channel.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
@@ -49,7 +49,7 @@ use zenoh::sample::{Locality, Sample, SampleKind};
 
 use crate::config::{Congestion, EnvironmentMode, FederationConfig, Priority, Qos};
 use crate::error::{ShutdownError, StartError};
-use crate::inbound::{CatchupRequest, Inbound, InboundCounters, Refusal};
+use crate::inbound::{CatchupOutcome, CatchupRequest, Inbound, InboundCounters, Refusal};
 use crate::keys::{self, ROOT, Stream};
 use crate::lease::{HandoverError, LeaseRecord};
 use crate::lease_keeper::{self, CommandDenied, Keeper, LeaseRun};
@@ -117,6 +117,25 @@ impl Shared {
         let wait = lock(pacer).reserve(bytes + REPLY_OVERHEAD, Instant::now());
         if !wait.is_zero() {
             tokio::time::sleep(wait).await;
+        }
+    }
+
+    /// Waits for room for `bytes` if they may leave by `deadline`; `false` (and no wait)
+    /// when they would leave later. Without pacing, or without a deadline, always room.
+    async fn pace_by(&self, bytes: usize, deadline: Option<Instant>) -> bool {
+        let (Some(pacer), Some(deadline)) = (&self.pacer, deadline) else {
+            self.pace(bytes).await;
+            return true;
+        };
+        let wait = lock(pacer).reserve_by(bytes + REPLY_OVERHEAD, Instant::now(), deadline);
+        match wait {
+            Some(wait) => {
+                if !wait.is_zero() {
+                    tokio::time::sleep(wait).await;
+                }
+                true
+            }
+            None => false,
         }
     }
 }
@@ -246,7 +265,7 @@ impl Shared {
             let request = match e {
                 mpsc::error::TrySendError::Full(r) | mpsc::error::TrySendError::Closed(r) => r,
             };
-            lock(&self.inbound).finish_catchup(&request, false);
+            lock(&self.inbound).abandon_catchup(&request);
         }
     }
 
@@ -472,11 +491,23 @@ impl Federation {
                 .map_err(zerr("declare the order subscriber"))?
         };
         subscribers.push(orders_sub);
-        let queryable = session
-            .declare_queryable(format!("{ROOT}/{site}/catchup/*"))
-            .allowed_origin(Locality::Remote)
-            .await
-            .map_err(zerr("declare the catch-up queryable"))?;
+        // Each query is stamped on arrival, so that its answer is fitted to the time its
+        // asker has left; the queue is bounded, and a query it has no room for is dropped
+        // (the asker asks again).
+        let (query_tx, query_rx) = mpsc::channel::<(Instant, Query)>(CATCHUP_QUEUE);
+        let queryable = {
+            let shared = Arc::clone(&shared);
+            session
+                .declare_queryable(format!("{ROOT}/{site}/catchup/*"))
+                .allowed_origin(Locality::Remote)
+                .callback(move |query| {
+                    if query_tx.try_send((Instant::now(), query)).is_err() {
+                        lock(&shared.outbound).catchup_dropped();
+                    }
+                })
+                .await
+                .map_err(zerr("declare the catch-up queryable"))?
+        };
         let lease_queryable = session
             .declare_queryable(keys::leases(&site))
             .allowed_origin(Locality::Remote)
@@ -537,6 +568,7 @@ impl Federation {
             )),
             spawn_may_block(serve_catchup(
                 queryable,
+                query_rx,
                 Arc::clone(&shared),
                 config.limits.catchup_replies,
                 stop.clone(),
@@ -1143,17 +1175,21 @@ async fn ask_identities(
     }
 }
 
-/// Answers catch-up queries from the outbound journals.
+/// Answers catch-up queries from the outbound journals, each within half its asker's
+/// `wait=` from when it arrived (the other half is for the way across the link): on a
+/// paced link the frames that would leave later are not sent. Every answer ends with its
+/// end frame, which tells the asker how far the stream goes, so it asks for the rest.
 async fn serve_catchup(
-    queryable: Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
+    _queryable: Queryable<()>,
+    mut queries: mpsc::Receiver<(Instant, Query)>,
     shared: Arc<Shared>,
     limit: usize,
     stop: CancellationToken,
 ) {
     loop {
-        let query = tokio::select! {
+        let (arrived, query) = tokio::select! {
             () = stop.cancelled() => break,
-            q = queryable.recv_async() => match q { Ok(q) => q, Err(_) => break },
+            q = queries.recv() => match q { Some(q) => q, None => break },
         };
         let stream = match query.key_expr().as_str().rsplit('/').next() {
             Some("alarms") => Stream::Alarms,
@@ -1167,24 +1203,45 @@ async fn serve_catchup(
             .unwrap_or(0);
         let epoch = params.get("epoch").and_then(|v| v.parse().ok());
         let asked = crate::outbound::catchup_limit(params.get("limit"), limit);
+        let deadline = params
+            .get("wait")
+            .and_then(|v| v.parse::<u64>().ok())
+            .map(|ms| arrived + Duration::from_millis(ms.clamp(1, MAX_WAIT_MS)) / 2);
         let frames = lock(&shared.outbound).catchup(stream, epoch, after, asked);
-        debug!(
-            stream = stream.as_str(),
-            after,
-            count = frames.len(),
-            "catch-up served"
-        );
+        let key_len = query.key_expr().as_str().len();
+        let (found, mut sent) = (frames.len(), 0);
         for frame in frames {
-            shared
-                .pace(frame.len() + query.key_expr().as_str().len())
-                .await;
+            if !shared.pace_by(frame.len() + key_len, deadline).await {
+                break;
+            }
             if let Err(e) = query.reply(query.key_expr().clone(), frame).await {
                 warn!(error = %e, "catch-up reply not sent");
                 break;
             }
+            sent += 1;
         }
+        lock(&shared.outbound).catchup_answered(sent, sent < found);
+        // The end goes whatever the time: it is small, and says what is left.
+        let end = lock(&shared.outbound).catchup_end(stream);
+        if let Some(end) = end {
+            shared.pace(end.len() + key_len).await;
+            if let Err(e) = query.reply(query.key_expr().clone(), end).await {
+                warn!(error = %e, "catch-up end not sent");
+            }
+        }
+        debug!(
+            stream = stream.as_str(),
+            after,
+            found,
+            sent,
+            queued_ms = (Instant::now() - arrived).as_millis(),
+            "catch-up served"
+        );
     }
 }
+
+/// The longest `wait=` a catch-up query may ask for (`limits.catchup_timeout_ms`'s bound).
+const MAX_WAIT_MS: u64 = 600_000;
 
 /// How catch-up queries are sent: each with its stream's QoS (the replies travel with the
 /// query's priority and congestion control), and how long each waits.
@@ -1206,13 +1263,18 @@ fn catchup_priority(stream: Priority) -> Priority {
     }
 }
 
-/// Wait before asking again for what a query that ran out of time did not bring.
+/// Wait before asking again for what an incomplete answer did not bring.
 const CATCHUP_RETRY: Duration = Duration::from_secs(2);
 
+/// Every remote site's streams are asked for what they have every so many catch-up waits
+/// (30 s by default; [`Inbound::poll_catchup`]).
+const POLL_WAITS: u32 = 3;
+
 /// Asks remote sites for what this site missed, one query at a time, each for at most
-/// `limits.catchup_batch` frames; a full answer is followed by the query for the next part,
-/// and a query that ran out of time is asked again (after [`CATCHUP_RETRY`], while the
-/// site is online): nothing else would ask for a gap no later frame reveals.
+/// `limits.catchup_batch` frames. What follows an answer is [`CatchupOutcome`]'s: the next
+/// part at once, the same query again after [`CATCHUP_RETRY`] (while the site is online),
+/// or nothing. Every online site is also polled now and then: nothing else would ask for a
+/// gap no later frame reveals.
 async fn ask_catchup(
     session: Session,
     shared: Arc<Shared>,
@@ -1220,17 +1282,23 @@ async fn ask_catchup(
     qos: CatchupQos,
     stop: CancellationToken,
 ) {
-    let timeout = qos.timeout;
+    let every = qos.timeout * POLL_WAITS;
+    let mut poll = tokio::time::interval_at(Instant::now() + every, every);
+    poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut ready: VecDeque<CatchupRequest> = VecDeque::new();
     let mut retries: Vec<(Instant, String, Stream)> = Vec::new();
-    let mut next: Option<CatchupRequest> = None;
     loop {
-        let request = match next.take() {
+        let request = match ready.pop_front() {
             Some(r) => r,
             None => {
                 let due = retries.iter().map(|r| r.0).min();
                 tokio::select! {
                     () = stop.cancelled() => break,
                     r = requests.recv() => match r { Some(r) => r, None => break },
+                    _ = poll.tick() => {
+                        ready.extend(lock(&shared.inbound).poll_catchup());
+                        continue;
+                    }
                     () = async {
                         match due {
                             Some(at) => tokio::time::sleep_until(at).await,
@@ -1238,104 +1306,119 @@ async fn ask_catchup(
                         }
                     } => {
                         let now = Instant::now();
-                        let (ready, later): (Vec<_>, Vec<_>) =
+                        let (due, later): (Vec<_>, Vec<_>) =
                             retries.drain(..).partition(|r| r.0 <= now);
                         retries = later;
                         let mut inbound = lock(&shared.inbound);
-                        for (_, site, stream) in ready {
-                            if let Some(r) = inbound.retry_catchup(&site, stream) {
-                                match next {
-                                    None => next = Some(r),
-                                    // One at a time: the others wait their turn.
-                                    Some(_) => retries.push((now, site, stream)),
-                                }
-                            }
-                        }
+                        ready.extend(
+                            due.into_iter()
+                                .filter_map(|(_, site, stream)| inbound.retry_catchup(&site, stream)),
+                        );
                         continue;
                     }
                 }
             }
         };
-        let stream_qos = match request.stream {
-            Stream::Alarms => qos.alarms,
-            Stream::Tasks => qos.tasks,
+        let Some(outcome) = ask_one(&session, &shared, &request, qos, &stop).await else {
+            return;
         };
-        let mut selector = format!(
-            "{}?after={};limit={}",
-            keys::catchup(&request.site, request.stream),
-            request.after,
-            request.limit
-        );
-        if let Some(epoch) = request.epoch {
-            selector.push_str(&format!(";epoch={epoch}"));
-        }
-        // Every reply has the same key: without this Zenoh would keep only the last.
-        let started = Instant::now();
-        let replies = session
-            .get(&selector)
-            .consolidation(ConsolidationMode::None)
-            .priority(priority(catchup_priority(stream_qos.priority)))
-            .congestion_control(congestion(stream_qos.congestion))
-            .timeout(timeout)
-            .await;
-        let replies = match replies {
-            Ok(r) => r,
-            Err(e) => {
-                warn!(selector, error = %e, "catch-up query not sent");
-                lock(&shared.inbound).finish_catchup(&request, false);
-                continue;
-            }
-        };
-        let (mut taken, mut answered) = (0u64, 0usize);
-        loop {
-            let reply = tokio::select! {
-                () = stop.cancelled() => return,
-                r = replies.recv_async() => match r { Ok(r) => r, Err(_) => break },
-            };
-            answered += 1;
-            match reply.result() {
-                Ok(sample) => {
-                    let key = sample.key_expr().as_str();
-                    let payload = sample.payload().to_bytes();
-                    let result =
-                        lock(&shared.inbound).receive_catchup(&request, key, &payload, now_ms());
-                    if result.is_ok() {
-                        taken += 1;
-                    }
+        match outcome {
+            CatchupOutcome::Done => {}
+            CatchupOutcome::More(next) => ready.push_front(next),
+            CatchupOutcome::Retry => {
+                if !retries
+                    .iter()
+                    .any(|r| r.1 == request.site && r.2 == request.stream)
+                {
+                    retries.push((
+                        Instant::now() + CATCHUP_RETRY,
+                        request.site.clone(),
+                        request.stream,
+                    ));
                 }
-                Err(e) => debug!(selector, error = ?e, "catch-up error reply"),
             }
         }
-        let more = {
-            let mut inbound = lock(&shared.inbound);
-            inbound.finish_catchup(&request, true);
-            // A full answer: the sender may have more; ask for the next part at once.
-            (answered >= request.limit)
-                .then(|| inbound.continue_catchup(&request.site, request.stream))
-                .flatten()
-        };
-        if taken > 0 {
-            shared.changed.send_modify(|n| *n += 1);
-        }
-        debug!(site = %request.site, stream = request.stream.as_str(), taken, answered, more = more.is_some(), ms = started.elapsed().as_millis(), "catch-up done");
-        // Ran out of time short of a full answer: what it did not bring is asked for again.
-        let out_of_time = started.elapsed() >= timeout.mul_f64(0.95);
-        if more.is_none()
-            && out_of_time
-            && answered < request.limit
-            && !retries
-                .iter()
-                .any(|r| r.1 == request.site && r.2 == request.stream)
-        {
-            debug!(site = %request.site, stream = request.stream.as_str(), answered, "catch-up ran out of time; asking again");
-            retries.push((
-                Instant::now() + CATCHUP_RETRY,
-                request.site.clone(),
-                request.stream,
-            ));
-        }
-        next = more;
     }
+}
+
+/// Asks one catch-up query and takes its answer; `None` when stopped.
+async fn ask_one(
+    session: &Session,
+    shared: &Shared,
+    request: &CatchupRequest,
+    qos: CatchupQos,
+    stop: &CancellationToken,
+) -> Option<CatchupOutcome> {
+    let stream_qos = match request.stream {
+        Stream::Alarms => qos.alarms,
+        Stream::Tasks => qos.tasks,
+    };
+    let mut selector = format!(
+        "{}?after={};limit={};wait={}",
+        keys::catchup(&request.site, request.stream),
+        request.after,
+        request.limit,
+        qos.timeout.as_millis()
+    );
+    if let Some(epoch) = request.epoch {
+        selector.push_str(&format!(";epoch={epoch}"));
+    }
+    let started = Instant::now();
+    // Every reply has the same key: without this Zenoh would keep only the last.
+    let replies = session
+        .get(&selector)
+        .consolidation(ConsolidationMode::None)
+        .priority(priority(catchup_priority(stream_qos.priority)))
+        .congestion_control(congestion(stream_qos.congestion))
+        .timeout(qos.timeout)
+        .await;
+    let replies = match replies {
+        Ok(r) => r,
+        Err(e) => {
+            warn!(selector, error = %e, "catch-up query not sent");
+            lock(&shared.inbound).abandon_catchup(request);
+            return Some(CatchupOutcome::Retry);
+        }
+    };
+    let (mut taken, mut answered) = (0u64, 0usize);
+    loop {
+        let reply = tokio::select! {
+            () = stop.cancelled() => return None,
+            r = replies.recv_async() => match r { Ok(r) => r, Err(_) => break },
+        };
+        answered += 1;
+        match reply.result() {
+            Ok(sample) => {
+                let key = sample.key_expr().as_str();
+                let payload = sample.payload().to_bytes();
+                let result =
+                    lock(&shared.inbound).receive_catchup(request, key, &payload, now_ms());
+                if result.is_ok() && !crate::wire::is_catchup_end(&payload) {
+                    taken += 1;
+                }
+            }
+            // Among them Zenoh's own when the wait ran out.
+            Err(e) => debug!(selector, error = ?e, "catch-up error reply"),
+        }
+    }
+    let outcome = lock(&shared.inbound).finish_catchup(request);
+    if taken > 0 {
+        shared.changed.send_modify(|n| *n += 1);
+    }
+    debug!(
+        site = %request.site,
+        stream = request.stream.as_str(),
+        taken,
+        answered,
+        outcome = match outcome {
+            CatchupOutcome::Done => "done",
+            CatchupOutcome::More(_) => "more",
+            CatchupOutcome::Retry => "retry",
+        },
+        ms = started.elapsed().as_millis(),
+        "catch-up done"
+    );
+    Some(outcome)
 }
 
 #[cfg(test)]

@@ -297,12 +297,25 @@ impl SeqWindow {
     }
 }
 
-/// A catch-up query under way: the highest number its replies brought.
-#[derive(Debug, Clone, Copy, Default)]
+/// A catch-up query under way: the highest number its replies brought, and its end.
+#[derive(Debug, Clone, Default)]
 struct Pending {
     replies: usize,
     /// Highest (epoch, seq) received in this query's replies.
     highest: Option<(u64, u64)>,
+    /// The answer's end frame, once it came.
+    end: Option<wire::CatchupEnd>,
+}
+
+/// What follows a catch-up query.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CatchupOutcome {
+    /// Nothing: this site has what the sender has.
+    Done,
+    /// The next part, to ask at once.
+    More(CatchupRequest),
+    /// The same query again after a while, while the site is online.
+    Retry,
 }
 
 /// One site's receiving side.
@@ -602,9 +615,42 @@ impl Inbound {
         now_ms: i64,
     ) -> Result<(), Refusal> {
         self.counters.catchup_replies += 1;
-        let result = self.take(key, payload, now_ms, Some(request)).map(|_| ());
+        let result = if wire::is_catchup_end(payload) {
+            self.take_end(request, key, payload)
+        } else {
+            self.take(key, payload, now_ms, Some(request)).map(|_| ())
+        };
         self.count(key, result.as_ref().err());
         result
+    }
+
+    fn take_end(
+        &mut self,
+        request: &CatchupRequest,
+        key: &str,
+        payload: &[u8],
+    ) -> Result<(), Refusal> {
+        let (site, stream) = match Key::parse(key).ok_or(Refusal::BadKey)? {
+            Key::Alarms { site } => (site, Stream::Alarms),
+            Key::Task { site } => (site, Stream::Tasks),
+            _ => return Err(Refusal::CatchupKey),
+        };
+        if request.site != site || request.stream != stream {
+            return Err(Refusal::CatchupKey);
+        }
+        let end = wire::decode_catchup_end(payload)?;
+        if end.site != site {
+            return Err(Refusal::SiteMismatch {
+                key: site.to_string(),
+                frame: end.site,
+            });
+        }
+        let pending = self
+            .pending
+            .get_mut(&(request.site.clone(), stream))
+            .ok_or(Refusal::CatchupKey)?;
+        pending.end = Some(end);
+        Ok(())
     }
 
     /// Notes that a remote site's session came up or went down; when it comes up,
@@ -637,45 +683,85 @@ impl Inbound {
             .collect()
     }
 
-    /// Ends a catch-up query. When it `completed` (the sender answered), every number up
-    /// to the highest it sent and not received is given up: the sender no longer has it.
-    pub fn finish_catchup(&mut self, request: &CatchupRequest, completed: bool) {
+    /// Ends a catch-up query and says what comes next. An answer is complete when its
+    /// end frame arrived: numbers below the oldest the sender keeps, and those inside the
+    /// answer that it skipped, are given up (counted as lost: the sender no longer has
+    /// them); if the sender has more, the next part is asked for at once when this one
+    /// brought something, after a while when it brought nothing (the sender had no time
+    /// left for it). An answer without its end frame (the wait ran out, or no queryable
+    /// heard the query) gives nothing up and is asked again after a while.
+    pub fn finish_catchup(&mut self, request: &CatchupRequest) -> CatchupOutcome {
         let key = (request.site.clone(), request.stream);
         let Some(pending) = self.pending.remove(&key) else {
-            return;
+            return CatchupOutcome::Done;
         };
-        let (true, Some((epoch, upto)), Some(window)) =
-            (completed, pending.highest, self.windows.get_mut(&key))
-        else {
-            return;
+        let Some(end) = pending.end else {
+            return CatchupOutcome::Retry;
         };
-        if window.epoch == epoch {
-            let lost = window.settle(upto);
-            if lost > 0 {
-                debug!(site = %request.site, stream = request.stream.as_str(), lost, "numbers the sender no longer had");
+        let window = self.windows.get_mut(&key);
+        let behind = match window {
+            Some(window) if window.epoch == end.epoch => {
+                let mut lost = 0;
+                if let Some((epoch, upto)) = pending.highest
+                    && epoch == end.epoch
+                {
+                    lost += window.settle(upto);
+                }
+                lost += window.settle(end.oldest.saturating_sub(1));
+                if lost > 0 {
+                    debug!(site = %request.site, stream = request.stream.as_str(), lost, "numbers the sender no longer had");
+                }
+                self.counters.lost += lost;
+                window.contiguous < end.highest
             }
-            self.counters.lost += lost;
+            // A stream not heard yet in the sender's epoch: behind if it keeps anything.
+            _ => end.oldest <= end.highest,
+        };
+        if !behind {
+            CatchupOutcome::Done
+        } else if pending.replies > 0 {
+            self.request(&request.site, request.stream)
+                .map_or(CatchupOutcome::Done, CatchupOutcome::More)
+        } else {
+            CatchupOutcome::Retry
         }
     }
 
-    /// The next part of a catch-up whose last answer was full (as many frames as it
-    /// asked for: the sender may have more), unless a query is already under way.
-    pub fn continue_catchup(&mut self, site: &str, stream: Stream) -> Option<CatchupRequest> {
-        self.request(site, stream)
+    /// Forgets a catch-up query that was never sent.
+    pub fn abandon_catchup(&mut self, request: &CatchupRequest) {
+        self.pending.remove(&(request.site.clone(), request.stream));
     }
 
-    /// A catch-up query asked again after the last ran out of time, if the site is still
-    /// online and none is under way.
+    /// A catch-up query asked again after the last came back incomplete, if the site is
+    /// still online and none is under way.
     pub fn retry_catchup(&mut self, site: &str, stream: Stream) -> Option<CatchupRequest> {
-        let online = self
+        self.is_online(site)
+            .then(|| self.request(site, stream))
+            .flatten()
+    }
+
+    /// A catch-up query on every stream of every online site with none under way: a
+    /// frame lost with no later one to reveal the gap (a publishing queue that was full,
+    /// a link that dropped just then) would otherwise never be asked for. Each costs a
+    /// query and an end frame when nothing is missing.
+    pub fn poll_catchup(&mut self) -> Vec<CatchupRequest> {
+        let online: Vec<String> = self
             .picture
             .sites()
-            .any(|(s, status)| s == site && status.online);
-        if online {
-            self.request(site, stream)
-        } else {
-            None
-        }
+            .filter(|(_, status)| status.online)
+            .map(|(s, _)| s.to_string())
+            .collect();
+        online
+            .iter()
+            .flat_map(|site| Stream::ALL.map(|stream| (site, stream)))
+            .filter_map(|(site, stream)| self.request(site, stream))
+            .collect()
+    }
+
+    fn is_online(&self, site: &str) -> bool {
+        self.picture
+            .sites()
+            .any(|(s, status)| s == site && status.online)
     }
 
     /// A catch-up query for a stream, unless one is already under way.

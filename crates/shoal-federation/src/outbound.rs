@@ -177,6 +177,13 @@ impl Journal {
     pub fn last_seq(&self) -> u64 {
         self.last_seq
     }
+
+    /// The oldest number kept (`last_seq + 1` when none is).
+    pub fn oldest(&self) -> u64 {
+        self.frames
+            .front()
+            .map_or(self.last_seq + 1, |(seq, _)| *seq)
+    }
 }
 
 /// A message ready to publish: its key expression and frame.
@@ -203,6 +210,12 @@ pub struct OutboundCounters {
     pub transitions_sent: u64,
     /// Frames sent in answer to catch-up queries.
     pub catchup_served: u64,
+    /// Catch-up answers cut short to arrive within their asker's wait (it asks for the
+    /// rest).
+    pub catchup_cut: u64,
+    /// Catch-up queries dropped unanswered because too many were waiting (the asker asks
+    /// again).
+    pub catchup_dropped: u64,
     /// Orders numbered and queued for publishing.
     pub orders_sent: u64,
     /// Frames the publishing queue had no room for (remote sites catch up on them).
@@ -406,18 +419,45 @@ impl Outbound {
 
     /// Answers a catch-up query: the kept frames after `after` of `epoch`.
     pub fn catchup(
-        &mut self,
+        &self,
         stream: Stream,
         epoch: Option<u64>,
         after: u64,
         limit: usize,
     ) -> Vec<Vec<u8>> {
-        let frames = match stream {
-            Stream::Alarms => self.alarms.since(epoch, after, limit),
-            Stream::Tasks => self.tasks.since(epoch, after, limit),
+        self.journal(stream).since(epoch, after, limit)
+    }
+
+    fn journal(&self, stream: Stream) -> &Journal {
+        match stream {
+            Stream::Alarms => &self.alarms,
+            Stream::Tasks => &self.tasks,
+        }
+    }
+
+    /// Counts a catch-up answer: the frames it sent, and whether it was cut short so that
+    /// it would arrive within its asker's wait (the asker asks for the rest).
+    pub fn catchup_answered(&mut self, sent: usize, cut: bool) {
+        self.counters.catchup_served += sent as u64;
+        self.counters.catchup_cut += u64::from(cut);
+    }
+
+    /// The end frame of a catch-up answer on `stream`: how far it goes now (`None` only if
+    /// the site's name were not one, which the configuration's validation rules out).
+    pub fn catchup_end(&self, stream: Stream) -> Option<Vec<u8>> {
+        let journal = self.journal(stream);
+        let end = wire::CatchupEnd {
+            site: self.site.clone(),
+            epoch: journal.epoch,
+            oldest: journal.oldest(),
+            highest: journal.last_seq(),
         };
-        self.counters.catchup_served += frames.len() as u64;
-        frames
+        wire::encode_catchup_end(&end).ok()
+    }
+
+    /// Counts a catch-up query dropped unanswered: too many were waiting.
+    pub fn catchup_dropped(&mut self) {
+        self.counters.catchup_dropped += 1;
     }
 
     /// Counts a frame the publishing queue had no room for.

@@ -41,12 +41,44 @@ impl Pacer {
     /// held enough). The bytes are counted at once, so whoever asks next waits for them
     /// too: the bucket is shared by every answering task of the site.
     pub(crate) fn reserve(&mut self, bytes: usize, now: Instant) -> Duration {
-        let elapsed = now.saturating_duration_since(self.last).as_secs_f64();
-        self.last = self.last.max(now);
-        self.tokens = (self.tokens + elapsed * self.bytes_per_s).min(self.burst);
+        self.refill(now);
         #[allow(clippy::cast_precision_loss)]
         let need = bytes as f64;
         self.tokens -= need;
+        self.wait()
+    }
+
+    /// Takes `bytes` at `now` only if they may leave by `deadline`; how long to wait, or
+    /// `None` (and nothing taken) when they would leave too late. An answer is cut there
+    /// rather than sent to an asker who will have stopped listening.
+    pub(crate) fn reserve_by(
+        &mut self,
+        bytes: usize,
+        now: Instant,
+        deadline: Instant,
+    ) -> Option<Duration> {
+        self.refill(now);
+        #[allow(clippy::cast_precision_loss)]
+        let after = self.tokens - bytes as f64;
+        let wait = if after >= 0.0 {
+            Duration::ZERO
+        } else {
+            Duration::from_secs_f64(-after / self.bytes_per_s)
+        };
+        if now + wait > deadline {
+            return None;
+        }
+        self.tokens = after;
+        Some(wait)
+    }
+
+    fn refill(&mut self, now: Instant) {
+        let elapsed = now.saturating_duration_since(self.last).as_secs_f64();
+        self.last = self.last.max(now);
+        self.tokens = (self.tokens + elapsed * self.bytes_per_s).min(self.burst);
+    }
+
+    fn wait(&self) -> Duration {
         if self.tokens >= 0.0 {
             Duration::ZERO
         } else {
@@ -76,6 +108,30 @@ mod tests {
         let later = t0 + Duration::from_secs(3);
         assert_eq!(p.reserve(500, later), Duration::ZERO);
         assert!(p.reserve(1, later) > Duration::ZERO);
+    }
+
+    #[test]
+    fn an_answer_is_cut_where_it_would_leave_after_its_deadline() {
+        let t0 = Instant::now();
+        let mut p = Pacer::new(2000, t0);
+        let deadline = t0 + Duration::from_secs(1);
+        // 500 B of burst, then 2,000 B/s: 2,500 B may leave within the second.
+        let mut sent = 0;
+        while let Some(wait) = p.reserve_by(100, t0, deadline) {
+            assert!(wait <= Duration::from_secs(1));
+            sent += 100;
+        }
+        assert_eq!(sent, 2500);
+        // What was refused was not taken: a second later the debt is paid and the burst
+        // saved up again.
+        let later = t0 + Duration::from_secs(2);
+        assert_eq!(p.reserve_by(500, later, later), Some(Duration::ZERO));
+        // Another answering task sharing the bucket waits behind what was taken.
+        assert_eq!(p.reserve(1000, later), Duration::from_millis(500));
+        assert_eq!(
+            p.reserve_by(1, later, later + Duration::from_millis(400)),
+            None
+        );
     }
 
     #[test]

@@ -42,6 +42,8 @@ pub const KIND_ORDER: u8 = 5;
 pub const KIND_ENVIRONMENT: u8 = 6;
 /// Kind byte of an identity frame (a site's certificate chain, [`crate::signed`]).
 pub const KIND_IDENTITY: u8 = 7;
+/// Kind byte of a catch-up end frame: the last reply of every catch-up answer.
+pub const KIND_CATCHUP_END: u8 = 8;
 /// Size of a position frame, bytes.
 pub const POSITION_LEN: usize = 24;
 
@@ -443,6 +445,67 @@ pub fn decode_alarm(bytes: &[u8]) -> Result<Sequenced<Event>, DecodeError> {
         seq,
         item: event,
     })
+}
+
+/// The last reply of a catch-up answer: how far the sender's stream goes. Without it an
+/// asker cannot tell an answer cut short (by its deadline, or by the link) from one that
+/// brought everything, nor a stream with nothing new from a query no queryable heard.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CatchupEnd {
+    /// The answering site.
+    pub site: String,
+    /// The sender's epoch.
+    pub epoch: u64,
+    /// The oldest number the sender still keeps (`highest + 1` when it keeps none): what
+    /// lies below it is lost for good.
+    pub oldest: u64,
+    /// The highest number the sender has given in that epoch (0: none yet).
+    pub highest: u64,
+}
+
+/// Encodes a catch-up end frame (27 bytes plus the site's name).
+pub fn encode_catchup_end(end: &CatchupEnd) -> Result<Vec<u8>, ValidationError> {
+    if !is_site_name(&end.site) {
+        return Err(ValidationError::BadText {
+            field: "site",
+            rule: "must be 1..=32 of [A-Za-z0-9_.-]",
+        });
+    }
+    let mut out = Vec::with_capacity(27 + end.site.len());
+    out.extend([VERSION, KIND_CATCHUP_END]);
+    put_str8(&mut out, &end.site);
+    out.extend(end.epoch.to_le_bytes());
+    out.extend(end.oldest.to_le_bytes());
+    out.extend(end.highest.to_le_bytes());
+    Ok(out)
+}
+
+/// Decodes a catch-up end frame.
+pub fn decode_catchup_end(bytes: &[u8]) -> Result<CatchupEnd, DecodeError> {
+    let mut r = Reader::open(bytes, KIND_CATCHUP_END)?;
+    let site = r.str8("site", MAX_SITE_LEN)?;
+    if !is_site_name(&site) {
+        return Err(ValidationError::BadText {
+            field: "site",
+            rule: "must be 1..=32 of [A-Za-z0-9_.-]",
+        }
+        .into());
+    }
+    let epoch = r.u64("epoch")?;
+    let oldest = r.u64("oldest")?;
+    let highest = r.u64("highest")?;
+    r.end()?;
+    Ok(CatchupEnd {
+        site,
+        epoch,
+        oldest,
+        highest,
+    })
+}
+
+/// Whether a frame is a catch-up end frame (by its kind byte; decode it to check it).
+pub fn is_catchup_end(bytes: &[u8]) -> bool {
+    bytes.get(1) == Some(&KIND_CATCHUP_END)
 }
 
 /// Decodes a task-transition frame.

@@ -244,6 +244,8 @@ impl FederationView for View {
             ("alarms_below_severity", o.alarms_below_severity),
             ("sent_transitions", o.transitions_sent),
             ("catchup_served", o.catchup_served),
+            ("catchup_cut", o.catchup_cut),
+            ("catchup_dropped", o.catchup_dropped),
             ("queue_full", o.queue_full),
         ] {
             snap.counters.insert(k.to_owned(), v);

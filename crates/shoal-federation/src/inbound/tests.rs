@@ -20,6 +20,16 @@ fn alarm_frame(site: &str, epoch: u64, seq: u64) -> Vec<u8> {
     wire::encode_alarm(site, epoch, seq, &alarm(&format!("e{seq}"))).unwrap()
 }
 
+fn end_frame(site: &str, epoch: u64, oldest: u64, highest: u64) -> Vec<u8> {
+    wire::encode_catchup_end(&wire::CatchupEnd {
+        site: site.into(),
+        epoch,
+        oldest,
+        highest,
+    })
+    .unwrap()
+}
+
 fn seqs(inb: &Inbound) -> Vec<u64> {
     inb.picture().alarms_after(0).map(|a| a.seq).collect()
 }
@@ -170,7 +180,9 @@ fn a_gap_asks_for_catch_up_which_fills_it_without_duplicates() {
         let r = inb.receive_catchup(&request, &reply_key, &alarm_frame("ship", 1, seq), 0);
         assert_eq!(r.is_ok(), seq == 3 || seq == 5, "{seq}");
     }
-    inb.finish_catchup(&request, true);
+    inb.receive_catchup(&request, &reply_key, &end_frame("ship", 1, 3, 6), 0)
+        .unwrap();
+    assert_eq!(inb.finish_catchup(&request), CatchupOutcome::Done);
     assert_eq!(seqs(&inb), vec![1, 4, 6, 3, 5]);
     assert_eq!(inb.counters().duplicates, 2);
     assert_eq!(inb.counters().lost, 1);
@@ -218,12 +230,12 @@ fn a_catch_up_query_answered_with_too_much_is_cut_at_the_limit() {
         .collect();
     assert_eq!(results, vec![true, true, false, false]);
     assert_eq!(inb.counters().refused("catchup_overflow"), 2);
-    // Only what was read is settled; the rest comes with the next query.
-    inb.finish_catchup(&request, true);
-    let next = inb
-        .receive(&keys::alarms("ship"), &alarm_frame("ship", 1, 5), 0)
-        .unwrap()
+    // Only what was read is settled; the rest comes with the next part.
+    inb.receive_catchup(&request, &key, &end_frame("ship", 1, 1, 4), 0)
         .unwrap();
+    let CatchupOutcome::More(next) = inb.finish_catchup(&request) else {
+        panic!("the sender has more");
+    };
     assert_eq!(next.after, 2);
 }
 
@@ -686,4 +698,167 @@ mod signatures {
         assert_eq!(inb.receive(&key, &frame, 0), Ok(None));
         assert_eq!(holder(&inb, "auv-1").as_deref(), Some("ship"));
     }
+}
+
+#[test]
+fn an_answer_without_its_end_gives_nothing_up_and_is_asked_again() {
+    let mut inb = shore();
+    let key = keys::alarms("ship");
+    inb.site_alive(&keys::alive("ship"), true, 0);
+    // The queries asked at reconnection were not heard by any queryable.
+    for stream in Stream::ALL {
+        let request = CatchupRequest {
+            site: "ship".into(),
+            stream,
+            epoch: None,
+            after: 0,
+            limit: 100,
+        };
+        assert_eq!(inb.finish_catchup(&request), CatchupOutcome::Retry);
+    }
+    inb.receive(&key, &alarm_frame("ship", 1, 1), 0).unwrap();
+    let request = inb
+        .receive(&key, &alarm_frame("ship", 1, 5), 0)
+        .unwrap()
+        .expect("a gap asks");
+    // The wait ran out after 2 and 4 came: 3 may still come, nothing is given up.
+    let reply = keys::catchup("ship", Stream::Alarms);
+    for seq in [2, 4] {
+        inb.receive_catchup(&request, &reply, &alarm_frame("ship", 1, seq), 0)
+            .unwrap();
+    }
+    assert_eq!(inb.finish_catchup(&request), CatchupOutcome::Retry);
+    assert_eq!(inb.counters().lost, 0);
+    let again = inb.retry_catchup("ship", Stream::Alarms).expect("online");
+    assert_eq!(again.after, 2);
+    // Once the site is gone, it is asked again when it comes back, not before.
+    inb.abandon_catchup(&again);
+    inb.site_alive(&keys::alive("ship"), false, 1);
+    assert_eq!(inb.retry_catchup("ship", Stream::Alarms), None);
+}
+
+#[test]
+fn a_part_cut_short_is_followed_at_once_and_an_empty_one_after_a_while() {
+    let mut inb = shore();
+    let request = inb.site_alive(&keys::alive("ship"), true, 0).remove(0);
+    let reply = keys::catchup("ship", Stream::Alarms);
+    // The sender had 10 but time for 3 only.
+    for seq in 1..=3 {
+        inb.receive_catchup(&request, &reply, &alarm_frame("ship", 7, seq), 0)
+            .unwrap();
+    }
+    inb.receive_catchup(&request, &reply, &end_frame("ship", 7, 1, 10), 0)
+        .unwrap();
+    let CatchupOutcome::More(next) = inb.finish_catchup(&request) else {
+        panic!("7 more to ask for");
+    };
+    assert_eq!((next.epoch, next.after), (Some(7), 3));
+    // No time for any: asked again after a while, not at once.
+    inb.receive_catchup(&next, &reply, &end_frame("ship", 7, 1, 10), 0)
+        .unwrap();
+    assert_eq!(inb.finish_catchup(&next), CatchupOutcome::Retry);
+    let last = inb.retry_catchup("ship", Stream::Alarms).unwrap();
+    for seq in 4..=10 {
+        inb.receive_catchup(&last, &reply, &alarm_frame("ship", 7, seq), 0)
+            .unwrap();
+    }
+    inb.receive_catchup(&last, &reply, &end_frame("ship", 7, 1, 10), 0)
+        .unwrap();
+    assert_eq!(inb.finish_catchup(&last), CatchupOutcome::Done);
+    assert_eq!(seqs(&inb), (1..=10).collect::<Vec<_>>());
+    assert_eq!(inb.counters().lost, 0);
+}
+
+#[test]
+fn what_the_sender_no_longer_keeps_is_given_up_and_counted_once() {
+    let mut inb = shore();
+    let key = keys::alarms("ship");
+    inb.receive(&key, &alarm_frame("ship", 1, 1), 0).unwrap();
+    inb.site_alive(&keys::alive("ship"), true, 0);
+    let request = inb.retry_catchup("ship", Stream::Alarms);
+    assert_eq!(request, None, "one under way already");
+    let request = CatchupRequest {
+        site: "ship".into(),
+        stream: Stream::Alarms,
+        epoch: Some(1),
+        after: 1,
+        limit: 100,
+    };
+    // The sender keeps 6..=8 only.
+    let reply = keys::catchup("ship", Stream::Alarms);
+    for seq in 6..=8 {
+        inb.receive_catchup(&request, &reply, &alarm_frame("ship", 1, seq), 0)
+            .unwrap();
+    }
+    inb.receive_catchup(&request, &reply, &end_frame("ship", 1, 6, 8), 0)
+        .unwrap();
+    assert_eq!(inb.finish_catchup(&request), CatchupOutcome::Done);
+    assert_eq!(inb.counters().lost, 4);
+    // A stream the sender keeps nothing of (alarms not `reliable`) is done at once.
+    let tasks = CatchupRequest {
+        stream: Stream::Tasks,
+        ..request
+    };
+    inb.receive_catchup(
+        &tasks,
+        &keys::catchup("ship", Stream::Tasks),
+        &end_frame("ship", 1, 31, 30),
+        0,
+    )
+    .unwrap();
+    assert_eq!(inb.finish_catchup(&tasks), CatchupOutcome::Done);
+}
+
+#[test]
+fn every_online_site_is_polled_on_each_stream_unless_a_query_is_under_way() {
+    let mut inb = shore();
+    assert!(inb.poll_catchup().is_empty(), "no site online yet");
+    let asked = inb.site_alive(&keys::alive("ship"), true, 0);
+    assert!(inb.poll_catchup().is_empty(), "both under way");
+    for request in &asked {
+        inb.receive_catchup(
+            request,
+            &keys::catchup("ship", request.stream),
+            &end_frame("ship", 1, 1, 0),
+            0,
+        )
+        .unwrap();
+        assert_eq!(inb.finish_catchup(request), CatchupOutcome::Done);
+    }
+    let polled = inb.poll_catchup();
+    assert_eq!(
+        polled.iter().map(|r| r.stream).collect::<Vec<_>>(),
+        Stream::ALL.to_vec()
+    );
+    for request in &polled {
+        inb.abandon_catchup(request);
+    }
+    inb.site_alive(&keys::alive("ship"), false, 1);
+    assert!(inb.poll_catchup().is_empty(), "the site is offline");
+}
+
+#[test]
+fn an_end_frame_for_another_site_or_stream_or_malformed_is_refused() {
+    let mut inb = shore();
+    let request = inb.site_alive(&keys::alive("ship"), true, 0).remove(0);
+    let alarms = keys::catchup("ship", Stream::Alarms);
+    let cases = [
+        (
+            keys::catchup("ship", Stream::Tasks),
+            end_frame("ship", 1, 1, 5),
+            "catchup_key",
+        ),
+        (alarms.clone(), end_frame("other", 1, 1, 5), "site_mismatch"),
+        (
+            alarms,
+            end_frame("ship", 1, 1, 5)[..20].to_vec(),
+            "malformed:truncated",
+        ),
+    ];
+    for (key, frame, reason) in cases {
+        assert!(inb.receive_catchup(&request, &key, &frame, 0).is_err());
+        assert_eq!(inb.counters().refused(reason), 1, "{reason}");
+    }
+    // None of them ended the answer.
+    assert_eq!(inb.finish_catchup(&request), CatchupOutcome::Retry);
 }

@@ -732,6 +732,18 @@ proptest! {
         let _ = decode_lease("v", &bytes);
         let _ = decode_order("v", &bytes);
         let _ = decode_environment("v", &bytes);
+        let _ = decode_catchup_end(&bytes);
+    }
+
+    #[test]
+    fn catchup_ends_round_trip_exactly(
+        site in "[a-z0-9-]{1,32}", epoch in any::<u64>(), oldest in any::<u64>(),
+        highest in any::<u64>(),
+    ) {
+        let end = CatchupEnd { site, epoch, oldest, highest };
+        let bytes = encode_catchup_end(&end).unwrap();
+        prop_assert!(is_catchup_end(&bytes));
+        prop_assert_eq!(decode_catchup_end(&bytes).unwrap(), end);
     }
 
     #[test]

@@ -182,6 +182,14 @@ async fn a_catch_up_that_runs_out_of_time_is_asked_again() {
                 let frame = wire::encode_alarm("ship", 7, seq, &alarm(&format!("a{seq}"))).unwrap();
                 query.reply(query.key_expr().clone(), frame).await.unwrap();
             }
+            let end = wire::CatchupEnd {
+                site: "ship".into(),
+                epoch: 7,
+                oldest: 1,
+                highest: 3,
+            };
+            let end = wire::encode_catchup_end(&end).unwrap();
+            query.reply(query.key_expr().clone(), end).await.unwrap();
             return asked;
         }
         asked
@@ -197,5 +205,39 @@ async fn a_catch_up_that_runs_out_of_time_is_asked_again() {
     .await;
     assert_eq!(answering.await.unwrap(), 2);
     assert_eq!(shore.counters().inbound.lost, 0);
+    shore.shutdown().await.unwrap();
+}
+
+/// A sender pacing its answers on a slow link cuts each one where its next frame would
+/// leave after half its asker's wait, and ends it with how far its stream goes: the asker
+/// asks for the rest, part by part, and gets every alarm once, none given up. Before,
+/// a paced answer shared with other askers outlived the wait and was thrown away whole,
+/// over and over (the WAN bench's lost transitions).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_paced_answer_is_cut_to_its_askers_wait_and_the_rest_follows() {
+    logs();
+    let port = free_port();
+    let mut config = site("ship", Some(port), &[], &["shore"]);
+    // 8 kbit/s: answers leave at 250 B/s, two alarms a second.
+    config.link_rate_kbps = 8;
+    let ship = Federation::start(config).await.unwrap();
+    for i in 1..=16 {
+        ship.push_alarm(&alarm(&format!("a{i}"))).unwrap();
+    }
+    let mut config = site("shore", None, &[port], &["ship"]);
+    // Half of it, one second, for each answer to leave in.
+    config.limits.catchup_timeout_ms = 2000;
+    let shore = Federation::start(config).await.unwrap();
+    eventually("the whole catch-up", || {
+        alarm_ids(&shore, "ship").len() >= 16
+    })
+    .await;
+    assert_eq!(alarm_seqs(&shore, "ship"), (1..=16).collect::<Vec<u64>>());
+    let (sent, got) = (ship.counters().outbound, shore.counters().inbound);
+    assert!(sent.catchup_cut >= 2, "answers cut: {}", sent.catchup_cut);
+    assert_eq!(sent.catchup_served, 16, "each alarm sent once");
+    assert_eq!((got.lost, got.duplicates), (0, 0));
+    assert!(got.catchup_queries >= 3, "{} queries", got.catchup_queries);
+    ship.shutdown().await.unwrap();
     shore.shutdown().await.unwrap();
 }

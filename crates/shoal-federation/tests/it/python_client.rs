@@ -152,6 +152,29 @@ async fn a_python_zenoh_client_decodes_the_federation_from_the_doc() {
     assert_eq!(t["state"], "running");
     assert_eq!(t["timestamp_ms"], sent_task.timestamp_ms);
 
+    // Each catch-up answer ended with its end frame: one of one kept on each stream.
+    let mut ends: Vec<(String, u64, u64, u64)> = of("catchup_end")
+        .iter()
+        .map(|e| {
+            assert_eq!(e["site"], "ship");
+            let n = |k: &str| e[k].as_u64().unwrap();
+            (
+                e["stream"].as_str().unwrap().to_owned(),
+                n("epoch"),
+                n("oldest"),
+                n("highest"),
+            )
+        })
+        .collect();
+    ends.sort();
+    assert_eq!(
+        ends,
+        vec![
+            ("alarms".into(), ship.epoch(), 1, 1),
+            ("tasks".into(), ship.epoch(), 1, 1)
+        ]
+    );
+
     let positions = of("position");
     let p = positions[0];
     assert_eq!(

@@ -1236,7 +1236,7 @@ async fn measure(plan: &Plan, run: &mut Run) -> Result<()> {
         unroutable
     );
     println!(
-        "ship-1 online again at the shore {} after the link came back; tasks dispatched on ship-1: {}; shore polls: {} ({} failed); shore counters: duplicates suppressed {}, lost {}, catch-up queries {}, replies {}; ship-1 counters: queue_full {}, coalesced positions {}, catch-up frames served to other sites {}",
+        "ship-1 online again at the shore {} after the link came back; tasks dispatched on ship-1: {}; shore polls: {} ({} failed); shore counters: duplicates suppressed {}, lost {}, catch-up queries {}, replies {}; ship-1 counters: queue_full {}, coalesced positions {}, catch-up frames served to other sites {} (answers cut for time {}, queries dropped {})",
         reconnected.map_or("never".to_string(), |r| format!(
             "{:.1} s",
             (r.saturating_sub(restore)).as_secs_f64()
@@ -1251,6 +1251,8 @@ async fn measure(plan: &Plan, run: &mut Run) -> Result<()> {
         counter(&ship_doc, "queue_full"),
         counter(&ship_doc, "coalesced_positions"),
         counter(&ship_doc, "catchup_served"),
+        counter(&ship_doc, "catchup_cut"),
+        counter(&ship_doc, "catchup_dropped"),
     );
     if let Some(path) = &plan.summary {
         let summary = Summary {
