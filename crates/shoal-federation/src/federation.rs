@@ -31,10 +31,12 @@
 //! Zenoh calls the subscribers' callbacks on its own threads; they only lock a core for
 //! the time of one sample and hand catch-up queries to a task through a bounded channel.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
+use futures::StreamExt;
+use futures::stream::FuturesUnordered;
 use shoal_model::{EnvironmentObservation, Event, TaskAssignment, now_ms};
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
@@ -55,7 +57,7 @@ use crate::lease::{HandoverError, LeaseRecord};
 use crate::lease_keeper::{self, CommandDenied, Keeper, LeaseRun};
 use crate::orders::{self, OrderError, OrderRefusal, RelayedOrder};
 use crate::outbound::{Outbound, OutboundCounters, Publication, PushError};
-use crate::pacing::{Pacer, REPLY_OVERHEAD};
+use crate::pacing::{Pacer, REPLY_OVERHEAD, Waits};
 use crate::picture::FederatedPicture;
 use crate::signed::HeldSample;
 use crate::site_keys::{SiteCertificates, SiteSigner, sealed};
@@ -1270,11 +1272,16 @@ const CATCHUP_RETRY: Duration = Duration::from_secs(2);
 /// (30 s by default; [`Inbound::poll_catchup`]).
 const POLL_WAITS: u32 = 3;
 
-/// Asks remote sites for what this site missed, one query at a time, each for at most
-/// `limits.catchup_batch` frames. What follows an answer is [`CatchupOutcome`]'s: the next
-/// part at once, the same query again after [`CATCHUP_RETRY`] (while the site is online),
-/// or nothing. Every online site is also polled now and then: nothing else would ask for a
-/// gap no later frame reveals.
+/// A remote site whose answers keep coming incomplete is waited for up to this many
+/// times `limits.catchup_timeout_ms` ([`Waits`]).
+pub(crate) const MAX_WAIT_FACTOR: u32 = 4;
+
+/// Asks remote sites for what this site missed: one query at a time per remote site, each
+/// for at most `limits.catchup_batch` frames and waited for as long as that site needs
+/// ([`Waits`]). What follows an answer is [`CatchupOutcome`]'s: the next part at once, the
+/// same query again after [`CATCHUP_RETRY`] (while the site is online), or nothing.
+/// Every online site is also polled now and then: nothing else would ask for a gap no
+/// later frame reveals.
 async fn ask_catchup(
     session: Session,
     shared: Arc<Shared>,
@@ -1285,70 +1292,85 @@ async fn ask_catchup(
     let every = qos.timeout * POLL_WAITS;
     let mut poll = tokio::time::interval_at(Instant::now() + every, every);
     poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut waits = Waits::new(qos.timeout, qos.timeout * MAX_WAIT_FACTOR);
     let mut ready: VecDeque<CatchupRequest> = VecDeque::new();
     let mut retries: Vec<(Instant, String, Stream)> = Vec::new();
+    let mut asking = FuturesUnordered::new();
+    let mut busy: HashSet<String> = HashSet::new();
     loop {
-        let request = match ready.pop_front() {
-            Some(r) => r,
-            None => {
-                let due = retries.iter().map(|r| r.0).min();
-                tokio::select! {
-                    () = stop.cancelled() => break,
-                    r = requests.recv() => match r { Some(r) => r, None => break },
-                    _ = poll.tick() => {
-                        ready.extend(lock(&shared.inbound).poll_catchup());
-                        continue;
-                    }
-                    () = async {
-                        match due {
-                            Some(at) => tokio::time::sleep_until(at).await,
-                            None => std::future::pending().await,
+        while let Some(i) = ready.iter().position(|r| !busy.contains(&r.site)) {
+            let Some(request) = ready.remove(i) else {
+                break;
+            };
+            busy.insert(request.site.clone());
+            let wait = waits.of(&request.site);
+            asking.push(ask_one(
+                session.clone(),
+                Arc::clone(&shared),
+                request,
+                CatchupQos {
+                    timeout: wait,
+                    ..qos
+                },
+                stop.clone(),
+            ));
+        }
+        let due = retries.iter().map(|r| r.0).min();
+        tokio::select! {
+            () = stop.cancelled() => break,
+            r = requests.recv() => match r {
+                Some(r) => ready.push_back(r),
+                None => break,
+            },
+            Some((request, outcome)) = asking.next(), if !asking.is_empty() => {
+                busy.remove(&request.site);
+                waits.answered(&request.site, outcome != CatchupOutcome::Retry);
+                match outcome {
+                    CatchupOutcome::Done => {}
+                    CatchupOutcome::More(next) => ready.push_front(next),
+                    CatchupOutcome::Retry => {
+                        if !retries
+                            .iter()
+                            .any(|r| r.1 == request.site && r.2 == request.stream)
+                        {
+                            retries.push((
+                                Instant::now() + CATCHUP_RETRY,
+                                request.site,
+                                request.stream,
+                            ));
                         }
-                    } => {
-                        let now = Instant::now();
-                        let (due, later): (Vec<_>, Vec<_>) =
-                            retries.drain(..).partition(|r| r.0 <= now);
-                        retries = later;
-                        let mut inbound = lock(&shared.inbound);
-                        ready.extend(
-                            due.into_iter()
-                                .filter_map(|(_, site, stream)| inbound.retry_catchup(&site, stream)),
-                        );
-                        continue;
                     }
                 }
             }
-        };
-        let Some(outcome) = ask_one(&session, &shared, &request, qos, &stop).await else {
-            return;
-        };
-        match outcome {
-            CatchupOutcome::Done => {}
-            CatchupOutcome::More(next) => ready.push_front(next),
-            CatchupOutcome::Retry => {
-                if !retries
-                    .iter()
-                    .any(|r| r.1 == request.site && r.2 == request.stream)
-                {
-                    retries.push((
-                        Instant::now() + CATCHUP_RETRY,
-                        request.site.clone(),
-                        request.stream,
-                    ));
+            _ = poll.tick() => ready.extend(lock(&shared.inbound).poll_catchup()),
+            () = async {
+                match due {
+                    Some(at) => tokio::time::sleep_until(at).await,
+                    None => std::future::pending().await,
                 }
+            } => {
+                let now = Instant::now();
+                let (due, later): (Vec<_>, Vec<_>) =
+                    retries.drain(..).partition(|r| r.0 <= now);
+                retries = later;
+                let mut inbound = lock(&shared.inbound);
+                ready.extend(
+                    due.into_iter()
+                        .filter_map(|(_, site, stream)| inbound.retry_catchup(&site, stream)),
+                );
             }
         }
     }
 }
 
-/// Asks one catch-up query and takes its answer; `None` when stopped.
+/// Asks one catch-up query (waiting `qos.timeout`) and takes its answer.
 async fn ask_one(
-    session: &Session,
-    shared: &Shared,
-    request: &CatchupRequest,
+    session: Session,
+    shared: Arc<Shared>,
+    request: CatchupRequest,
     qos: CatchupQos,
-    stop: &CancellationToken,
-) -> Option<CatchupOutcome> {
+    stop: CancellationToken,
+) -> (CatchupRequest, CatchupOutcome) {
     let stream_qos = match request.stream {
         Stream::Alarms => qos.alarms,
         Stream::Tasks => qos.tasks,
@@ -1376,14 +1398,14 @@ async fn ask_one(
         Ok(r) => r,
         Err(e) => {
             warn!(selector, error = %e, "catch-up query not sent");
-            lock(&shared.inbound).abandon_catchup(request);
-            return Some(CatchupOutcome::Retry);
+            lock(&shared.inbound).abandon_catchup(&request);
+            return (request, CatchupOutcome::Retry);
         }
     };
     let (mut taken, mut answered) = (0u64, 0usize);
     loop {
         let reply = tokio::select! {
-            () = stop.cancelled() => return None,
+            () = stop.cancelled() => break,
             r = replies.recv_async() => match r { Ok(r) => r, Err(_) => break },
         };
         answered += 1;
@@ -1392,7 +1414,7 @@ async fn ask_one(
                 let key = sample.key_expr().as_str();
                 let payload = sample.payload().to_bytes();
                 let result =
-                    lock(&shared.inbound).receive_catchup(request, key, &payload, now_ms());
+                    lock(&shared.inbound).receive_catchup(&request, key, &payload, now_ms());
                 if result.is_ok() && !crate::wire::is_catchup_end(&payload) {
                     taken += 1;
                 }
@@ -1401,7 +1423,7 @@ async fn ask_one(
             Err(e) => debug!(selector, error = ?e, "catch-up error reply"),
         }
     }
-    let outcome = lock(&shared.inbound).finish_catchup(request);
+    let outcome = lock(&shared.inbound).finish_catchup(&request);
     if taken > 0 {
         shared.changed.send_modify(|n| *n += 1);
     }
@@ -1415,10 +1437,11 @@ async fn ask_one(
             CatchupOutcome::More(_) => "more",
             CatchupOutcome::Retry => "retry",
         },
+        wait_ms = qos.timeout.as_millis(),
         ms = started.elapsed().as_millis(),
         "catch-up done"
     );
-    Some(outcome)
+    (request, outcome)
 }
 
 #[cfg(test)]

@@ -287,7 +287,8 @@ pub(crate) async fn serve(
 /// How a lease query is asked: records a part, and how long a part is waited for.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Parts {
-    /// Waited for each part.
+    /// Waited for each part at first (longer for a site whose parts ran out of time:
+    /// [`crate::pacing::Waits`]).
     pub(crate) timeout: Duration,
     /// Records asked for in a part.
     pub(crate) part: usize,
@@ -298,8 +299,9 @@ const ASK_RETRY: Duration = Duration::from_secs(2);
 
 /// Asks each remote site that comes up for its lease records, one site at a time and in
 /// parts of `parts.part` records ([`ASK_PART`], fewer on a slow link:
-/// `LinkShaping::part_items`) each waited for `parts.timeout` (a whole fleet's records in one answer would not cross a
-/// satellite link within the timeout); each reply goes to `take` (which checks it like a
+/// `LinkShaping::part_items`) each waited for `parts.timeout`, up to four times that for a
+/// site whose parts keep running out of time (a whole fleet's records in one answer would
+/// not cross a satellite link within the timeout); each reply goes to `take` (which checks it like a
 /// published record), and `done` notes the site answered. A part that ran out of time is
 /// asked for again after [`ASK_RETRY`] while `online` says the site is still up: nothing
 /// else would tell this site of a takeover it missed while the link was down. Records are
@@ -314,6 +316,8 @@ pub(crate) async fn ask(
     stop: CancellationToken,
 ) {
     let Parts { timeout, part } = parts;
+    let max_wait = timeout * crate::federation::MAX_WAIT_FACTOR;
+    let mut waits = crate::pacing::Waits::new(timeout, max_wait);
     // (when, site, the vehicle after which the part starts)
     let mut retries: Vec<(Instant, String, Option<String>)> = Vec::new();
     let mut next: Option<(String, Option<String>)> = None;
@@ -349,6 +353,7 @@ pub(crate) async fn ask(
             selector.push_str(&format!(";after={a}"));
         }
         let started = Instant::now();
+        let timeout = waits.of(&site);
         // Above positions, like catch-up.
         let replies = match ask_above_positions(&session, &selector, timeout).await {
             Ok(r) => r,
@@ -378,8 +383,10 @@ pub(crate) async fn ask(
                 Err(_) => failed = true,
             }
         }
-        debug!(site, records = n, failed, after = ?after, ms = started.elapsed().as_millis(), "lease query answered");
-        if failed || started.elapsed() >= timeout.mul_f64(0.95) {
+        debug!(site, records = n, failed, after = ?after, wait_ms = timeout.as_millis(), ms = started.elapsed().as_millis(), "lease query answered");
+        let incomplete = failed || started.elapsed() >= timeout.mul_f64(0.95);
+        waits.answered(&site, !incomplete);
+        if incomplete {
             // The part again, from what arrived of it.
             retries.push((Instant::now() + ASK_RETRY, site, last.or(after)));
         } else if n >= part {

@@ -11,6 +11,7 @@
 //! bulk rate, a quarter of the link, and the askers ask for parts that cross within a
 //! quarter of their timeout at that rate.
 
+use std::collections::HashMap;
 use std::time::Duration;
 
 use tokio::time::Instant;
@@ -87,6 +88,45 @@ impl Pacer {
     }
 }
 
+/// How long this site waits for each remote site's answers: the configured wait at first,
+/// doubled each time an answer came incomplete (up to `max`), the configured wait again
+/// once one came whole. A site two slow hops away (ship to ship through the shore), or
+/// behind a busy link, needs longer than one next door, and an answer thrown away for
+/// arriving late costs the link as much as one that is read.
+#[derive(Debug, Clone)]
+pub(crate) struct Waits {
+    base: Duration,
+    max: Duration,
+    /// Only sites whose last answer was incomplete; at most the configured remote sites.
+    longer: HashMap<String, Duration>,
+}
+
+impl Waits {
+    /// Waits of `base`, growing to `max` at most.
+    pub(crate) fn new(base: Duration, max: Duration) -> Self {
+        Self {
+            base,
+            max: max.max(base),
+            longer: HashMap::new(),
+        }
+    }
+
+    /// How long to wait for `site`'s next answer.
+    pub(crate) fn of(&self, site: &str) -> Duration {
+        self.longer.get(site).copied().unwrap_or(self.base)
+    }
+
+    /// Notes how `site`'s last answer came: `whole`, or incomplete.
+    pub(crate) fn answered(&mut self, site: &str, whole: bool) {
+        if whole {
+            self.longer.remove(site);
+        } else {
+            let next = (self.of(site) * 2).min(self.max);
+            self.longer.insert(site.to_string(), next);
+        }
+    }
+}
+
 /// Bytes a reply costs on the link beyond its payload and key: Zenoh's reply header and
 /// framing, and a share of TCP/IP's (measured sizes are in docs/federation.md).
 pub(crate) const REPLY_OVERHEAD: usize = 24;
@@ -132,6 +172,22 @@ mod tests {
             p.reserve_by(1, later, later + Duration::from_millis(400)),
             None
         );
+    }
+
+    #[test]
+    fn a_site_whose_answers_come_incomplete_is_given_longer_up_to_a_bound() {
+        let s = Duration::from_secs;
+        let mut w = Waits::new(s(10), s(40));
+        assert_eq!(w.of("ship-1"), s(10));
+        w.answered("ship-1", false);
+        assert_eq!((w.of("ship-1"), w.of("shore")), (s(20), s(10)));
+        for _ in 0..5 {
+            w.answered("ship-1", false);
+        }
+        assert_eq!(w.of("ship-1"), s(40));
+        w.answered("ship-1", true);
+        assert_eq!(w.of("ship-1"), s(10));
+        assert!(w.longer.is_empty());
     }
 
     #[test]
