@@ -1322,9 +1322,9 @@ async fn ask_catchup(
                 Some(r) => ready.push_back(r),
                 None => break,
             },
-            Some((request, outcome)) = asking.next(), if !asking.is_empty() => {
+            Some((request, outcome, took)) = asking.next(), if !asking.is_empty() => {
                 busy.remove(&request.site);
-                waits.answered(&request.site, outcome != CatchupOutcome::Retry);
+                waits.answered(&request.site, outcome != CatchupOutcome::Retry, took);
                 match outcome {
                     CatchupOutcome::Done => {}
                     CatchupOutcome::More(next) => ready.push_front(next),
@@ -1363,14 +1363,14 @@ async fn ask_catchup(
     }
 }
 
-/// Asks one catch-up query (waiting `qos.timeout`) and takes its answer.
+/// Asks one catch-up query (waiting `qos.timeout`) and takes its answer; how long it took.
 async fn ask_one(
     session: Session,
     shared: Arc<Shared>,
     request: CatchupRequest,
     qos: CatchupQos,
     stop: CancellationToken,
-) -> (CatchupRequest, CatchupOutcome) {
+) -> (CatchupRequest, CatchupOutcome, Duration) {
     let stream_qos = match request.stream {
         Stream::Alarms => qos.alarms,
         Stream::Tasks => qos.tasks,
@@ -1399,7 +1399,7 @@ async fn ask_one(
         Err(e) => {
             warn!(selector, error = %e, "catch-up query not sent");
             lock(&shared.inbound).abandon_catchup(&request);
-            return (request, CatchupOutcome::Retry);
+            return (request, CatchupOutcome::Retry, started.elapsed());
         }
     };
     let (mut taken, mut answered) = (0u64, 0usize);
@@ -1441,7 +1441,7 @@ async fn ask_one(
         ms = started.elapsed().as_millis(),
         "catch-up done"
     );
-    (request, outcome)
+    (request, outcome, started.elapsed())
 }
 
 #[cfg(test)]

@@ -385,7 +385,7 @@ pub(crate) async fn ask(
         }
         debug!(site, records = n, failed, after = ?after, wait_ms = timeout.as_millis(), ms = started.elapsed().as_millis(), "lease query answered");
         let incomplete = failed || started.elapsed() >= timeout.mul_f64(0.95);
-        waits.answered(&site, !incomplete);
+        waits.answered(&site, !incomplete, started.elapsed());
         if incomplete {
             // The part again, from what arrived of it.
             retries.push((Instant::now() + ASK_RETRY, site, last.or(after)));

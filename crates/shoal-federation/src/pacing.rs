@@ -88,16 +88,18 @@ impl Pacer {
     }
 }
 
-/// How long this site waits for each remote site's answers: the configured wait at first,
-/// doubled each time an answer came incomplete (up to `max`), the configured wait again
-/// once one came whole. A site two slow hops away (ship to ship through the shore), or
-/// behind a busy link, needs longer than one next door, and an answer thrown away for
-/// arriving late costs the link as much as one that is read.
+/// How long this site waits for each remote site's answers: the configured wait at first;
+/// doubled (up to `max`) each time an answer came incomplete; twice what the last whole
+/// answer took (within the configured wait and `max`) once one came whole. A site two
+/// slow hops away (ship to ship through the shore), or behind a busy link, needs longer
+/// than one next door, and an answer thrown away for arriving late costs the link as
+/// much as one that is read. Going back to the configured wait at once after a whole
+/// answer would have the next one run out of time again.
 #[derive(Debug, Clone)]
 pub(crate) struct Waits {
     base: Duration,
     max: Duration,
-    /// Only sites whose last answer was incomplete; at most the configured remote sites.
+    /// Only sites waited for longer than `base`; at most the configured remote sites.
     longer: HashMap<String, Duration>,
 }
 
@@ -116,13 +118,17 @@ impl Waits {
         self.longer.get(site).copied().unwrap_or(self.base)
     }
 
-    /// Notes how `site`'s last answer came: `whole`, or incomplete.
-    pub(crate) fn answered(&mut self, site: &str, whole: bool) {
-        if whole {
-            self.longer.remove(site);
+    /// Notes how `site`'s last answer came: `whole` (after `took`), or incomplete.
+    pub(crate) fn answered(&mut self, site: &str, whole: bool, took: Duration) {
+        let next = if whole {
+            (took * 2).clamp(self.base, self.max)
         } else {
-            let next = (self.of(site) * 2).min(self.max);
+            (self.of(site) * 2).min(self.max)
+        };
+        if next > self.base {
             self.longer.insert(site.to_string(), next);
+        } else {
+            self.longer.remove(site);
         }
     }
 }
@@ -179,13 +185,17 @@ mod tests {
         let s = Duration::from_secs;
         let mut w = Waits::new(s(10), s(40));
         assert_eq!(w.of("ship-1"), s(10));
-        w.answered("ship-1", false);
+        w.answered("ship-1", false, s(10));
         assert_eq!((w.of("ship-1"), w.of("shore")), (s(20), s(10)));
         for _ in 0..5 {
-            w.answered("ship-1", false);
+            w.answered("ship-1", false, s(40));
         }
         assert_eq!(w.of("ship-1"), s(40));
-        w.answered("ship-1", true);
+        // A whole answer that took 12 s: the next is waited for twice that.
+        w.answered("ship-1", true, s(12));
+        assert_eq!(w.of("ship-1"), s(24));
+        // A quick one: the configured wait again, and nothing kept.
+        w.answered("ship-1", true, s(1));
         assert_eq!(w.of("ship-1"), s(10));
         assert!(w.longer.is_empty());
     }
