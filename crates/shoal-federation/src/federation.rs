@@ -1343,12 +1343,7 @@ async fn ask_catchup(
                 }
             }
             _ = poll.tick() => ready.extend(lock(&shared.inbound).poll_catchup()),
-            () = async {
-                match due {
-                    Some(at) => tokio::time::sleep_until(at).await,
-                    None => std::future::pending().await,
-                }
-            } => {
+            () = sleep_until_due(due) => {
                 let now = Instant::now();
                 let (due, later): (Vec<_>, Vec<_>) =
                     retries.drain(..).partition(|r| r.0 <= now);
@@ -1360,6 +1355,14 @@ async fn ask_catchup(
                 );
             }
         }
+    }
+}
+
+/// Sleeps until `due`, or for ever when nothing is due.
+pub(crate) async fn sleep_until_due(due: Option<Instant>) {
+    match due {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
     }
 }
 

@@ -329,12 +329,7 @@ pub(crate) async fn ask(
                 tokio::select! {
                     () = stop.cancelled() => break,
                     s = sites.recv() => match s { Some(s) => (s, None), None => break },
-                    () = async {
-                        match due {
-                            Some(at) => tokio::time::sleep_until(at).await,
-                            None => std::future::pending().await,
-                        }
-                    } => {
+                    () = crate::federation::sleep_until_due(due) => {
                         let now = Instant::now();
                         let Some(i) = retries.iter().position(|r| r.0 <= now) else { continue };
                         let (_, site, after) = retries.swap_remove(i);

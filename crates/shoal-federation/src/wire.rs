@@ -341,12 +341,7 @@ fn envelope(
     seq: u64,
     timestamp_ms: i64,
 ) -> Result<Vec<u8>, ValidationError> {
-    if !is_site_name(site) {
-        return Err(ValidationError::BadText {
-            field: "site",
-            rule: "must be 1..=32 of [A-Za-z0-9_.-]",
-        });
-    }
+    check_site(site)?;
     let mut out = Vec::with_capacity(64);
     out.extend([VERSION, kind]);
     put_str8(&mut out, site);
@@ -354,6 +349,18 @@ fn envelope(
     out.extend(seq.to_le_bytes());
     put_u48(&mut out, timestamp_ms);
     Ok(out)
+}
+
+/// A site's name as the wire carries it: one key chunk.
+fn check_site(site: &str) -> Result<(), ValidationError> {
+    if is_site_name(site) {
+        Ok(())
+    } else {
+        Err(ValidationError::BadText {
+            field: "site",
+            rule: "must be 1..=32 of [A-Za-z0-9_.-]",
+        })
+    }
 }
 
 fn code_of<T: PartialEq + Copy>(table: &[T], value: T) -> u8 {
@@ -465,12 +472,7 @@ pub struct CatchupEnd {
 
 /// Encodes a catch-up end frame (27 bytes plus the site's name).
 pub fn encode_catchup_end(end: &CatchupEnd) -> Result<Vec<u8>, ValidationError> {
-    if !is_site_name(&end.site) {
-        return Err(ValidationError::BadText {
-            field: "site",
-            rule: "must be 1..=32 of [A-Za-z0-9_.-]",
-        });
-    }
+    check_site(&end.site)?;
     let mut out = Vec::with_capacity(27 + end.site.len());
     out.extend([VERSION, KIND_CATCHUP_END]);
     put_str8(&mut out, &end.site);
@@ -483,14 +485,7 @@ pub fn encode_catchup_end(end: &CatchupEnd) -> Result<Vec<u8>, ValidationError> 
 /// Decodes a catch-up end frame.
 pub fn decode_catchup_end(bytes: &[u8]) -> Result<CatchupEnd, DecodeError> {
     let mut r = Reader::open(bytes, KIND_CATCHUP_END)?;
-    let site = r.str8("site", MAX_SITE_LEN)?;
-    if !is_site_name(&site) {
-        return Err(ValidationError::BadText {
-            field: "site",
-            rule: "must be 1..=32 of [A-Za-z0-9_.-]",
-        }
-        .into());
-    }
+    let site = r.site()?;
     let epoch = r.u64("epoch")?;
     let oldest = r.u64("oldest")?;
     let highest = r.u64("highest")?;
@@ -797,16 +792,16 @@ impl<'a> Reader<'a> {
         self.text(field, usize::from(len))
     }
 
+    /// A site's name.
+    fn site(&mut self) -> Result<String, DecodeError> {
+        let site = self.str8("site", MAX_SITE_LEN)?;
+        check_site(&site)?;
+        Ok(site)
+    }
+
     /// Site, epoch, sequence number and timestamp of a sequenced frame.
     fn envelope(&mut self) -> Result<(String, u64, u64, i64), DecodeError> {
-        let site = self.str8("site", MAX_SITE_LEN)?;
-        if !is_site_name(&site) {
-            return Err(ValidationError::BadText {
-                field: "site",
-                rule: "must be 1..=32 of [A-Za-z0-9_.-]",
-            }
-            .into());
-        }
+        let site = self.site()?;
         let epoch = self.u64("epoch")?;
         let seq = self.u64("seq")?;
         if seq == 0 {
