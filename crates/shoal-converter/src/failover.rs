@@ -10,14 +10,17 @@
 //! - [`Failover::heard_ip`]: the station was heard over the IP path just now (the VDT
 //!   feeds it when DDS has matched the station's readers to its IP-side writers: discovery
 //!   traffic crossed the path both ways, and a match ends when the station's lease runs
-//!   out, so silence ends it too).
+//!   out, so silence ends it too), with how many readers are matched.
 //! - [`Failover::ip_down`]: the IP path is gone for certain (its interface or participant
 //!   went away): no reason to wait for a timeout.
 //! - [`Failover::poll`]: the decision at `now`, and the [`Switch`] when it changed.
 //!
 //! Hysteresis, so a flapping radio at the surface does not thrash the vehicle between
-//! links: IP is taken only after it has been heard without a gap for `up_after`, and never
-//! sooner than `min_acoustic` after falling back to acoustic. The way down has no delay
+//! links: IP is taken only after it has been heard without a gap, and with no reader
+//! newly matched, for `up_after`, and never sooner than `min_acoustic` after falling back
+//! to acoustic. A reader matched late restarts the wait because the station's side has
+//! several readers (the station's own, a CDT's, a recorder's), each found by discovery on
+//! its own: data moved to IP when only the first had matched would miss the others. The way down has no delay
 //! beyond `down_after` of silence: data sent on a dead IP path is lost, data sent
 //! acoustically while IP is still up is merely slower.
 
@@ -158,6 +161,8 @@ pub struct Failover {
     ip_since: Option<Instant>,
     /// Latest IP evidence.
     ip_heard: Option<Instant>,
+    /// Readers matched at the latest evidence.
+    readers: usize,
     /// When the link last changed (or the decision started).
     since: Instant,
     /// When the vehicle last fell back to acoustic.
@@ -173,6 +178,7 @@ impl Failover {
             link: LinkKind::Acoustic,
             ip_since: None,
             ip_heard: None,
+            readers: 0,
             since: now,
             fell_back: None,
             switches: 0,
@@ -189,23 +195,28 @@ impl Failover {
         self.switches
     }
 
-    /// The station was heard over IP at `now`.
-    pub fn heard_ip(&mut self, now: Instant) {
+    /// The station was heard over IP at `now`, with `readers` of its readers matched.
+    pub fn heard_ip(&mut self, now: Instant, readers: usize) {
         // A gap longer than the silence timeout breaks the run: the path must prove itself
-        // again for `up_after`.
+        // again for `up_after`. So does a reader matched since, while still on acoustic:
+        // discovery is still crossing the path, and a reader not yet matched would miss
+        // what goes over IP. On IP a new reader changes nothing.
         let fresh = self
             .ip_heard
             .is_some_and(|t| now.saturating_duration_since(t) < self.timing.down_after);
-        if !fresh {
+        let more = readers > self.readers && self.link == LinkKind::Acoustic;
+        if !fresh || more {
             self.ip_since = Some(now);
         }
         self.ip_heard = Some(now);
+        self.readers = readers;
     }
 
     /// The IP path is gone for certain at `now` (interface or participant down).
     pub fn ip_down(&mut self, _now: Instant) {
         self.ip_heard = None;
         self.ip_since = None;
+        self.readers = 0;
     }
 
     /// The decision at `now`; the switch if it changed.
@@ -233,6 +244,7 @@ impl Failover {
         if to == LinkKind::Acoustic {
             self.fell_back = Some(now);
             self.ip_since = None;
+            self.readers = 0;
         }
         Some(Switch { to, at: now, after })
     }
@@ -292,7 +304,7 @@ mod tests {
         let mut out = Vec::new();
         let mut x = from;
         while x < to {
-            f.heard_ip(t0 + s(x));
+            f.heard_ip(t0 + s(x), 1);
             if let Some(sw) = f.poll(t0 + s(x)) {
                 out.push((sw.to, x));
             }
@@ -310,6 +322,27 @@ mod tests {
         let sw = hear(&mut f, t0, 20.0, 30.0);
         assert_eq!(sw, vec![(LinkKind::Ip, 23.0)]);
         assert_eq!(f.switches(), 1);
+    }
+
+    #[test]
+    fn a_reader_matched_late_restarts_the_wait_on_acoustic_but_not_on_ip() {
+        let t0 = Instant::now();
+        let mut f = Failover::new(timing(), t0);
+        // One reader from 0 s; a second (the station's, after a CDT's) at 2.5 s: IP only
+        // 3 s after the second.
+        assert_eq!(hear(&mut f, t0, 0.0, 2.5), vec![]);
+        let mut switched = Vec::new();
+        for half in 5..=12 {
+            let at = t0 + s(f64::from(half) * 0.5);
+            f.heard_ip(at, 2);
+            switched.extend(f.poll(at).map(|w| (w.to, f64::from(half) * 0.5)));
+        }
+        assert_eq!(switched, vec![(LinkKind::Ip, 5.5)]);
+        // On IP, more readers are no reason to leave it; fewer (but some) neither.
+        f.heard_ip(t0 + s(6.0), 3);
+        f.heard_ip(t0 + s(6.5), 1);
+        assert_eq!(f.poll(t0 + s(6.5)), None);
+        assert_eq!(f.link(), LinkKind::Ip);
     }
 
     #[test]

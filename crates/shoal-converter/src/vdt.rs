@@ -315,6 +315,8 @@ struct Vdt {
     ip: Option<IpSide>,
     /// `ip` was opened or closed: the run loop takes (or drops) its task subscription.
     ip_changed: bool,
+    /// Readers matched to the IP side's state writer at the last failover tick.
+    ip_readers: i32,
     /// The radio works at the vehicle's latest depth.
     radio_up: bool,
     /// An IP side is being opened (off the loop: creating a participant takes a while).
@@ -367,6 +369,7 @@ impl Vdt {
             failover: Failover::new(cfg_timing, Instant::now()),
             ip: None,
             ip_changed: false,
+            ip_readers: 0,
             radio_up: false,
             opening: false,
             ip_opened_tx,
@@ -451,13 +454,18 @@ impl Vdt {
         }
         // A station reader matched to our state writer: discovery crossed the path both
         // ways, and the match ends when the station's lease runs out.
-        if self
-            .ip
-            .as_ref()
-            .is_some_and(|ip| ip.state.matched_readers() > 0)
-        {
-            self.failover.heard_ip(Instant::now());
+        let readers = self.ip.as_ref().map_or(0, |ip| ip.state.matched_readers());
+        if readers > 0 {
+            if readers != self.ip_readers {
+                debug!(
+                    readers,
+                    "IP path: station readers matched to the state writer"
+                );
+            }
+            self.failover
+                .heard_ip(Instant::now(), usize::try_from(readers).unwrap_or(0));
         }
+        self.ip_readers = readers;
         self.poll_failover().await
     }
 

@@ -50,6 +50,8 @@ const DIVE_DEPTH_M: f64 = 4.0;
 const DIVE_LEG_M: f64 = 30.0;
 /// Longest a phase (a switch, the tasks ending) may take, simulated seconds.
 const PHASE_S: f64 = 300.0;
+/// Wall-clock seconds the IP path must be heard before data moves there.
+const UP_AFTER_WALL_S: f64 = 3.0;
 
 /// Settings of the measurement.
 #[derive(Debug, Clone, PartialEq)]
@@ -493,6 +495,14 @@ async fn measure(
         ip: IpPathConfig {
             enabled: true,
             domain_id: opts.station_domain,
+            // Discovery runs on the wall clock, which the warp does not shorten: the
+            // station's readers learn the IP side's writers in wall-clock time, so the wait
+            // before data moves to IP keeps its wall-clock length (3 s, as at time scale 1).
+            // Warped to 0.75 s, a loaded machine moved states to IP before the station's
+            // reader had learnt the writer, and lost them.
+            up_after_s: IpPathConfig::default()
+                .up_after_s
+                .max(UP_AFTER_WALL_S / scale),
             // The measurement's domains are insecure, as every bench's but `security`.
             insecure: true,
             ..IpPathConfig::default()
