@@ -1222,9 +1222,12 @@ async fn serve_catchup(
             }
             sent += 1;
         }
-        lock(&shared.outbound).catchup_answered(sent, sent < found);
         // The end goes whatever the time: it is small, and says what is left.
-        let end = lock(&shared.outbound).catchup_end(stream);
+        let end = {
+            let mut outbound = lock(&shared.outbound);
+            outbound.catchup_answered(sent, sent < found);
+            outbound.catchup_end(stream)
+        };
         if let Some(end) = end {
             shared.pace(end.len() + key_len).await;
             if let Err(e) = query.reply(query.key_expr().clone(), end).await {
@@ -1236,7 +1239,7 @@ async fn serve_catchup(
             after,
             found,
             sent,
-            queued_ms = (Instant::now() - arrived).as_millis(),
+            since_arrival_ms = (Instant::now() - arrived).as_millis(),
             "catch-up served"
         );
     }

@@ -61,11 +61,7 @@ impl Pacer {
         self.refill(now);
         #[allow(clippy::cast_precision_loss)]
         let after = self.tokens - bytes as f64;
-        let wait = if after >= 0.0 {
-            Duration::ZERO
-        } else {
-            Duration::from_secs_f64(-after / self.bytes_per_s)
-        };
+        let wait = self.wait_for(after);
         if now + wait > deadline {
             return None;
         }
@@ -80,10 +76,15 @@ impl Pacer {
     }
 
     fn wait(&self) -> Duration {
-        if self.tokens >= 0.0 {
+        self.wait_for(self.tokens)
+    }
+
+    /// How long until a bucket holding `tokens` is back at zero.
+    fn wait_for(&self, tokens: f64) -> Duration {
+        if tokens >= 0.0 {
             Duration::ZERO
         } else {
-            Duration::from_secs_f64(-self.tokens / self.bytes_per_s)
+            Duration::from_secs_f64(-tokens / self.bytes_per_s)
         }
     }
 }

@@ -16,6 +16,17 @@ fn shore() -> Inbound {
     Inbound::new(&config)
 }
 
+/// A catch-up request to the site "ship".
+fn ship_request(stream: Stream, epoch: Option<u64>, after: u64, limit: usize) -> CatchupRequest {
+    CatchupRequest {
+        site: "ship".into(),
+        stream,
+        epoch,
+        after,
+        limit,
+    }
+}
+
 fn alarm_frame(site: &str, epoch: u64, seq: u64) -> Vec<u8> {
     wire::encode_alarm(site, epoch, seq, &alarm(&format!("e{seq}"))).unwrap()
 }
@@ -197,16 +208,7 @@ fn a_site_coming_up_is_asked_for_what_was_missed_on_each_stream() {
         .unwrap();
     let requests = inb.site_alive(&keys::alive("ship"), true, 10);
     assert_eq!(requests.len(), 2);
-    assert_eq!(
-        requests[0],
-        CatchupRequest {
-            site: "ship".into(),
-            stream: Stream::Alarms,
-            epoch: Some(3),
-            after: 1,
-            limit: 100,
-        }
-    );
+    assert_eq!(requests[0], ship_request(Stream::Alarms, Some(3), 1, 100));
     assert_eq!((requests[1].epoch, requests[1].after), (None, 0));
     // Under way: not asked twice.
     assert!(inb.site_alive(&keys::alive("ship"), true, 11).is_empty());
@@ -491,13 +493,7 @@ fn environment_summaries_fill_the_picture_and_bad_frames_are_refused_by_reason()
         assert_eq!(inb.counters().refused(reason), 1, "{reason}");
     }
     // Never in a catch-up reply.
-    let request = CatchupRequest {
-        site: "ship".into(),
-        stream: Stream::Alarms,
-        epoch: None,
-        after: 0,
-        limit: 10,
-    };
+    let request = ship_request(Stream::Alarms, None, 0, 10);
     assert_eq!(
         inb.receive_catchup(&request, &key, &frame, 0),
         Err(Refusal::CatchupKey)
@@ -707,13 +703,7 @@ fn an_answer_without_its_end_gives_nothing_up_and_is_asked_again() {
     inb.site_alive(&keys::alive("ship"), true, 0);
     // The queries asked at reconnection were not heard by any queryable.
     for stream in Stream::ALL {
-        let request = CatchupRequest {
-            site: "ship".into(),
-            stream,
-            epoch: None,
-            after: 0,
-            limit: 100,
-        };
+        let request = ship_request(stream, None, 0, 100);
         assert_eq!(inb.finish_catchup(&request), CatchupOutcome::Retry);
     }
     inb.receive(&key, &alarm_frame("ship", 1, 1), 0).unwrap();
@@ -777,13 +767,7 @@ fn what_the_sender_no_longer_keeps_is_given_up_and_counted_once() {
     inb.site_alive(&keys::alive("ship"), true, 0);
     let request = inb.retry_catchup("ship", Stream::Alarms);
     assert_eq!(request, None, "one under way already");
-    let request = CatchupRequest {
-        site: "ship".into(),
-        stream: Stream::Alarms,
-        epoch: Some(1),
-        after: 1,
-        limit: 100,
-    };
+    let request = ship_request(Stream::Alarms, Some(1), 1, 100);
     // The sender keeps 6..=8 only.
     let reply = keys::catchup("ship", Stream::Alarms);
     for seq in 6..=8 {
