@@ -9,9 +9,9 @@
 #      (Fast DDS and Cyclone DDS with their standard DDS Security plugins), and every Rust
 #      test INSIDE private network namespaces (loopback only, multicast routed to lo), so
 #      no DDS discovery traffic can leave the machine,
-#   4. builds the release binary and drives the web console in Debian's Chromium
-#      (Playwright) against `shoal up`, then checks the HTTP API against its OpenAPI
-#      document with schemathesis, inside the namespace,
+#   4. drives the web console in Debian's Chromium (Playwright) against `shoal up`, then
+#      checks the HTTP API against its OpenAPI document with schemathesis, inside the
+#      namespace,
 #   5. runs each cargo-fuzz target for a short smoke run.
 # Environment: SHOAL_SKIP_FUZZ=1 skips step 5; SHOAL_NETNS names the namespace;
 # SHOAL_TEST_DISK_GB is the free disk the build needs (checked first, default 6).
@@ -43,7 +43,7 @@ export CARGO_PROFILE_DEV_DEBUG="${CARGO_PROFILE_DEV_DEBUG:-false}"
 export CARGO_PROFILE_RELEASE_DEBUG="${CARGO_PROFILE_RELEASE_DEBUG:-false}"
 
 # Stop at once, not at the first linker error twenty minutes in, when the disk is too
-# small for the build (debug and release binaries, clippy, the fuzz targets).
+# small for the build (the debug binaries, clippy, the fuzz targets).
 need_gb="${SHOAL_TEST_DISK_GB:-6}"
 target_dir="${CARGO_TARGET_DIR:-$PWD/target}"
 mkdir -p "$target_dir"
@@ -84,12 +84,15 @@ step "RTI XML types agree with idl/shoal.idl"
 step "foreign DDS peers against each other (Cyclone, RTI, Fast DDS)"
 tests/interop/peer_matrix.sh
 
+# The scripts below drive the `shoal` binary the test build made (target/debug/shoal): the
+# same code as a release build, which on two cores took 18 more minutes of the budget.
+shoal_bin="${CARGO_TARGET_DIR:-$PWD/target}/debug/shoal"
+
 step "a secure Shoal station with foreign secured vehicles (Fast DDS, Cyclone DDS C; DDS Security 1.1)"
-cargo build --release --locked -p shoal
-SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" tests/interop/secure/shoal_secure_interop.sh
+SHOAL_BIN="$shoal_bin" tests/interop/secure/shoal_secure_interop.sh
 
 step "the attack corpus against a secure Shoal station (> 10,000 packet and credential attacks, all refused)"
-SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" tests/security/attack_corpus.sh
+SHOAL_BIN="$shoal_bin" tests/security/attack_corpus.sh
 
 step "Rust tests inside network namespace $NS (interop peers required)"
 results="$(mktemp)"
@@ -97,28 +100,23 @@ trap 'rm -f "$results"; scripts/postgres.sh stop >/dev/null 2>&1 || true' EXIT
 SHOAL_INTEROP_REQUIRED=1 SHOAL_TEST_POSTGRES_URL="$pg_url" SHOAL_TEST_POSTGRES_REQUIRED=1 \
     scripts/netns-run.sh "$NS" -- cargo test --workspace --locked 2>&1 | tee "$results"
 passed=$(grep -Eo 'test result: ok\. [0-9]+ passed' "$results" | awk '{s += $4} END {print s + 0}')
-# On a small disk the debug build goes once it is done with (what follows uses the release
-# binary; the fuzz targets build in fuzz/target); a larger one keeps it for the next run.
-if (( tight )); then
-    echo "disk: removing the debug build (under ${roomy_gb} GB were free at the start)"
-    rm -rf "${CARGO_TARGET_DIR:-$PWD/target}/debug"
-fi
 
 step "web console in a real browser (Playwright + Chromium against shoal up, inside $NS)"
-cargo build --release --locked -p shoal
-SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" scripts/console-e2e.sh "$NS"
+SHOAL_BIN="$shoal_bin" scripts/console-e2e.sh "$NS"
 
 step "the HTTP API against its OpenAPI document (schemathesis, all checks, inside $NS)"
-SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" scripts/api-conformance.sh "$NS"
+SHOAL_BIN="$shoal_bin" scripts/api-conformance.sh "$NS"
 
 step "shared history: a ship's PostgreSQL streamed to a standby ashore, across an outage (inside $NS)"
-SHOAL_BIN="${CARGO_TARGET_DIR:-$PWD/target}/release/shoal" tests/history/replication.sh "$NS"
+SHOAL_BIN="$shoal_bin" tests/history/replication.sh "$NS"
 
 if [[ "${SHOAL_SKIP_FUZZ:-0}" != 1 ]]; then
-    # So does the release build: the fuzz targets build apart, under the nightly toolchain.
+    # On a small disk the debug build goes once it is done with: the fuzz targets build
+    # apart (fuzz/target), under the nightly toolchain. A larger disk keeps it for the next
+    # run.
     if (( tight )); then
-        echo "disk: removing the release build before the fuzz targets build"
-        rm -rf "${CARGO_TARGET_DIR:-$PWD/target}/release"
+        echo "disk: removing the debug build (under ${roomy_gb} GB were free at the start)"
+        rm -rf "${CARGO_TARGET_DIR:-$PWD/target}/debug"
     fi
     step "fuzz smoke run (every cargo-fuzz target, 10 s each; scripts/fuzz-long.sh runs them for longer)"
     # cargo-fuzz needs the nightly toolchain (fuzzing only: the product builds on stable).
