@@ -20,9 +20,9 @@
 //! newly matched, for `up_after`, and never sooner than `min_acoustic` after falling back
 //! to acoustic. A reader matched late restarts the wait because the station's side has
 //! several readers (the station's own, a CDT's, a recorder's), each found by discovery on
-//! its own: data moved to IP when only the first had matched would miss the others. The way down has no delay
-//! beyond `down_after` of silence: data sent on a dead IP path is lost, data sent
-//! acoustically while IP is still up is merely slower.
+//! its own: data moved to IP when only the first had matched would miss the others. The
+//! way down has no delay beyond `down_after` of silence: data sent on a dead IP path is
+//! lost, data sent acoustically while IP is still up is merely slower.
 
 use std::time::Duration;
 
@@ -193,6 +193,11 @@ impl Failover {
     /// Link changes so far.
     pub fn switches(&self) -> u64 {
         self.switches
+    }
+
+    /// Readers matched at the latest IP evidence (0 after the path went down).
+    pub fn readers(&self) -> usize {
+        self.readers
     }
 
     /// The station was heard over IP at `now`, with `readers` of its readers matched.

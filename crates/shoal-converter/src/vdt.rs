@@ -315,8 +315,6 @@ struct Vdt {
     ip: Option<IpSide>,
     /// `ip` was opened or closed: the run loop takes (or drops) its task subscription.
     ip_changed: bool,
-    /// Readers matched to the IP side's state writer at the last failover tick.
-    ip_readers: i32,
     /// The radio works at the vehicle's latest depth.
     radio_up: bool,
     /// An IP side is being opened (off the loop: creating a participant takes a while).
@@ -369,7 +367,6 @@ impl Vdt {
             failover: Failover::new(cfg_timing, Instant::now()),
             ip: None,
             ip_changed: false,
-            ip_readers: 0,
             radio_up: false,
             opening: false,
             ip_opened_tx,
@@ -455,17 +452,16 @@ impl Vdt {
         // A station reader matched to our state writer: discovery crossed the path both
         // ways, and the match ends when the station's lease runs out.
         let readers = self.ip.as_ref().map_or(0, |ip| ip.state.matched_readers());
+        let readers = usize::try_from(readers).unwrap_or(0);
         if readers > 0 {
-            if readers != self.ip_readers {
+            if readers != self.failover.readers() {
                 debug!(
                     readers,
                     "IP path: station readers matched to the state writer"
                 );
             }
-            self.failover
-                .heard_ip(Instant::now(), usize::try_from(readers).unwrap_or(0));
+            self.failover.heard_ip(Instant::now(), readers);
         }
-        self.ip_readers = readers;
         self.poll_failover().await
     }
 
