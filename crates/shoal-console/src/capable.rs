@@ -9,6 +9,11 @@
 //! adds what the station itself checks when a task goes out ([`StationHandle::check_dispatch`]:
 //! contact, the announced capability, battery against `min_dispatch_battery_pct`), so the
 //! console never offers a vehicle the station would refuse, and says why.
+//!
+//! Another site's vehicle whose command lease this station holds follows the fleet: a
+//! mission here may give it tasks, which go through its site. This station knows of it
+//! only what the federation carries (kind, position, battery, age), so its site's station
+//! is the one to check capability, contact and battery when a task reaches it.
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -17,7 +22,7 @@ use axum::response::IntoResponse;
 use axum::{Json, extract::rejection::QueryRejection};
 use serde::{Deserialize, Serialize};
 use shoal_model::TaskKind;
-use shoal_station::{Availability, Contact, DispatchError, StationHandle};
+use shoal_station::{Availability, Contact, DispatchError, FederationSnapshot, StationHandle};
 
 use crate::ApiError;
 
@@ -72,8 +77,15 @@ struct Candidate {
     capabilities: Vec<Held>,
     /// The required capabilities it lacks.
     missing: Vec<String>,
-    contact: Contact,
-    availability: Availability,
+    /// Absent for another site's vehicle: its own station judges contact.
+    contact: Option<Contact>,
+    /// Absent for another site's vehicle.
+    availability: Option<Availability>,
+    /// The site whose vehicle it is, when it is another site's (under a command lease this
+    /// station holds); absent for this station's own.
+    site: Option<String>,
+    /// For another site's vehicle: how old the federation's latest position of it is, ms.
+    age_ms: Option<i64>,
     /// Latest battery level, % (absent before the first state or when unknown).
     battery_pct: Option<f64>,
     /// Capable, and the station would send it the task now.
@@ -88,7 +100,8 @@ struct Candidate {
 struct CapableAnswer {
     kind: Option<TaskKind>,
     requires: Vec<Requirement>,
-    /// Every vehicle of the fleet: dispatchable ones first, then capable, then the rest.
+    /// Every vehicle of the fleet: dispatchable ones first, then capable, then the rest;
+    /// then the other sites' vehicles whose command lease this station holds.
     vehicles: Vec<Candidate>,
 }
 
@@ -248,6 +261,74 @@ fn ask_model(
     Ok(Ok((requires, holdings)))
 }
 
+/// How old another site's data may be before the console is told so (its positions cross
+/// at a fraction of a hertz, so a few seconds is normal).
+const REMOTE_OLD_MS: i64 = 60_000;
+
+/// The other sites' vehicles whose command lease this station holds, as candidates: this
+/// station cannot judge their capabilities (they are not in its semantic model), so they
+/// count as capable; they are dispatchable while their site is online, since a task for
+/// one goes through that site.
+fn leased_elsewhere(federation: &FederationSnapshot) -> Vec<Candidate> {
+    let mut out: Vec<Candidate> = federation
+        .leases
+        .iter()
+        .filter(|l| l.held_here && l.home != federation.site)
+        .map(|lease| {
+            let site = &lease.home;
+            let seen = federation
+                .vehicles
+                .iter()
+                .find(|v| &v.site == site && v.vehicle_id == lease.vehicle_id);
+            let online = federation.sites.iter().any(|s| &s.site == site && s.online);
+            let mut reasons = Vec::new();
+            if !online {
+                reasons.push(format!(
+                    "site {site} is offline: a task for its vehicle could not reach it"
+                ));
+            }
+            if seen.is_none() {
+                reasons.push(format!(
+                    "no position of {} from site {site} yet",
+                    lease.vehicle_id
+                ));
+            }
+            let mut notes = vec![format!(
+                "at site {site}: its station checks capability, contact and battery when the \
+                 task reaches it; this station holds the command lease (term {})",
+                lease.term
+            )];
+            if let Some(v) = seen.filter(|v| v.age_ms > REMOTE_OLD_MS) {
+                notes.push(format!(
+                    "old data: the latest position from {site} is {} s old",
+                    v.age_ms / 1000
+                ));
+            }
+            Candidate {
+                vehicle_id: lease.vehicle_id.clone(),
+                kind: seen.map(|v| v.kind.as_str().to_owned()).unwrap_or_default(),
+                capable: true,
+                capabilities: Vec::new(),
+                missing: Vec::new(),
+                contact: None,
+                availability: None,
+                site: Some(site.clone()),
+                age_ms: seen.map(|v| v.age_ms),
+                battery_pct: seen
+                    .map(|v| v.battery_pct)
+                    .filter(|b| (0.0..=100.0).contains(b)),
+                dispatchable: reasons.is_empty(),
+                reasons,
+                notes,
+            }
+        })
+        .collect();
+    out.sort_by(|a, b| {
+        (!a.dispatchable, &a.site, &a.vehicle_id).cmp(&(!b.dispatchable, &b.site, &b.vehicle_id))
+    });
+    out
+}
+
 pub(crate) async fn capable(
     State(s): State<StationHandle>,
     q: Result<Query<CapableQuery>, QueryRejection>,
@@ -349,8 +430,10 @@ pub(crate) async fn capable(
                 capable,
                 capabilities,
                 missing,
-                contact: v.contact,
-                availability: v.availability,
+                contact: Some(v.contact),
+                availability: Some(v.availability),
+                site: None,
+                age_ms: None,
                 battery_pct,
                 dispatchable: capable && reasons.is_empty(),
                 reasons,
@@ -365,9 +448,106 @@ pub(crate) async fn capable(
             &b.vehicle_id,
         ))
     });
+    if let Some(federation) = s.federation() {
+        vehicles.extend(leased_elsewhere(&federation));
+    }
     Ok(Json(CapableAnswer {
         kind,
         requires,
         vehicles,
     }))
+}
+
+#[cfg(test)]
+mod tests {
+    use shoal_model::VehicleKind;
+    use shoal_station::{LeaseView, RemoteVehicleView, SiteView};
+
+    use super::*;
+
+    fn lease(vehicle: &str, home: &str, holder: &str) -> LeaseView {
+        LeaseView {
+            vehicle_id: vehicle.into(),
+            holder: holder.into(),
+            home: home.into(),
+            standby: String::new(),
+            term: 2,
+            reason: "handover",
+            granted_ms: 0,
+            held_here: holder == "shore",
+        }
+    }
+
+    fn seen(vehicle: &str, site: &str, age_ms: i64) -> RemoteVehicleView {
+        RemoteVehicleView {
+            site: site.into(),
+            vehicle_id: vehicle.into(),
+            kind: VehicleKind::Usv,
+            timestamp_ms: 0,
+            latitude_deg: 63.4,
+            longitude_deg: 10.4,
+            depth_m: 0.0,
+            heading_deg: 0.0,
+            speed_mps: 0.0,
+            battery_pct: 71.0,
+            age_ms,
+        }
+    }
+
+    fn shore(online: bool) -> FederationSnapshot {
+        FederationSnapshot {
+            site: "shore".into(),
+            sites: vec![SiteView {
+                site: "ship".into(),
+                online,
+                since_ms: 0,
+            }],
+            vehicles: vec![
+                seen("ship-usv-1", "ship", 90_000),
+                seen("ship-auv-2", "ship", 3_000),
+            ],
+            lease_enabled: true,
+            leases: vec![
+                lease("ship-usv-1", "ship", "shore"),
+                lease("ship-auv-2", "ship", "ship"),
+                lease("ship-auv-3", "ship", "shore"),
+                lease("auv-1", "shore", "shore"),
+            ],
+            ..FederationSnapshot::default()
+        }
+    }
+
+    #[test]
+    fn another_sites_vehicle_is_offered_only_under_a_lease_held_here_and_while_its_site_is_online()
+    {
+        let got = leased_elsewhere(&shore(true));
+        // Not the one the ship holds, nor this station's own vehicle (in the fleet already).
+        let ids: Vec<&str> = got.iter().map(|c| c.vehicle_id.as_str()).collect();
+        assert_eq!(ids, ["ship-usv-1", "ship-auv-3"]);
+        let usv = &got[0];
+        assert!(usv.dispatchable && usv.capable, "{usv:?}");
+        assert_eq!(usv.site.as_deref(), Some("ship"));
+        assert_eq!((usv.kind.as_str(), usv.battery_pct), ("usv", Some(71.0)));
+        assert_eq!(
+            (usv.contact, usv.availability, usv.age_ms),
+            (None, None, Some(90_000))
+        );
+        assert!(usv.notes[0].starts_with("at site ship:"), "{:?}", usv.notes);
+        assert!(usv.notes[1].contains("90 s old"), "{:?}", usv.notes);
+        // Never heard of: listed with why, not offered.
+        let unseen = &got[1];
+        assert!(!unseen.dispatchable);
+        assert_eq!(
+            unseen.reasons,
+            ["no position of ship-auv-3 from site ship yet"]
+        );
+
+        let offline = leased_elsewhere(&shore(false));
+        assert!(offline.iter().all(|c| !c.dispatchable));
+        assert!(
+            offline[0].reasons[0].contains("site ship is offline"),
+            "{:?}",
+            offline[0]
+        );
+    }
 }

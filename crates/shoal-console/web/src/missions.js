@@ -1,7 +1,8 @@
 // Missions: the editor (waypoints clicked or a survey polygon drawn on the map at the
 // surface, a depth or an altitude, and a speed; or a hold, return home or surface step; a
-// vehicle the semantic model finds capable and the station would dispatch to), then confirm
-// and start; the list of missions with their tasks' progress, abort, export and replay.
+// vehicle the semantic model finds capable and the station would dispatch to, or another
+// site's whose command lease the station holds), then confirm and start; the list of
+// missions with their tasks' progress, abort, export and replay.
 
 import { api, describe } from './api.js';
 import { clearDraft, draftPoints, setDraft, startDrawing, stopDrawing } from './map.js';
@@ -99,7 +100,8 @@ function optionText(c) {
   const inferred = c.capabilities.filter((x) => !x.declared && x.inferred_from.length).map((x) => `${x.capability} from ${x.inferred_from.join(', ')}`);
   const extra = [...inferred, ...c.notes.map((n) => n.split(':')[0])];
   const battery = typeof c.battery_pct === 'number' ? `, ${c.battery_pct.toFixed(0)} %` : '';
-  return `${c.vehicle_id} (${c.kind}${max}${battery})${extra.length ? ` — ${extra.join('; ')}` : ''}`;
+  const site = c.site ? ` · ${c.site}` : '';
+  return `${c.vehicle_id}${site} (${c.kind}${max}${battery})${extra.length ? ` — ${extra.join('; ')}` : ''}`;
 }
 
 /**
@@ -129,8 +131,15 @@ async function refreshVehicles() {
   const keep = sel.value;
   needText = answer.requires.map((r) => r.label || r.capability).join(' + ') || k.replace('_', ' ');
   offered = new Map(answer.vehicles.filter((c) => c.dispatchable).map((c) => [c.vehicle_id, c]));
-  const options = [...offered.values()].map((c) => h('option', { value: c.vehicle_id, selected: c.vehicle_id === keep }, optionText(c)));
-  sel.replaceChildren(h('option', { value: '' }, `— ${offered.size} of ${answer.vehicles.length} vehicles can do ${needText} now —`), ...options);
+  const option = (c) => h('option', { value: c.vehicle_id, selected: c.vehicle_id === keep, dataset: c.site ? { site: c.site } : {} }, optionText(c));
+  const own = [...offered.values()].filter((c) => !c.site).map(option);
+  // Other sites' vehicles under a lease held here: their own station checks the task.
+  const leased = [...offered.values()].filter((c) => c.site).map(option);
+  sel.replaceChildren(
+    h('option', { value: '' }, `— ${offered.size} of ${answer.vehicles.length} vehicles can do ${needText} now —`),
+    ...own,
+    ...(leased.length ? [h('optgroup', { label: 'Other sites (command lease held here)' }, ...leased)] : []),
+  );
   if (offered.has(keep)) sel.value = keep;
   syncVertical();
   const others = answer.vehicles.filter((c) => !c.dispatchable);

@@ -13,6 +13,7 @@ import { spawn } from 'node:child_process';
 import dgram from 'node:dgram';
 import { request as httpRequest } from 'node:http';
 import { chromium } from 'playwright-core';
+import { clickMap } from './map.js';
 
 const BASE = process.env.SHOAL_URL || 'http://127.0.0.1:8640';
 const TOKEN = process.env.SHOAL_ADMIN_TOKEN;
@@ -79,19 +80,6 @@ async function login(page, who) {
 }
 
 const shot = (page, name) => page.screenshot({ path: join(OUT, `${name}.png`) });
-
-/** Clicks the map at a WGS84 position, as an operator would. */
-async function clickMap(page, lat, lon) {
-  const [x, y] = await page.evaluate(([la, lo]) => {
-    const { map } = window.shoalConsole;
-    // EPSG:3857 from degrees, as ol/proj's fromLonLat does.
-    const R = 6378137;
-    const c = [(lo * Math.PI * R) / 180, R * Math.log(Math.tan(Math.PI / 4 + (la * Math.PI) / 360))];
-    return map.getPixelFromCoordinate(c);
-  }, [lat, lon]);
-  const box = await page.locator('#map').boundingBox();
-  await page.mouse.click(box.x + x, box.y + y);
-}
 
 describe('Shoal console in Chromium', { concurrency: false }, () => {
   let page;

@@ -2,10 +2,10 @@
 // scripts/console-e2e.sh federates the `shoal up` station (site "shore") over Zenoh with a
 // second station (site "ship", DDS domain 147) that has one simulated AUV, ship-auv-1.
 // The shore's console must show it on the map and under "Other sites", as the ship's,
-// with the ship's task transitions, and never offer it in a task form; it lists who holds
+// with the ship's task transitions, and never offer it in a task form unless the shore holds its lease; it lists who holds
 // each command lease, shows the ship's environment summaries, commands the ship's
-// vehicle through the ship while it holds the
-// lease, and hands back a lease it was handed.
+// vehicle through the ship while it holds the lease (a command, and a mission drawn in its
+// mission editor), and hands back a lease it was handed.
 
 import { after, before, describe, test } from 'node:test';
 import assert from 'node:assert/strict';
@@ -13,6 +13,7 @@ import { mkdirSync, mkdtempSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { chromium } from 'playwright-core';
+import { clickMap } from './map.js';
 
 const BASE = process.env.SHOAL_URL || 'http://127.0.0.1:8640';
 const TOKEN = process.env.SHOAL_ADMIN_TOKEN;
@@ -252,6 +253,39 @@ describe('Another site in the console', { concurrency: false }, () => {
     assert.equal(mine.status, 200);
     assert.equal(mine.body.via_site, 'ship');
 
+    // Holding the lease, the shore's mission editor offers the ship's vehicle (under the
+    // other sites), and a mission drawn on the shore's map goes to it through the ship.
+    await page.click('#tabs button[data-tab=missions]');
+    const form = page.locator('#mission-form');
+    await form.locator('input[name=kind][value=goto_waypoint]').check();
+    const option = form.locator('select[name=vehicle] optgroup option[value="ship-auv-1"][data-site="ship"]');
+    await option.waitFor({ state: 'attached', timeout: 30000 });
+    assert.match(await option.textContent(), /ship-auv-1 · ship \(auv.*at site ship/);
+    await form.locator('select[name=vehicle]').selectOption('ship-auv-1');
+    await form.locator('input[name=level]').fill('2');
+    await form.locator('input[name=speed]').fill('1');
+    const at = (await admin('GET', '/api/federation')).body.vehicles.find((v) => v.vehicle_id === 'ship-auv-1');
+    await page.click('#draw');
+    await clickMap(page, at.latitude_deg + 0.0004, at.longitude_deg + 0.0006);
+    await page.locator('#points li', { hasText: 'waypoint 1' }).waitFor();
+    const missionId = await form.locator('input[name=mission_id]').inputValue();
+    await page.click('#start-mission');
+    await page.locator('#confirm[open]').waitFor();
+    await page.locator('#plan-preview tr[data-vehicle="ship-auv-1"]').waitFor({ timeout: 10000 });
+    await page.screenshot({ path: join(OUT, '22-federation-mission-on-a-leased-vehicle.png') });
+    await page.click('#confirm-ok');
+    await page.locator(`.mission[data-mission="${missionId}"]`).waitFor({ timeout: 10000 });
+    let sent = null;
+    for (let i = 0; i < 30 && !sent; i++) {
+      const tasks = await (await fetch(`${SHIP}/api/tasks`)).json();
+      sent = tasks.find((t) => t.assignment.vehicle_id === 'ship-auv-1' && t.assignment.kind === 'goto_waypoint'
+        && t.assignment.lease_holder === 'shore' && t.assignment.mission_id === missionId) || null;
+      if (!sent) await new Promise((resolve) => setTimeout(resolve, 1000));
+    }
+    assert.ok(sent, `the ship never dispatched mission ${missionId}'s task`);
+    assert.equal(sent.assignment.lease_term, handed.term);
+    await page.click('#tabs button[data-tab=fleet]');
+
     // The shore's operator hands it back to the ship from the console.
     await row().locator('select.lease-to').selectOption('ship');
     await row().locator('button.hand-over').click();
@@ -263,6 +297,9 @@ describe('Another site in the console', { concurrency: false }, () => {
       if (!back) await new Promise((resolve) => setTimeout(resolve, 1000));
     }
     assert.ok(back, 'the ship did not get the lease back');
+    // Without the lease the editor no longer offers it.
+    await page.click('#tabs button[data-tab=missions]');
+    await page.waitForFunction(() => !document.querySelector('#mission-form select[name=vehicle] option[value="ship-auv-1"]'), null, { timeout: 30000 });
   });
 
   test('no request left this host', async () => {
