@@ -293,6 +293,10 @@ pub struct AlarmsPolicy {
     pub reliable: bool,
     /// How many recent alarms are kept for catch-up.
     pub catchup: usize,
+    /// A site that connects gives alarms a Zenoh session (so a TCP or TLS connection) of
+    /// their own, so that an alarm never waits behind positions, lease records or catch-up
+    /// already written to the other connection's socket.
+    pub own_link: bool,
     /// Zenoh QoS.
     pub qos: Qos,
 }
@@ -304,6 +308,7 @@ impl Default for AlarmsPolicy {
             min_severity: Severity::Warning,
             reliable: true,
             catchup: 1000,
+            own_link: true,
             qos: Qos {
                 priority: Priority::RealTime,
                 congestion: Congestion::Block,
@@ -553,6 +558,12 @@ impl LinkShaping {
 }
 
 impl FederationConfig {
+    /// Whether alarms get a Zenoh session of their own: `alarms.own_link` on a site that
+    /// connects somewhere (a site that only listens has the far end's alarm link).
+    pub fn alarm_link(&self) -> bool {
+        self.alarms.own_link && !self.connect.is_empty()
+    }
+
     /// The buffers to use for `link_rate_kbps`; `None` for a fast link (the kernel's and
     /// Zenoh's own defaults).
     pub fn link_shaping(&self) -> Option<LinkShaping> {
@@ -1027,6 +1038,23 @@ mod tests {
         let c = FederationConfig::default();
         assert!(c.listen.iter().all(|e| e.starts_with("tcp/127.0.0.1:")));
         assert!(!c.multicast_scouting && !c.gossip && c.connect.is_empty());
+    }
+
+    #[test]
+    fn alarms_get_a_link_of_their_own_only_on_a_site_that_connects() {
+        let connecting = |own_link| FederationConfig {
+            connect: vec!["tcp/127.0.0.1:7447".into()],
+            alarms: AlarmsPolicy {
+                own_link,
+                ..AlarmsPolicy::default()
+            },
+            ..FederationConfig::default()
+        };
+        assert!(connecting(true).alarm_link());
+        assert!(!connecting(false).alarm_link());
+        // A site that only listens (the default) has the connecting site's alarm link.
+        assert!(FederationConfig::default().alarms.own_link);
+        assert!(!FederationConfig::default().alarm_link());
     }
 
     #[test]

@@ -1,4 +1,5 @@
-//! The transport: one Zenoh session per site, glue between it and the cores.
+//! The transport: one Zenoh session per site (two on a site that connects, see below),
+//! glue between it and the cores.
 //!
 //! [`Federation::start`] opens the session and declares, for this site `S`:
 //! - a liveliness token `shoal/S/alive`, and a liveliness subscriber on `shoal/*/alive`
@@ -9,10 +10,19 @@
 //!   site's vehicles, from any site);
 //! - a queryable on `shoal/S/catchup/*` answering from the outbound journals, and with
 //!   TLS one on `shoal/S/identity` answering this site's certificate chain;
-//! - tasks: one publishing positions as their vehicles fall due, one publishing alarms,
-//!   task transitions, lease records and orders from a bounded queue, one asking catch-up
-//!   queries, and (with `environment.mode = "aggregated"`) one publishing environment
-//!   summaries as their vehicles' windows end.
+//! - tasks: one publishing positions as their vehicles fall due, one publishing alarms
+//!   from a bounded queue of their own, one publishing task transitions, lease records and
+//!   orders from another, one asking catch-up queries, and (with `environment.mode =
+//!   "aggregated"`) one publishing environment summaries as their vehicles' windows end.
+//!
+//! A site that connects somewhere opens, with `alarms.own_link` (the default), a second
+//! session to the same endpoints, without listening, that carries alarms alone: their
+//! publisher and, unless the site also listens, their subscriber. Zenoh's priorities order
+//! only what waits in its own queues; what it has written to a TCP socket leaves in order,
+//! and on a slow link that can be tens of kB of positions, lease records or catch-up ahead
+//! of an alarm. A connection of their own carries alarms past it. A site that listens
+//! too also subscribes to alarms on its first session (for the sites that connect to it);
+//! an alarm that reaches it both ways is taken once, by its sequence number.
 //!
 //! Orders this site accepts (it is the vehicle's home, the sender holds the lease) wait in
 //! a bounded queue for the station, which takes its receiver with
@@ -381,7 +391,6 @@ impl Keeper for Shared {
 /// What the publishing task sends.
 #[derive(Debug)]
 enum Outgoing {
-    Alarm(Publication),
     Task(Publication),
     Lease(LeaseRecord),
     Order(Publication),
@@ -398,7 +407,11 @@ pub struct Federation {
     epoch: u64,
     shared: Arc<Shared>,
     outgoing: mpsc::Sender<Outgoing>,
+    /// Alarms to publish, apart from the rest so that none waits behind it.
+    alarms_out: mpsc::Sender<Publication>,
     session: Session,
+    /// The session carrying alarms alone ([`FederationConfig::alarm_link`]).
+    alarm_session: Option<Session>,
     stop: CancellationToken,
     tasks: Vec<JoinHandle<()>>,
     // Held for their lifetime: dropping one undeclares it.
@@ -419,11 +432,27 @@ impl Federation {
         let zconfig = zenoh_config(&config, identity.as_ref())?;
         let zerr = |what| move |source| StartError::Zenoh { what, source };
         let session = zenoh::open(zconfig).await.map_err(zerr("open a session"))?;
+        let alarm_session = if config.alarm_link() {
+            // The same endpoints and identity; listening stays with the first session.
+            let alarm_config = FederationConfig {
+                listen: Vec::new(),
+                ..config.clone()
+            };
+            let z = zenoh_config(&alarm_config, identity.as_ref())?;
+            Some(
+                zenoh::open(z)
+                    .await
+                    .map_err(zerr("open the alarm session"))?,
+            )
+        } else {
+            None
+        };
         // The epoch tells a remote site that sequence numbers restarted from 1.
         let epoch = u64::try_from(now_ms()).unwrap_or(0);
         let (catchup_tx, catchup_rx) = mpsc::channel(CATCHUP_QUEUE);
         let (lease_ask_tx, lease_ask_rx) = mpsc::channel(CATCHUP_QUEUE);
         let (outgoing, outgoing_rx) = mpsc::channel(PUBLISH_QUEUE);
+        let (alarms_out, alarms_rx) = mpsc::channel(PUBLISH_QUEUE);
         let (orders_tx, orders_rx) = mpsc::channel(ORDER_QUEUE);
         let (identity_tx, identity_rx) = mpsc::channel(CATCHUP_QUEUE);
         let mut inbound = Inbound::new(&config);
@@ -466,16 +495,25 @@ impl Federation {
         let site = config.site.clone();
 
         let mut subscribers = Vec::new();
-        for pattern in [
+        let alarms = format!("{ROOT}/*/alarms");
+        let mut on_main = vec![
             format!("{ROOT}/*/vehicles/*/position"),
-            format!("{ROOT}/*/alarms"),
             format!("{ROOT}/*/tasks/*"),
             format!("{ROOT}/*/leases/*"),
             // Whatever this site's own mode: a site that sends none may still read others'.
             format!("{ROOT}/*/environment/*"),
-        ] {
+        ];
+        if alarm_session.is_none() || !config.listen.is_empty() {
+            on_main.push(alarms.clone());
+        }
+        let mut wanted: Vec<(&Session, String)> =
+            on_main.into_iter().map(|p| (&session, p)).collect();
+        if let Some(s) = &alarm_session {
+            wanted.push((s, alarms));
+        }
+        for (on, pattern) in wanted {
             let shared = Arc::clone(&shared);
-            let sub = session
+            let sub = on
                 .declare_subscriber(pattern)
                 .allowed_origin(Locality::Remote)
                 .callback(move |sample| shared.receive(&sample))
@@ -525,9 +563,13 @@ impl Federation {
             ),
             None => None,
         };
-        let alarm_publisher = declare(&session, keys::alarms(&site), config.alarms.qos)
-            .await
-            .map_err(zerr("declare the alarm publisher"))?;
+        let alarm_publisher = declare(
+            alarm_session.as_ref().unwrap_or(&session),
+            keys::alarms(&site),
+            config.alarms.qos,
+        )
+        .await
+        .map_err(zerr("declare the alarm publisher"))?;
         let token = session
             .liveliness()
             .declare_token(keys::alive(&site))
@@ -559,11 +601,11 @@ impl Federation {
                 config.clone(),
                 stop.clone(),
             )),
+            spawn_may_block(publish_alarms(alarm_publisher, alarms_rx, stop.clone())),
             spawn_may_block(publish_sequenced(
                 session.clone(),
                 site.clone(),
                 signer.clone(),
-                alarm_publisher,
                 config.tasks.qos,
                 outgoing_rx,
                 stop.clone(),
@@ -659,6 +701,7 @@ impl Federation {
             site = %site,
             epoch,
             zid = %session.zid(),
+            alarm_link = alarm_session.is_some(),
             identity = mechanisms,
             encrypted,
             access_control = identity.as_ref().is_some_and(|id| polices(&config, id)),
@@ -671,7 +714,9 @@ impl Federation {
             epoch,
             shared,
             outgoing,
+            alarms_out,
             session,
+            alarm_session,
             stop,
             tasks,
             token: Some(token),
@@ -822,8 +867,12 @@ impl Federation {
     /// Takes a local alarm; it crosses at once (if its severity crosses).
     pub fn push_alarm(&self, alarm: &Event) -> Result<(), PushError> {
         let publication = lock(&self.shared.outbound).alarm(alarm)?;
-        if let Some(p) = publication {
-            self.enqueue(Outgoing::Alarm(p));
+        if let Some(p) = publication
+            && self.alarms_out.try_send(p).is_err()
+        {
+            // It is in the journal: remote sites see the gap and catch up on it.
+            lock(&self.shared.outbound).queue_full();
+            warn!(site = %self.site, "federation alarm queue full");
         }
         Ok(())
     }
@@ -885,6 +934,9 @@ impl Federation {
         }
         self.subscribers.clear();
         self.token = None;
+        if let Some(s) = self.alarm_session.take() {
+            s.close().await.map_err(ShutdownError::Close)?;
+        }
         self.session.close().await.map_err(ShutdownError::Close)?;
         info!(site = %self.site, "federation stopped");
         Ok(())
@@ -1024,12 +1076,30 @@ async fn publish_environment(
     }
 }
 
-/// Publishes alarms and task transitions in the order they were numbered.
+/// Publishes alarms in the order they were numbered, on their own queue (and, with
+/// `alarms.own_link`, their own session): none waits behind a lease record or a task.
+async fn publish_alarms(
+    alarms: Publisher<'static>,
+    mut queue: mpsc::Receiver<Publication>,
+    stop: CancellationToken,
+) {
+    loop {
+        let p = tokio::select! {
+            () = stop.cancelled() => break,
+            p = queue.recv() => match p { Some(p) => p, None => break },
+        };
+        if let Err(e) = alarms.put(p.frame).await {
+            // Still in the journal: a remote site catches up on it.
+            warn!(error = %e, "alarm not published");
+        }
+    }
+}
+
+/// Publishes task transitions, lease records and orders in the order they were made.
 async fn publish_sequenced(
     session: Session,
     site: String,
     signer: Option<Arc<SiteSigner>>,
-    alarms: Publisher<'static>,
     task_qos: Qos,
     mut queue: mpsc::Receiver<Outgoing>,
     stop: CancellationToken,
@@ -1040,7 +1110,6 @@ async fn publish_sequenced(
             item = queue.recv() => match item { Some(i) => i, None => break },
         };
         let result = match item {
-            Outgoing::Alarm(p) => alarms.put(p.frame).await,
             Outgoing::Lease(r) => match crate::wire::encode_lease(&r) {
                 Ok(frame) => {
                     let key = keys::lease(&site, &r.vehicle_id);
@@ -1085,7 +1154,7 @@ async fn publish_sequenced(
         };
         if let Err(e) = result {
             // Still in the journal (except an order): a remote site catches up on it.
-            warn!(error = %e, "alarm, transition, lease record or order not published");
+            warn!(error = %e, "transition, lease record or order not published");
         }
     }
 }

@@ -647,7 +647,7 @@ mod tests {
             ),
         ];
         #[cfg(feature = "console")]
-        rows.extend::<[(&str, &str, &str, Check); 29]>([
+        rows.extend::<[(&str, &str, &str, Check); 30]>([
             ("foxglove", "SHOAL_FOXGLOVE__ENABLED", "true", |c| {
                 c.foxglove.enabled && c.foxglove.max_clients == 8
             }),
@@ -702,6 +702,12 @@ mod tests {
                 "SHOAL_FEDERATION__ALARMS__CATCHUP",
                 "77",
                 |c| c.federation.alarms.catchup == 77,
+            ),
+            (
+                "federation.alarms.own_link",
+                "SHOAL_FEDERATION__ALARMS__OWN_LINK",
+                "false",
+                |c| !c.federation.alarms.own_link,
             ),
             (
                 "federation.tasks",
