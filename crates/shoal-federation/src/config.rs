@@ -293,8 +293,8 @@ pub struct AlarmsPolicy {
     pub reliable: bool,
     /// How many recent alarms are kept for catch-up.
     pub catchup: usize,
-    /// A site that connects gives alarms a Zenoh session (so a TCP or TLS connection) of
-    /// their own, so that an alarm never waits behind positions, lease records or catch-up
+    /// A site that connects (and listens nowhere) gives alarms a Zenoh session (so a TCP
+    /// or TLS connection) of their own, so that an alarm never waits behind positions, lease records or catch-up
     /// already written to the other connection's socket.
     pub own_link: bool,
     /// Zenoh QoS.
@@ -559,9 +559,12 @@ impl LinkShaping {
 
 impl FederationConfig {
     /// Whether alarms get a Zenoh session of their own: `alarms.own_link` on a site that
-    /// connects somewhere (a site that only listens has the far end's alarm link).
+    /// connects somewhere and listens nowhere. A site that only listens has the far end's
+    /// alarm link; one that listens too keeps alarms on its one session, where the sites
+    /// connecting to it send theirs (a second subscriber would bring every alarm twice,
+    /// and its own back).
     pub fn alarm_link(&self) -> bool {
-        self.alarms.own_link && !self.connect.is_empty()
+        self.alarms.own_link && !self.connect.is_empty() && self.listen.is_empty()
     }
 
     /// The buffers to use for `link_rate_kbps`; `None` for a fast link (the kernel's and
@@ -1043,6 +1046,7 @@ mod tests {
     #[test]
     fn alarms_get_a_link_of_their_own_only_on_a_site_that_connects() {
         let connecting = |own_link| FederationConfig {
+            listen: Vec::new(),
             connect: vec!["tcp/127.0.0.1:7447".into()],
             alarms: AlarmsPolicy {
                 own_link,
@@ -1052,6 +1056,12 @@ mod tests {
         };
         assert!(connecting(true).alarm_link());
         assert!(!connecting(false).alarm_link());
+        // One that listens too keeps alarms where the sites connecting to it send theirs.
+        let relay = FederationConfig {
+            listen: vec!["tcp/127.0.0.1:7448".into()],
+            ..connecting(true)
+        };
+        assert!(!relay.alarm_link());
         // A site that only listens (the default) has the connecting site's alarm link.
         assert!(FederationConfig::default().alarms.own_link);
         assert!(!FederationConfig::default().alarm_link());

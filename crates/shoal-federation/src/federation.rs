@@ -15,14 +15,12 @@
 //!   orders from another, one asking catch-up queries, and (with `environment.mode =
 //!   "aggregated"`) one publishing environment summaries as their vehicles' windows end.
 //!
-//! A site that connects somewhere opens, with `alarms.own_link` (the default), a second
-//! session to the same endpoints, without listening, that carries alarms alone: their
-//! publisher and, unless the site also listens, their subscriber. Zenoh's priorities order
-//! only what waits in its own queues; what it has written to a TCP socket leaves in order,
-//! and on a slow link that can be tens of kB of positions, lease records or catch-up ahead
-//! of an alarm. A connection of their own carries alarms past it. A site that listens
-//! too also subscribes to alarms on its first session (for the sites that connect to it);
-//! an alarm that reaches it both ways is taken once, by its sequence number.
+//! A site that connects somewhere and listens nowhere opens, with `alarms.own_link` (the
+//! default), a second session to the same endpoints that carries alarms alone: their
+//! publisher and their subscriber. Zenoh's priorities order only what waits in its own
+//! queues; what it has written to a TCP socket leaves in order, and on a slow link that
+//! can be tens of kB of positions, lease records or catch-up ahead of an alarm. A
+//! connection of their own carries alarms past it.
 //!
 //! Orders this site accepts (it is the vehicle's home, the sender holds the lease) wait in
 //! a bounded queue for the station, which takes its receiver with
@@ -495,23 +493,17 @@ impl Federation {
         let site = config.site.clone();
 
         let mut subscribers = Vec::new();
-        let alarms = format!("{ROOT}/*/alarms");
-        let mut on_main = vec![
-            format!("{ROOT}/*/vehicles/*/position"),
-            format!("{ROOT}/*/tasks/*"),
-            format!("{ROOT}/*/leases/*"),
+        for (on, pattern) in [
+            (&session, format!("{ROOT}/*/vehicles/*/position")),
+            (
+                alarm_session.as_ref().unwrap_or(&session),
+                format!("{ROOT}/*/alarms"),
+            ),
+            (&session, format!("{ROOT}/*/tasks/*")),
+            (&session, format!("{ROOT}/*/leases/*")),
             // Whatever this site's own mode: a site that sends none may still read others'.
-            format!("{ROOT}/*/environment/*"),
-        ];
-        if alarm_session.is_none() || !config.listen.is_empty() {
-            on_main.push(alarms.clone());
-        }
-        let mut wanted: Vec<(&Session, String)> =
-            on_main.into_iter().map(|p| (&session, p)).collect();
-        if let Some(s) = &alarm_session {
-            wanted.push((s, alarms));
-        }
-        for (on, pattern) in wanted {
+            (&session, format!("{ROOT}/*/environment/*")),
+        ] {
             let shared = Arc::clone(&shared);
             let sub = on
                 .declare_subscriber(pattern)
