@@ -121,17 +121,32 @@ async fn finished(h: &StationHandle, task_id: &str, secs: u64) -> TaskView {
     .await
 }
 
-/// The task's states as the station recorded them (history), oldest first.
-fn recorded_states(h: &StationHandle, task_id: &str) -> Vec<(TaskState, f64)> {
-    // The history writer commits in batches: wait for what was submitted.
-    tokio::task::block_in_place(|| h.flush_history(Duration::from_secs(30))).unwrap();
-    h.history()
-        .task_history(task_id)
-        .unwrap()
-        .statuses
-        .iter()
-        .map(|s| (s.state, s.progress_pct))
-        .collect()
+/// The task's states as the station recorded them (history), oldest first, once the
+/// history holds the final one.
+async fn recorded_states(h: &StationHandle, task_id: &str) -> Vec<(TaskState, f64)> {
+    // The history writer commits in batches, and the final status reaches it a moment
+    // after the task register (a CI run read the register's `done` and then a history
+    // that ended at 98 % running): wait for what was submitted, until it is final.
+    eventually(
+        30,
+        &format!("{task_id}'s final status in the history"),
+        || {
+            tokio::task::block_in_place(|| h.flush_history(Duration::from_secs(30))).unwrap();
+            let states: Vec<(TaskState, f64)> = h
+                .history()
+                .task_history(task_id)
+                .unwrap()
+                .statuses
+                .iter()
+                .map(|s| (s.state, s.progress_pct))
+                .collect();
+            states
+                .last()
+                .is_some_and(|(s, _)| s.is_final())
+                .then_some(states)
+        },
+    )
+    .await
 }
 
 /// Checks the station saw the vehicle take the task, run it and finish it, in that order.
@@ -255,7 +270,7 @@ async fn the_imc_proxy_command_joins_a_dune_auv_to_the_station() {
     let t = finished(&h, "imc-goto-1", 120).await;
     assert_eq!(t.state, TaskState::Done, "{t:?}");
     peer.expect("plan_done", 30).await;
-    assert_accepted_running_done(&recorded_states(&h, "imc-goto-1"));
+    assert_accepted_running_done(&recorded_states(&h, "imc-goto-1").await);
 
     stop_proxy(proxy).await;
     peer.kill().await;
@@ -364,7 +379,7 @@ async fn the_ros2_proxy_command_joins_a_ros2_vehicle_to_the_station() {
         (TaskState::Done, "arrived"),
         "{t:?}"
     );
-    let states = recorded_states(&h, &task_id);
+    let states = recorded_states(&h, &task_id).await;
     assert_accepted_running_done(&states);
     assert!(
         states
